@@ -1,0 +1,282 @@
+"""`nlpcal.calibrate`: the nine-parameter calibration of a log, and its result object."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import __version__
+from .errors import InputError
+from .io import check_reference, check_samples, read_json, write_json_atomic
+from .joint import run_joint
+from .models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters, correct
+from .moments import Moments, accumulate
+from .problems import GAUGE, SCALE_INDICES, objective_function, pack, variable_scale
+from .staged import StopRule, run_staged
+from .statistics import STD_DDOF, field_statistics, format_table
+
+FORMAT_VERSION = 1
+METHODS = ("staged", "joint")
+
+#: A row's relative gap between the moment objective and the exact one above which we warn.
+SERIES_WARN = 1e-6
+
+
+@dataclass
+class Problem:
+    """The data of one calibration: samples, reference and their moments."""
+
+    samples: np.ndarray
+    reference: object  # None, float or (N,) array
+    moments: Moments
+
+    def row(self, label, theta, *, iterations, wall_s) -> dict:
+        """A Table 1 row of |B1| for `theta` (None: the measured |B_M|)."""
+        stats = field_statistics(self.samples, theta, self.reference)
+        if theta is not None:
+            kind = self.moments.reference
+            p = pack(self.moments, theta, np.ones(9), 1.0)
+            series = float(objective_function(kind)(theta, p)[0])
+            exact = stats["objective"]
+            stats["series_rel_error"] = abs(series - exact) / exact if exact > 0 else 0.0
+            stats["parameters"] = parameters_from_theta(theta).as_dict()
+        return {"label": label, **stats, "iterations": int(iterations), "wall_s": float(wall_s)}
+
+
+def theta_from_parameters(params: Zhou2010Parameters) -> np.ndarray:
+    """Internal vector: z [field], s [1], angles [rad]."""
+    return np.concatenate([params.offsets, params.scales, params.angles_rad])
+
+
+def parameters_from_theta(theta) -> Zhou2010Parameters:
+    theta = np.asarray(theta, dtype=float)
+    return Zhou2010Parameters.from_vector(np.concatenate([theta[:6], np.degrees(theta[6:9])]))
+
+
+@dataclass
+class CalibrationResult:
+    """A calibration: the nine parameters of Eq. 4, Table 1 rows and how they were obtained.
+
+    parameters : z_x, z_y, z_z [unit], s_x, s_y, s_z [1], alpha_deg, beta_deg, gamma_deg [deg].
+    statistics : Table 1 rows (label, max, min, mean, std, range [unit], objective [unit^2],
+        iterations, wall_s [s]); the first is the measured |B_M|.
+    """
+
+    parameters: dict
+    statistics: list
+    method: str = "staged"
+    reference: dict = field(default_factory=lambda: {"mode": "none"})
+    gauge: dict | None = None
+    solver: dict = field(default_factory=dict)
+    unit: str = "nT"
+    standard_errors: dict | None = None
+    identifiability: dict = field(default_factory=dict)
+    warnings: list = field(default_factory=list)
+    n_samples: int = 0
+    version: str = __version__
+
+    @property
+    def model(self) -> Zhou2010Parameters:
+        return Zhou2010Parameters.from_dict(self.parameters)
+
+    def apply(self, samples) -> np.ndarray:
+        """Corrected field B1 = O_p S_p (B_M - Z_p) (Eq. 4), in the unit of the calibration."""
+        samples = np.asarray(samples, dtype=float)
+        if samples.ndim != 2 or samples.shape[1] != 3:
+            raise InputError(f"samples must have shape (N, 3), got {samples.shape}")
+        return correct(samples, self.model)
+
+    def table(self) -> str:
+        return format_table(self.statistics, self.unit, extra=("iterations",))
+
+    def to_dict(self) -> dict:
+        return {
+            "format_version": FORMAT_VERSION,
+            "parameters": dict(self.parameters),
+            "statistics": list(self.statistics),
+            "std_ddof": STD_DDOF,
+            "method": self.method,
+            "reference": dict(self.reference),
+            "gauge": self.gauge,
+            "solver": dict(self.solver),
+            "unit": self.unit,
+            "standard_errors": self.standard_errors,
+            "identifiability": dict(self.identifiability),
+            "warnings": list(self.warnings),
+            "n_samples": self.n_samples,
+            "nlpcal_version": self.version,
+        }
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2)
+
+    @classmethod
+    def from_dict(cls, document: dict) -> "CalibrationResult":
+        if not isinstance(document, dict) or "parameters" not in document:
+            raise InputError("not an nlpcal parameters file: no \"parameters\" object")
+        version = document.get("format_version")
+        if version != FORMAT_VERSION:
+            raise InputError(f"parameters file has format_version {version!r}; this nlpcal "
+                             f"reads format_version {FORMAT_VERSION}")
+        try:
+            params = Zhou2010Parameters.from_dict(document["parameters"]).as_dict()
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"parameters file: {exc}") from None
+        return cls(
+            parameters=params,
+            statistics=list(document.get("statistics", [])),
+            method=document.get("method", "staged"),
+            reference=dict(document.get("reference") or {"mode": "none"}),
+            gauge=document.get("gauge"),
+            solver=dict(document.get("solver") or {}),
+            unit=document.get("unit", "nT"),
+            standard_errors=document.get("standard_errors"),
+            identifiability=dict(document.get("identifiability") or {}),
+            warnings=list(document.get("warnings", [])),
+            n_samples=int(document.get("n_samples", 0)),
+            version=document.get("nlpcal_version", "unknown"),
+        )
+
+    @classmethod
+    def from_json(cls, text: str) -> "CalibrationResult":
+        try:
+            return cls.from_dict(json.loads(text))
+        except json.JSONDecodeError as exc:
+            raise InputError(f"not valid JSON ({exc})") from None
+
+    def save(self, path) -> None:
+        write_json_atomic(path, self.to_dict())
+
+    @classmethod
+    def load(cls, path) -> "CalibrationResult":
+        return cls.from_dict(read_json(path, "nlpcal parameters file"))
+
+
+def _uncertainty(problem: Problem, theta, objective: float):
+    """Standard errors from the Hessian of the objective, and which parameters are identifiable.
+
+    For f = (1/N) sum r_i^2, the Gauss-Newton covariance is cov = 2 f / (N - 9) H^-1 with H the
+    Hessian of f; without a reference, H is reduced to the gauge's null space.
+    """
+    moments = problem.moments
+    kind = moments.reference
+    scale = variable_scale(moments.frame.radius)
+    p = pack(moments, theta, scale, 1.0)
+    hess = np.asarray(objective_function(kind)(theta, p)[2], dtype=float)
+    hs = scale[:, None] * hess * scale[None, :]
+    if kind == "none":
+        normal = np.zeros(9)
+        normal[list(SCALE_INDICES)] = scale[list(SCALE_INDICES)]
+        basis = np.linalg.svd(normal[None, :])[2][1:].T  # 9 x 8, orthonormal, normal-free
+    else:
+        basis = np.eye(9)
+    reduced = basis.T @ hs @ basis
+    reduced = 0.5 * (reduced + reduced.T)
+    values, vectors = np.linalg.eigh(reduced)
+    top = max(abs(values[-1]), 1e-300)
+    weak = values < 1e-9 * top
+    not_identifiable = set()
+    for k in np.flatnonzero(weak):
+        direction = basis @ vectors[:, k]
+        for i in np.flatnonzero(np.abs(direction) > 0.3):
+            not_identifiable.add(PARAMETER_NAMES[i])
+    n = problem.samples.shape[0]
+    errors = None
+    if not weak.any() and n > 9:
+        cov_scaled = basis @ np.linalg.inv(reduced) @ basis.T * (2.0 * objective / (n - 9))
+        sd = np.sqrt(np.clip(np.diag(cov_scaled), 0, None)) * scale
+        sd[6:9] = np.degrees(sd[6:9])
+        errors = {name: float(v) for name, v in zip(PARAMETER_NAMES, sd)}
+    limits = np.concatenate([scale[:6], np.degrees(scale[6:9])])
+    poorly = [name for name, limit in zip(PARAMETER_NAMES, limits)
+              if errors is not None and errors[name] > limit]
+    return errors, {
+        "not_identifiable": sorted(not_identifiable, key=PARAMETER_NAMES.index),
+        "poorly_determined": poorly,
+        "hessian_eigenvalues_scaled": [float(v) for v in values],
+        "poorly_determined_limits": {n_: float(v) for n_, v in zip(PARAMETER_NAMES, limits)},
+    }
+
+
+def calibrate(samples, *, method: str = "staged", reference_field=None, cycles: int = 50,
+              target_std: float | None = None, target_range: float | None = None,
+              rtol: float = 1e-9, unit: str = "nT") -> CalibrationResult:
+    """Estimate the nine parameters of Eq. 4 in [1] from a log of many attitudes.
+
+    samples : (N, 3) array-like of raw sensor output B_M. [nT, or `unit`]
+    method : "staged", the cycle of Fig. 1 in [1] (orthogonal -> scale -> offset), or "joint",
+        all nine in one IPOPT problem.
+    reference_field : None (Eq. 8, absolute scale not identifiable), a float F, or an array of N
+        values F_i (for example a proton magnetometer sampled with the log). [nT, or `unit`]
+    cycles : the most staged cycles. target_std, target_range : stop the cycle when |B1| meets
+        them [nT]. rtol : stop when a cycle lowers the objective by less than this fraction.
+
+    Returns a CalibrationResult. Raises InputError for unusable input and SolveError when IPOPT
+    fails.
+
+    References
+    ----------
+    [1] Zhou et al. (2010), see `nlpcal.models.zhou2010`.
+    """
+    if method not in METHODS:
+        raise InputError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
+    if int(cycles) < 1:
+        raise InputError(f"cycles must be at least 1, got {cycles}")
+    samples = check_samples(samples)
+    reference = check_reference(reference_field, samples.shape[0])
+    problem = Problem(samples=samples, reference=reference, moments=accumulate(samples, reference))
+    if method == "staged":
+        rule = StopRule(max_cycles=int(cycles), target_std=target_std, target_range=target_range,
+                        rtol=rtol)
+        theta, rows, stages, stop_reason = run_staged(problem, rule)
+    else:
+        theta, rows, stages = run_joint(problem)
+        stop_reason = "solved"
+    final = rows[-1]
+    errors, identifiability = _uncertainty(problem, theta, final["objective"])
+
+    warnings = []
+    mode = problem.moments.reference
+    if mode == "none":
+        warnings.append("absolute scale not identifiable without a reference field: the scales "
+                        "are fixed by the gauge s_x + s_y + s_z = 0; the scale ratios, offsets "
+                        "and angles are determined. Give a reference field for absolute scales.")
+    if identifiability["not_identifiable"]:
+        warnings.append("not identifiable from this attitude coverage: "
+                        + ", ".join(identifiability["not_identifiable"])
+                        + "; rotate the sensor through more attitudes")
+    if identifiability["poorly_determined"]:
+        warnings.append("poorly determined (standard error above the limits in "
+                        "identifiability.poorly_determined_limits): "
+                        + ", ".join(identifiability["poorly_determined"]))
+    if final.get("series_rel_error", 0.0) > SERIES_WARN:
+        warnings.append(f"the moment expansion differs from the exact objective by "
+                        f"{final['series_rel_error']:.1e} (relative) at the solution: |B1| "
+                        f"varies by up to {final['max_abs_u']:.1%} in squared magnitude; check "
+                        f"the reference field and the data")
+    if method == "staged" and stop_reason == "max_cycles" and len(rows) > 2:
+        warnings.append(f"the staged cycle stopped at the maximum of {cycles} cycles before "
+                        f"converging (rtol {rtol:g}); results may improve with more cycles")
+
+    reference_doc = {"mode": mode}
+    if mode == "constant":
+        reference_doc["field"] = float(reference)
+    elif mode == "series":
+        reference_doc["field_mean"] = float(np.mean(reference))
+    iterations = sum(s["iterations"] for s in stages)
+    return CalibrationResult(
+        parameters=parameters_from_theta(theta).as_dict(),
+        statistics=rows,
+        method=method,
+        reference=reference_doc,
+        gauge=dict(GAUGE) if mode == "none" else None,
+        solver={"name": "ipopt", "status": stages[-1]["status"], "success": True,
+                "iterations": iterations, "stop_reason": stop_reason, "stages": stages},
+        unit=unit,
+        standard_errors=errors,
+        identifiability=identifiability,
+        warnings=warnings,
+        n_samples=int(samples.shape[0]),
+    )

@@ -1,0 +1,244 @@
+"""`nlpcal calibrate`, `nlpcal apply` and `nlpcal stats`: the nine-parameter model on CSV logs."""
+
+from __future__ import annotations
+
+import json
+import sys
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from ..calibration import METHODS, CalibrationResult, calibrate
+from ..errors import InputError
+from ..io import (FIELD_UNITS_NT, csv_engine, numeric_columns, read_json, read_table,
+                  resolve_columns, suggested_unit, unit_factor, write_csv_atomic, write_json_atomic)
+from ..statistics import field_statistics, format_table
+from . import warn
+
+TOTAL_COLUMN = "b_total"
+
+
+@dataclass
+class Log:
+    """A log read for calibration: the table, the chosen columns and the samples in base units."""
+
+    frame: pd.DataFrame
+    columns: list
+    samples: np.ndarray  # (N, 3) [nT, or the log's own unit for --unit raw]
+    kept: np.ndarray  # rows of `frame` behind `samples`
+    unit: str  # the log's unit
+    base_unit: str  # unit of `samples`: "nT", or "raw"
+
+
+def add_log_arguments(parser, unit_default="nT"):
+    """--columns, --unit and --drop-invalid, shared by every command that reads a field log."""
+    parser.add_argument("--columns", nargs=3, metavar=("X", "Y", "Z"),
+                        help="the three field columns (default: detected, bx/by/bz, x/y/z, ...)")
+    parser.add_argument("--unit", choices=list(FIELD_UNITS_NT), default=unit_default,
+                        help=f"unit of the field columns and references (default {unit_default});"
+                             " 'raw' keeps counts or other non-field units")
+    parser.add_argument("--drop-invalid", action="store_true",
+                        help="drop rows with missing or non-numeric values (reporting how many) "
+                             "instead of failing")
+
+
+def read_log(path, columns=None, unit="nT", drop_invalid=False, extra_columns=()) -> Log:
+    """Read, validate and convert a field log; `extra_columns` must be numeric too."""
+    frame = read_table(path)
+    chosen = resolve_columns(frame, columns)
+    for name in extra_columns:
+        if name not in frame.columns:
+            raise InputError(f"column {name!r} not found; the log has columns: "
+                             f"{', '.join(frame.columns)}")
+    numeric = numeric_columns(frame, chosen + list(extra_columns), drop_invalid=drop_invalid,
+                              source=str(path))
+    if numeric.dropped:
+        warn(f"dropped {numeric.dropped} row(s) with missing or non-numeric values")
+    hinted = suggested_unit(chosen)
+    if hinted and hinted != unit:
+        warn(f"the column names ({', '.join(chosen)}) suggest {hinted}, but --unit is {unit}")
+    factor = unit_factor(unit)
+    return Log(frame=frame, columns=chosen, samples=numeric.values[:, :3] * factor,
+               kept=numeric.kept, unit=unit, base_unit="raw" if unit == "raw" else "nT")
+
+
+def reference_from_args(args, log: Log):
+    """None, the --reference-field value or the --reference-column series, in base units."""
+    factor = unit_factor(log.unit)
+    if getattr(args, "reference_field", None) is not None:
+        return float(args.reference_field) * factor
+    column = getattr(args, "reference_column", None)
+    if column:
+        values = pd.to_numeric(log.frame[column], errors="coerce").to_numpy(float)[log.kept]
+        return values * factor
+    return None
+
+
+def _drift():
+    """nlpcal.cli.drift (temperature options), imported late: it imports this module."""
+    from . import drift
+    return drift
+
+
+def emit_json(document, output) -> None:
+    """JSON to -o (atomically) or to stdout."""
+    if output:
+        write_json_atomic(output, document)
+    else:
+        sys.stdout.write(json.dumps(document, indent=2) + "\n")
+
+
+# --- calibrate ----------------------------------------------------------------------------------
+
+def _register_calibrate(sub):
+    parser = sub.add_parser(
+        "calibrate", help="estimate the nine parameters of Eq. 4 from a log",
+        description="Estimate offsets, scale errors and non-orthogonality angles (Zhou et al. "
+                    "2010, Eq. 4) by minimising the spread of |B1| (Eq. 8), or its distance to a "
+                    "reference field. Prints the Table 1 rows to stderr.")
+    parser.add_argument("log", metavar="LOG.csv")
+    add_log_arguments(parser)
+    parser.add_argument("--method", choices=METHODS, default="staged",
+                        help="staged: the paper's cycle orthogonal -> scale -> offset (default); "
+                             "joint: all nine at once")
+    parser.add_argument("--cycles", type=int, default=50, metavar="K",
+                        help="most staged cycles (default 50)")
+    parser.add_argument("--target-std", type=float, metavar="F",
+                        help="stop the cycle when std |B1| <= F [unit]")
+    parser.add_argument("--target-range", type=float, metavar="F",
+                        help="stop the cycle when max - min of |B1| <= F [unit]")
+    parser.add_argument("--rtol", type=float, default=1e-9,
+                        help="stop the cycle when the objective improves by less than this "
+                             "fraction (default 1e-9)")
+    ref = parser.add_mutually_exclusive_group()
+    ref.add_argument("--reference-field", type=float, metavar="F",
+                     help="known field magnitude [unit], e.g. a proton reading")
+    ref.add_argument("--reference-column", metavar="COL",
+                     help="column of per-sample reference magnitudes [unit]")
+    _drift().add_temperature_arguments(parser, "calibrate")
+    parser.add_argument("-o", "--output", metavar="PARAMS.json",
+                        help="write the parameters here (stdout when absent)")
+    parser.set_defaults(func=run_calibrate)
+
+
+def run_calibrate(args) -> int:
+    if args.temperature_column or args.temperature_model:
+        return _drift().run_temperature_calibrate(args)
+    extra = [args.reference_column] if args.reference_column else []
+    log = read_log(args.log, args.columns, args.unit, args.drop_invalid, extra)
+    reference = reference_from_args(args, log)
+    factor = unit_factor(args.unit)
+    targets = {k: (None if v is None else v * factor)
+               for k, v in (("target_std", args.target_std), ("target_range", args.target_range))}
+    result = calibrate(log.samples, method=args.method, reference_field=reference,
+                       cycles=args.cycles, rtol=args.rtol, unit=log.base_unit, **targets)
+    document = result.to_dict()
+    document["input"] = {"log": str(args.log), "columns": log.columns, "log_unit": log.unit,
+                         "csv_engine": csv_engine(), "rows_dropped": int((~log.kept).sum())}
+    if args.reference_column:
+        document["reference"]["column"] = args.reference_column
+    print(result.table(), file=sys.stderr)
+    for message in result.warnings:
+        warn(message)
+    emit_json(document, args.output)
+    return 0
+
+
+# --- apply --------------------------------------------------------------------------------------
+
+def _register_apply(sub):
+    parser = sub.add_parser(
+        "apply", help="correct a log with calibrated parameters (Eq. 4)",
+        description="Write the log with its field columns corrected by Eq. 4 and a total-field "
+                    f"column '{TOTAL_COLUMN}' added; all other columns are kept.")
+    parser.add_argument("params", metavar="PARAMS.json")
+    parser.add_argument("log", metavar="LOG.csv")
+    add_log_arguments(parser, unit_default=None)
+    _drift().add_temperature_arguments(parser, "apply")
+    parser.add_argument("-o", "--output", metavar="CORRECTED.csv",
+                        help="corrected log (stdout when absent)")
+    parser.set_defaults(func=run_apply)
+
+
+def log_unit_for(args, result: CalibrationResult, document_unit: str | None) -> str:
+    """The log's unit: --unit, else the unit of the log the parameters were estimated from."""
+    if args.unit:
+        unit = args.unit
+    else:
+        unit = document_unit or result.unit
+    if (unit == "raw") != (result.unit == "raw"):
+        raise InputError(f"the parameters are in {result.unit!r} but the log is in {unit!r}; "
+                         f"pass --unit to match")
+    return unit
+
+
+def _read_params(path):
+    document = read_json(path, "nlpcal parameters file")
+    result = CalibrationResult.from_dict(document)
+    log_unit = (document.get("input") or {}).get("log_unit")
+    return result, log_unit
+
+
+def run_apply(args) -> int:
+    result, log_unit = _read_params(args.params)
+    unit = log_unit_for(args, result, log_unit)
+    temperature = _drift().TemperatureCorrection.from_args(args, "apply")
+    log = read_log(args.log, args.columns, unit, args.drop_invalid, temperature.columns)
+    factor = unit_factor(unit)
+    corrected = temperature.correct(result, log) / factor
+    frame = log.frame.loc[log.kept].copy()
+    for k, column in enumerate(log.columns):
+        frame[column] = corrected[:, k]
+    frame[TOTAL_COLUMN] = np.linalg.norm(corrected, axis=1)
+    if args.output:
+        write_csv_atomic(args.output, frame)
+        print(f"wrote {len(frame)} corrected rows to {args.output}", file=sys.stderr)
+    else:
+        frame.to_csv(sys.stdout, index=False, float_format="%.10g")
+    return 0
+
+
+# --- stats --------------------------------------------------------------------------------------
+
+def _register_stats(sub):
+    parser = sub.add_parser(
+        "stats", help="Table 1 statistics of |B| (and of |B1| with --params)",
+        description="Print max, min, mean, std (ddof=0) and range of the total field: the "
+                    "measured row, and the corrected row when --params is given.")
+    parser.add_argument("log", metavar="LOG.csv")
+    add_log_arguments(parser, unit_default=None)
+    parser.add_argument("--params", metavar="PARAMS.json")
+    _drift().add_temperature_arguments(parser, "stats")
+    parser.add_argument("--json", action="store_true", help="print the rows as JSON")
+    parser.set_defaults(func=run_stats)
+
+
+def run_stats(args) -> int:
+    result = None
+    unit = args.unit or "nT"
+    if args.params:
+        result, log_unit = _read_params(args.params)
+        unit = log_unit_for(args, result, log_unit)
+    temperature = _drift().TemperatureCorrection.from_args(args, "stats")
+    log = read_log(args.log, args.columns, unit, args.drop_invalid, temperature.columns)
+    rows = [{"label": "measured", **field_statistics(log.samples)}]
+    if result is not None:
+        theta = np.concatenate([result.model.offsets, result.model.scales,
+                                result.model.angles_rad])
+        rows.append({"label": "corrected", **field_statistics(log.samples, theta)})
+    rows, extra = temperature.stats_rows(args, log, result, rows)  # Eq. 10, temperature row
+    for row in rows:
+        row.pop("max_abs_u", None)
+    if args.json:
+        sys.stdout.write(json.dumps({"unit": log.base_unit, "std_ddof": 0, "rows": rows},
+                                    indent=2) + "\n")
+    else:
+        print(format_table(rows, log.base_unit, extra=extra))
+    return 0
+
+
+def register(sub):
+    _register_calibrate(sub)
+    _register_apply(sub)
+    _register_stats(sub)

@@ -1,0 +1,21 @@
+"""Exceptions shared by the library and the command line."""
+
+
+class NlpcalError(Exception):
+    """Base class of nlpcal's own errors."""
+
+
+class InputError(NlpcalError, ValueError):
+    """The input data or options are unusable; the command line exits with status 2."""
+
+
+class SolveError(NlpcalError, RuntimeError):
+    """IPOPT did not solve a problem; the command line exits with status 1.
+
+    `status` holds IPOPT's return status (for example "Maximum_Iterations_Exceeded").
+    """
+
+    def __init__(self, message: str, status: str = "", result=None):
+        super().__init__(message)
+        self.status = status
+        self.result = result

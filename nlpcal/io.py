@@ -1,0 +1,249 @@
+"""Reading magnetometer logs, choosing columns, converting units and writing outputs atomically.
+
+Validation lives here and is shared by the library and the command line: every problem with the
+input raises `InputError` with one sentence that says what was received and how to fix it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .errors import InputError
+
+#: Field units and their size in nT. "raw" keeps the log's own unit (counts, arbitrary units).
+FIELD_UNITS_NT = {"nT": 1.0, "uT": 1e3, "mG": 1e2, "G": 1e5, "T": 1e9, "raw": 1.0}
+
+#: Prefixes of names recognised as magnetometer axes, once the axis letter is taken out
+#: (bx, mag_x, mx_uT, hx, x ...).
+MAGNETIC_PREFIXES = ("", "b", "b_", "m", "m_", "mag", "mag_", "magn", "magnetom", "magnetometer_",
+                     "h", "h_", "field_", "b1_")
+
+#: Unit suffixes of column names, and the unit they suggest.
+UNIT_SUFFIXES = {"nt": "nT", "ut": "uT", "mg": "mG", "gauss": "G", "g": "G", "t": "T"}
+
+
+def _axis_templates(columns):
+    """Group column names that differ only in one letter x, y, z: template -> (X, Y, Z)."""
+    groups: dict = {}
+    for name in columns:
+        low = name.lower()
+        for i, ch in enumerate(low):
+            if ch in "xyz":
+                template = (low[:i], low[i + 1:])
+                groups.setdefault(template, {})[ch] = name
+    return {t: (g["x"], g["y"], g["z"]) for t, g in groups.items() if len(g) == 3}
+
+
+def _is_magnetic(template) -> bool:
+    prefix, suffix = template
+    suffix = suffix.lstrip("_")
+    return prefix in MAGNETIC_PREFIXES and (suffix == "" or suffix in UNIT_SUFFIXES)
+
+
+def suggested_unit(columns):
+    """The unit a column suffix such as _uT or _gauss suggests, or None."""
+    suffix = columns[0].lower().rsplit("_", 1)
+    if len(suffix) == 2:
+        return UNIT_SUFFIXES.get(suffix[1])
+    return None
+
+
+#: Fewest samples accepted: nine parameters plus the mean field of Eq. 8.
+MIN_SAMPLES = 10
+
+
+def csv_engine() -> str:
+    """The fastest pandas CSV engine available here: "pyarrow" when installed, else "c"."""
+    try:
+        import pyarrow  # noqa: F401
+    except ImportError:
+        return "c"
+    return "pyarrow"
+
+
+def read_table(path) -> pd.DataFrame:
+    """Read a CSV log with the fastest available pandas engine."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    if path.is_dir():
+        raise InputError(f"{path}: is a directory, expected a CSV file")
+    engine = csv_engine()
+    try:
+        frame = pd.read_csv(path, engine=engine)
+    except pd.errors.EmptyDataError:
+        raise InputError(f"{path}: the file is empty") from None
+    except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
+        if engine != "c":  # pyarrow is stricter; let the C engine have a go before giving up
+            try:
+                frame = pd.read_csv(path, engine="c")
+            except Exception:
+                raise InputError(f"{path}: cannot be read as CSV ({exc})") from None
+        else:
+            raise InputError(f"{path}: cannot be read as CSV ({exc})") from None
+    frame.columns = [str(c).strip() for c in frame.columns]
+    return frame
+
+
+def resolve_columns(frame: pd.DataFrame, columns=None, what: str = "magnetometer") -> list:
+    """The three field columns: the ones asked for, or the one recognised triple.
+
+    Raises InputError listing the columns found when a column is missing or the choice is
+    ambiguous.
+    """
+    found = list(frame.columns)
+    if columns:
+        columns = list(columns)
+        if len(columns) != 3:
+            raise InputError(f"got {len(columns)} {what} columns, expected 3; pass --columns X Y Z")
+        lower = {c.lower(): c for c in found}
+        resolved = []
+        for name in columns:
+            if name in frame.columns:
+                resolved.append(name)
+            elif name.lower() in lower:
+                resolved.append(lower[name.lower()])
+            else:
+                raise InputError(
+                    f"column {name!r} not found; the log has columns: {', '.join(found)}")
+        return resolved
+    matches = [triple for template, triple in _axis_templates(found).items()
+               if _is_magnetic(template)]
+    if len(matches) == 1:
+        return list(matches[0])
+    if not matches:
+        raise InputError(
+            f"no {what} columns recognised (bx/by/bz, x/y/z, mag_x/mag_y/mag_z, mx_uT/...); the "
+            f"log has columns: {', '.join(found)}; pass --columns X Y Z")
+    options = "; ".join(" ".join(m) for m in matches)
+    raise InputError(
+        f"ambiguous {what} columns ({options}); the log has columns: {', '.join(found)}; "
+        f"pass --columns X Y Z")
+
+
+def unit_factor(unit: str) -> float:
+    """Size of one `unit` in nT."""
+    if unit not in FIELD_UNITS_NT:
+        raise InputError(f"unknown unit {unit!r}; expected one of {', '.join(FIELD_UNITS_NT)}")
+    return FIELD_UNITS_NT[unit]
+
+
+@dataclass
+class NumericColumns:
+    """Numeric columns taken from a table, with the rows that were dropped."""
+
+    values: np.ndarray
+    kept: np.ndarray  # boolean mask over the table's rows
+    dropped: int
+
+
+def numeric_columns(frame: pd.DataFrame, columns, *, drop_invalid: bool = False,
+                    source: str = "log") -> NumericColumns:
+    """Take `columns` as a float array; non-numeric, empty or non-finite cells are errors.
+
+    With drop_invalid, such rows are dropped instead and counted.
+    """
+    data = frame[list(columns)].apply(pd.to_numeric, errors="coerce").to_numpy(dtype=float)
+    valid = np.isfinite(data).all(axis=1)
+    bad = int((~valid).sum())
+    if bad and not drop_invalid:
+        first = int(np.flatnonzero(~valid)[0])
+        raise InputError(
+            f"{source}: {bad} row(s) have a missing, non-numeric or non-finite value in "
+            f"{', '.join(columns)} (first at data row {first + 1}); fix them or pass --drop-invalid")
+    return NumericColumns(values=data[valid], kept=valid, dropped=bad)
+
+
+def check_samples(samples, *, minimum: int = MIN_SAMPLES) -> np.ndarray:
+    """Validate an (N, 3) array of field samples and return it as float64."""
+    try:
+        samples = np.asarray(samples, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError("samples must be numeric, an (N, 3) array-like") from None
+    if samples.ndim != 2 or samples.shape[1] != 3:
+        raise InputError(f"samples must have shape (N, 3), got {samples.shape}")
+    if not np.isfinite(samples).all():
+        raise InputError("samples contain NaN or infinite values; drop or fix those rows")
+    if samples.shape[0] < minimum:
+        raise InputError(
+            f"got {samples.shape[0]} samples, need at least {minimum} for nine parameters")
+    if np.all(samples == samples[0]):
+        raise InputError("all samples are equal; calibration needs many attitudes")
+    return samples
+
+
+def check_reference(reference, n: int):
+    """Validate a reference field: None, a positive float, or N positive values. [nT]"""
+    if reference is None:
+        return None
+    array = np.asarray(reference, dtype=float)
+    if array.ndim == 0:
+        value = float(array)
+        if not np.isfinite(value) or value <= 0:
+            raise InputError(f"the reference field must be a positive number, got {value}")
+        return value
+    array = array.ravel()
+    if array.size != n:
+        raise InputError(f"the reference series has {array.size} values for {n} samples")
+    if not np.isfinite(array).all():
+        raise InputError("the reference series contains NaN or infinite values")
+    if (array <= 0).any():
+        bad = int((array <= 0).sum())
+        raise InputError(f"the reference series has {bad} non-positive value(s); a field "
+                         f"magnitude must be positive")
+    return array
+
+
+def _atomic_write(path, write) -> None:
+    path = Path(path)
+    directory = path.parent if str(path.parent) else Path(".")
+    if not directory.is_dir():
+        raise InputError(f"{path}: the folder {directory} does not exist")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
+    try:
+        with os.fdopen(fd, "w", newline="") as handle:
+            write(handle)
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual permissions
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def _umask() -> int:
+    current = os.umask(0)
+    os.umask(current)
+    return current
+
+
+def write_text_atomic(path, text: str) -> None:
+    """Write text to a temporary file beside `path`, then rename it over `path`."""
+    _atomic_write(path, lambda handle: handle.write(text))
+
+
+def write_json_atomic(path, document) -> None:
+    write_text_atomic(path, json.dumps(document, indent=2) + "\n")
+
+
+def write_csv_atomic(path, frame: pd.DataFrame) -> None:
+    _atomic_write(path, lambda handle: frame.to_csv(handle, index=False, float_format="%.10g"))
+
+
+def read_json(path, what: str = "JSON file") -> dict:
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    try:
+        return json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not a valid {what} ({exc})") from None

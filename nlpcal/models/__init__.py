@@ -1,0 +1,1 @@
+"""Physical models, one module per published model."""

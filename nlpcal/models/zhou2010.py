@@ -1,0 +1,165 @@
+"""The nine-parameter triaxial fluxgate model of Zhou et al. (2010).
+
+    A B = O_p S_p (B_M - Z_p)                                          Eq. 4 in [1]
+
+B is the true field in the geographic frame, A the rotation to the ideal orthogonal sensor frame
+o-x1y1z1, B_M the sensor output. Writing T = O_p^-1,
+
+    T = [[cos(alpha) cos(gamma), cos(alpha) sin(gamma), -sin(alpha)],
+         [0,                     cos(beta),              sin(beta)  ],
+         [0,                     0,                      1          ]]
+
+the rows of T are the sensor axes x, y, z written in the ideal frame, so
+
+    B_M = diag(1 + s) T (A B) + Z_p                        forward model (sensor output)
+    B_1 = T^-1 diag(1 + s)^-1 (B_M - Z_p)                  correction (Eq. 4)
+
+Angle convention (Eq. 2 in [1]): oz coincides with oz1 and the plane yoz with y1oz1.
+alpha is the angle between the sensor x axis and the plane x1oy1 (positive alpha tilts x toward
+-z1), beta the angle between oy and oy1 (positive beta tilts y toward +z1), gamma the angle
+between the projection of ox on x1oy1 and ox1 (positive gamma turns x toward +y1).
+
+Worked example: alpha = 1 deg, beta = gamma = 0, unit scale, no offset. A field of 50 000 nT along
++z1 reads B_M = (-sin 1 deg * 50 000, 0, 50 000) = (-872.6, 0, 50 000) nT: the x axis, tilted by 1
+deg out of the horizontal plane, sees a part of the vertical field.
+
+The correction matrix M = O_p S_p = T^-1 diag(1 + s)^-1 is upper triangular, so the corrected
+field depends on the parameters only through the quadratic form (B_M - Z)^T M^T M (B_M - Z).
+
+References
+----------
+[1] Zhou C., Jin J., Li H., Zhang B., Yan H. (2010). Cyclic optimisation algorithm for the
+    calibration of triaxial fluxgate sensors. Hydrographic Surveying and Charting 30(4), 63-66.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+#: Names of the nine parameters in the order used everywhere in nlpcal.
+PARAMETER_NAMES = ("z_x", "z_y", "z_z", "s_x", "s_y", "s_z", "alpha_deg", "beta_deg", "gamma_deg")
+#: Units of the nine parameters, in the same order ("field" is the unit of the data, nT by default).
+PARAMETER_UNITS = ("field",) * 3 + ("1",) * 3 + ("deg",) * 3
+
+
+@dataclass(frozen=True)
+class Zhou2010Parameters:
+    """The nine calibration parameters of Eq. 4 in [1].
+
+    z_x, z_y, z_z : zero offsets Z_p. [nT]
+    s_x, s_y, s_z : scale errors, the axis gains being 1 + s. [1]
+    alpha_deg, beta_deg, gamma_deg : non-orthogonality angles. [deg]
+    """
+
+    z_x: float = 0.0
+    z_y: float = 0.0
+    z_z: float = 0.0
+    s_x: float = 0.0
+    s_y: float = 0.0
+    s_z: float = 0.0
+    alpha_deg: float = 0.0
+    beta_deg: float = 0.0
+    gamma_deg: float = 0.0
+
+    @classmethod
+    def from_dict(cls, values: dict) -> "Zhou2010Parameters":
+        missing = [name for name in PARAMETER_NAMES if name not in values]
+        if missing:
+            raise KeyError(f"parameters missing: {', '.join(missing)}")
+        return cls(**{name: float(values[name]) for name in PARAMETER_NAMES})
+
+    @classmethod
+    def from_vector(cls, vector) -> "Zhou2010Parameters":
+        vector = np.asarray(vector, dtype=float).ravel()
+        if vector.size != 9:
+            raise ValueError(f"expected 9 parameters, got {vector.size}")
+        return cls(*map(float, vector))
+
+    def as_dict(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    def as_vector(self) -> np.ndarray:
+        return np.array([getattr(self, name) for name in PARAMETER_NAMES])
+
+    @property
+    def offsets(self) -> np.ndarray:
+        """Z_p. [nT]"""
+        return np.array([self.z_x, self.z_y, self.z_z])
+
+    @property
+    def scales(self) -> np.ndarray:
+        """s, the axis gains being 1 + s. [1]"""
+        return np.array([self.s_x, self.s_y, self.s_z])
+
+    @property
+    def angles_rad(self) -> np.ndarray:
+        """(alpha, beta, gamma). [rad]"""
+        return np.radians([self.alpha_deg, self.beta_deg, self.gamma_deg])
+
+
+# The helpers below take plain numbers or CasADi symbols: `cos`, `sin` and `matrix` are passed in
+# so that the same lines serve the numeric model and the symbolic NLPs.
+
+def axis_matrix_entries(alpha, beta, gamma, cos=np.cos, sin=np.sin):
+    """Entries of T = O_p^-1 (Eq. 4 in [1]); rows are the sensor axes in the ideal frame."""
+    return [
+        [cos(alpha) * cos(gamma), cos(alpha) * sin(gamma), -sin(alpha)],
+        [0.0, cos(beta), sin(beta)],
+        [0.0, 0.0, 1.0],
+    ]
+
+
+def correction_matrix_entries(alpha, beta, gamma, s_x, s_y, s_z, cos=np.cos, sin=np.sin):
+    """Entries of M = O_p S_p = T^-1 diag(1 + s)^-1, upper triangular (Eq. 4 in [1]).
+
+    T^-1 is written out for the upper-triangular T so that no symbolic inverse is needed.
+    """
+    t = axis_matrix_entries(alpha, beta, gamma, cos, sin)
+    t11, t12, t13 = t[0]
+    t22, t23 = t[1][1], t[1][2]
+    g_x, g_y, g_z = 1.0 + s_x, 1.0 + s_y, 1.0 + s_z
+    t_inv = [
+        [1.0 / t11, -t12 / (t11 * t22), (t12 * t23 - t13 * t22) / (t11 * t22)],
+        [0.0, 1.0 / t22, -t23 / t22],
+        [0.0, 0.0, 1.0],
+    ]
+    return [
+        [t_inv[0][0] / g_x, t_inv[0][1] / g_y, t_inv[0][2] / g_z],
+        [0.0, t_inv[1][1] / g_y, t_inv[1][2] / g_z],
+        [0.0, 0.0, 1.0 / g_z],
+    ]
+
+
+def axis_matrix(params: Zhou2010Parameters) -> np.ndarray:
+    """T = O_p^-1 of Eq. 4 in [1]. [1]"""
+    return np.array(axis_matrix_entries(*params.angles_rad), dtype=float)
+
+
+def correction_matrix(params: Zhou2010Parameters) -> np.ndarray:
+    """M = O_p S_p of Eq. 4 in [1]. [1]"""
+    return np.array(correction_matrix_entries(*params.angles_rad, *params.scales), dtype=float)
+
+
+def forward(field_sensor_ideal, params: Zhou2010Parameters) -> np.ndarray:
+    """Sensor output B_M for the true field A B given in the ideal sensor frame.
+
+    B_M = diag(1 + s) T (A B) + Z_p, the inverse of Eq. 4 in [1].
+
+    field_sensor_ideal : (N, 3) true field in the ideal orthogonal sensor frame. [nT]
+    Returns (N, 3) sensor output. [nT]
+    """
+    field = np.asarray(field_sensor_ideal, dtype=float)
+    gains = 1.0 + params.scales
+    return (field @ axis_matrix(params).T) * gains + params.offsets
+
+
+def correct(samples, params: Zhou2010Parameters) -> np.ndarray:
+    """Corrected field B1 = O_p S_p (B_M - Z_p), Eq. 4 in [1].
+
+    samples : (N, 3) sensor output B_M. [nT]
+    Returns (N, 3) corrected field B1. [nT]
+    """
+    samples = np.asarray(samples, dtype=float)
+    return (samples - params.offsets) @ correction_matrix(params).T

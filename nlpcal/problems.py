@@ -1,0 +1,172 @@
+"""The symbolic NLPs of the nine-parameter calibration, built once per process and re-solved.
+
+One problem per block of parameters (Fig. 1 in [1]): the orthogonal stage (alpha, beta, gamma),
+the scale stage (s), the offset stage (z) and the joint solve of all nine. In each, the free
+variables x are scaled to order one,
+
+    theta = theta_ref + var_scale * x      (x = 0 at the start)
+
+with theta in internal units (z [field unit], s [1], angles [rad]) and var_scale about 1e-3 of the
+field for offsets, 1e-3 for scales and 1e-2 rad for angles, so that the mixed magnitudes the
+paper blames for the poor convergence of its joint solve do not reach IPOPT. The objective is
+divided by its value at the start (f_ref), so it starts at one whatever the field unit.
+
+Everything that depends on the data enters as parameters: the Gram matrix of the moments, the
+frame, the reference scale, theta_ref (which holds the blocks that stay fixed) and f_ref. The same
+`nlpsol` therefore serves every stage of every cycle and every log.
+
+Without a reference field, Eq. 8 shrinks as all (1 + s) grow together; the gauge
+s_x + s_y + s_z = 0 (an equality constraint in every problem that frees s) removes that direction.
+
+References
+----------
+[1] Zhou et al. (2010), see `nlpcal.models.zhou2010`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import casadi as ca
+import numpy as np
+
+from . import moments as mom
+from .objective import objective_expression
+from .errors import SolveError
+from .solver import IpoptOptions, SolveOutcome, build_nlpsol, solve
+
+#: Indices of theta freed by each problem, in the paper's stage order.
+BLOCKS = {
+    "orthogonal": (6, 7, 8),
+    "scale": (3, 4, 5),
+    "offset": (0, 1, 2),
+    "joint": tuple(range(9)),
+}
+STAGE_ORDER = ("orthogonal", "scale", "offset")
+SCALE_INDICES = (3, 4, 5)
+
+#: Gauge used without a reference field. Recorded in every result.
+GAUGE = {
+    "name": "mean_scale_zero",
+    "constraint": "s_x + s_y + s_z = 0",
+    "reason": "Eq. 8 is not invariant to a common factor on (1 + s): without a reference field "
+              "the absolute scale is not identifiable; the scale ratios (1 + s_i)/(1 + s_j), "
+              "offsets and angles are.",
+}
+
+
+#: Objective values below this fraction of L^2 (a spread of 1e-8 L, 5e-4 nT in 50 000 nT)
+#: are at the resolution of the float64 moments; a block starting there is not re-solved.
+PRECISION_FLOOR = 1e-16
+#: The objective is divided by its start value, but never by less than this fraction of L^2, so
+#: that rounding noise in tiny objectives (noise-free data) is not blown up into the gradient.
+SCALE_FLOOR = 1e-14
+
+
+def variable_scale(radius: float) -> np.ndarray:
+    """Typical size of each parameter: offsets 1e-3 of the field, scales 1e-3, angles 1e-2 rad."""
+    return np.array([1e-3 * radius] * 3 + [1e-3] * 3 + [1e-2] * 3)
+
+
+@dataclass(frozen=True)
+class Symbols:
+    theta_ref: ca.SX
+    var_scale: ca.SX
+    gram: ca.SX
+    centre: ca.SX
+    length: ca.SX
+    f_ref: ca.SX
+
+    @property
+    def data(self):
+        """The parameter vector, in the order `pack` fills it."""
+        return ca.vertcat(self.theta_ref, self.var_scale, ca.vec(self.gram), self.centre,
+                          self.length, self.f_ref)
+
+
+def _symbols(reference: str) -> Symbols:
+    size = mom.layout(reference == "series").size
+    return Symbols(
+        theta_ref=ca.SX.sym("theta_ref", 9),
+        var_scale=ca.SX.sym("var_scale", 9),
+        gram=ca.SX.sym("G", size, size),
+        centre=ca.SX.sym("centre", 3),
+        length=ca.SX.sym("length"),
+        f_ref=ca.SX.sym("f_ref"),
+    )
+
+
+def pack(moments: mom.Moments, theta_ref, var_scale, f_ref: float) -> np.ndarray:
+    """Numeric parameter vector for the problems (same order as Symbols.data)."""
+    return np.concatenate([
+        np.asarray(theta_ref, dtype=float), np.asarray(var_scale, dtype=float),
+        moments.gram.ravel(order="F"), moments.frame.centre, [moments.length, f_ref],
+    ])
+
+
+@lru_cache(maxsize=None)
+def objective_function(reference: str) -> ca.Function:
+    """f(theta, p) [field^2] and its gradient and Hessian in theta, for checks and uncertainty.
+
+    reference : "none", "constant" or "series" (`Moments.reference`).
+    """
+    s = _symbols(reference)
+    theta = ca.SX.sym("theta", 9)
+    f = objective_expression(theta, s.gram, s.centre, s.length, reference)
+    hess, grad = ca.hessian(f, theta)
+    return ca.Function(f"f_{reference}", [theta, s.data], [f, grad, hess], ["theta", "p"],
+                       ["f", "grad", "hess"])
+
+
+@lru_cache(maxsize=None)
+def block_problem(block: str, reference: str, options: IpoptOptions = IpoptOptions()):
+    """The `nlpsol` of one block (stage or joint) for one kind of reference.
+
+    Returns (solver, has_gauge). Built on first use and cached for the life of the process.
+    """
+    s = _symbols(reference)
+    free = BLOCKS[block]
+    x = ca.SX.sym("x", len(free))
+    step = ca.SX.zeros(9)
+    for position, index in enumerate(free):
+        step[index] = x[position]
+    theta = s.theta_ref + s.var_scale * step
+    f = objective_expression(theta, s.gram, s.centre, s.length, reference)
+    has_gauge = reference == "none" and any(i in SCALE_INDICES for i in free)
+    g = ca.sum1(theta[3:6]) if has_gauge else None
+    solver = build_nlpsol(f"nlpcal_{block}_{reference}", x, f / s.f_ref, s.data, g, options)
+    return solver, has_gauge
+
+
+def block_step(moments: mom.Moments, block: str, theta, options: IpoptOptions = IpoptOptions()):
+    """Minimise over one block of theta from `theta`, the other blocks held fixed.
+
+    Returns (theta_new, outcome). Raises SolveError when IPOPT fails; a solve that ends above its
+    start (it should not) keeps the start, so a stage never makes the objective worse.
+    """
+    kind = moments.reference
+    solver, has_gauge = block_problem(block, kind, options)
+    theta = np.asarray(theta, dtype=float)
+    var_scale = variable_scale(moments.frame.radius)
+    p = pack(moments, theta, var_scale, 1.0)
+    f_start = float(objective_function(kind)(theta, p)[0])
+    free = list(BLOCKS[block])
+    if f_start <= PRECISION_FLOOR * moments.length**2:
+        # Noise-free data at their optimum: nothing left that float64 moments can resolve.
+        return theta, SolveOutcome(x=np.zeros(len(free)), f=f_start, status="At_Precision_Floor",
+                                   success=True, iterations=0)
+    f_ref = max(f_start, SCALE_FLOOR * moments.length**2)
+    p[-1] = f_ref
+    bounds = {"lbg": 0.0, "ubg": 0.0} if has_gauge else {}
+    outcome = solve(solver, x0=np.zeros(len(free)), p=p, **bounds)
+    # A step below machine precision means the block is solved to the resolution of the data.
+    stalled = (outcome.status == "Search_Direction_Becomes_Too_Small"
+               and outcome.f * f_ref <= f_start)
+    if not (outcome.success or stalled):
+        raise SolveError(f"IPOPT did not solve the {block} problem", outcome.status)
+    step = np.zeros(9)
+    step[free] = outcome.x
+    if outcome.f * f_ref > f_start + 1e-12 * f_ref:
+        return theta, outcome
+    return theta + var_scale * step, outcome

@@ -1,0 +1,225 @@
+"""The core commands through main(argv): simulate, calibrate, apply, stats, and their errors."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from nlpcal.cli import main
+from nlpcal.models.zhou2010 import Zhou2010Parameters, correct
+from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log
+
+
+@pytest.fixture(scope="module")
+def log_csv(tmp_path_factory):
+    samples, _ = make_log(n=2500, noise=2.5, seed=31)
+    path = tmp_path_factory.mktemp("logs") / "log.csv"
+    frame = pd.DataFrame(samples, columns=["bx", "by", "bz"])
+    frame["proton_nT"] = PAPER_FIELD
+    frame["note"] = "lab"
+    frame.to_csv(path, index=False)
+    return path
+
+
+def run(capsys, *argv):
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.mark.parametrize("method", ["staged", "joint"])
+def test_calibrate_recovers_the_truth(log_csv, tmp_path, capsys, method):
+    out_path = tmp_path / "params.json"
+    code, out, err = run(capsys, "calibrate", log_csv, "--method", method, "-o", out_path)
+    assert code == 0 and out == ""
+    assert "measured" in err and "absolute scale not identifiable" in err
+    doc = json.loads(out_path.read_text())
+    assert set(doc["parameters"]) == set(PAPER_TRUTH)
+    for row in doc["statistics"]:
+        assert {"label", "max", "min", "mean", "std", "range"} <= set(row)
+    assert doc["statistics"][0]["label"] == "measured"
+    assert doc["method"] == method and doc["unit"] == "nT" and doc["format_version"] == 1
+    assert doc["gauge"]["constraint"] == "s_x + s_y + s_z = 0"
+    assert doc["solver"]["status"] in ("Solve_Succeeded", "Solved_To_Acceptable_Level",
+                                       "At_Precision_Floor", "Search_Direction_Becomes_Too_Small")
+    assert doc["solver"]["iterations"] > 0
+    p = doc["parameters"]
+    for k in ("z_x", "z_y", "z_z"):
+        assert abs(p[k] - PAPER_TRUTH[k]) < 0.5
+    g, t = np.array([1 + p[f"s_{a}"] for a in "xyz"]), np.array(
+        [1 + PAPER_TRUTH[f"s_{a}"] for a in "xyz"])
+    np.testing.assert_allclose(g / g[0], t / t[0], atol=2e-5)
+    for k in ("alpha_deg", "beta_deg", "gamma_deg"):
+        assert abs(p[k] - PAPER_TRUTH[k]) < 1e-3
+
+
+def test_calibrate_with_a_reference_identifies_the_scales(log_csv, tmp_path, capsys):
+    for flags in (["--reference-field", PAPER_FIELD], ["--reference-column", "proton_nT"]):
+        out_path = tmp_path / "p.json"
+        code, _, err = run(capsys, "calibrate", log_csv, *flags, "--method", "joint", "-o",
+                           out_path)
+        assert code == 0, err
+        doc = json.loads(out_path.read_text())
+        assert doc["gauge"] is None
+        for k in ("s_x", "s_y", "s_z"):
+            assert abs(doc["parameters"][k] - PAPER_TRUTH[k]) < 2e-5
+    assert doc["reference"]["column"] == "proton_nT"
+
+
+def test_calibrate_to_stdout_and_in_microtesla(log_csv, tmp_path, capsys):
+    frame = pd.read_csv(log_csv)
+    frame[["bx", "by", "bz"]] /= 1000.0
+    frame = frame.rename(columns={"bx": "mag_x", "by": "mag_y", "bz": "mag_z"})
+    path = tmp_path / "ut.csv"
+    frame.to_csv(path, index=False)
+    code, out, _ = run(capsys, "calibrate", path, "--unit", "uT", "--method", "joint")
+    assert code == 0
+    doc = json.loads(out)
+    assert doc["unit"] == "nT" and doc["input"]["log_unit"] == "uT"
+    assert abs(doc["parameters"]["z_y"] - PAPER_TRUTH["z_y"]) < 0.5
+
+
+def test_apply_reproduces_eq4_and_keeps_other_columns(log_csv, tmp_path, capsys):
+    params = tmp_path / "p.json"
+    assert run(capsys, "calibrate", log_csv, "--method", "joint", "-o", params)[0] == 0
+    corrected = tmp_path / "c.csv"
+    code, _, err = run(capsys, "apply", params, log_csv, "-o", corrected)
+    assert code == 0, err
+    out = pd.read_csv(corrected)
+    raw = pd.read_csv(log_csv)
+    assert list(out.columns) == ["bx", "by", "bz", "proton_nT", "note", "b_total"]
+    assert (out["note"] == "lab").all()
+    model = Zhou2010Parameters.from_dict(json.loads(params.read_text())["parameters"])
+    expected = correct(raw[["bx", "by", "bz"]].to_numpy(), model)
+    np.testing.assert_allclose(out[["bx", "by", "bz"]].to_numpy(), expected, rtol=1e-9)
+    np.testing.assert_allclose(out["b_total"], np.linalg.norm(expected, axis=1), rtol=1e-9)
+    assert out["b_total"].std() < 3.0
+
+
+def test_stats_rows(log_csv, tmp_path, capsys):
+    code, out, _ = run(capsys, "stats", log_csv, "--json")
+    assert code == 0
+    doc = json.loads(out)
+    magnitude = np.linalg.norm(pd.read_csv(log_csv)[["bx", "by", "bz"]].to_numpy(), axis=1)
+    row = doc["rows"][0]
+    assert row["label"] == "measured"
+    assert row["std"] == pytest.approx(magnitude.std(), rel=1e-9)
+    assert row["range"] == pytest.approx(np.ptp(magnitude), rel=1e-12)
+    params = tmp_path / "p.json"
+    run(capsys, "calibrate", log_csv, "--method", "joint", "-o", params)
+    code, out, _ = run(capsys, "stats", log_csv, "--params", params)
+    assert code == 0 and "measured" in out and "corrected" in out
+
+
+def test_simulate_preset_and_custom_truth(tmp_path, capsys):
+    out = tmp_path / "sim.csv"
+    assert run(capsys, "simulate", "-n", 300, "--noise", 0.5, "--seed", 4, "-o", out)[0] == 0
+    frame = pd.read_csv(out)
+    assert list(frame.columns) == ["bx", "by", "bz"] and len(frame) == 300
+    truth = tmp_path / "truth.json"
+    truth.write_text(json.dumps({"parameters": {**PAPER_TRUTH, "z_x": 500.0}, "field_nT": 30000}))
+    out2 = tmp_path / "sim2.csv"
+    assert run(capsys, "simulate", "--params", truth, "-n", 2000, "--noise", 0, "-o", out2)[0] == 0
+    code, text, _ = run(capsys, "calibrate", out2, "--method", "joint", "--reference-field", 30000)
+    assert code == 0
+    assert json.loads(text)["parameters"]["z_x"] == pytest.approx(500.0, abs=1e-6)
+    # Same seed, same log.
+    run(capsys, "simulate", "-n", 300, "--noise", 0.5, "--seed", 4, "-o", tmp_path / "again.csv")
+    assert (tmp_path / "again.csv").read_text() == out.read_text()
+
+
+def test_python_dash_m(log_csv):
+    import subprocess
+    import sys
+    done = subprocess.run([sys.executable, "-m", "nlpcal", "stats", str(log_csv)],
+                          capture_output=True, text=True)
+    assert done.returncode == 0 and "measured" in done.stdout
+
+
+# --- errors ---------------------------------------------------------------------------------
+
+def write(tmp_path, name, text):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def good_rows(n=30, seed=0):
+    samples, _ = make_log(n=n, noise=1.0, seed=seed)
+    return "\n".join(",".join(f"{v:.3f}" for v in row) for row in samples)
+
+
+@pytest.mark.parametrize("name, text, extra, message", [
+    ("missing.csv", None, [], "no such file"),
+    ("empty.csv", "", [], "empty"),
+    ("text.csv", "bx,by,bz\n" + good_rows() + "\n1,abc,3\n", [], "non-numeric"),
+    ("nan.csv", "bx,by,bz\n" + good_rows() + "\n1,,3\n", [], "non-numeric"),
+    ("few.csv", "bx,by,bz\n1,2,3\n4,5,6\n7,8,9\n", [], "at least 10"),
+    ("nocols.csv", "a,b,c\n" + good_rows(), [], "no magnetometer columns"),
+    ("ambig.csv", "bx,by,bz,x,y,z\n" + "\n".join(r + "," + r for r in good_rows().split("\n")),
+     [], "ambiguous"),
+    ("equal.csv", "bx,by,bz\n" + "\n".join(["1,2,3"] * 30), [], "all samples are equal"),
+    ("cols.csv", "bx,by,bz\n" + good_rows(), ["--columns", "bx", "by", "qq"], "'qq' not found"),
+    ("refneg.csv", "bx,by,bz,f\n" + "\n".join(r + ",-5" for r in good_rows().split("\n")),
+     ["--reference-column", "f"], "non-positive"),
+    ("refmiss.csv", "bx,by,bz\n" + good_rows(), ["--reference-column", "f"], "'f' not found"),
+    ("badref.csv", "bx,by,bz\n" + good_rows(), ["--reference-field", "-3"], "positive"),
+])
+def test_calibrate_input_errors_exit_2(tmp_path, capsys, name, text, extra, message):
+    path = tmp_path / name if text is None else write(tmp_path, name, text)
+    code, out, err = run(capsys, "calibrate", path, *extra)
+    assert code == 2
+    assert message in err
+    assert "Traceback" not in err and out == ""
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_drop_invalid_reports_the_count(tmp_path, capsys):
+    path = write(tmp_path, "x.csv", "bx,by,bz\n" + good_rows(200) + "\n1,abc,3\n,,\n")
+    code, out, err = run(capsys, "calibrate", path, "--drop-invalid", "--method", "joint")
+    assert code == 0 and "dropped 2 row(s)" in err
+    assert json.loads(out)["input"]["rows_dropped"] == 2
+
+
+def test_usage_errors_exit_2(capsys, log_csv):
+    assert run(capsys, "calibrate", log_csv, "--method", "cg")[0] == 2
+    assert run(capsys, "calibrate", log_csv, "--reference-field", 1, "--reference-column",
+               "proton_nT")[0] == 2
+    assert run(capsys, "frobnicate")[0] == 2
+    assert run(capsys)[0] == 2
+    assert run(capsys, "simulate", "--preset", "nope")[0] == 2
+    assert run(capsys, "simulate", "-n", 0)[0] == 2
+    assert run(capsys, "--version")[0] == 0
+
+
+def test_apply_and_stats_errors(tmp_path, capsys, log_csv):
+    bad = write(tmp_path, "bad.json", "{not json")
+    code, _, err = run(capsys, "apply", bad, log_csv, "-o", tmp_path / "c.csv")
+    assert code == 2 and "not a valid" in err
+    wrong = write(tmp_path, "wrong.json", json.dumps({"hello": 1}))
+    assert run(capsys, "apply", wrong, log_csv)[0] == 2
+    assert run(capsys, "stats", tmp_path / "missing.csv")[0] == 2
+    assert not (tmp_path / "c.csv").exists()
+
+
+def test_failed_solve_exits_1_and_keeps_the_old_output(tmp_path, capsys, log_csv, monkeypatch):
+    from nlpcal import problems
+    from nlpcal.solver import SolveOutcome
+    out_path = write(tmp_path, "p.json", "previous result\n")
+
+    def failing(*args, **kwargs):
+        return SolveOutcome(x=np.zeros(9), f=2.0, status="Restoration_Failed", success=False,
+                            iterations=3)
+
+    monkeypatch.setattr(problems, "solve", failing)
+    code, _, err = run(capsys, "calibrate", log_csv, "-o", out_path)
+    assert code == 1 and "Restoration_Failed" in err
+    assert out_path.read_text() == "previous result\n"
+    assert not list(tmp_path.glob(".p.json.*"))  # no temporary file left behind
+
+
+def test_output_folder_missing_exits_2(tmp_path, capsys, log_csv):
+    code, _, err = run(capsys, "calibrate", log_csv, "--method", "joint", "-o",
+                       tmp_path / "nope" / "p.json")
+    assert code == 2 and "does not exist" in err

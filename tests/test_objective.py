@@ -1,0 +1,79 @@
+"""The moment expansion of Eq. 8 and its reference variants against a per-sample evaluation."""
+
+import numpy as np
+import pytest
+
+from nlpcal import moments as mom
+from nlpcal import problems
+from nlpcal.objective import direct_objective
+from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log
+
+THETA_TRUE = np.array([PAPER_TRUTH[k] for k in ("z_x", "z_y", "z_z", "s_x", "s_y", "s_z")]
+                      + list(np.radians([PAPER_TRUTH[k] for k in
+                                         ("alpha_deg", "beta_deg", "gamma_deg")])))
+NEAR = THETA_TRUE + np.array([3.0, -2.0, 4.0, 5e-5, -4e-5, 3e-5, 2e-4, -3e-4, 1e-4])
+
+
+def _reference(kind, n, rng):
+    if kind == "none":
+        return None
+    if kind == "constant":
+        return PAPER_FIELD
+    return PAPER_FIELD + 40.0 * np.sin(np.linspace(0, 3, n)) + rng.normal(0, 0.5, n)
+
+
+def _fast(samples, theta, reference, **kw):
+    moments = mom.accumulate(samples, reference, **kw)
+    p = problems.pack(moments, theta, np.ones(9), 1.0)
+    return float(problems.objective_function(moments.reference)(theta, p)[0])
+
+
+@pytest.mark.parametrize("kind", ["none", "constant", "series"])
+@pytest.mark.parametrize("theta", [THETA_TRUE, NEAR], ids=["truth", "near"])
+@pytest.mark.parametrize("noise", [1.0, 16.0])
+def test_fast_objective_equals_per_sample_objective(kind, theta, noise):
+    # 1e-9 relative: the series in u is cut after u^4, an error of order max|u|^3; with 16 nT
+    # noise max|u| is about 3e-3, with 1 nT about 2e-4 (see nlpcal.objective).
+    rng = np.random.default_rng(5)
+    reference = _reference(kind, 700, rng)
+    # A reference series follows the field the sensor sees (diurnal variation).
+    field = PAPER_FIELD if kind != "series" else reference[:, None]
+    samples, _ = make_log(n=700, noise=noise, seed=3, field=field)
+    direct = direct_objective(samples, theta, reference)
+    assert _fast(samples, theta, reference) == pytest.approx(direct, rel=1e-9)
+
+
+@pytest.mark.parametrize("kind", ["none", "constant", "series"])
+def test_far_from_the_solution_the_expansion_stays_close(kind):
+    # Raw data (all parameters zero) spread |B| by about 5 %; the cut series then errs by ~1e-6.
+    rng = np.random.default_rng(6)
+    samples, _ = make_log(n=500, noise=2.0, seed=4)
+    reference = _reference(kind, len(samples), rng)
+    direct = direct_objective(samples, np.zeros(9), reference)
+    assert _fast(samples, np.zeros(9), reference) == pytest.approx(direct, rel=1e-5)
+
+
+def test_moments_are_additive_over_chunks():
+    samples, _ = make_log(n=1000, noise=2.0, seed=8)
+    field = np.full(len(samples), PAPER_FIELD) + np.linspace(-20, 20, len(samples))
+    for reference in (None, PAPER_FIELD, field):
+        whole = mom.accumulate(samples, reference, chunk_rows=10_000)
+        pieces = mom.accumulate(samples, reference, chunk_rows=97, frame=whole.frame)
+        np.testing.assert_allclose(pieces.gram, whole.gram, rtol=1e-12, atol=1e-15)
+
+
+def test_problem_size_does_not_depend_on_the_number_of_samples():
+    small, _ = make_log(n=50, noise=1.0, seed=1)
+    large, _ = make_log(n=20_000, noise=1.0, seed=2)
+    for reference in (None, PAPER_FIELD):
+        sizes = {mom.accumulate(x, reference).gram.shape for x in (small, large)}
+        assert len(sizes) == 1
+    solver_a, _ = problems.block_problem("joint", "constant")
+    solver_b, _ = problems.block_problem("joint", "constant")
+    assert solver_a is solver_b  # built once, re-solved with the data as parameters
+    assert solver_a.size_in("p") == (9 + 9 + 46 * 46 + 3 + 2, 1)
+
+
+def test_layouts_hold_the_distinct_features():
+    assert mom.layout(False).size == 46  # monomials of degree <= 4, a times degree <= 2, a^2
+    assert mom.layout(True).size == 58
