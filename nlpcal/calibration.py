@@ -32,16 +32,20 @@ class Problem:
     reference: object  # None, float or (N,) array
     moments: Moments
 
-    def row(self, label, theta, *, iterations, wall_s) -> dict:
-        """A Table 1 row of |B1| for `theta` (None: the measured |B_M|)."""
+    def measured_row(self) -> dict:
+        """The Table 1 row of the raw |B_M|, gathered with the moments."""
+        return {"label": "measured", **self.moments.measured, "iterations": 0, "wall_s": 0.0}
+
+    def row(self, label, theta, series: float | None = None, *, iterations, wall_s) -> dict:
+        """A Table 1 row of |B1| for `theta`, with the relative gap between the moment objective
+        (`series`, evaluated here when not given) and the exact per-sample one."""
         stats = field_statistics(self.samples, theta, self.reference)
-        if theta is not None:
-            kind = self.moments.reference
+        if series is None:
             p = pack(self.moments, theta, np.ones(9), 1.0)
-            series = float(objective_function(kind)(theta, p)[0])
-            exact = stats["objective"]
-            stats["series_rel_error"] = abs(series - exact) / exact if exact > 0 else 0.0
-            stats["parameters"] = parameters_from_theta(theta).as_dict()
+            series = float(objective_function(self.moments.reference)(theta, p)[0])
+        exact = stats["objective"]
+        stats["series_rel_error"] = abs(series - exact) / exact if exact > 0 else 0.0
+        stats["parameters"] = parameters_from_theta(theta).as_dict()
         return {"label": label, **stats, "iterations": int(iterations), "wall_s": float(wall_s)}
 
 
@@ -154,7 +158,20 @@ class CalibrationResult:
         return cls.from_dict(read_json(path, "nlpcal parameters file"))
 
 
-def _uncertainty(problem: Problem, theta, objective: float):
+def scaled_hessian(moments: Moments, theta, step=None) -> np.ndarray:
+    """D H D: the Hessian of the objective [field^2] in the scaled variables theta = D x.
+
+    From the joint problem's own Hessian when `step` is its solve, else from the full objective.
+    """
+    scale = variable_scale(moments.frame.radius)
+    if step is not None and step.problem.block == "joint":
+        return step.f_ref * step.problem.hessian(step.x, step.p)
+    p = pack(moments, theta, scale, 1.0)
+    hess = np.asarray(objective_function(moments.reference)(theta, p)[2], dtype=float)
+    return scale[:, None] * hess * scale[None, :]
+
+
+def _uncertainty(problem: Problem, theta, objective: float, hs: np.ndarray):
     """Standard errors from the Hessian of the objective, and which parameters are identifiable.
 
     For f = (1/N) sum r_i^2, the Gauss-Newton covariance is cov = 2 f / (N - 9) H^-1 with H the
@@ -163,9 +180,6 @@ def _uncertainty(problem: Problem, theta, objective: float):
     moments = problem.moments
     kind = moments.reference
     scale = variable_scale(moments.frame.radius)
-    p = pack(moments, theta, scale, 1.0)
-    hess = np.asarray(objective_function(kind)(theta, p)[2], dtype=float)
-    hs = scale[:, None] * hess * scale[None, :]
     if kind == "none":
         normal = np.zeros(9)
         normal[list(SCALE_INDICES)] = scale[list(SCALE_INDICES)]
@@ -231,11 +245,13 @@ def calibrate(samples, *, method: str = "staged", reference_field=None, cycles: 
         rule = StopRule(max_cycles=int(cycles), target_std=target_std, target_range=target_range,
                         rtol=rtol)
         theta, rows, stages, stop_reason = run_staged(problem, rule)
+        hs = scaled_hessian(problem.moments, theta)
     else:
-        theta, rows, stages = run_joint(problem)
-        stop_reason = "solved"
+        step, rows, stages = run_joint(problem)
+        theta, stop_reason = step.theta, "solved"
+        hs = scaled_hessian(problem.moments, theta, step)
     final = rows[-1]
-    errors, identifiability = _uncertainty(problem, theta, final["objective"])
+    errors, identifiability = _uncertainty(problem, theta, final["objective"], hs)
 
     warnings = []
     mode = problem.moments.reference

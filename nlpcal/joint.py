@@ -31,12 +31,16 @@ def joint_start(moments) -> np.ndarray:
 
 
 def run_joint(problem):
-    """Solve all nine at once. Returns (theta, rows, stages) like `nlpcal.staged.run_staged`."""
-    rows = [problem.row("measured", None, iterations=0, wall_s=0.0)]
+    """Solve all nine at once.
+
+    Returns (step, rows, stages): the `nlpcal.problems.Step` of the solve, the measured and the
+    joint Table 1 rows, and the record of the solve.
+    """
+    rows = [problem.measured_row()]
     started = time.perf_counter()
-    theta, outcome = block_step(problem.moments, "joint", joint_start(problem.moments))
-    rows.append(problem.row("joint", theta, iterations=outcome.iterations,
+    step = block_step(problem.moments, "joint", joint_start(problem.moments))
+    rows.append(problem.row("joint", step.theta, step.f_end, iterations=step.iterations,
                             wall_s=time.perf_counter() - started))
-    stages = [{"cycle": 1, "stage": "joint", "status": outcome.status,
-               "iterations": outcome.iterations}]
-    return theta, rows, stages
+    stages = [{"cycle": 1, "stage": "joint", "status": step.status,
+               "iterations": step.iterations, "objective": step.f_end}]
+    return step, rows, stages

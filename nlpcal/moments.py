@@ -41,6 +41,8 @@ from itertools import combinations_with_replacement
 
 import numpy as np
 
+from .statistics import MagnitudeStats, reference_chunk
+
 #: Rows per chunk of the data pass: large enough for BLAS, small enough for the cache.
 CHUNK_ROWS = 8192
 
@@ -165,6 +167,8 @@ class Moments:
         or the rms of the reference series. [field unit]
     n : number of samples.
     reference : "none", "constant" or "series".
+    measured : Table 1 statistics of the raw |B_M| (`nlpcal.statistics.MagnitudeStats`),
+        gathered in the same pass.
     """
 
     gram: np.ndarray
@@ -172,6 +176,7 @@ class Moments:
     length: float
     n: int
     reference: str
+    measured: dict
 
     @property
     def layout(self) -> Layout:
@@ -193,14 +198,18 @@ def _groups(varying_gamma: bool):
 def _features(d, a, gamma, lay: Layout, out) -> None:
     """Fill `out` (lay.size x rows) with the distinct features gamma^j a^k d^m of one chunk.
 
-    Features are rows, samples are columns: every operation runs along contiguous memory.
+    Features are rows, samples are columns: every operation runs along contiguous memory. With
+    gamma constant the first rows of the layout are the monomials themselves, built in place.
     """
-    mono = np.empty((len(MONOMIALS), d.shape[1]))
+    in_place = not lay.varying_gamma
+    mono = out[:len(MONOMIALS)] if in_place else np.empty((len(MONOMIALS), d.shape[1]))
     mono[0] = 1.0
     for index in range(1, len(MONOMIALS)):
         parent, variable = _RECIPE[index]
         np.multiply(mono[parent], d[variable], out=mono[index])
     for g_pow, a_pow, rows, monos in _groups(lay.varying_gamma):
+        if in_place and not (g_pow or a_pow):
+            continue
         block = mono[monos]
         if a_pow:
             block *= a**a_pow
@@ -229,9 +238,12 @@ def accumulate(samples: np.ndarray, reference=None, frame: Frame | None = None,
     lay = layout(kind == "series")
     gram = np.zeros((lay.size, lay.size))
     buffer = np.empty((lay.size, min(chunk_rows, n)))
+    measured = MagnitudeStats()
     for start in range(0, n, chunk_rows):
         stop = min(start + chunk_rows, n)
-        d = (samples[start:stop] - frame.centre).T / length  # 3 x rows
+        raw = samples[start:stop]
+        measured.add(np.sqrt(np.einsum("ij,ij->i", raw, raw)), reference_chunk(reference, start, stop))
+        d = (raw - frame.centre).T / length  # 3 x rows
         radius_sq = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
         if field is None:
             gamma, a = None, radius_sq - 1.0
@@ -244,4 +256,5 @@ def accumulate(samples: np.ndarray, reference=None, frame: Frame | None = None,
             chunk *= field[start:stop] / length  # sqrt of the weight w_i
         gram += chunk @ chunk.T
     gram /= n
-    return Moments(gram=gram, frame=frame, length=length, n=n, reference=kind)
+    return Moments(gram=gram, frame=frame, length=length, n=n, reference=kind,
+                   measured=measured.result())

@@ -119,11 +119,34 @@ def objective_function(reference: str) -> ca.Function:
                        ["f", "grad", "hess"])
 
 
+@dataclass(frozen=True)
+class BlockProblem:
+    """One block's `nlpsol` and the functions IPOPT built with it (objective, Hessian)."""
+
+    block: str
+    solver: ca.Function
+    has_gauge: bool
+
+    @property
+    def free(self) -> list:
+        return list(BLOCKS[self.block])
+
+    def objective(self, x, p) -> float:
+        """f(theta_ref + var_scale * x) / f_ref, the scaled objective."""
+        return float(self.solver.get_function("nlp_f")(x, p))
+
+    def hessian(self, x, p) -> np.ndarray:
+        """Hessian of the scaled objective in x (the constraint is linear)."""
+        upper = self.solver.get_function("nlp_hess_l")(x, p, 1.0, np.zeros(int(self.has_gauge)))
+        upper = np.asarray(ca.DM(upper).full())
+        return upper + np.triu(upper, 1).T
+
+
 @lru_cache(maxsize=None)
 def block_problem(block: str, reference: str, options: IpoptOptions = IpoptOptions()):
-    """The `nlpsol` of one block (stage or joint) for one kind of reference.
+    """The problem of one block (stage or joint) for one kind of reference.
 
-    Returns (solver, has_gauge). Built on first use and cached for the life of the process.
+    Built on first use and cached for the life of the process.
     """
     s = _symbols(reference)
     free = BLOCKS[block]
@@ -136,37 +159,61 @@ def block_problem(block: str, reference: str, options: IpoptOptions = IpoptOptio
     has_gauge = reference == "none" and any(i in SCALE_INDICES for i in free)
     g = ca.sum1(theta[3:6]) if has_gauge else None
     solver = build_nlpsol(f"nlpcal_{block}_{reference}", x, f / s.f_ref, s.data, g, options)
-    return solver, has_gauge
+    return BlockProblem(block, solver, has_gauge)
 
 
-def block_step(moments: mom.Moments, block: str, theta, options: IpoptOptions = IpoptOptions()):
+@dataclass
+class Step:
+    """What one block solve did: the new parameters and the objective before and after."""
+
+    theta: np.ndarray
+    outcome: SolveOutcome
+    f_start: float  # [field^2]
+    f_end: float  # [field^2], the moment objective at `theta`
+    f_ref: float  # [field^2], the objective scale the problem was solved with
+    problem: BlockProblem
+    p: np.ndarray
+    x: np.ndarray  # the scaled variables of `theta` in this problem
+
+    @property
+    def iterations(self) -> int:
+        return self.outcome.iterations
+
+    @property
+    def status(self) -> str:
+        return self.outcome.status
+
+
+def block_step(moments: mom.Moments, block: str, theta,
+               options: IpoptOptions = IpoptOptions()) -> Step:
     """Minimise over one block of theta from `theta`, the other blocks held fixed.
 
-    Returns (theta_new, outcome). Raises SolveError when IPOPT fails; a solve that ends above its
-    start (it should not) keeps the start, so a stage never makes the objective worse.
+    Raises SolveError when IPOPT fails; a solve that ends above its start (it should not) keeps
+    the start, so a stage never makes the objective worse.
     """
-    kind = moments.reference
-    solver, has_gauge = block_problem(block, kind, options)
+    problem = block_problem(block, moments.reference, options)
     theta = np.asarray(theta, dtype=float)
     var_scale = variable_scale(moments.frame.radius)
     p = pack(moments, theta, var_scale, 1.0)
-    f_start = float(objective_function(kind)(theta, p)[0])
-    free = list(BLOCKS[block])
+    free = problem.free
+    f_start = problem.objective(np.zeros(len(free)), p)
     if f_start <= PRECISION_FLOOR * moments.length**2:
         # Noise-free data at their optimum: nothing left that float64 moments can resolve.
-        return theta, SolveOutcome(x=np.zeros(len(free)), f=f_start, status="At_Precision_Floor",
-                                   success=True, iterations=0)
+        outcome = SolveOutcome(x=np.zeros(len(free)), f=1.0, status="At_Precision_Floor",
+                               success=True, iterations=0)
+        return Step(theta, outcome, f_start, f_start, f_start, problem, p, outcome.x)
     f_ref = max(f_start, SCALE_FLOOR * moments.length**2)
     p[-1] = f_ref
-    bounds = {"lbg": 0.0, "ubg": 0.0} if has_gauge else {}
-    outcome = solve(solver, x0=np.zeros(len(free)), p=p, **bounds)
+    bounds = {"lbg": 0.0, "ubg": 0.0} if problem.has_gauge else {}
+    outcome = solve(problem.solver, x0=np.zeros(len(free)), p=p, **bounds)
     # A step below machine precision means the block is solved to the resolution of the data.
     stalled = (outcome.status == "Search_Direction_Becomes_Too_Small"
                and outcome.f * f_ref <= f_start)
     if not (outcome.success or stalled):
         raise SolveError(f"IPOPT did not solve the {block} problem", outcome.status)
+    if outcome.f * f_ref > f_start + 1e-12 * f_ref:
+        return Step(theta, outcome, f_start, f_start, f_ref, problem, p, np.zeros(len(free)))
     step = np.zeros(9)
     step[free] = outcome.x
-    if outcome.f * f_ref > f_start + 1e-12 * f_ref:
-        return theta, outcome
-    return theta + var_scale * step, outcome
+    return Step(theta + var_scale * step, outcome, f_start, outcome.f * f_ref, f_ref, problem, p,
+                outcome.x)

@@ -48,7 +48,7 @@ def run_staged(problem, rule: StopRule):
     (after the measured row), the record of every stage solve and why the cycle stopped.
     """
     theta = np.zeros(9)  # Fig. 1: the first pass starts with every other block at zero
-    rows = [problem.row("measured", None, iterations=0, wall_s=0.0)]
+    rows = [problem.measured_row()]
     stages = []
     previous = rows[0]["objective"]
     stop_reason = "max_cycles"
@@ -56,11 +56,12 @@ def run_staged(problem, rule: StopRule):
         started = time.perf_counter()
         iterations = 0
         for stage in STAGE_ORDER:
-            theta, outcome = block_step(problem.moments, stage, theta)
-            iterations += outcome.iterations
-            stages.append({"cycle": cycle, "stage": stage, "status": outcome.status,
-                           "iterations": outcome.iterations})
-        row = problem.row(f"cycle {cycle}", theta, iterations=iterations,
+            step = block_step(problem.moments, stage, theta)
+            theta = step.theta
+            iterations += step.iterations
+            stages.append({"cycle": cycle, "stage": stage, "status": step.status,
+                           "iterations": step.iterations, "objective": step.f_end})
+        row = problem.row(f"cycle {cycle}", theta, step.f_end, iterations=iterations,
                           wall_s=time.perf_counter() - started)
         rows.append(row)
         if rule.target_std is not None and row["std"] <= rule.target_std:

@@ -15,25 +15,82 @@ from __future__ import annotations
 import numpy as np
 
 from .models.zhou2010 import correction_matrix_entries
-from .moments import CHUNK_ROWS
 
 #: Delta degrees of freedom of the reported std.
 STD_DDOF = 0
 STAT_KEYS = ("max", "min", "mean", "std", "range")
 
 
-def field_statistics(samples, theta=None, reference=None, chunk_rows: int = 8 * CHUNK_ROWS) -> dict:
-    """One chunked pass: Table 1 statistics of |B1| and the exact objective.
+class MagnitudeStats:
+    """Table 1 statistics of |B1| and the exact objective, accumulated chunk by chunk.
+
+    Sums are taken of deviations from the first chunk's mean, so that the variance of a
+    50 000 nT field with a 1 nT spread does not cancel.
+    """
+
+    def __init__(self):
+        self.n = 0
+        self.shift = None
+        self.total = self.total_sq = self.ref_sq = 0.0
+        self.high, self.low = -np.inf, np.inf
+        self.u_high = self.u_low = 0.0
+        self.has_reference = False
+
+    def add(self, magnitude: np.ndarray, reference=None) -> None:
+        """Add the magnitudes of one chunk [field unit] and their reference (None, a float or
+        an array of the same length) [field unit]."""
+        if magnitude.size == 0:
+            return
+        if self.shift is None:
+            self.shift = float(magnitude.mean())
+        deviation = magnitude - self.shift
+        self.n += magnitude.size
+        self.total += deviation.sum()
+        self.total_sq += deviation @ deviation
+        self.high = max(self.high, float(magnitude.max()))
+        self.low = min(self.low, float(magnitude.min()))
+        if reference is not None:
+            self.has_reference = True
+            residual = magnitude - reference
+            self.ref_sq += residual @ residual
+            ratio = (magnitude / reference) ** 2 - 1.0
+            self.u_high = max(self.u_high, float(ratio.max()))
+            self.u_low = min(self.u_low, float(ratio.min()))
+
+    def result(self) -> dict:
+        """max, min, mean, std, range [field unit], objective [field^2] and max_abs_u [1]: the
+        largest |(|B1| / F)^2 - 1| (F the reference, or the mean without one)."""
+        n = self.n
+        mean_dev = self.total / n
+        variance = max(self.total_sq / n - mean_dev**2, 0.0)
+        mean = self.shift + mean_dev
+        if self.has_reference:
+            objective, u_high, u_low = self.ref_sq / n, self.u_high, self.u_low
+        else:
+            objective = variance
+            u_high, u_low = (self.high / mean) ** 2 - 1.0, (self.low / mean) ** 2 - 1.0
+        return {
+            "max": self.high, "min": self.low, "mean": float(mean),
+            "std": float(np.sqrt(variance * n / (n - STD_DDOF))), "range": self.high - self.low,
+            "objective": float(objective), "max_abs_u": float(max(abs(u_high), abs(u_low))),
+        }
+
+
+def reference_chunk(reference, start: int, stop: int):
+    """The part of a reference (None, a float or an (N,) array) for rows start:stop."""
+    if reference is None or np.ndim(reference) == 0:
+        return reference
+    return reference[start:stop]
+
+
+def field_statistics(samples, theta=None, reference=None, chunk_rows: int = 65536) -> dict:
+    """One chunked pass: Table 1 statistics of |B1| and the exact objective (`MagnitudeStats`).
 
     samples : (N, 3) raw output B_M. [field unit]
     theta : internal parameters (z [field], s [1], angles [rad]); None gives the measured row |B_M|.
     reference : None, a float or an (N,) series F_i. [field unit]
-
-    Returns max, min, mean, std, range [field unit], objective [field^2] and max_abs_u, the largest
-    |(|B1| / F)^2 - 1| (F the reference, or the mean without one) [1].
     """
     samples = np.asarray(samples, dtype=float)
-    n = samples.shape[0]
     if theta is None:
         offset, matrix = np.zeros(3), np.eye(3)
     else:
@@ -41,38 +98,13 @@ def field_statistics(samples, theta=None, reference=None, chunk_rows: int = 8 * 
         offset = theta[0:3]
         matrix = np.array(correction_matrix_entries(theta[6], theta[7], theta[8],
                                                     theta[3], theta[4], theta[5]), dtype=float)
-    shift = None
-    total = total_sq = ref_sq = 0.0
-    high, low = -np.inf, np.inf
-    u_high = u_low = 0.0
-    for start in range(0, n, chunk_rows):
-        block = (samples[start:start + chunk_rows] - offset) @ matrix.T
-        magnitude = np.sqrt(np.einsum("ij,ij->i", block, block))
-        if shift is None:
-            shift = float(magnitude.mean())  # sums of deviations from a shift avoid cancellation
-        deviation = magnitude - shift
-        total += deviation.sum()
-        total_sq += deviation @ deviation
-        high, low = max(high, magnitude.max()), min(low, magnitude.min())
-        if reference is not None:
-            f_i = reference if np.ndim(reference) == 0 else reference[start:start + chunk_rows]
-            residual = magnitude - f_i
-            ref_sq += residual @ residual
-            ratio = (magnitude / f_i) ** 2 - 1.0
-            u_high, u_low = max(u_high, ratio.max()), min(u_low, ratio.min())
-    mean_dev = total / n
-    variance = max(total_sq / n - mean_dev**2, 0.0)
-    mean = shift + mean_dev
-    if reference is None:
-        objective = variance
-        u_high, u_low = (high / mean) ** 2 - 1.0, (low / mean) ** 2 - 1.0
-    else:
-        objective = ref_sq / n
-    return {
-        "max": float(high), "min": float(low), "mean": float(mean),
-        "std": float(np.sqrt(variance * n / (n - STD_DDOF))), "range": float(high - low),
-        "objective": float(objective), "max_abs_u": float(max(abs(u_high), abs(u_low))),
-    }
+    stats = MagnitudeStats()
+    for start in range(0, samples.shape[0], chunk_rows):
+        stop = start + chunk_rows
+        block = (samples[start:stop] - offset) @ matrix.T
+        stats.add(np.sqrt(np.einsum("ij,ij->i", block, block)),
+                  reference_chunk(reference, start, stop))
+    return stats.result()
 
 
 def format_table(rows, unit: str = "nT", extra=()) -> str:

@@ -68,10 +68,10 @@ def test_problem_size_does_not_depend_on_the_number_of_samples():
     for reference in (None, PAPER_FIELD):
         sizes = {mom.accumulate(x, reference).gram.shape for x in (small, large)}
         assert len(sizes) == 1
-    solver_a, _ = problems.block_problem("joint", "constant")
-    solver_b, _ = problems.block_problem("joint", "constant")
-    assert solver_a is solver_b  # built once, re-solved with the data as parameters
-    assert solver_a.size_in("p") == (9 + 9 + 46 * 46 + 3 + 2, 1)
+    first = problems.block_problem("joint", "constant")
+    again = problems.block_problem("joint", "constant")
+    assert first.solver is again.solver  # built once, re-solved with the data as parameters
+    assert first.solver.size_in("p") == (9 + 9 + 46 * 46 + 3 + 2, 1)
 
 
 def test_layouts_hold_the_distinct_features():

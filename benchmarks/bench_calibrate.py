@@ -1,0 +1,133 @@
+"""Calibration cost against the number of samples, as ratios to one Gram pass over the same data.
+
+For N = 1e3, 1e4, 1e5, 1e6 (uniform attitudes, 1 nT noise, reference field given) it measures,
+in one process and on the same array:
+
+- gram: one numpy pass that builds the 10 x 10 Gram matrix of the quadratic monomials
+  (x^2, y^2, z^2, xy, xz, yz, x, y, z, 1): no full fit can read the data faster;
+- joint: nlpcal.calibrate(method="joint"), cold: the problem caches are cleared before every
+  repeat, so problem construction is included, as a first call pays it;
+- staged: nlpcal.calibrate(method="staged"), 7 cycles with their Table 1 rows, cold as well;
+- scipy: scipy.optimize.least_squares on the geometric residual |B1_i| - F, from the same start;
+
+and prints medians over the repeats, their ratios to the Gram pass, IPOPT iterations and the
+peak memory that tracemalloc sees during one more (untimed) call.
+
+    python benchmarks/bench_calibrate.py [--sizes 1e3 1e4 1e5 1e6] [--repeats 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import statistics
+import time
+import tracemalloc
+
+import casadi
+import numpy as np
+
+import nlpcal
+from nlpcal import problems
+from nlpcal.joint import joint_start
+from nlpcal.moments import accumulate
+from nlpcal.models.zhou2010 import correction_matrix_entries
+from nlpcal.simulate import ZHOU2010_FIELD_NT, simulate
+
+FIELD = ZHOU2010_FIELD_NT
+
+
+def gram_pass(samples):
+    x, y, z = samples.T
+    features = np.column_stack([x * x, y * y, z * z, x * y, x * z, y * z, x, y, z,
+                                np.ones_like(x)])
+    return features.T @ features
+
+
+def cold(function):
+    """Run `function` with every cached CasADi problem dropped first."""
+    problems.block_problem.cache_clear()
+    problems.objective_function.cache_clear()
+    return function()
+
+
+def joint(samples):
+    return nlpcal.calibrate(samples, method="joint", reference_field=FIELD)
+
+
+def staged(samples):
+    return nlpcal.calibrate(samples, method="staged", reference_field=FIELD, cycles=7, rtol=0.0)
+
+
+def scipy_least_squares(samples):
+    from scipy.optimize import least_squares
+
+    start = joint_start(accumulate(samples[:20000], FIELD))
+
+    def residual(theta):
+        M = np.array(correction_matrix_entries(theta[6], theta[7], theta[8],
+                                               theta[3], theta[4], theta[5]))
+        return np.linalg.norm((samples - theta[:3]) @ M.T, axis=1) - FIELD
+
+    return least_squares(residual, start, x_scale=problems.variable_scale(FIELD))
+
+
+def timed(function, samples, repeats):
+    times, result = [], None
+    for _ in range(repeats):
+        started = time.perf_counter()
+        result = function(samples)
+        times.append(time.perf_counter() - started)
+    return statistics.median(times), result
+
+
+def peak_mib(function, samples) -> float:
+    tracemalloc.start()
+    function(samples)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    return peak / 2**20
+
+
+def machine() -> str:
+    return (f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+            f"Python {platform.python_version()}, numpy {np.__version__}, "
+            f"casadi {casadi.__version__}, nlpcal {nlpcal.__version__}")
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", type=float, nargs="+", default=[1e3, 1e4, 1e5, 1e6])
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--no-scipy", action="store_true", help="skip the scipy baseline")
+    args = parser.parse_args(argv)
+    print(f"# machine: {machine()}")
+    print(f"# medians over {args.repeats} repeats; ratios to the Gram pass on the same array")
+    header = ("N", "gram_s", "joint_s", "joint/gram", "staged_s", "staged/gram", "scipy_s",
+              "scipy/gram", "joint_it", "staged_it", "peak_joint_MiB", "peak_staged_MiB",
+              "data_MiB")
+    print(" | ".join(header))
+    for size in args.sizes:
+        n = int(size)
+        samples = simulate(n, noise=1.0, seed=1).to_numpy()
+        gram_s, _ = timed(gram_pass, samples, args.repeats)
+        joint_s, joint_result = timed(lambda x: cold(lambda: joint(x)), samples, args.repeats)
+        staged_s, staged_result = timed(lambda x: cold(lambda: staged(x)), samples, args.repeats)
+        if args.no_scipy:
+            scipy_s = float("nan")
+        else:
+            scipy_s, _ = timed(scipy_least_squares, samples, max(1, min(args.repeats, 3)))
+        row = (
+            f"{n:.0e}", f"{gram_s:.4f}", f"{joint_s:.4f}", f"{joint_s / gram_s:.1f}",
+            f"{staged_s:.4f}", f"{staged_s / gram_s:.1f}", f"{scipy_s:.3f}",
+            f"{scipy_s / gram_s:.1f}", str(joint_result.solver["iterations"]),
+            str(staged_result.solver["iterations"]),
+            f"{peak_mib(joint, samples):.1f}", f"{peak_mib(staged, samples):.1f}",
+            f"{samples.nbytes / 2**20:.1f}",
+        )
+        print(" | ".join(row), flush=True)
+
+
+if __name__ == "__main__":
+    main()
