@@ -17,6 +17,9 @@ from ..errors import InputError, SolveError
 COMMAND_MODULES = (
     "simulate",
     "core",
+    "orthogonality",
+    "compass",
+    "compare",
 )
 
 

@@ -14,6 +14,7 @@ from ..simulate import ATTITUDES, PRESETS, parameters_from_json, simulate
 #: The function is called as f(out_dir: pathlib.Path, *, seed: int, noise: float | None,
 #: n: int | None) and returns the list of files it wrote (it must write them atomically).
 DIRECTORY_PRESETS = {
+    "qiu2017": "nlpcal.compass:write_qiu2017_replica",
 }
 
 
