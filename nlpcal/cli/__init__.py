@@ -19,7 +19,7 @@ COMMAND_MODULES = (
     "core",
     "orthogonality",
     "compass",
-    "compare",
+    "drift",
 )
 
 

@@ -15,6 +15,7 @@ from ..simulate import ATTITUDES, PRESETS, parameters_from_json, simulate
 #: n: int | None) and returns the list of files it wrote (it must write them atomically).
 DIRECTORY_PRESETS = {
     "qiu2017": "nlpcal.compass:write_qiu2017_replica",
+    "liu2022": "nlpcal.drift:write_liu2022_replica",
 }
 
 
