@@ -55,6 +55,9 @@ def suggested_unit(columns):
     return None
 
 
+#: Rows per chunk when validating, so that a memory-mapped log is never copied whole.
+CHECK_CHUNK_ROWS = 65536
+
 #: Fewest samples accepted: nine parameters plus the mean field of Eq. 8.
 MIN_SAMPLES = 10
 
@@ -150,7 +153,12 @@ def numeric_columns(frame: pd.DataFrame, columns, *, drop_invalid: bool = False,
 
     With drop_invalid, such rows are dropped instead and counted.
     """
-    data = frame[list(columns)].apply(pd.to_numeric, errors="coerce").to_numpy(dtype=float)
+    data = np.empty((len(frame), len(columns)))
+    for k, name in enumerate(columns):
+        column = frame[name]
+        if not pd.api.types.is_numeric_dtype(column) or pd.api.types.is_bool_dtype(column):
+            column = pd.to_numeric(column, errors="coerce")
+        data[:, k] = column.to_numpy(dtype=float, na_value=np.nan)
     valid = np.isfinite(data).all(axis=1)
     bad = int((~valid).sum())
     if bad and not drop_invalid:
@@ -169,12 +177,16 @@ def check_samples(samples, *, minimum: int = MIN_SAMPLES) -> np.ndarray:
         raise InputError("samples must be numeric, an (N, 3) array-like") from None
     if samples.ndim != 2 or samples.shape[1] != 3:
         raise InputError(f"samples must have shape (N, 3), got {samples.shape}")
-    if not np.isfinite(samples).all():
-        raise InputError("samples contain NaN or infinite values; drop or fix those rows")
     if samples.shape[0] < minimum:
         raise InputError(
             f"got {samples.shape[0]} samples, need at least {minimum} for nine parameters")
-    if np.all(samples == samples[0]):
+    all_equal = True
+    for start in range(0, samples.shape[0], CHECK_CHUNK_ROWS):  # O(chunk) memory: memmaps too
+        chunk = samples[start:start + CHECK_CHUNK_ROWS]
+        if not np.isfinite(chunk).all():
+            raise InputError("samples contain NaN or infinite values; drop or fix those rows")
+        all_equal = all_equal and bool(np.all(chunk == samples[0]))
+    if all_equal:
         raise InputError("all samples are equal; calibration needs many attitudes")
     return samples
 
@@ -247,3 +259,76 @@ def read_json(path, what: str = "JSON file") -> dict:
         return json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: not a valid {what} ({exc})") from None
+
+
+@dataclass
+class MappedColumns:
+    """Numeric columns of a CSV streamed into a memory-mapped temporary file.
+
+    values : (N, k) float64, backed by an unlinked temporary file (freed when dropped).
+    columns : the k column names.
+    dropped : rows dropped as invalid.
+    """
+
+    values: np.ndarray
+    columns: list
+    dropped: int
+
+
+def csv_to_memmap(path, columns=None, extra_columns=(), *, drop_invalid: bool = False,
+                  chunk_rows: int = 250_000, directory=None) -> MappedColumns:
+    """Stream the field columns (and `extra_columns`) of a CSV into a memory-mapped array.
+
+    Memory stays O(chunk_rows) whatever the size of the log; the pandas C engine reads the chunks
+    (the pyarrow engine cannot read in chunks). The three field columns come first.
+    """
+    path = Path(path)
+    header = read_table_header(path)
+    chosen = resolve_columns(header, columns)
+    wanted = chosen + [c for c in extra_columns]
+    for name in extra_columns:
+        if name not in header.columns:
+            raise InputError(f"column {name!r} not found; the log has columns: "
+                             f"{', '.join(header.columns)}")
+    store = tempfile.TemporaryFile(dir=directory)
+    rows = dropped = 0
+    try:
+        reader = pd.read_csv(path, usecols=lambda c: str(c).strip() in wanted,
+                             chunksize=chunk_rows, engine="c")
+        for chunk in reader:
+            chunk.columns = [str(c).strip() for c in chunk.columns]
+            numeric = numeric_columns(chunk, wanted, drop_invalid=drop_invalid, source=str(path))
+            dropped += numeric.dropped
+            rows += numeric.values.shape[0]
+            store.write(np.ascontiguousarray(numeric.values).tobytes())
+    except InputError as exc:
+        store.close()
+        if "first at data row" in str(exc):
+            raise InputError(f"{exc} (in the chunk after row {rows + dropped})") from None
+        raise
+    except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
+        store.close()
+        raise InputError(f"{path}: cannot be read as CSV ({exc})") from None
+    store.flush()
+    if rows == 0:
+        store.close()
+        raise InputError(f"{path}: no data rows")
+    values = np.memmap(store, dtype=np.float64, mode="r", shape=(rows, len(wanted)))
+    return MappedColumns(values=values, columns=wanted, dropped=dropped)
+
+
+def read_table_header(path) -> pd.DataFrame:
+    """The column names of a CSV (an empty frame), with the checks of `read_table`."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    if path.is_dir():
+        raise InputError(f"{path}: is a directory, expected a CSV file")
+    try:
+        frame = pd.read_csv(path, nrows=0)
+    except pd.errors.EmptyDataError:
+        raise InputError(f"{path}: the file is empty") from None
+    except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
+        raise InputError(f"{path}: cannot be read as CSV ({exc})") from None
+    frame.columns = [str(c).strip() for c in frame.columns]
+    return frame
