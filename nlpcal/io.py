@@ -276,11 +276,12 @@ class MappedColumns:
 
 
 def csv_to_memmap(path, columns=None, extra_columns=(), *, drop_invalid: bool = False,
-                  chunk_rows: int = 250_000, directory=None) -> MappedColumns:
+                  scale: float = 1.0, chunk_rows: int = 250_000, directory=None) -> MappedColumns:
     """Stream the field columns (and `extra_columns`) of a CSV into a memory-mapped array.
 
     Memory stays O(chunk_rows) whatever the size of the log; the pandas C engine reads the chunks
-    (the pyarrow engine cannot read in chunks). The three field columns come first.
+    (the pyarrow engine cannot read in chunks). The three field columns come first; every column
+    is multiplied by `scale` (a unit conversion) on the way.
     """
     path = Path(path)
     header = read_table_header(path)
@@ -300,7 +301,7 @@ def csv_to_memmap(path, columns=None, extra_columns=(), *, drop_invalid: bool = 
             numeric = numeric_columns(chunk, wanted, drop_invalid=drop_invalid, source=str(path))
             dropped += numeric.dropped
             rows += numeric.values.shape[0]
-            store.write(np.ascontiguousarray(numeric.values).tobytes())
+            store.write(np.ascontiguousarray(numeric.values * scale).tobytes())
     except InputError as exc:
         store.close()
         if "first at data row" in str(exc):

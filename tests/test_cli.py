@@ -223,3 +223,21 @@ def test_output_folder_missing_exits_2(tmp_path, capsys, log_csv):
     code, _, err = run(capsys, "calibrate", log_csv, "--method", "joint", "-o",
                        tmp_path / "nope" / "p.json")
     assert code == 2 and "does not exist" in err
+
+
+def test_low_memory_gives_the_same_answer(log_csv, tmp_path, capsys):
+    frame = pd.read_csv(log_csv)
+    frame[["bx", "by", "bz", "proton_nT"]] /= 1000.0
+    path = tmp_path / "ut.csv"
+    frame.to_csv(path, index=False)
+    docs = []
+    for extra in ([], ["--low-memory"]):
+        code, out, err = run(capsys, "calibrate", path, "--unit", "uT", "--method", "joint",
+                             "--reference-column", "proton_nT", *extra)
+        assert code == 0, err
+        assert "pandas" in err and "engine" in err
+        docs.append(json.loads(out))
+    assert docs[1]["parameters"] == pytest.approx(docs[0]["parameters"], rel=1e-12, abs=1e-12)
+    assert docs[1]["input"]["csv_engine"].startswith("c ")
+    code, _, err = run(capsys, "calibrate", tmp_path / "missing.csv", "--low-memory")
+    assert code == 2 and "no such file" in err

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -11,7 +12,7 @@ import pandas as pd
 
 from ..calibration import METHODS, CalibrationResult, calibrate
 from ..errors import InputError
-from ..io import (FIELD_UNITS_NT, csv_engine, numeric_columns, read_json, read_table,
+from ..io import (FIELD_UNITS_NT, csv_engine, csv_to_memmap, numeric_columns, read_json, read_table,
                   resolve_columns, suggested_unit, unit_factor, write_csv_atomic, write_json_atomic)
 from ..statistics import field_statistics, format_table
 from . import warn
@@ -117,6 +118,9 @@ def _register_calibrate(sub):
     ref.add_argument("--reference-column", metavar="COL",
                      help="column of per-sample reference magnitudes [unit]")
     _drift().add_temperature_arguments(parser, "calibrate")
+    parser.add_argument("--low-memory", action="store_true",
+                        help="stream the log into a memory-mapped temporary file in chunks, so "
+                             "that logs larger than memory can be calibrated")
     parser.add_argument("-o", "--output", metavar="PARAMS.json",
                         help="write the parameters here (stdout when absent)")
     parser.set_defaults(func=run_calibrate)
@@ -126,16 +130,34 @@ def run_calibrate(args) -> int:
     if args.temperature_column or args.temperature_model:
         return _drift().run_temperature_calibrate(args)
     extra = [args.reference_column] if args.reference_column else []
-    log = read_log(args.log, args.columns, args.unit, args.drop_invalid, extra)
-    reference = reference_from_args(args, log)
     factor = unit_factor(args.unit)
+    started = time.perf_counter()
+    if args.low_memory:
+        mapped = csv_to_memmap(args.log, args.columns, extra, drop_invalid=args.drop_invalid,
+                               scale=factor)
+        samples, columns, dropped, engine = mapped.values[:, :3], mapped.columns[:3], \
+            mapped.dropped, "c (chunked into a memory map)"
+        reference = (mapped.values[:, 3] if args.reference_column
+                     else None if args.reference_field is None else args.reference_field * factor)
+        if dropped:
+            warn(f"dropped {dropped} row(s) with missing or non-numeric values")
+    else:
+        log = read_log(args.log, args.columns, args.unit, args.drop_invalid, extra)
+        samples, columns, dropped, engine = log.samples, log.columns, int((~log.kept).sum()), \
+            csv_engine()
+        reference = reference_from_args(args, log)
+    read_s = time.perf_counter() - started
     targets = {k: (None if v is None else v * factor)
                for k, v in (("target_std", args.target_std), ("target_range", args.target_range))}
-    result = calibrate(log.samples, method=args.method, reference_field=reference,
-                       cycles=args.cycles, rtol=args.rtol, unit=log.base_unit, **targets)
+    started = time.perf_counter()
+    result = calibrate(samples, method=args.method, reference_field=reference,
+                       cycles=args.cycles, rtol=args.rtol,
+                       unit="raw" if args.unit == "raw" else "nT", **targets)
+    warn(f"read {len(samples)} rows in {read_s:.2f} s (pandas {engine} engine); calibrated in "
+         f"{time.perf_counter() - started:.2f} s")
     document = result.to_dict()
-    document["input"] = {"log": str(args.log), "columns": log.columns, "log_unit": log.unit,
-                         "csv_engine": csv_engine(), "rows_dropped": int((~log.kept).sum())}
+    document["input"] = {"log": str(args.log), "columns": columns, "log_unit": args.unit,
+                         "csv_engine": engine, "rows_dropped": dropped}
     if args.reference_column:
         document["reference"]["column"] = args.reference_column
     print(result.table(), file=sys.stderr)
