@@ -20,6 +20,7 @@ COMMAND_MODULES = (
     "orthogonality",
     "compass",
     "drift",
+    "compare",
 )
 
 

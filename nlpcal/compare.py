@@ -1,0 +1,440 @@
+"""Staged cycle vs joint IPOPT vs the paper's conjugate gradient, on one log (issue 3).
+
+Section 4 of [1] argues that solving the nine parameters of Eq. 4 at once converges badly (mixed
+units and magnitudes make the stopping rule of its conjugate gradient hard to set) and that
+cycling through the three stages of Fig. 1 fixes it. `compare` runs, on the same data and the same
+objective (Eq. 8, or its reference variant):
+
+    staged     the cycle of Fig. 1, every stage an IPOPT problem (`nlpcal.staged.run_staged`)
+    joint      the nine parameters in one IPOPT problem (`nlpcal.joint.run_joint`)
+    cg_joint   the conjugate gradient of section 5 on all nine at once, in the paper's units,
+               then the same on variables scaled to order one (`nlpcal.conjugate_gradient`)
+    cg_staged  the cycle of Fig. 1 with every stage solved by that conjugate gradient
+
+and reports Table 1 rows for each (max, min, mean, std, range of |B1| [field unit], objective
+[field^2], iterations and wall time [s]) together with the objective against the cumulative
+solver iterations of every method, for the figures of Fig. 2.
+
+References
+----------
+[1] Zhou et al. (2010), see `nlpcal.models.zhou2010`.
+"""
+
+from __future__ import annotations
+
+import io as _stdio
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from . import __version__
+from .calibration import Problem
+from .conjugate_gradient import CGOptions, run_cg_joint, run_cg_staged
+from .errors import InputError
+from .io import check_reference, check_samples
+from .joint import joint_start, run_joint
+from .models.zhou2010 import Zhou2010Parameters, correct
+from .moments import accumulate
+from .problems import objective_function, pack
+from .staged import StopRule, run_staged
+from .statistics import STD_DDOF, format_table
+
+FORMAT_VERSION = 1
+#: Keys of compare.json that hold Table 1 rows (issue 3; keep exactly).
+ROW_KEYS = ("staged", "joint", "cg_joint", "cg_staged")
+#: The statistics every row carries.
+ROW_FIELDS = ("max", "min", "mean", "std", "range", "objective", "iterations", "wall_s")
+#: A staged cycle counts as having reached the joint solve when its std is within this fraction.
+REACHED_JOINT_RTOL = 0.01
+#: Most points kept per trajectory in the JSON (log-spaced in the iteration count).
+TRAJECTORY_POINTS = 200
+PLOT_HINT = "pip install 'nlpcal[plot]'"
+
+
+@dataclass(frozen=True)
+class CompareSettings:
+    """How `compare` runs the four methods.
+
+    cycles : the most cycles of the staged and the CG-staged runs.
+    rtol : both cycles stop when a cycle lowers the objective by less than this fraction. [1]
+    cg : settings of the conjugate gradient (step constant, eps, iteration cap).
+    """
+
+    cycles: int = 50
+    rtol: float = 1e-9
+    cg: CGOptions = field(default_factory=lambda: CGOptions(max_iter=5000))
+
+    def __post_init__(self):
+        if int(self.cycles) < 1:
+            raise InputError(f"cycles must be at least 1, got {self.cycles}")
+        if not (self.rtol >= 0 and np.isfinite(self.rtol)):
+            raise InputError(f"rtol must be a non-negative number, got {self.rtol}")
+
+
+@dataclass
+class Comparison:
+    """The four methods on one log: Table 1 rows, trajectories and a summary.
+
+    staged : measured row, then one row per cycle. joint : one row. cg_joint : the CG on all nine,
+    unscaled (the paper's setting) then scaled. cg_staged : measured row, then one row per cycle.
+    trajectories : method -> {"iterations": cumulative solver iterations, "objective": [field^2]}.
+    """
+
+    samples: np.ndarray
+    staged: list
+    joint: dict
+    cg_joint: list
+    cg_staged: list
+    trajectories: dict
+    summary: dict
+    reference: dict
+    settings: CompareSettings
+    unit: str = "nT"
+    warnings: list = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return {
+            "format_version": FORMAT_VERSION,
+            "unit": self.unit,
+            "std_ddof": STD_DDOF,
+            "n_samples": int(self.samples.shape[0]),
+            "reference": dict(self.reference),
+            "staged": list(self.staged),
+            "joint": dict(self.joint),
+            "cg_joint": list(self.cg_joint),
+            "cg_staged": list(self.cg_staged),
+            "summary": dict(self.summary),
+            "settings": {"cycles": int(self.settings.cycles), "rtol": self.settings.rtol,
+                         "cg": asdict(self.settings.cg)},
+            "trajectories": {name: _thin(t) for name, t in self.trajectories.items()},
+            "warnings": list(self.warnings),
+            "nlpcal_version": __version__,
+        }
+
+    def table(self) -> str:
+        """All rows in the layout of Table 1 of [1], one block per method."""
+        extra = ("objective", "iterations", "wall_s")
+        blocks = [("staged cycle, IPOPT stages", self.staged),
+                  ("joint, IPOPT", [self.joint]),
+                  ("conjugate gradient of section 5, joint", self.cg_joint),
+                  ("conjugate gradient of section 5, staged cycle", self.cg_staged[1:])]
+        parts = []
+        for title, rows in blocks:
+            parts.append(f"== {title}")
+            parts.append(format_table(rows, self.unit, extra=extra))
+        return "\n".join(parts)
+
+    def magnitudes(self, row) -> np.ndarray:
+        """|B1| of every sample for a row's parameters (the measured |B_M| for the measured row)."""
+        if "parameters" not in row:
+            return np.linalg.norm(self.samples, axis=1)
+        params = Zhou2010Parameters.from_dict(row["parameters"])
+        return np.linalg.norm(correct(self.samples, params), axis=1)
+
+
+def _thin(trajectory: dict, points: int = TRAJECTORY_POINTS) -> dict:
+    """Keep the first and last points and about `points` log-spaced in between."""
+    its = np.asarray(trajectory["iterations"])
+    if its.size <= points:
+        return {k: [float(v) if k == "objective" else int(v) for v in trajectory[k]]
+                for k in ("iterations", "objective")}
+    keep = np.unique(np.concatenate([
+        [0, its.size - 1], np.round(np.geomspace(1, its.size - 1, points)).astype(int)]))
+    return {"iterations": [int(its[i]) for i in keep],
+            "objective": [float(trajectory["objective"][i]) for i in keep]}
+
+
+def _series_objective(moments, theta) -> float:
+    p = pack(moments, theta, np.ones(9), 1.0)
+    return float(objective_function(moments.reference)(theta, p)[0])
+
+
+def _joint_trajectory(step, iterations: int, f_end: float) -> dict:
+    """The objective at every IPOPT iteration of the joint solve `step` (`nlpcal.problems.Step`).
+
+    IPOPT records the objective of its problem, f / f_ref, in the solver's statistics. When they
+    cannot be read, the start and the end of the solve are returned.
+    """
+    f_start = float(getattr(step, "f_start", f_end))
+    try:
+        stats = step.problem.solver.stats()
+        scaled = [float(v) for v in stats["iterations"]["obj"]]
+        if len(scaled) != iterations + 1:
+            raise ValueError("iteration record does not match the solve")
+        objective = [v * float(step.f_ref) for v in scaled]
+    except Exception:  # noqa: BLE001 - a missing record only coarsens the figure
+        return {"iterations": [0, iterations], "objective": [f_start, f_end]}
+    return {"iterations": list(range(len(objective))), "objective": objective}
+
+
+def _staged_trajectory(rows, stages) -> dict:
+    """Objective after every stage (or every cycle, when the stages do not record it)."""
+    path = {"iterations": [0], "objective": [rows[0]["objective"]]}
+    if stages and all("objective" in s for s in stages):
+        for stage in stages:
+            path["iterations"].append(path["iterations"][-1] + int(stage["iterations"]))
+            path["objective"].append(float(stage["objective"]))
+        return path
+    for row in rows[1:]:
+        path["iterations"].append(path["iterations"][-1] + row["iterations"])
+        path["objective"].append(row["objective"])
+    return path
+
+
+def _cg_trajectory(histories) -> dict:
+    """Concatenated CG objective histories of successive solves, against cumulative iterations."""
+    iterations, objective = [], []
+    total = 0
+    for history in histories:
+        for k, value in enumerate(history):
+            if k == 0 and iterations:
+                continue  # the start of a solve is the end of the one before
+            iterations.append(total + k)
+            objective.append(float(value))
+        total += len(history) - 1
+    return {"iterations": iterations, "objective": objective}
+
+
+def block_coupling(moments, theta) -> dict:
+    """How strongly the three stages are coupled at `theta`, and what that means for the cycle.
+
+    Near the optimum the objective is the quadratic of its Hessian H, and the cycle of Fig. 1
+    (each stage minimising over one block exactly, the others fixed) is block Gauss-Seidel on H
+    in the order orthogonal -> scale -> offset. Its error shrinks per cycle by the spectral radius
+    rho of the Gauss-Seidel matrix -(D + L)^-1 U (D, L, U the block diagonal, lower and upper
+    parts of H), so the objective above its minimum shrinks by about rho^2 per cycle. Without a
+    reference field the scale block is taken on the gauge s_x + s_y + s_z = 0.
+
+    Returns rho, rho^2, the cycles that rho^2 needs to cut the excess objective by 1e6, and the
+    largest canonical correlation between each pair of blocks (1: a direction of one block can
+    be traded for one of the other without changing f; 0: independent blocks). [1]
+    """
+    hess = np.asarray(objective_function(moments.reference)(
+        theta, pack(moments, theta, np.ones(9), 1.0))[2], dtype=float)
+    gauge = moments.reference == "none"
+    scale_basis = np.linalg.svd(np.ones((1, 3)))[2][1:].T if gauge else np.eye(3)
+    sizes = (3, scale_basis.shape[1], 3)
+    basis = np.zeros((9, sum(sizes)))
+    basis[6:9, 0:3] = np.eye(3)  # stage order: orthogonal, scale, offset
+    basis[3:6, 3:3 + sizes[1]] = scale_basis
+    basis[0:3, 3 + sizes[1]:] = np.eye(3)
+    h = basis.T @ hess @ basis
+    h = 0.5 * (h + h.T)
+    edges = np.cumsum((0,) + sizes)
+    parts = [slice(edges[k], edges[k + 1]) for k in range(3)]
+    lower = np.zeros_like(h)
+    for i in range(3):
+        for j in range(i + 1):
+            lower[parts[i], parts[j]] = h[parts[i], parts[j]]
+    upper = h - lower
+    try:
+        rho = float(max(abs(np.linalg.eigvals(-np.linalg.solve(lower, upper)))))
+        correlations = {}
+        names = ("orthogonal", "scale", "offset")
+        whiten = []
+        for part in parts:
+            values, vectors = np.linalg.eigh(h[part, part])
+            whiten.append(vectors / np.sqrt(values))
+        for i in range(3):
+            for j in range(i + 1, 3):
+                cross = whiten[i].T @ h[parts[i], parts[j]] @ whiten[j]
+                correlations[f"{names[i]}-{names[j]}"] = float(np.linalg.svd(cross)[1][0])
+    except (np.linalg.LinAlgError, FloatingPointError):
+        return {"rho": None, "rho_squared": None, "cycles_per_1e6": None,
+                "canonical_correlations": None}
+    rate = rho**2
+    cycles = float(np.log(1e-6) / np.log(rate)) if 0 < rate < 1 else None
+    return {"rho": rho, "rho_squared": rate, "cycles_per_1e6": cycles,
+            "canonical_correlations": correlations}
+
+
+def _summary(staged, stop_reason, joint, cg_joint, cg_staged) -> dict:
+    joint_std = joint["std"]
+    reached = next((k for k, row in enumerate(staged[1:], start=1)
+                    if row["std"] <= joint_std * (1 + REACHED_JOINT_RTOL)), None)
+    cg_reached = next((k for k, row in enumerate(cg_staged[1:], start=1)
+                       if row["std"] <= joint_std * (1 + REACHED_JOINT_RTOL)), None)
+    return {
+        "staged_cycles": len(staged) - 1,
+        "staged_stop_reason": stop_reason,
+        "staged_iterations": int(sum(r["iterations"] for r in staged)),
+        "staged_wall_s": float(sum(r["wall_s"] for r in staged)),
+        "staged_cycles_to_joint": reached,
+        "staged_final_std_over_joint": staged[-1]["std"] / joint_std if joint_std > 0 else None,
+        "reached_joint_rtol": REACHED_JOINT_RTOL,
+        "joint_iterations": int(joint["iterations"]),
+        "joint_wall_s": float(joint["wall_s"]),
+        "cg_joint": {row["variant"]: {"status": row["status"], "iterations": row["iterations"],
+                                      "std": row["std"], "wall_s": row["wall_s"]}
+                     for row in cg_joint},
+        "cg_staged_cycles": len(cg_staged) - 1,
+        "cg_staged_iterations": int(sum(r["iterations"] for r in cg_staged)),
+        "cg_staged_wall_s": float(sum(r["wall_s"] for r in cg_staged)),
+        "cg_staged_cycles_to_joint": cg_reached,
+        "cg_staged_all_stages_converged": all(r.get("converged", True) for r in cg_staged[1:]),
+    }
+
+
+def compare(samples, *, reference_field=None, settings: CompareSettings = CompareSettings(),
+            unit: str = "nT") -> Comparison:
+    """Run the staged cycle, the joint solve and the paper's CG (joint and staged) on one log.
+
+    samples : (N, 3) raw sensor output B_M. [nT, or `unit`]
+    reference_field : None (Eq. 8), a float F or N values F_i. [nT, or `unit`]
+    settings : cycles, rtol and the CG settings.
+
+    Returns a Comparison. Raises InputError for unusable input and SolveError when IPOPT fails.
+    """
+    samples = check_samples(samples)
+    reference = check_reference(reference_field, samples.shape[0])
+    problem = Problem(samples=samples, reference=reference, moments=accumulate(samples, reference))
+    moments = problem.moments
+
+    rule = StopRule(max_cycles=int(settings.cycles), rtol=settings.rtol)
+    _, staged, stages, stop_reason = run_staged(problem, rule)
+
+    start = joint_start(moments)
+    joint_step, joint_rows, joint_stages = run_joint(problem)
+    joint_theta = getattr(joint_step, "theta", joint_step)
+    joint = joint_rows[-1]
+    joint["status"] = joint_stages[-1]["status"]
+    joint_path = _joint_trajectory(joint_step, joint["iterations"], joint["objective"])
+
+    cg_joint, cg_joint_paths = [], {}
+    for scaled in (False, True):
+        options = CGOptions(**{**asdict(settings.cg), "scaled": scaled})
+        label = "cg joint scaled" if scaled else "cg joint"
+        _, row, outcome = run_cg_joint(problem, start, options, label=label)
+        cg_joint.append(row)
+        cg_joint_paths[label] = _cg_trajectory([outcome.history])
+
+    _, cg_staged, cg_stages = run_cg_staged(problem, settings.cycles, settings.cg, settings.rtol)
+
+    trajectories = {
+        "staged": _staged_trajectory(staged, stages),
+        "joint": joint_path,
+        "cg_joint": cg_joint_paths["cg joint"],
+        "cg_joint_scaled": cg_joint_paths["cg joint scaled"],
+        "cg_staged": _cg_trajectory([s["history"] for s in cg_stages]),
+    }
+
+    summary = _summary(staged, stop_reason, joint, cg_joint, cg_staged)
+    summary["block_coupling"] = block_coupling(moments, joint_theta)
+    warnings = []
+    if stop_reason == "max_cycles":
+        warnings.append(f"the staged cycle was still improving after {settings.cycles} cycles "
+                        f"(std {staged[-1]['std']:.4g} vs joint {joint['std']:.4g}); pass a "
+                        f"larger --cycles to see where it ends")
+    for row in cg_joint:
+        if row["status"] != "converged":
+            warnings.append(f"{row['label']}: the conjugate gradient did not converge "
+                            f"({row['status']} after {row['iterations']} iterations; std "
+                            f"{row['std']:.4g} vs joint {joint['std']:.4g})")
+    bad = [r["label"] for r in cg_staged[1:] if not r.get("converged", True)]
+    if bad:
+        warnings.append(f"conjugate gradient stages that did not converge in: {', '.join(bad)}")
+
+    mode = moments.reference
+    reference_doc = {"mode": mode}
+    if mode == "constant":
+        reference_doc["field"] = float(reference)
+    elif mode == "series":
+        reference_doc["field_mean"] = float(np.mean(reference))
+    return Comparison(samples=samples, staged=staged, joint=joint, cg_joint=cg_joint,
+                      cg_staged=cg_staged, trajectories=trajectories, summary=summary,
+                      reference=reference_doc, settings=settings, unit=unit, warnings=warnings)
+
+
+# --- figures (matplotlib is optional: the `plot` extra) -----------------------------------------
+
+def require_matplotlib() -> None:
+    """Raise InputError with the install command when matplotlib is missing."""
+    try:
+        import matplotlib  # noqa: F401
+        from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: F401
+    except ImportError:
+        raise InputError(f"the figure needs matplotlib; {PLOT_HINT}") from None
+
+
+#: Most samples drawn per curve; longer logs are strided evenly.
+PLOT_SAMPLES = 4000
+#: Most cycles drawn one by one in panel (a) (the paper shows seven); the last is always drawn.
+PLOT_CYCLES = 7
+
+
+def render_png(comparison: Comparison, *, dpi: int = 80, title: str | None = None) -> bytes:
+    """PNG of Fig. 2 of [1] for this comparison, plus the convergence of every method.
+
+    (a) |B1| over the samples after each cycle of the staged method; (b) measured |B_M| vs one
+    pass vs the last cycle vs the joint solve; (c) objective against cumulative solver
+    iterations for every method, log scales. Uses the Agg canvas, never pyplot's global state.
+    """
+    require_matplotlib()
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    unit = comparison.unit
+    n = comparison.samples.shape[0]
+    stride = max(1, -(-n // PLOT_SAMPLES))
+    index = np.arange(0, n, stride)
+
+    def magnitude(row):
+        return comparison.magnitudes(row)[::stride]
+
+    figure = Figure(figsize=(14.0, 4.3), dpi=dpi, layout="constrained")
+    FigureCanvasAgg(figure)
+    ax_a, ax_b, ax_c = figure.subplots(1, 3)
+
+    cycles = comparison.staged[1:]
+    shown = list(range(min(PLOT_CYCLES, len(cycles))))
+    if cycles and len(cycles) - 1 not in shown:
+        shown.append(len(cycles) - 1)
+    colours = [f"C{k % 10}" for k in range(len(shown))]
+    for colour, k in zip(colours, shown):
+        ax_a.plot(index, magnitude(cycles[k]), lw=0.6, color=colour,
+                  label=f"{cycles[k]['label']} (std {cycles[k]['std']:.3g})")
+    ax_a.set_title("(a) |B1| after each staged cycle")
+    ax_a.set_xlabel("sample")
+    ax_a.set_ylabel(f"|B1| [{unit}]")
+    ax_a.legend(fontsize=7, loc="upper right")
+
+    curves = [("measured", comparison.staged[0], "0.6")]
+    if cycles:
+        curves.append(("one pass", cycles[0], "C1"))
+        curves.append((f"last cycle ({len(cycles)})", cycles[-1], "C0"))
+    curves.append(("joint IPOPT", comparison.joint, "C3"))
+    for name, row, colour in curves:
+        ax_b.plot(index, magnitude(row), lw=0.6, color=colour,
+                  label=f"{name} (std {row['std']:.3g})")
+    ax_b.set_title("(b) before and after calibration")
+    ax_b.set_xlabel("sample")
+    ax_b.set_ylabel(f"|B| [{unit}]")
+    ax_b.legend(fontsize=7, loc="upper right")
+
+    styles = {"staged": ("staged cycle, IPOPT stages", "C0", ".-"),
+              "joint": ("joint IPOPT", "C3", "s-"),
+              "cg_joint": ("CG joint, paper units", "C1", "-"),
+              "cg_joint_scaled": ("CG joint, scaled", "C4", "-"),
+              "cg_staged": ("CG staged cycle", "C2", "-")}
+    for name, (label, colour, style) in styles.items():
+        path = comparison.trajectories.get(name)
+        if not path:
+            continue
+        its = np.asarray(path["iterations"], dtype=float)
+        values = np.asarray(path["objective"], dtype=float)
+        positive = values > 0  # a log axis; an exact zero objective is not drawn
+        ax_c.plot(its[positive], values[positive], style, color=colour, lw=1.0, ms=3,
+                  label=label)
+    ax_c.set_xscale("symlog", linthresh=10)
+    ax_c.set_yscale("log")
+    ax_c.set_xlim(left=0)
+    ax_c.set_title("(c) objective vs cumulative iterations")
+    ax_c.set_xlabel("cumulative solver iterations")
+    ax_c.set_ylabel(f"objective [{unit}^2]")
+    ax_c.legend(fontsize=7, loc="upper right")
+    if title:
+        figure.suptitle(title, fontsize=10)
+    buffer = _stdio.BytesIO()
+    figure.savefig(buffer, format="png", dpi=dpi)
+    return buffer.getvalue()
+
