@@ -213,14 +213,25 @@ def check_reference(reference, n: int):
     return array
 
 
-def _atomic_write(path, write) -> None:
+def check_output_path(path) -> None:
+    """Fail before any work when an output's folder does not exist or the path is a folder."""
+    if not path:
+        return
     path = Path(path)
     directory = path.parent if str(path.parent) else Path(".")
     if not directory.is_dir():
         raise InputError(f"{path}: the folder {directory} does not exist")
+    if path.is_dir():
+        raise InputError(f"{path}: is a directory, expected a file name")
+
+
+def _atomic_write(path, write, binary: bool = False) -> None:
+    path = Path(path)
+    check_output_path(path)
+    directory = path.parent if str(path.parent) else Path(".")
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
     try:
-        with os.fdopen(fd, "w", newline="") as handle:
+        with (os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", newline="")) as handle:
             write(handle)
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual permissions
         os.replace(tmp, path)
@@ -241,6 +252,11 @@ def _umask() -> int:
 def write_text_atomic(path, text: str) -> None:
     """Write text to a temporary file beside `path`, then rename it over `path`."""
     _atomic_write(path, lambda handle: handle.write(text))
+
+
+def write_bytes_atomic(path, data: bytes) -> None:
+    """Write bytes (a PNG, say) to a temporary file beside `path`, then rename it over `path`."""
+    _atomic_write(path, lambda handle: handle.write(data), binary=True)
 
 
 def write_json_atomic(path, document) -> None:

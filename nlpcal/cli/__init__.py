@@ -8,10 +8,12 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import json
 import sys
 
 from .. import __version__
 from ..errors import InputError, SolveError
+from ..io import write_json_atomic
 
 #: Modules of nlpcal.cli that each add one subcommand through `register(subparsers)`.
 COMMAND_MODULES = (
@@ -72,3 +74,11 @@ def main(argv=None) -> int:
 def warn(message: str) -> None:
     """A human message on stderr."""
     print(f"nlpcal: {message}", file=sys.stderr)
+
+
+def emit_json(document, output) -> None:
+    """JSON to -o (written atomically) or to stdout."""
+    if output:
+        write_json_atomic(output, document)
+    else:
+        sys.stdout.write(json.dumps(document, indent=2) + "\n")

@@ -13,16 +13,14 @@ matplotlib).
 
 from __future__ import annotations
 
-import os
 import sys
-import tempfile
-from pathlib import Path
 
 from ..compare import PLOT_HINT, CompareSettings, compare, render_png, require_matplotlib
 from ..conjugate_gradient import CGOptions
 from ..errors import InputError
-from ..io import csv_engine, unit_factor
-from .core import add_log_arguments, emit_json, read_log, reference_from_args
+from ..io import check_output_path, csv_engine, unit_factor, write_bytes_atomic
+from . import emit_json
+from .core import add_log_arguments, read_log, reference_from_args
 
 
 def register(sub):
@@ -60,35 +58,6 @@ def register(sub):
     parser.set_defaults(func=run)
 
 
-def _check_output(path) -> None:
-    """Fail before any work when an output's folder does not exist."""
-    if not path:
-        return
-    path = Path(path)
-    folder = path.parent if str(path.parent) else Path(".")
-    if not folder.is_dir():
-        raise InputError(f"{path}: the folder {folder} does not exist")
-    if path.is_dir():
-        raise InputError(f"{path}: is a directory, expected a file name")
-
-
-def write_bytes_atomic(path, data: bytes) -> None:
-    """Write bytes to a temporary file beside `path`, then rename it over `path`."""
-    path = Path(path)
-    folder = path.parent if str(path.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
-
-
 def run(args) -> int:
     if args.cycles < 1:
         raise InputError(f"--cycles must be at least 1, got {args.cycles}")
@@ -98,8 +67,8 @@ def run(args) -> int:
     except ValueError as exc:
         raise InputError(f"conjugate gradient settings: {exc}") from None
     settings = CompareSettings(cycles=args.cycles, rtol=args.rtol, cg=cg)
-    _check_output(args.output)
-    _check_output(args.plot)
+    check_output_path(args.output)
+    check_output_path(args.plot)
     if args.plot:
         require_matplotlib()
     extra = [args.reference_column] if args.reference_column else []

@@ -7,7 +7,6 @@ attitude columns, overall and per pitch band (the paper's Table 2).
 
 from __future__ import annotations
 
-import json
 import sys
 
 import numpy as np
@@ -16,8 +15,8 @@ import pandas as pd
 from .. import compass
 from ..errors import InputError
 from ..io import (FIELD_UNITS_NT, numeric_columns, read_json, read_table, resolve_columns,
-                  suggested_unit, unit_factor, write_csv_atomic, write_json_atomic)
-from . import warn
+                  suggested_unit, unit_factor, write_csv_atomic)
+from . import emit_json, warn
 
 #: Accelerometer column triples recognised without --acc-columns, tried case-insensitively.
 ACC_COLUMN_TRIPLES = (("ax", "ay", "az"), ("acc_x", "acc_y", "acc_z"), ("accx", "accy", "accz"),
@@ -159,13 +158,6 @@ def _read_sensors(args, mag_unit: str, acc_unit: str):
     return frame, mag, acc, numeric.kept, mag_columns, acc_columns
 
 
-def _emit_json(document, output):
-    if output:
-        write_json_atomic(output, document)
-    else:
-        sys.stdout.write(json.dumps(document, indent=2) + "\n")
-
-
 def run_calibrate(args) -> int:
     frame, mag, acc, kept, mag_columns, acc_columns = _read_sensors(args, args.mag_unit,
                                                                     args.acc_unit)
@@ -190,7 +182,7 @@ def run_calibrate(args) -> int:
     })
     for message in result.warnings:
         warn(message)
-    _emit_json(result.to_dict(), args.output)
+    emit_json(result.to_dict(), args.output)
     summary = result.to_dict()
     for sensor in ("magnetometer", "accelerometer"):
         angles = summary[sensor]["mounting_deg"]
@@ -253,7 +245,7 @@ def run_evaluate(args) -> int:
                       "estimate_columns": list(args.estimate_columns)}
     if stats["rows_skipped"]:
         warn(f"skipped {stats['rows_skipped']} row(s) without finite estimated and true angles")
-    _emit_json(stats, args.output)
+    emit_json(stats, args.output)
     print(_format_stats(stats), file=sys.stderr)
     return 0
 

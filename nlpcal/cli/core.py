@@ -12,10 +12,10 @@ import pandas as pd
 
 from ..calibration import METHODS, CalibrationResult, calibrate
 from ..errors import InputError
-from ..io import (FIELD_UNITS_NT, csv_engine, csv_to_memmap, numeric_columns, read_json, read_table,
-                  resolve_columns, suggested_unit, unit_factor, write_csv_atomic, write_json_atomic)
+from ..io import (FIELD_UNITS_NT, csv_engine, csv_to_memmap, numeric_columns, read_json,
+                  read_table, resolve_columns, suggested_unit, unit_factor, write_csv_atomic)
 from ..statistics import field_statistics, format_table
-from . import warn
+from . import emit_json, warn
 
 TOTAL_COLUMN = "b_total"
 
@@ -80,14 +80,6 @@ def _drift():
     """nlpcal.cli.drift (temperature options), imported late: it imports this module."""
     from . import drift
     return drift
-
-
-def emit_json(document, output) -> None:
-    """JSON to -o (atomically) or to stdout."""
-    if output:
-        write_json_atomic(output, document)
-    else:
-        sys.stdout.write(json.dumps(document, indent=2) + "\n")
 
 
 # --- calibrate ----------------------------------------------------------------------------------
@@ -160,11 +152,16 @@ def run_calibrate(args) -> int:
                          "csv_engine": engine, "rows_dropped": dropped}
     if args.reference_column:
         document["reference"]["column"] = args.reference_column
+    report_calibration(result, document, args.output)
+    return 0
+
+
+def report_calibration(result, document, output) -> None:
+    """Table 1 rows and warnings to stderr, the parameters document to -o or stdout."""
     print(result.table(), file=sys.stderr)
     for message in result.warnings:
         warn(message)
-    emit_json(document, args.output)
-    return 0
+    emit_json(document, output)
 
 
 # --- apply --------------------------------------------------------------------------------------

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -31,10 +30,10 @@ import pandas as pd
 from ..drift import (DriftFit, TemperatureCalibrationResult, calibrate_temperature,
                      evaluation_row, fit_drift, has_temperature_model)
 from ..errors import InputError
-from ..io import check_reference, csv_engine, read_json
+from ..io import check_output_path, check_reference, csv_engine, read_json
 from ..models.liu2022 import TEMPERATURE_MODELS, rmse
-from . import warn
-from .core import add_log_arguments, emit_json, read_log, reference_from_args
+from . import emit_json, warn
+from .core import add_log_arguments, read_log, reference_from_args, report_calibration
 
 #: Note when a log's temperatures lie further than this outside the fitted range. [degC]
 EXTRAPOLATION_NOTE_DEGC = 1.0
@@ -68,7 +67,7 @@ def register(sub):
 
 
 def run_fit(args) -> int:
-    check_output_folder(args.output)
+    check_output_path(args.output)
     _check_distinct(args.temperature_column, args.reference_column)
     log = read_log(args.log, args.columns, args.unit, args.drop_invalid,
                    [args.temperature_column, args.reference_column])
@@ -92,16 +91,6 @@ def run_fit(args) -> int:
 
 
 # --- shared helpers ----------------------------------------------------------------------------
-
-def check_output_folder(path) -> None:
-    """Fail before the work, not after it, when -o points into a missing folder."""
-    if path:
-        folder = Path(path).parent
-        if not folder.is_dir():
-            raise InputError(f"{path}: the folder {folder} does not exist")
-        if Path(path).is_dir():
-            raise InputError(f"{path}: is a directory, expected a file name")
-
 
 def _check_distinct(temperature_column, reference_column) -> None:
     if temperature_column and reference_column and temperature_column == reference_column:
@@ -166,7 +155,7 @@ def run_temperature_calibrate(args) -> int:
     if not args.reference_column:
         raise InputError("the temperature calibration needs --reference-column COL, a reference "
                          "magnitude per sample (for example a proton magnetometer)")
-    check_output_folder(args.output)
+    check_output_path(args.output)
     _check_distinct(args.temperature_column, args.reference_column)
     log = read_log(args.log, args.columns, args.unit, args.drop_invalid,
                    [args.reference_column, args.temperature_column])
@@ -182,10 +171,7 @@ def run_temperature_calibrate(args) -> int:
                          "temperature_column": args.temperature_column,
                          "csv_engine": csv_engine(), "rows_dropped": int((~log.kept).sum())}
     document["reference"]["column"] = args.reference_column
-    print(result.table(), file=sys.stderr)
-    for message in result.warnings:
-        warn(message)
-    emit_json(document, args.output)
+    report_calibration(result, document, args.output)
     return 0
 
 

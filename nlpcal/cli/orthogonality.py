@@ -16,19 +16,16 @@ from __future__ import annotations
 
 import contextlib
 import io as _stdio
-import json
-import os
 import sys
-import tempfile
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from .. import orthogonality as ortho
 from ..errors import InputError
-from ..io import (numeric_columns, read_table, resolve_columns, unit_factor, write_csv_atomic,
-                  write_json_atomic)
+from ..io import (check_output_path, numeric_columns, read_table, resolve_columns, unit_factor,
+                  write_bytes_atomic, write_csv_atomic)
+from . import emit_json
 
 PLOT_HINT = "pip install 'nlpcal[plot]'"
 
@@ -110,10 +107,10 @@ def run(args) -> int:
 def _run_worst_case(args) -> int:
     angles = ortho.check_angles(args.angles_deg)
     field = ortho.check_field(args.field)
-    _check_output_folder(args.output)
+    check_output_path(args.output)
     with _solver_log(args.verbose):
         result = ortho.worst_case(angles, field, verbose=args.verbose)
-    _emit_json(result.as_dict(), args.output)
+    emit_json(result.as_dict(), args.output)
     if args.output:
         _info(f"max |dB| = {result.max_abs_error_nT:.4f} nT at theta = "
               f"{result.worst.theta_deg:.2f} deg, phi = {result.worst.phi_deg:.2f} deg; "
@@ -129,9 +126,9 @@ def _run_map(args) -> int:
                          "for stdout)")
     if args.output:
         _require_matplotlib()
-        _check_output_folder(args.output)
+        check_output_path(args.output)
     if args.csv and args.csv != "-":
-        _check_output_folder(args.csv)
+        check_output_path(args.csv)
     theta, phi, error = ortho.error_map(angles, field, args.step_deg)
     png = None
     if args.output:
@@ -158,7 +155,7 @@ def _run_invert(args) -> int:
     bounds = ortho.check_bounds(args.bound_deg)
     field = None if args.field is None else ortho.check_field(args.field, "reference field")
     factor = unit_factor(args.unit)
-    _check_output_folder(args.output)
+    check_output_path(args.output)
     samples = [_read_log(path, args.columns, factor, args.drop_invalid) for path in args.logs]
     runs = []
     for path, data in zip(args.logs, samples):
@@ -176,7 +173,7 @@ def _run_invert(args) -> int:
         document = result.as_dict()
     for message in result.warnings:
         _info(f"warning: {message}")
-    _emit_json(document, args.output)
+    emit_json(document, args.output)
     if args.output:
         angles = ", ".join(f"{name} = {value:+.5f}" for name, value in
                            zip(ortho.ANGLE_NAMES, document["angles_deg"]))
@@ -212,46 +209,6 @@ def _solver_log(verbose: bool):
 
 def _info(message: str) -> None:
     print(f"nlpcal orthogonality: {message}", file=sys.stderr)
-
-
-def _check_output_folder(path) -> None:
-    """Fail before any work when the output's folder does not exist."""
-    if not path:
-        return
-    path = Path(path)
-    folder = path.parent if str(path.parent) else Path(".")
-    if not folder.is_dir():
-        raise InputError(f"{path}: the folder {folder} does not exist")
-    if path.is_dir():
-        raise InputError(f"{path}: is a directory, expected a file name")
-
-
-def _emit_json(document: dict, output) -> None:
-    if output:
-        write_json_atomic(output, document)
-    else:
-        sys.stdout.write(json.dumps(document, indent=2) + "\n")
-
-
-def write_bytes_atomic(path, data: bytes) -> None:
-    """Write bytes to a temporary file beside `path`, then rename it over `path`."""
-    path = Path(path)
-    _check_output_folder(path)
-    folder = path.parent if str(path.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; give the usual permissions
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
 
 
 # ------------------------------------------------------------------------------------------------
