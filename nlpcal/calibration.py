@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import __version__
-from .errors import InputError
+from .errors import InputError, SolveError
 from .io import check_reference, check_samples, read_json, write_json_atomic
 from .joint import run_joint
 from .models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters, correct
@@ -214,6 +214,25 @@ def _uncertainty(problem: Problem, theta, objective: float, hs: np.ndarray):
     }
 
 
+def _explain_failure(problem: Problem, failure: SolveError) -> SolveError:
+    """Name the parameters the data do not determine, when that is why IPOPT failed.
+
+    The Hessian is taken where the failing solve started (failure.result).
+    """
+    theta = failure.result
+    if theta is None or not np.all(np.isfinite(theta)):
+        return failure
+    hs = scaled_hessian(problem.moments, theta)
+    objective = field_statistics(problem.samples, theta, problem.reference)["objective"]
+    _, identifiability = _uncertainty(problem, theta, objective, hs)
+    weak = identifiability["not_identifiable"]
+    if not weak:
+        return failure
+    return SolveError(f"{failure} : the data do not determine {', '.join(weak)} (too little "
+                      f"attitude coverage); rotate the sensor through more attitudes",
+                      failure.status, result=theta)
+
+
 def calibrate(samples, *, method: str = "staged", reference_field=None, cycles: int = 50,
               target_std: float | None = None, target_range: float | None = None,
               rtol: float = 1e-9, unit: str = "nT") -> CalibrationResult:
@@ -241,15 +260,18 @@ def calibrate(samples, *, method: str = "staged", reference_field=None, cycles: 
     samples = check_samples(samples)
     reference = check_reference(reference_field, samples.shape[0])
     problem = Problem(samples=samples, reference=reference, moments=accumulate(samples, reference))
-    if method == "staged":
-        rule = StopRule(max_cycles=int(cycles), target_std=target_std, target_range=target_range,
-                        rtol=rtol)
-        theta, rows, stages, stop_reason = run_staged(problem, rule)
-        hs = scaled_hessian(problem.moments, theta)
-    else:
-        step, rows, stages = run_joint(problem)
-        theta, stop_reason = step.theta, "solved"
-        hs = scaled_hessian(problem.moments, theta, step)
+    try:
+        if method == "staged":
+            rule = StopRule(max_cycles=int(cycles), target_std=target_std,
+                            target_range=target_range, rtol=rtol)
+            theta, rows, stages, stop_reason = run_staged(problem, rule)
+            hs = scaled_hessian(problem.moments, theta)
+        else:
+            step, rows, stages = run_joint(problem)
+            theta, stop_reason = step.theta, "solved"
+            hs = scaled_hessian(problem.moments, theta, step)
+    except SolveError as failure:
+        raise _explain_failure(problem, failure) from None
     final = rows[-1]
     errors, identifiability = _uncertainty(problem, theta, final["objective"], hs)
 

@@ -41,6 +41,7 @@ from itertools import combinations_with_replacement
 
 import numpy as np
 
+from .chunks import map_shares
 from .statistics import MagnitudeStats, reference_chunk
 
 #: Rows per chunk of the data pass: large enough for BLAS, small enough for the cache.
@@ -236,25 +237,37 @@ def accumulate(samples: np.ndarray, reference=None, frame: Frame | None = None,
         kind, field = "series", np.asarray(reference, dtype=float)
         length = float(np.sqrt(np.mean(field**2)))
     lay = layout(kind == "series")
-    gram = np.zeros((lay.size, lay.size))
-    buffer = np.empty((lay.size, min(chunk_rows, n)))
-    measured = MagnitudeStats()
-    for start in range(0, n, chunk_rows):
-        stop = min(start + chunk_rows, n)
-        raw = samples[start:stop]
-        measured.add(np.sqrt(np.einsum("ij,ij->i", raw, raw)), reference_chunk(reference, start, stop))
-        d = (raw - frame.centre).T / length  # 3 x rows
-        radius_sq = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
-        if field is None:
-            gamma, a = None, radius_sq - 1.0
-        else:
-            gamma = (length / field[start:stop]) ** 2
-            a = gamma * radius_sq - 1.0
-        chunk = buffer[:, : stop - start]
-        _features(d, a, gamma, lay, chunk)
-        if field is not None:
-            chunk *= field[start:stop] / length  # sqrt of the weight w_i
-        gram += chunk @ chunk.T
+    first = samples[: min(1024, n)]
+    shift = float(np.sqrt(np.einsum("ij,ij->i", first, first)).mean())
+
+    def share(begin, end):
+        gram = np.zeros((lay.size, lay.size))
+        buffer = np.empty((lay.size, min(chunk_rows, end - begin)))
+        measured = MagnitudeStats(shift)
+        for start in range(begin, end, chunk_rows):
+            stop = min(start + chunk_rows, end)
+            raw = samples[start:stop]
+            measured.add(np.sqrt(np.einsum("ij,ij->i", raw, raw)),
+                         reference_chunk(reference, start, stop))
+            d = (raw - frame.centre).T / length  # 3 x rows
+            radius_sq = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+            if field is None:
+                gamma, a = None, radius_sq - 1.0
+            else:
+                gamma = (length / field[start:stop]) ** 2
+                a = gamma * radius_sq - 1.0
+            chunk = buffer[:, : stop - start]
+            _features(d, a, gamma, lay, chunk)
+            if field is not None:
+                chunk *= field[start:stop] / length  # sqrt of the weight w_i
+            gram += chunk @ chunk.T
+        return gram, measured
+
+    parts = map_shares(share, n, chunk_rows)
+    gram, measured = parts[0]
+    for part_gram, part_measured in parts[1:]:
+        gram += part_gram
+        measured.merge(part_measured)
     gram /= n
     return Moments(gram=gram, frame=frame, length=length, n=n, reference=kind,
                    measured=measured.result())

@@ -27,6 +27,8 @@ References
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import casadi as ca
 import numpy as np
 
@@ -59,12 +61,8 @@ def u_coefficients(theta, centre, length):
                       -2 * Az, ca.dot(zt, Az))
 
 
-def power_moments(e, gram, layout: mom.Layout):
-    """m_1..m_4, the weighted means of u^k, from e and the Gram matrix (exact polynomials).
-
-    u = U . f and u^2 = P . f on the distinct features f of the layout, so
-    m_1 = U . G_1, m_2 = P . G_1, m_3 = P^T G U and m_4 = P^T G P (G_1: the column of f = 1).
-    """
+def feature_coefficients(e, layout: mom.Layout):
+    """U and P with u = U . f and u^2 = P . f on the distinct features f of the layout."""
     size = layout.size
     U = [ca.SX(0)] * size
     P = [ca.SX(0)] * size
@@ -75,9 +73,28 @@ def power_moments(e, gram, layout: mom.Layout):
     for (k, l), index in layout.pair.items():
         P[index] += e[k] * e[l] * (1.0 if k == l else 2.0)  # (e . psi')^2
     P[layout.a2] += 1  # a^2
-    U, P = ca.vertcat(*U), ca.vertcat(*P)
+    return ca.vertcat(*U), ca.vertcat(*P)
+
+
+@lru_cache(maxsize=None)
+def coefficient_function(varying_gamma: bool) -> ca.Function:
+    """(theta [internal units], centre [field], L [field]) -> (U, P), a small SX function.
+
+    The problems call it from MX graphs whose only other operations are the products with the
+    Gram matrix, so that building an NLP takes milliseconds.
+    """
+    theta, centre, length = ca.SX.sym("theta", 9), ca.SX.sym("centre", 3), ca.SX.sym("L")
+    U, P = feature_coefficients(u_coefficients(theta, centre, length), mom.layout(varying_gamma))
+    return ca.Function("u_coefficients", [theta, centre, length], [U, P])
+
+
+def power_moments(U, P, gram, layout: mom.Layout):
+    """m_1..m_4, the weighted means of u^k, from U, P and the Gram matrix (exact polynomials).
+
+    m_1 = U . G_1, m_2 = P . G_1, m_3 = P^T G U and m_4 = P^T G P (G_1: the column of f = 1).
+    """
     first = gram[:, layout.one]
-    GP = gram @ P
+    GP = ca.mtimes(gram, P)
     return ca.dot(U, first), ca.dot(P, first), ca.dot(GP, U), ca.dot(GP, P)
 
 
@@ -101,9 +118,13 @@ def spread_objective(m, length):
 
 
 def objective_expression(theta, gram, centre, length, reference: str):
-    """f(theta) for reference "none" (Eq. 8), "constant" or "series". [field^2]"""
+    """f(theta) for reference "none" (Eq. 8), "constant" or "series". [field^2]
+
+    Works on SX and on MX symbols (the problems use MX, the Gram entering as a dense matrix).
+    """
     layout = mom.layout(reference == "series")
-    m = power_moments(u_coefficients(theta, centre, length), gram, layout)
+    U, P = coefficient_function(layout.varying_gamma)(theta, centre, length)
+    m = power_moments(U, P, gram, layout)
     return spread_objective(m, length) if reference == "none" else reference_objective(m, length)
 
 

@@ -71,12 +71,12 @@ def variable_scale(radius: float) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Symbols:
-    theta_ref: ca.SX
-    var_scale: ca.SX
-    gram: ca.SX
-    centre: ca.SX
-    length: ca.SX
-    f_ref: ca.SX
+    theta_ref: ca.MX
+    var_scale: ca.MX
+    gram: ca.MX
+    centre: ca.MX
+    length: ca.MX
+    f_ref: ca.MX
 
     @property
     def data(self):
@@ -88,12 +88,12 @@ class Symbols:
 def _symbols(reference: str) -> Symbols:
     size = mom.layout(reference == "series").size
     return Symbols(
-        theta_ref=ca.SX.sym("theta_ref", 9),
-        var_scale=ca.SX.sym("var_scale", 9),
-        gram=ca.SX.sym("G", size, size),
-        centre=ca.SX.sym("centre", 3),
-        length=ca.SX.sym("length"),
-        f_ref=ca.SX.sym("f_ref"),
+        theta_ref=ca.MX.sym("theta_ref", 9),
+        var_scale=ca.MX.sym("var_scale", 9),
+        gram=ca.MX.sym("G", size, size),
+        centre=ca.MX.sym("centre", 3),
+        length=ca.MX.sym("length"),
+        f_ref=ca.MX.sym("f_ref"),
     )
 
 
@@ -112,7 +112,7 @@ def objective_function(reference: str) -> ca.Function:
     reference : "none", "constant" or "series" (`Moments.reference`).
     """
     s = _symbols(reference)
-    theta = ca.SX.sym("theta", 9)
+    theta = ca.MX.sym("theta", 9)
     f = objective_expression(theta, s.gram, s.centre, s.length, reference)
     hess, grad = ca.hessian(f, theta)
     return ca.Function(f"f_{reference}", [theta, s.data], [f, grad, hess], ["theta", "p"],
@@ -150,11 +150,9 @@ def block_problem(block: str, reference: str, options: IpoptOptions = IpoptOptio
     """
     s = _symbols(reference)
     free = BLOCKS[block]
-    x = ca.SX.sym("x", len(free))
-    step = ca.SX.zeros(9)
-    for position, index in enumerate(free):
-        step[index] = x[position]
-    theta = s.theta_ref + s.var_scale * step
+    x = ca.MX.sym("x", len(free))
+    parts = [x[free.index(i)] if i in free else ca.MX(0) for i in range(9)]
+    theta = s.theta_ref + s.var_scale * ca.vertcat(*parts)
     f = objective_expression(theta, s.gram, s.centre, s.length, reference)
     has_gauge = reference == "none" and any(i in SCALE_INDICES for i in free)
     g = ca.sum1(theta[3:6]) if has_gauge else None
@@ -210,7 +208,8 @@ def block_step(moments: mom.Moments, block: str, theta,
     stalled = (outcome.status == "Search_Direction_Becomes_Too_Small"
                and outcome.f * f_ref <= f_start)
     if not (outcome.success or stalled):
-        raise SolveError(f"IPOPT did not solve the {block} problem", outcome.status)
+        raise SolveError(f"IPOPT did not solve the {block} problem", outcome.status,
+                         result=theta)  # the start, where the data's null directions show
     if outcome.f * f_ref > f_start + 1e-12 * f_ref:
         return Step(theta, outcome, f_start, f_start, f_ref, problem, p, np.zeros(len(free)))
     step = np.zeros(9)

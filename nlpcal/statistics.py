@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .chunks import map_shares
 from .models.zhou2010 import correction_matrix_entries
 
 #: Delta degrees of freedom of the reported std.
@@ -28,9 +29,9 @@ class MagnitudeStats:
     50 000 nT field with a 1 nT spread does not cancel.
     """
 
-    def __init__(self):
+    def __init__(self, shift: float | None = None):
         self.n = 0
-        self.shift = None
+        self.shift = shift
         self.total = self.total_sq = self.ref_sq = 0.0
         self.high, self.low = -np.inf, np.inf
         self.u_high = self.u_low = 0.0
@@ -56,6 +57,23 @@ class MagnitudeStats:
             ratio = (magnitude / reference) ** 2 - 1.0
             self.u_high = max(self.u_high, float(ratio.max()))
             self.u_low = min(self.u_low, float(ratio.min()))
+
+    def merge(self, other: "MagnitudeStats") -> "MagnitudeStats":
+        """Add the sums of `other`, gathered with the same shift, to these."""
+        if other.n == 0:
+            return self
+        if self.n == 0:
+            return other
+        if other.shift != self.shift:
+            raise ValueError("MagnitudeStats gathered with different shifts")
+        self.n += other.n
+        self.total += other.total
+        self.total_sq += other.total_sq
+        self.ref_sq += other.ref_sq
+        self.high, self.low = max(self.high, other.high), min(self.low, other.low)
+        self.u_high, self.u_low = max(self.u_high, other.u_high), min(self.u_low, other.u_low)
+        self.has_reference = self.has_reference or other.has_reference
+        return self
 
     def result(self) -> dict:
         """max, min, mean, std, range [field unit], objective [field^2] and max_abs_u [1]: the
@@ -83,7 +101,7 @@ def reference_chunk(reference, start: int, stop: int):
     return reference[start:stop]
 
 
-def field_statistics(samples, theta=None, reference=None, chunk_rows: int = 65536) -> dict:
+def field_statistics(samples, theta=None, reference=None, chunk_rows: int = 16384) -> dict:
     """One chunked pass: Table 1 statistics of |B1| and the exact objective (`MagnitudeStats`).
 
     samples : (N, 3) raw output B_M. [field unit]
@@ -98,13 +116,30 @@ def field_statistics(samples, theta=None, reference=None, chunk_rows: int = 6553
         offset = theta[0:3]
         matrix = np.array(correction_matrix_entries(theta[6], theta[7], theta[8],
                                                     theta[3], theta[4], theta[5]), dtype=float)
-    stats = MagnitudeStats()
-    for start in range(0, samples.shape[0], chunk_rows):
-        stop = start + chunk_rows
-        block = (samples[start:stop] - offset) @ matrix.T
-        stats.add(np.sqrt(np.einsum("ij,ij->i", block, block)),
-                  reference_chunk(reference, start, stop))
-    return stats.result()
+    (m00, m01, m02), (_, m11, m12), (_, _, m22) = matrix  # upper triangular (Eq. 4)
+
+    def magnitude(start, stop):
+        chunk = samples[start:stop]
+        x, y, z = chunk[:, 0] - offset[0], chunk[:, 1] - offset[1], chunk[:, 2] - offset[2]
+        b1x = m00 * x + m01 * y + m02 * z
+        b1y = m11 * y + m12 * z
+        b1z = m22 * z
+        return np.sqrt(b1x * b1x + b1y * b1y + b1z * b1z)
+
+    shift = float(magnitude(0, min(1024, samples.shape[0])).mean())
+
+    def share(first, last):
+        stats = MagnitudeStats(shift)
+        for start in range(first, last, chunk_rows):
+            stop = min(start + chunk_rows, last)
+            stats.add(magnitude(start, stop), reference_chunk(reference, start, stop))
+        return stats
+
+    parts = map_shares(share, samples.shape[0], chunk_rows)
+    total = parts[0]
+    for part in parts[1:]:
+        total.merge(part)
+    return total.result()
 
 
 def format_table(rows, unit: str = "nT", extra=()) -> str:

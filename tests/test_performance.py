@@ -14,7 +14,7 @@ from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log
 
 
 def test_memory_stays_o_chunk_on_a_memory_mapped_log(tmp_path):
-    samples, _ = make_log(n=500_000, noise=1.0, seed=12)
+    samples, _ = make_log(n=1_000_000, noise=1.0, seed=12)
     path = tmp_path / "log.f8"
     mapped = np.memmap(path, dtype=np.float64, mode="w+", shape=samples.shape)
     mapped[:] = samples
@@ -25,8 +25,9 @@ def test_memory_stays_o_chunk_on_a_memory_mapped_log(tmp_path):
     result = calibrate(log, method="joint", reference_field=PAPER_FIELD)
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
-    # The data are 12 MB; the calibration allocates a few chunk buffers (~40 x 8192 doubles).
-    assert peak < 0.6 * log.nbytes
+    # The data are 24 MB; the calibration allocates a few chunk buffers per thread
+    # (about 50 x 8192 doubles each).
+    assert peak < 0.4 * log.nbytes
     assert abs(result.parameters["z_x"] - PAPER_TRUTH["z_x"]) < 0.1
 
 
