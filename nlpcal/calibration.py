@@ -257,6 +257,11 @@ def calibrate(samples, *, method: str = "staged", reference_field=None, cycles: 
         raise InputError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
     if int(cycles) < 1:
         raise InputError(f"cycles must be at least 1, got {cycles}")
+    for name, value in (("target_std", target_std), ("target_range", target_range)):
+        if value is not None and not (np.isfinite(value) and value > 0):
+            raise InputError(f"{name} must be a positive number, got {value}")
+    if not np.isfinite(rtol):
+        raise InputError(f"rtol must be a finite number, got {rtol}")
     samples = check_samples(samples)
     reference = check_reference(reference_field, samples.shape[0])
     problem = Problem(samples=samples, reference=reference, moments=accumulate(samples, reference))

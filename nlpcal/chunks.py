@@ -44,7 +44,7 @@ def map_shares(work, n: int, chunk_rows: int, workers: int | None = None) -> lis
     """work(start, stop) for every share, in threads; the results in order of the shares."""
     if workers is None:
         workers = WORKERS if parallel_available() else 1
-    ranges = shares(n, chunk_rows, workers)
+    ranges = shares(n, chunk_rows, workers) or [(0, n)]
     if len(ranges) == 1:
         return [work(*ranges[0])]
     controller = _blas_controller()

@@ -204,6 +204,12 @@ def test_bad_options(noisy):
         calibrate(noisy, reference_field=np.full(10, 5e4))
     with pytest.raises(InputError, match="cycles"):
         calibrate(noisy, cycles=0)
+    with pytest.raises(InputError, match="target_std"):
+        calibrate(noisy, target_std=-1.0)
+    with pytest.raises(InputError, match="target_range"):
+        calibrate(noisy, target_range=float("nan"))
+    with pytest.raises(InputError, match="rtol"):
+        calibrate(noisy, rtol=float("nan"))
 
 
 def test_ipopt_failure_is_surfaced(noisy, monkeypatch):

@@ -200,6 +200,9 @@ def test_apply_and_stats_errors(tmp_path, capsys, log_csv):
     wrong = write(tmp_path, "wrong.json", json.dumps({"hello": 1}))
     assert run(capsys, "apply", wrong, log_csv)[0] == 2
     assert run(capsys, "stats", tmp_path / "missing.csv")[0] == 2
+    header_only = write(tmp_path, "header.csv", "bx,by,bz\n")
+    code, _, err = run(capsys, "stats", header_only)
+    assert code == 2 and "no data rows" in err
     assert not (tmp_path / "c.csv").exists()
 
 

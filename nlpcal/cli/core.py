@@ -54,6 +54,8 @@ def read_log(path, columns=None, unit="nT", drop_invalid=False, extra_columns=()
                              f"{', '.join(frame.columns)}")
     numeric = numeric_columns(frame, chosen + list(extra_columns), drop_invalid=drop_invalid,
                               source=str(path))
+    if not numeric.kept.any():
+        raise InputError(f"{path}: no data rows")
     if numeric.dropped:
         warn(f"dropped {numeric.dropped} row(s) with missing or non-numeric values")
     hinted = suggested_unit(chosen)
