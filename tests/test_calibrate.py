@@ -168,7 +168,7 @@ def test_rotation_about_one_axis_is_reported_as_not_identifiable(method):
         result = calibrate(samples, method=method, reference_field=PAPER_FIELD)
     except SolveError as failure:
         assert "do not determine" in str(failure)
-        named = set(str(failure).split("do not determine ")[1].split(" (")[0].split(", "))
+        named = set(str(failure).split("do not determine ")[1].split(";")[0].split(", "))
     else:
         named = set(result.identifiability["not_identifiable"])
         assert any("not identifiable" in w for w in result.warnings)
@@ -179,6 +179,24 @@ def test_uniform_coverage_is_reported_as_identifiable(noisy):
     result = calibrate(noisy, method="joint", reference_field=PAPER_FIELD)
     assert result.identifiability["not_identifiable"] == []
     assert result.identifiability["poorly_determined"] == []
+    assert result.identifiability["coverage"]["covered"] == 26
+    assert not any("coverage" in w for w in result.warnings)
+
+
+def test_a_cap_of_directions_is_reported_as_poor_coverage():
+    # Field directions within 40 deg of the sensor's +z axis: a cap, as on a vehicle.
+    rng = np.random.default_rng(8)
+    v = rng.standard_normal((3000, 3))
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    cap = v[v[:, 2] > np.cos(np.radians(40))][:1500]
+    samples, _ = make_log(n=len(cap), noise=1.0, seed=9, directions=cap)
+    try:
+        result = calibrate(samples, method="joint", reference_field=PAPER_FIELD)
+    except SolveError as failure:  # IPOPT may wander along the weak directions
+        assert "rotate the sensor through more attitudes" in str(failure)
+    else:
+        assert result.identifiability["coverage"]["covered"] < 13
+        assert any("poor attitude coverage" in w for w in result.warnings)
 
 
 @pytest.mark.parametrize("bad, message", [
