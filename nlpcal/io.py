@@ -20,13 +20,18 @@ from .errors import InputError
 #: Field units and their size in nT. "raw" keeps the log's own unit (counts, arbitrary units).
 FIELD_UNITS_NT = {"nT": 1.0, "uT": 1e3, "mG": 1e2, "G": 1e5, "T": 1e9, "raw": 1.0}
 
-#: Prefixes of names recognised as magnetometer axes, once the axis letter is taken out
-#: (bx, mag_x, mx_uT, hx, x ...).
-MAGNETIC_PREFIXES = ("", "b", "b_", "m", "m_", "mag", "mag_", "magn", "magnetom", "magnetometer_",
-                     "h", "h_", "field_", "b1_")
+#: Prefixes of names recognised as magnetometer axes once the axis letter, spaces and
+#: punctuation are taken out (bx, mag_x, mx_uT, "Magnetometer X (uT)", x ...).
+MAGNETIC_PREFIXES = ("", "b", "m", "mag", "magn", "magnetometer", "magnetic", "h", "field",
+                     "compass", "b1")
 
-#: Unit suffixes of column names, and the unit they suggest.
-UNIT_SUFFIXES = {"nt": "nT", "ut": "uT", "mg": "mG", "gauss": "G", "g": "G", "t": "T"}
+#: Unit suffixes of column names, and the unit they suggest ("raw" for counts).
+UNIT_SUFFIXES = {"nt": "nT", "ut": "uT", "mg": "mG", "gauss": "G", "g": "G", "t": "T",
+                 "counts": "raw", "count": "raw", "lsb": "raw", "raw": "raw"}
+
+
+def _clean(text: str) -> str:
+    return "".join(ch for ch in text if ch.isalnum())
 
 
 def _axis_templates(columns):
@@ -42,16 +47,16 @@ def _axis_templates(columns):
 
 
 def _is_magnetic(template) -> bool:
-    prefix, suffix = template
-    suffix = suffix.lstrip("_")
+    prefix, suffix = (_clean(part) for part in template)
     return prefix in MAGNETIC_PREFIXES and (suffix == "" or suffix in UNIT_SUFFIXES)
 
 
 def suggested_unit(columns):
-    """The unit a column suffix such as _uT or _gauss suggests, or None."""
-    suffix = columns[0].lower().rsplit("_", 1)
-    if len(suffix) == 2:
-        return UNIT_SUFFIXES.get(suffix[1])
+    """The unit a column suffix such as _uT, (uT) or _gauss suggests, or None."""
+    low = columns[0].lower()
+    for i, ch in enumerate(low):
+        if ch in "xyz" and _is_magnetic((low[:i], low[i + 1:])):
+            return UNIT_SUFFIXES.get(_clean(low[i + 1:]))
     return None
 
 

@@ -244,3 +244,17 @@ def test_low_memory_gives_the_same_answer(log_csv, tmp_path, capsys):
     assert docs[1]["input"]["csv_engine"].startswith("c ")
     code, _, err = run(capsys, "calibrate", tmp_path / "missing.csv", "--low-memory")
     assert code == 2 and "no such file" in err
+
+
+def test_unit_from_column_names(log_csv, tmp_path, capsys):
+    frame = pd.read_csv(log_csv)[["bx", "by", "bz"]] / 1000.0
+    frame.columns = ["Magnetometer X (uT)", "Magnetometer Y (uT)", "Magnetometer Z (uT)"]
+    path = tmp_path / "named.csv"
+    frame.to_csv(path, index=False)
+    code, out, err = run(capsys, "calibrate", path, "--method", "joint")
+    assert code == 0 and "unit uT taken from the column names" in err
+    doc = json.loads(out)
+    assert doc["input"]["log_unit"] == "uT"
+    assert abs(doc["parameters"]["z_x"] - PAPER_TRUTH["z_x"]) < 0.5
+    code, _, err = run(capsys, "calibrate", path, "--method", "joint", "--unit", "nT")
+    assert code == 0 and "suggest uT, but --unit is nT" in err

@@ -13,7 +13,7 @@ import pandas as pd
 from ..calibration import METHODS, CalibrationResult, calibrate
 from ..errors import InputError
 from ..io import (FIELD_UNITS_NT, csv_engine, csv_to_memmap, numeric_columns, read_json,
-                  read_table, resolve_columns, suggested_unit, unit_factor, write_csv_atomic)
+                  read_table, read_table_header, resolve_columns, suggested_unit, unit_factor, write_csv_atomic)
 from ..statistics import field_statistics, format_table
 from . import emit_json, warn
 
@@ -32,20 +32,36 @@ class Log:
     base_unit: str  # unit of `samples`: "nT", or "raw"
 
 
-def add_log_arguments(parser, unit_default="nT"):
+def add_log_arguments(parser, default_from: str = "the column names (mx_uT, \"X (uT)\", "
+                                                    "_gauss, _counts ...), else nT"):
     """--columns, --unit and --drop-invalid, shared by every command that reads a field log."""
     parser.add_argument("--columns", nargs=3, metavar=("X", "Y", "Z"),
                         help="the three field columns (default: detected, bx/by/bz, x/y/z, ...)")
-    parser.add_argument("--unit", choices=list(FIELD_UNITS_NT), default=unit_default,
-                        help=f"unit of the field columns and references (default {unit_default});"
-                             " 'raw' keeps counts or other non-field units")
+    parser.add_argument("--unit", choices=list(FIELD_UNITS_NT), default=None,
+                        help=f"unit of the field columns and references (default: from "
+                             f"{default_from}); 'raw' keeps counts or other non-field units")
     parser.add_argument("--drop-invalid", action="store_true",
                         help="drop rows with missing or non-numeric values (reporting how many) "
                              "instead of failing")
 
 
-def read_log(path, columns=None, unit="nT", drop_invalid=False, extra_columns=()) -> Log:
-    """Read, validate and convert a field log; `extra_columns` must be numeric too."""
+def log_unit(chosen, unit=None) -> str:
+    """The unit of the field columns: `unit`, else the one their names suggest, else nT."""
+    hinted = suggested_unit(chosen)
+    if unit is None:
+        if hinted:
+            warn(f"unit {hinted} taken from the column names ({', '.join(chosen)})")
+        return hinted or "nT"
+    if hinted and hinted != unit:
+        warn(f"the column names ({', '.join(chosen)}) suggest {hinted}, but --unit is {unit}")
+    return unit
+
+
+def read_log(path, columns=None, unit=None, drop_invalid=False, extra_columns=()) -> Log:
+    """Read, validate and convert a field log; `extra_columns` must be numeric too.
+
+    unit : the unit of the field columns; None takes it from the column names, else nT.
+    """
     frame = read_table(path)
     chosen = resolve_columns(frame, columns)
     for name in extra_columns:
@@ -58,9 +74,7 @@ def read_log(path, columns=None, unit="nT", drop_invalid=False, extra_columns=()
         raise InputError(f"{path}: no data rows")
     if numeric.dropped:
         warn(f"dropped {numeric.dropped} row(s) with missing or non-numeric values")
-    hinted = suggested_unit(chosen)
-    if hinted and hinted != unit:
-        warn(f"the column names ({', '.join(chosen)}) suggest {hinted}, but --unit is {unit}")
+    unit = log_unit(chosen, unit)
     factor = unit_factor(unit)
     return Log(frame=frame, columns=chosen, samples=numeric.values[:, :3] * factor,
                kept=numeric.kept, unit=unit, base_unit="raw" if unit == "raw" else "nT")
@@ -124,9 +138,10 @@ def run_calibrate(args) -> int:
     if args.temperature_column or args.temperature_model:
         return _drift().run_temperature_calibrate(args)
     extra = [args.reference_column] if args.reference_column else []
-    factor = unit_factor(args.unit)
     started = time.perf_counter()
     if args.low_memory:
+        unit = log_unit(resolve_columns(read_table_header(args.log), args.columns), args.unit)
+        factor = unit_factor(unit)
         mapped = csv_to_memmap(args.log, args.columns, extra, drop_invalid=args.drop_invalid,
                                scale=factor)
         samples, columns, dropped, engine = mapped.values[:, :3], mapped.columns[:3], \
@@ -140,17 +155,18 @@ def run_calibrate(args) -> int:
         samples, columns, dropped, engine = log.samples, log.columns, int((~log.kept).sum()), \
             csv_engine()
         reference = reference_from_args(args, log)
+        unit, factor = log.unit, unit_factor(log.unit)
     read_s = time.perf_counter() - started
     targets = {k: (None if v is None else v * factor)
                for k, v in (("target_std", args.target_std), ("target_range", args.target_range))}
     started = time.perf_counter()
     result = calibrate(samples, method=args.method, reference_field=reference,
                        cycles=args.cycles, rtol=args.rtol,
-                       unit="raw" if args.unit == "raw" else "nT", **targets)
+                       unit="raw" if unit == "raw" else "nT", **targets)
     warn(f"read {len(samples)} rows in {read_s:.2f} s (pandas {engine} engine); calibrated in "
          f"{time.perf_counter() - started:.2f} s")
     document = result.to_dict()
-    document["input"] = {"log": str(args.log), "columns": columns, "log_unit": args.unit,
+    document["input"] = {"log": str(args.log), "columns": columns, "log_unit": unit,
                          "csv_engine": engine, "rows_dropped": dropped}
     if args.reference_column:
         document["reference"]["column"] = args.reference_column
@@ -175,7 +191,7 @@ def _register_apply(sub):
                     f"column '{TOTAL_COLUMN}' added; all other columns are kept.")
     parser.add_argument("params", metavar="PARAMS.json")
     parser.add_argument("log", metavar="LOG.csv")
-    add_log_arguments(parser, unit_default=None)
+    add_log_arguments(parser, "the parameters file, else the column names")
     _drift().add_temperature_arguments(parser, "apply")
     parser.add_argument("-o", "--output", metavar="CORRECTED.csv",
                         help="corrected log (stdout when absent)")
@@ -202,8 +218,8 @@ def _read_params(path):
 
 
 def run_apply(args) -> int:
-    result, log_unit = _read_params(args.params)
-    unit = log_unit_for(args, result, log_unit)
+    result, document_unit = _read_params(args.params)
+    unit = log_unit_for(args, result, document_unit)
     temperature = _drift().TemperatureCorrection.from_args(args, "apply")
     log = read_log(args.log, args.columns, unit, args.drop_invalid, temperature.columns)
     factor = unit_factor(unit)
@@ -228,7 +244,7 @@ def _register_stats(sub):
         description="Print max, min, mean, std (ddof=0) and range of the total field: the "
                     "measured row, and the corrected row when --params is given.")
     parser.add_argument("log", metavar="LOG.csv")
-    add_log_arguments(parser, unit_default=None)
+    add_log_arguments(parser, "the parameters file, else the column names")
     parser.add_argument("--params", metavar="PARAMS.json")
     _drift().add_temperature_arguments(parser, "stats")
     parser.add_argument("--json", action="store_true", help="print the rows as JSON")
@@ -237,10 +253,10 @@ def _register_stats(sub):
 
 def run_stats(args) -> int:
     result = None
-    unit = args.unit or "nT"
+    unit = args.unit
     if args.params:
-        result, log_unit = _read_params(args.params)
-        unit = log_unit_for(args, result, log_unit)
+        result, document_unit = _read_params(args.params)
+        unit = log_unit_for(args, result, document_unit)
     temperature = _drift().TemperatureCorrection.from_args(args, "stats")
     log = read_log(args.log, args.columns, unit, args.drop_invalid, temperature.columns)
     rows = [{"label": "measured", **field_statistics(log.samples)}]
