@@ -174,6 +174,16 @@ def scaled_hessian(moments: Moments, theta, step=None) -> np.ndarray:
     return scale[:, None] * hess * scale[None, :]
 
 
+def gauge_basis(moments: Moments) -> np.ndarray:
+    """Orthonormal basis of the scaled variables the gauge leaves free (all nine with a reference;
+    eight without one, s_x + s_y + s_z = 0)."""
+    if moments.reference != "none":
+        return np.eye(9)
+    normal = np.zeros(9)
+    normal[list(SCALE_INDICES)] = variable_scale(moments.frame.radius)[list(SCALE_INDICES)]
+    return np.linalg.svd(normal[None, :])[2][1:].T  # 9 x 8, orthogonal to the gauge's normal
+
+
 def _uncertainty(problem: Problem, theta, objective: float, hs: np.ndarray):
     """Standard errors from the Hessian of the objective, and which parameters are identifiable.
 
@@ -181,14 +191,8 @@ def _uncertainty(problem: Problem, theta, objective: float, hs: np.ndarray):
     Hessian of f; without a reference, H is reduced to the gauge's null space.
     """
     moments = problem.moments
-    kind = moments.reference
     scale = variable_scale(moments.frame.radius)
-    if kind == "none":
-        normal = np.zeros(9)
-        normal[list(SCALE_INDICES)] = scale[list(SCALE_INDICES)]
-        basis = np.linalg.svd(normal[None, :])[2][1:].T  # 9 x 8, orthonormal, normal-free
-    else:
-        basis = np.eye(9)
+    basis = gauge_basis(moments)
     reduced = basis.T @ hs @ basis
     reduced = 0.5 * (reduced + reduced.T)
     values, vectors = np.linalg.eigh(reduced)
@@ -257,11 +261,7 @@ def exact_optimum_shift(problem: Problem, theta, hs: np.ndarray, errors) -> floa
         return field_statistics(problem.samples, theta + scale * x, problem.reference)["objective"]
 
     grad = np.array([(exact(h * e) - exact(-h * e)) / (2 * h) for e in np.eye(9)])
-    basis = np.eye(9)
-    if problem.moments.reference == "none":
-        normal = np.zeros(9)
-        normal[list(SCALE_INDICES)] = scale[list(SCALE_INDICES)]
-        basis = np.linalg.svd(normal[None, :])[2][1:].T
+    basis = gauge_basis(problem.moments)
     reduced = basis.T @ hs @ basis
     step = -basis @ np.linalg.solve(0.5 * (reduced + reduced.T), basis.T @ grad)
     shift = step * scale
@@ -289,6 +289,39 @@ def _explain_failure(problem: Problem, failure: SolveError) -> SolveError:
                   f"{', '.join(identifiability['weakest_combination'])}")
     return SolveError(f"{failure}: {reason}; rotate the sensor through more attitudes",
                       failure.status, result=theta)
+
+
+def _warnings(problem: Problem, theta, hs, errors, identifiability: dict, final: dict) -> list:
+    """What the data cannot tell, in words (and the exact-optimum check, into identifiability)."""
+    warnings = []
+    if problem.moments.reference == "none":
+        warnings.append("absolute scale not identifiable without a reference field: the scales "
+                        "are fixed by the gauge s_x + s_y + s_z = 0; the scale ratios, offsets "
+                        "and angles are determined. Give a reference field for absolute scales.")
+    if identifiability["not_identifiable"]:
+        warnings.append("not identifiable from this attitude coverage: "
+                        + ", ".join(identifiability["not_identifiable"])
+                        + "; rotate the sensor through more attitudes")
+    coverage = identifiability["coverage"]
+    if coverage["fraction"] < COVERAGE_WARN:
+        warnings.append(f"poor attitude coverage: the corrected field visits "
+                        f"{coverage['covered']} of 26 direction bins; the result leans on a "
+                        f"small part of the sphere")
+    if identifiability["poorly_determined"]:
+        warnings.append("poorly determined (standard error above the limits in "
+                        "identifiability.poorly_determined_limits): "
+                        + ", ".join(identifiability["poorly_determined"]))
+    if final.get("series_rel_error", 0.0) > SERIES_CHECK:
+        shift = exact_optimum_shift(problem, theta, hs, errors)
+        identifiability["exact_optimum_shift_in_standard_errors"] = shift
+        if shift is None or shift > SHIFT_WARN:
+            size = "unknown" if shift is None else f"{shift:.2g} standard errors"
+            warnings.append(f"|B1| varies by up to {final['max_abs_u']:.1%} in squared magnitude,"
+                            f" so the moment expansion of the objective is inexact here "
+                            f"({final['series_rel_error']:.1e} relative); the exact optimum is "
+                            f"estimated to lie {size} away; check the reference field and the "
+                            f"data for disturbances")
+    return warnings
 
 
 def calibrate(samples, *, method: str = "staged", reference_field=None, cycles: int = 50,
@@ -339,35 +372,8 @@ def calibrate(samples, *, method: str = "staged", reference_field=None, cycles: 
     errors, identifiability = _uncertainty(problem, theta, final["objective"], hs)
     identifiability["coverage"] = direction_coverage(samples, theta)
 
-    warnings = []
     mode = problem.moments.reference
-    if mode == "none":
-        warnings.append("absolute scale not identifiable without a reference field: the scales "
-                        "are fixed by the gauge s_x + s_y + s_z = 0; the scale ratios, offsets "
-                        "and angles are determined. Give a reference field for absolute scales.")
-    if identifiability["not_identifiable"]:
-        warnings.append("not identifiable from this attitude coverage: "
-                        + ", ".join(identifiability["not_identifiable"])
-                        + "; rotate the sensor through more attitudes")
-    coverage = identifiability["coverage"]
-    if coverage["fraction"] < COVERAGE_WARN:
-        warnings.append(f"poor attitude coverage: the corrected field visits "
-                        f"{coverage['covered']} of 26 direction bins; the result leans on a "
-                        f"small part of the sphere")
-    if identifiability["poorly_determined"]:
-        warnings.append("poorly determined (standard error above the limits in "
-                        "identifiability.poorly_determined_limits): "
-                        + ", ".join(identifiability["poorly_determined"]))
-    if final.get("series_rel_error", 0.0) > SERIES_CHECK:
-        shift = exact_optimum_shift(problem, theta, hs, errors)
-        identifiability["exact_optimum_shift_in_standard_errors"] = shift
-        if shift is None or shift > SHIFT_WARN:
-            size = "unknown" if shift is None else f"{shift:.2g} standard errors"
-            warnings.append(f"|B1| varies by up to {final['max_abs_u']:.1%} in squared magnitude,"
-                            f" so the moment expansion of the objective is inexact here "
-                            f"({final['series_rel_error']:.1e} relative); the exact optimum is "
-                            f"estimated to lie {size} away; check the reference field and the "
-                            f"data for disturbances")
+    warnings = _warnings(problem, theta, hs, errors, identifiability, final)
     if method == "staged" and stop_reason == "max_cycles" and len(rows) > 2:
         warnings.append(f"the staged cycle stopped at the maximum of {cycles} cycles before "
                         f"converging (rtol {rtol:g}); results may improve with more cycles")
