@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import __version__
-from .errors import InputError, SolveError
+from .errors import InputError, QualityError, SolveError
 from .io import check_reference, check_samples, read_json, write_json_atomic
 from .joint import run_joint
 from .models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters, correct
@@ -184,11 +184,15 @@ def gauge_basis(moments: Moments) -> np.ndarray:
     return np.linalg.svd(normal[None, :])[2][1:].T  # 9 x 8, orthogonal to the gauge's normal
 
 
-def _uncertainty(problem: Problem, theta, objective: float, hs: np.ndarray):
+def _uncertainty(problem: Problem, theta, objective: float, hs: np.ndarray,
+                 autocorrelation: float = 0.0):
     """Standard errors from the Hessian of the objective, and which parameters are identifiable.
 
     For f = (1/N) sum r_i^2, the Gauss-Newton covariance is cov = 2 f / (N - 9) H^-1 with H the
-    Hessian of f; without a reference, H is reduced to the gauge's null space.
+    Hessian of f; without a reference, H is reduced to the gauge's null space. A log is a time
+    series: when neighbouring residuals are alike (lag-1 autocorrelation rho > 0), the samples
+    carry less information than their number says, and the standard errors are multiplied by
+    sqrt((1 + rho) / (1 - rho)), the AR(1) variance inflation.
     """
     moments = problem.moments
     scale = variable_scale(moments.frame.radius)
@@ -205,10 +209,12 @@ def _uncertainty(problem: Problem, theta, objective: float, hs: np.ndarray):
 
     not_identifiable = set().union(*(involved(k) for k in np.flatnonzero(weak)))
     n = problem.samples.shape[0]
+    rho = min(max(autocorrelation, 0.0), 0.99)
+    inflation = float(np.sqrt((1 + rho) / (1 - rho)))
     errors = None
     if not weak.any() and n > 9:
         cov_scaled = basis @ np.linalg.inv(reduced) @ basis.T * (2.0 * objective / (n - 9))
-        sd = np.sqrt(np.clip(np.diag(cov_scaled), 0, None)) * scale
+        sd = np.sqrt(np.clip(np.diag(cov_scaled), 0, None)) * scale * inflation
         sd[6:9] = np.degrees(sd[6:9])
         errors = {name: float(v) for name, v in zip(PARAMETER_NAMES, sd)}
     limits = np.concatenate([POORLY_DETERMINED[:3] * moments.frame.radius,
@@ -220,6 +226,8 @@ def _uncertainty(problem: Problem, theta, objective: float, hs: np.ndarray):
         "poorly_determined": poorly,
         "weakest_combination": sorted(involved(0), key=PARAMETER_NAMES.index),
         "hessian_eigenvalues_scaled": [float(v) for v in values],
+        "residual_lag1_autocorrelation": float(autocorrelation),
+        "standard_error_inflation": inflation,
         "poorly_determined_limits": {n_: float(v) for n_, v in zip(PARAMETER_NAMES, limits)},
     }
 
@@ -315,18 +323,19 @@ def _warnings(problem: Problem, theta, hs, errors, identifiability: dict, final:
         shift = exact_optimum_shift(problem, theta, hs, errors)
         identifiability["exact_optimum_shift_in_standard_errors"] = shift
         if shift is None or shift > SHIFT_WARN:
-            size = "unknown" if shift is None else f"{shift:.2g} standard errors"
-            warnings.append(f"|B1| varies by up to {final['max_abs_u']:.1%} in squared magnitude,"
-                            f" so the moment expansion of the objective is inexact here "
-                            f"({final['series_rel_error']:.1e} relative); the exact optimum is "
-                            f"estimated to lie {size} away; check the reference field and the "
-                            f"data for disturbances")
+            where = ("could not be located (no standard errors)" if shift is None
+                     else f"is estimated to lie {shift:.2g} standard errors away")
+            warnings.append(f"the moment expansion of the objective is inexact here "
+                            f"({final['series_rel_error']:.1e} relative; |B1|^2 varies by up to "
+                            f"{final['max_abs_u']:.1%}); the exact optimum {where}; check the "
+                            f"reference field and the data for disturbances")
     return warnings
 
 
 def calibrate(samples, *, method: str = "staged", reference_field=None, cycles: int = 50,
               target_std: float | None = None, target_range: float | None = None,
-              rtol: float = 1e-9, unit: str = "nT") -> CalibrationResult:
+              rtol: float = 1e-9, unit: str = "nT",
+              require_identifiable: bool = True) -> CalibrationResult:
     """Estimate the nine parameters of Eq. 4 in [1] from a log of many attitudes.
 
     samples : (N, 3) array-like of raw sensor output B_M. [nT, or `unit`]
@@ -336,9 +345,11 @@ def calibrate(samples, *, method: str = "staged", reference_field=None, cycles: 
         values F_i (for example a proton magnetometer sampled with the log). [nT, or `unit`]
     cycles : the most staged cycles. target_std, target_range : stop the cycle when |B1| meets
         them [nT]. rtol : stop when a cycle lowers the objective by less than this fraction.
+    require_identifiable : raise QualityError (holding the result) when the attitude coverage
+        leaves parameters undetermined; False returns the result with its warnings.
 
-    Returns a CalibrationResult. Raises InputError for unusable input and SolveError when IPOPT
-    fails.
+    Returns a CalibrationResult. Raises InputError for unusable input, SolveError when IPOPT
+    fails and QualityError as above.
 
     References
     ----------
@@ -351,8 +362,8 @@ def calibrate(samples, *, method: str = "staged", reference_field=None, cycles: 
     for name, value in (("target_std", target_std), ("target_range", target_range)):
         if value is not None and not (np.isfinite(value) and value > 0):
             raise InputError(f"{name} must be a positive number, got {value}")
-    if not np.isfinite(rtol):
-        raise InputError(f"rtol must be a finite number, got {rtol}")
+    if not (np.isfinite(rtol) and rtol >= 0):
+        raise InputError(f"rtol must be a non-negative number, got {rtol}")
     samples = check_samples(samples)
     reference = check_reference(reference_field, samples.shape[0])
     problem = Problem(samples=samples, reference=reference, moments=accumulate(samples, reference))
@@ -369,7 +380,8 @@ def calibrate(samples, *, method: str = "staged", reference_field=None, cycles: 
     except SolveError as failure:
         raise _explain_failure(problem, failure) from None
     final = rows[-1]
-    errors, identifiability = _uncertainty(problem, theta, final["objective"], hs)
+    errors, identifiability = _uncertainty(problem, theta, final["objective"], hs,
+                                           final["residual_lag1_autocorrelation"])
     identifiability["coverage"] = direction_coverage(samples, theta)
 
     mode = problem.moments.reference
@@ -384,7 +396,7 @@ def calibrate(samples, *, method: str = "staged", reference_field=None, cycles: 
     elif mode == "series":
         reference_doc["field_mean"] = float(np.mean(reference))
     iterations = sum(s["iterations"] for s in stages)
-    return CalibrationResult(
+    result = CalibrationResult(
         parameters=parameters_from_theta(theta).as_dict(),
         statistics=rows,
         method=method,
@@ -398,3 +410,9 @@ def calibrate(samples, *, method: str = "staged", reference_field=None, cycles: 
         warnings=warnings,
         n_samples=int(samples.shape[0]),
     )
+    if require_identifiable and identifiability["not_identifiable"]:
+        raise QualityError(f"the data do not determine "
+                           f"{', '.join(identifiability['not_identifiable'])}; rotate the sensor "
+                           f"through more attitudes (require_identifiable=False returns the "
+                           f"result anyway)", "Not_Identifiable", result=result)
+    return result

@@ -19,3 +19,9 @@ class SolveError(NlpcalError, RuntimeError):
         super().__init__(message)
         self.status = status
         self.result = result
+
+
+class QualityError(SolveError):
+    """The solve ended, but the result fails a quality check (parameters the data do not
+    determine); `result` holds it for inspection. The command line exits with status 1 and writes
+    no output."""

@@ -185,14 +185,18 @@ def check_samples(samples, *, minimum: int = MIN_SAMPLES) -> np.ndarray:
     if samples.shape[0] < minimum:
         raise InputError(
             f"got {samples.shape[0]} samples, need at least {minimum} for nine parameters")
-    all_equal = True
+    low, high = np.full(3, np.inf), np.full(3, -np.inf)
     for start in range(0, samples.shape[0], CHECK_CHUNK_ROWS):  # O(chunk) memory: memmaps too
         chunk = samples[start:start + CHECK_CHUNK_ROWS]
         if not np.isfinite(chunk).all():
             raise InputError("samples contain NaN or infinite values; drop or fix those rows")
-        all_equal = all_equal and bool(np.all(chunk == samples[0]))
-    if all_equal:
+        low, high = np.minimum(low, chunk.min(axis=0)), np.maximum(high, chunk.max(axis=0))
+    if np.all(low == high):
         raise InputError("all samples are equal; calibration needs many attitudes")
+    if np.any(low == high):
+        axes = ", ".join("xyz"[k] for k in np.flatnonzero(low == high))
+        raise InputError(f"the {axes} column is constant: that axis never saw the field change; "
+                         f"calibration needs attitudes that turn every axis")
     return samples
 
 

@@ -26,13 +26,16 @@ class MagnitudeStats:
     """Table 1 statistics of |B1| and the exact objective, accumulated chunk by chunk.
 
     Sums are taken of deviations from the first chunk's mean, so that the variance of a
-    50 000 nT field with a 1 nT spread does not cancel.
+    50 000 nT field with a 1 nT spread does not cancel. Products of neighbouring residuals give
+    their lag-1 autocorrelation (a log is a time series: slow disturbances make neighbours alike).
     """
 
     def __init__(self, shift: float | None = None):
         self.n = 0
         self.shift = shift
-        self.total = self.total_sq = self.ref_sq = 0.0
+        self.total = self.total_sq = self.ref_sq = self.ref_total = 0.0
+        self.lag = self.ref_lag = 0.0  # sums of products of neighbouring deviations, residuals
+        self.first = self.last = None  # (deviation, residual) at the ends, to join neighbours
         self.high, self.low = -np.inf, np.inf
         self.u_high = self.u_low = 0.0
         self.has_reference = False
@@ -45,18 +48,31 @@ class MagnitudeStats:
         if self.shift is None:
             self.shift = float(magnitude.mean())
         deviation = magnitude - self.shift
+        residual = deviation if reference is None else magnitude - reference
         self.n += magnitude.size
         self.total += deviation.sum()
         self.total_sq += deviation @ deviation
+        self.lag += deviation[:-1] @ deviation[1:]
         self.high = max(self.high, float(magnitude.max()))
         self.low = min(self.low, float(magnitude.min()))
         if reference is not None:
             self.has_reference = True
-            residual = magnitude - reference
+            self.ref_total += residual.sum()
             self.ref_sq += residual @ residual
+            self.ref_lag += residual[:-1] @ residual[1:]
             ratio = (magnitude / reference) ** 2 - 1.0
             self.u_high = max(self.u_high, float(ratio.max()))
             self.u_low = min(self.u_low, float(ratio.min()))
+        self._join(float(deviation[0]), float(residual[0]))
+        self.last = (float(deviation[-1]), float(residual[-1]))
+
+    def _join(self, deviation: float, residual: float) -> None:
+        """Count the pair across the boundary with the chunk or part that came before."""
+        if self.last is None:
+            self.first = (deviation, residual)
+            return
+        self.lag += self.last[0] * deviation
+        self.ref_lag += self.last[1] * residual
 
     def merge(self, other: "MagnitudeStats") -> "MagnitudeStats":
         """Add the sums of `other`, gathered with the same shift, to these."""
@@ -66,10 +82,15 @@ class MagnitudeStats:
             return other
         if other.shift != self.shift:
             raise ValueError("MagnitudeStats gathered with different shifts")
+        self._join(*other.first)  # `other` covers the samples right after these
+        self.last = other.last
         self.n += other.n
         self.total += other.total
         self.total_sq += other.total_sq
+        self.lag += other.lag
         self.ref_sq += other.ref_sq
+        self.ref_total += other.ref_total
+        self.ref_lag += other.ref_lag
         self.high, self.low = max(self.high, other.high), min(self.low, other.low)
         self.u_high, self.u_low = max(self.u_high, other.u_high), min(self.u_low, other.u_low)
         self.has_reference = self.has_reference or other.has_reference
@@ -82,15 +103,21 @@ class MagnitudeStats:
         mean_dev = self.total / n
         variance = max(self.total_sq / n - mean_dev**2, 0.0)
         mean = self.shift + mean_dev
+        pairs = max(n - 1, 1)
         if self.has_reference:
             objective, u_high, u_low = self.ref_sq / n, self.u_high, self.u_low
+            mean_res = self.ref_total / n
+            spread = self.ref_sq / n - mean_res**2
+            lag = self.ref_lag / pairs - mean_res**2
         else:
             objective = variance
             u_high, u_low = (self.high / mean) ** 2 - 1.0, (self.low / mean) ** 2 - 1.0
+            spread, lag = variance, self.lag / pairs - mean_dev**2
         return {
             "max": self.high, "min": self.low, "mean": float(mean),
             "std": float(np.sqrt(variance * n / (n - STD_DDOF))), "range": self.high - self.low,
             "objective": float(objective), "max_abs_u": float(max(abs(u_high), abs(u_low))),
+            "residual_lag1_autocorrelation": float(lag / spread) if spread > 0 else 0.0,
         }
 
 

@@ -6,7 +6,7 @@ import pytest
 
 import nlpcal
 from nlpcal import CalibrationResult, calibrate
-from nlpcal.errors import InputError, SolveError
+from nlpcal.errors import InputError, QualityError, SolveError
 from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log, planar_directions
 
 OFFSETS = ("z_x", "z_y", "z_z")
@@ -242,3 +242,27 @@ def test_ipopt_failure_is_surfaced(noisy, monkeypatch):
     with pytest.raises(SolveError) as info:
         calibrate(noisy[:200], method="joint")
     assert info.value.status == "Maximum_Iterations_Exceeded"
+
+
+def test_unidentifiable_results_fail_the_quality_check_but_can_be_inspected():
+    # The sensor turned about its z axis only, with a reference field: z never sees the field.
+    rng = np.random.default_rng(11)
+    samples, _ = make_log(n=800, noise=1.0, seed=12, directions=planar_directions(800, rng))
+    for method in ("staged", "joint"):
+        try:
+            calibrate(samples, method=method, reference_field=PAPER_FIELD)
+        except QualityError as failure:
+            assert failure.status == "Not_Identifiable"
+            assert failure.result.identifiability["not_identifiable"]
+            assert "do not determine" in str(failure)
+        except SolveError as failure:  # IPOPT wandered along the free direction instead
+            assert "rotate the sensor through more attitudes" in str(failure)
+        else:
+            pytest.fail("an unidentifiable calibration passed the quality check")
+
+
+def test_a_constant_axis_is_bad_input():
+    samples, _ = make_log(n=300, noise=1.0, seed=13)
+    samples[:, 2] = 116.29
+    with pytest.raises(InputError, match="z column is constant"):
+        calibrate(samples)

@@ -258,3 +258,23 @@ def test_unit_from_column_names(log_csv, tmp_path, capsys):
     assert abs(doc["parameters"]["z_x"] - PAPER_TRUTH["z_x"]) < 0.5
     code, _, err = run(capsys, "calibrate", path, "--method", "joint", "--unit", "nT")
     assert code == 0 and "suggest uT, but --unit is nT" in err
+
+
+def test_unidentifiable_log_exits_1_and_writes_nothing(tmp_path, capsys):
+    from synthetic import planar_directions
+    rng = np.random.default_rng(11)
+    samples, _ = make_log(n=800, noise=1.0, seed=12, directions=planar_directions(800, rng))
+    path = tmp_path / "planar.csv"
+    pd.DataFrame(samples, columns=["bx", "by", "bz"]).to_csv(path, index=False)
+    out_path = tmp_path / "p.json"
+    code, _, err = run(capsys, "calibrate", path, "--reference-field", PAPER_FIELD, "-o", out_path)
+    assert code == 1
+    assert "quality check failed" in err or "solve failed" in err
+    assert "rotate the sensor through more attitudes" in err
+    assert not out_path.exists()
+    constant = tmp_path / "constant.csv"
+    frame = pd.DataFrame(samples, columns=["bx", "by", "bz"])
+    frame["bz"] = 5.0
+    frame.to_csv(constant, index=False)
+    code, _, err = run(capsys, "calibrate", constant)
+    assert code == 2 and "constant" in err

@@ -12,7 +12,7 @@ import json
 import sys
 
 from .. import __version__
-from ..errors import InputError, SolveError
+from ..errors import InputError, QualityError, SolveError
 from ..io import write_json_atomic
 
 #: Modules of nlpcal.cli that each add one subcommand through `register(subparsers)`.
@@ -62,6 +62,9 @@ def main(argv=None) -> int:
     except InputError as exc:
         print(f"nlpcal {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except QualityError as exc:
+        print(f"nlpcal {args.command}: quality check failed: {exc}", file=sys.stderr)
+        return 1
     except SolveError as exc:
         status = f" (IPOPT status: {exc.status})" if exc.status else ""
         print(f"nlpcal {args.command}: solve failed: {exc}{status}", file=sys.stderr)
