@@ -272,8 +272,10 @@ def write_json_atomic(path, document) -> None:
     write_text_atomic(path, json.dumps(document, indent=2) + "\n")
 
 
-def write_csv_atomic(path, frame: pd.DataFrame) -> None:
-    _atomic_write(path, lambda handle: frame.to_csv(handle, index=False, float_format="%.10g"))
+def write_csv_atomic(path, frame: pd.DataFrame, float_format: str | None = None) -> None:
+    """Write a table atomically; without float_format every value round-trips exactly."""
+    _atomic_write(path, lambda handle: frame.to_csv(handle, index=False,
+                                                    float_format=float_format))
 
 
 def read_json(path, what: str = "JSON file") -> dict:

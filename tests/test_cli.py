@@ -278,3 +278,15 @@ def test_unidentifiable_log_exits_1_and_writes_nothing(tmp_path, capsys):
     frame.to_csv(constant, index=False)
     code, _, err = run(capsys, "calibrate", constant)
     assert code == 2 and "constant" in err
+
+
+def test_apply_keeps_other_columns_exactly(log_csv, tmp_path, capsys):
+    frame = pd.read_csv(log_csv)
+    frame.insert(0, "unix_time", 1700000000.002 + np.arange(len(frame)) * 0.001)
+    path = tmp_path / "timed.csv"
+    frame.to_csv(path, index=False)
+    params = tmp_path / "p.json"
+    assert run(capsys, "calibrate", path, "--method", "joint", "-o", params)[0] == 0
+    assert run(capsys, "apply", params, path, "-o", tmp_path / "c.csv")[0] == 0
+    out = pd.read_csv(tmp_path / "c.csv")
+    np.testing.assert_array_equal(out["unix_time"].to_numpy(), frame["unix_time"].to_numpy())

@@ -13,7 +13,7 @@ import sys
 
 from .. import __version__
 from ..errors import InputError, QualityError, SolveError
-from ..io import write_json_atomic
+from ..io import write_csv_atomic, write_json_atomic
 
 #: Modules of nlpcal.cli that each add one subcommand through `register(subparsers)`.
 COMMAND_MODULES = (
@@ -77,6 +77,14 @@ def main(argv=None) -> int:
 def warn(message: str) -> None:
     """A human message on stderr."""
     print(f"nlpcal: {message}", file=sys.stderr)
+
+
+def emit_csv(frame, output, float_format: str | None = None) -> None:
+    """A table to -o (written atomically) or to stdout; exact values unless float_format."""
+    if output:
+        write_csv_atomic(output, frame, float_format)
+    else:
+        frame.to_csv(sys.stdout, index=False, float_format=float_format)
 
 
 def emit_json(document, output) -> None:

@@ -15,8 +15,8 @@ import pandas as pd
 from .. import compass
 from ..errors import InputError
 from ..io import (FIELD_UNITS_NT, numeric_columns, read_json, read_table, resolve_columns,
-                  suggested_unit, unit_factor, write_csv_atomic)
-from . import emit_json, warn
+                  suggested_unit, unit_factor)
+from . import emit_csv, emit_json, warn
 
 #: Accelerometer column triples recognised without --acc-columns, tried case-insensitively.
 ACC_COLUMN_TRIPLES = (("ax", "ay", "az"), ("acc_x", "acc_y", "acc_z"), ("accx", "accy", "accz"),
@@ -220,10 +220,7 @@ def run_attitude(args) -> int:
         column = np.full(len(frame), np.nan)
         column[kept] = values
         out[name] = column
-    if args.output:
-        write_csv_atomic(args.output, out)
-    else:
-        out.to_csv(sys.stdout, index=False, float_format="%.10g")
+    emit_csv(out, args.output)  # exact values: the log's own columns pass through unchanged
     return 0
 
 

@@ -13,9 +13,9 @@ import pandas as pd
 from ..calibration import METHODS, CalibrationResult, calibrate
 from ..errors import InputError
 from ..io import (FIELD_UNITS_NT, csv_engine, csv_to_memmap, numeric_columns, read_json,
-                  read_table, read_table_header, resolve_columns, suggested_unit, unit_factor, write_csv_atomic)
+                  read_table, read_table_header, resolve_columns, suggested_unit, unit_factor)
 from ..statistics import field_statistics, format_table
-from . import emit_json, warn
+from . import emit_csv, emit_json, warn
 
 TOTAL_COLUMN = "b_total"
 
@@ -228,11 +228,9 @@ def run_apply(args) -> int:
     for k, column in enumerate(log.columns):
         frame[column] = corrected[:, k]
     frame[TOTAL_COLUMN] = np.linalg.norm(corrected, axis=1)
+    emit_csv(frame, args.output)  # exact values: the other columns pass through unchanged
     if args.output:
-        write_csv_atomic(args.output, frame)
-        print(f"wrote {len(frame)} corrected rows to {args.output}", file=sys.stderr)
-    else:
-        frame.to_csv(sys.stdout, index=False, float_format="%.10g")
+        warn(f"wrote {len(frame)} corrected rows to {args.output}")
     return 0
 
 

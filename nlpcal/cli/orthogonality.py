@@ -24,8 +24,8 @@ import pandas as pd
 from .. import orthogonality as ortho
 from ..errors import InputError
 from ..io import (check_output_path, numeric_columns, read_table, resolve_columns, unit_factor,
-                  write_bytes_atomic, write_csv_atomic)
-from . import emit_json
+                  write_bytes_atomic)
+from . import emit_csv, emit_json
 
 PLOT_HINT = "pip install 'nlpcal[plot]'"
 
@@ -143,10 +143,8 @@ def _run_map(args) -> int:
         write_bytes_atomic(args.output, png)
         _info(f"wrote {args.output} (grid max |dB| = {np.abs(error).max():.4f} nT)")
     if table is not None:
-        if args.csv == "-":
-            table.to_csv(sys.stdout, index=False, float_format="%.10g")
-        else:
-            write_csv_atomic(args.csv, table)
+        emit_csv(table, None if args.csv == "-" else args.csv, "%.10g")
+        if args.csv != "-":
             _info(f"wrote {args.csv} ({len(table)} grid points)")
     return 0
 

@@ -7,7 +7,8 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
-from ..io import read_json, write_csv_atomic
+from ..io import read_json
+from . import emit_csv
 from ..simulate import ATTITUDES, PRESETS, parameters_from_json, simulate
 
 #: Presets that write a folder of logs rather than one CSV: name -> "module:function".
@@ -69,9 +70,7 @@ def run(args) -> int:
     frame = simulate(2000 if args.n is None else args.n, parameters=parameters, field=field,
                      noise=1.0 if args.noise is None else args.noise, seed=args.seed,
                      attitudes=args.attitudes)
+    emit_csv(frame, args.output, "%.10g")  # 10 digits: 1e-5 nT in a 50 000 nT field
     if args.output:
-        write_csv_atomic(args.output, frame)
         print(f"wrote {len(frame)} samples to {args.output}", file=sys.stderr)
-    else:
-        frame.to_csv(sys.stdout, index=False, float_format="%.10g")
     return 0
