@@ -144,11 +144,6 @@ def _thin(trajectory: dict, points: int = TRAJECTORY_POINTS) -> dict:
             "objective": [float(trajectory["objective"][i]) for i in keep]}
 
 
-def _series_objective(moments, theta) -> float:
-    p = pack(moments, theta, np.ones(9), 1.0)
-    return float(objective_function(moments.reference)(theta, p)[0])
-
-
 def _joint_trajectory(step, iterations: int, f_end: float) -> dict:
     """The objective at every IPOPT iteration of the joint solve `step` (`nlpcal.problems.Step`).
 
@@ -295,7 +290,7 @@ def compare(samples, *, reference_field=None, settings: CompareSettings = Compar
 
     start = joint_start(moments)
     joint_step, joint_rows, joint_stages = run_joint(problem)
-    joint_theta = getattr(joint_step, "theta", joint_step)
+    joint_theta = joint_step.theta
     joint = joint_rows[-1]
     joint["status"] = joint_stages[-1]["status"]
     joint_path = _joint_trajectory(joint_step, joint["iterations"], joint["objective"])

@@ -897,10 +897,6 @@ class Attitude:
     near_vertical: int
     warnings: list
 
-    def as_frame(self) -> pd.DataFrame:
-        return pd.DataFrame({"roll_deg": self.roll_deg, "pitch_deg": self.pitch_deg,
-                             "heading_deg": self.heading_deg})
-
 
 def attitude(calibration: CompassCalibration, mag, acc, *,
              declination_deg: float = 0.0) -> Attitude:

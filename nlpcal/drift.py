@@ -424,12 +424,6 @@ def temperature_problem(kind: str, n: int, options: IpoptOptions = IpoptOptions(
     return solver, residuals
 
 
-def direct_magnitude(samples, temperature, params: Zhou2010Parameters,
-                     model: TemperatureModel) -> np.ndarray:
-    """|B1_i(t_i)| sample by sample in numpy, the definition the NLP is checked against. [nT]"""
-    return np.linalg.norm(liu2022.correct(samples, temperature, params, model), axis=1)
-
-
 def _theta_to_model(theta, kind: str, t0: float):
     params = Zhou2010Parameters.from_vector(np.concatenate([theta[:6], np.degrees(theta[6:9])]))
     if kind == "common":

@@ -18,7 +18,7 @@ import pandas as pd
 from .errors import InputError
 
 #: Field units and their size in nT. "raw" keeps the log's own unit (counts, arbitrary units).
-FIELD_UNITS_NT = {"nT": 1.0, "uT": 1e3, "mG": 1e2, "G": 1e5, "T": 1e9, "raw": 1.0}
+FIELD_UNITS_NT = {"nT": 1.0, "uT": 1e3, "mT": 1e6, "mG": 1e2, "G": 1e5, "T": 1e9, "raw": 1.0}
 
 #: Prefixes of names recognised as magnetometer axes once the axis letter, spaces and
 #: punctuation are taken out (bx, mag_x, mx_uT, "Magnetometer X (uT)", x ...).
@@ -26,7 +26,7 @@ MAGNETIC_PREFIXES = ("", "b", "m", "mag", "magn", "magnetometer", "magnetic", "h
                      "compass", "b1")
 
 #: Unit suffixes of column names, and the unit they suggest ("raw" for counts).
-UNIT_SUFFIXES = {"nt": "nT", "ut": "uT", "mg": "mG", "gauss": "G", "g": "G", "t": "T",
+UNIT_SUFFIXES = {"nt": "nT", "ut": "uT", "mt": "mT", "mg": "mG", "gauss": "G", "g": "G", "t": "T",
                  "counts": "raw", "count": "raw", "lsb": "raw", "raw": "raw"}
 
 
@@ -49,6 +49,16 @@ def _axis_templates(columns):
 def _is_magnetic(template) -> bool:
     prefix, suffix = (_clean(part) for part in template)
     return prefix in MAGNETIC_PREFIXES and (suffix == "" or suffix in UNIT_SUFFIXES)
+
+
+def unit_in_name(name: str):
+    """The unit a single column name carries ("proton_nT", "F (nT)", "field_uT"), or None."""
+    low = name.lower().strip()
+    if low.endswith(")") and "(" in low:
+        return UNIT_SUFFIXES.get(_clean(low[low.rindex("(") + 1:]))
+    if "_" in low:
+        return UNIT_SUFFIXES.get(_clean(low.rsplit("_", 1)[1]))
+    return None
 
 
 def suggested_unit(columns):

@@ -75,8 +75,8 @@ MAX_ANGLE_DEG = 89.0
 DEFAULT_BOUND_DEG = 0.5
 #: Fewest samples the inversion accepts (three angles plus the mean field).
 MIN_INVERSION_SAMPLES = 10
-#: A solution closer than this to a bound counts as on the bound. [deg]
-BOUND_ACTIVE_TOL_DEG = 1e-6
+#: A solution within this fraction of its bound counts as on the bound. [1]
+BOUND_ACTIVE_REL_TOL = 1e-3
 #: Field of the paper's forward modelling and synthetic inversion. [nT]
 PAPER_FIELD_NT = 55_000.0
 
@@ -479,6 +479,7 @@ class Inversion:
             "variant": self.variant,
             "field_nT": self.field_nT,
             "n_samples": self.n_samples,
+            "objective": self.objective_nT2,
             "objective_nT2": self.objective_nT2,
             "rms_before_nT": self.rms_before_nT,
             "rms_after_nT": self.rms_after_nT,
@@ -555,7 +556,8 @@ def invert(samples, *, field_nT=None, bound_deg=DEFAULT_BOUND_DEG, start_deg=(0.
     angles = np.clip(outcome.x, -bounds, bounds)
     after_magnitude = corrected_magnitude(samples, angles)
     after = after_magnitude - centre_of(after_magnitude)
-    active = [bool(bounds[i] - abs(angles[i]) <= BOUND_ACTIVE_TOL_DEG) for i in range(3)]
+    active = [bool(bounds[i] - abs(angles[i]) <= BOUND_ACTIVE_REL_TOL * bounds[i])
+              for i in range(3)]
     warnings = []
     for name, is_active, value, bound in zip(ANGLE_NAMES, active, angles, bounds):
         if is_active:

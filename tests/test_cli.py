@@ -231,12 +231,13 @@ def test_output_folder_missing_exits_2(tmp_path, capsys, log_csv):
 def test_low_memory_gives_the_same_answer(log_csv, tmp_path, capsys):
     frame = pd.read_csv(log_csv)
     frame[["bx", "by", "bz", "proton_nT"]] /= 1000.0
+    frame = frame.rename(columns={"proton_nT": "proton"})  # in the log's unit, uT
     path = tmp_path / "ut.csv"
     frame.to_csv(path, index=False)
     docs = []
     for extra in ([], ["--low-memory"]):
         code, out, err = run(capsys, "calibrate", path, "--unit", "uT", "--method", "joint",
-                             "--reference-column", "proton_nT", *extra)
+                             "--reference-column", "proton", *extra)
         assert code == 0, err
         assert "pandas" in err and "engine" in err
         docs.append(json.loads(out))
@@ -290,3 +291,28 @@ def test_apply_keeps_other_columns_exactly(log_csv, tmp_path, capsys):
     assert run(capsys, "apply", params, path, "-o", tmp_path / "c.csv")[0] == 0
     out = pd.read_csv(tmp_path / "c.csv")
     np.testing.assert_array_equal(out["unix_time"].to_numpy(), frame["unix_time"].to_numpy())
+
+
+def test_units_of_reference_column_and_applied_log(log_csv, tmp_path, capsys):
+    # Field in uT (by the column names), proton reference in nT (by its name).
+    frame = pd.read_csv(log_csv)
+    frame[["bx", "by", "bz"]] /= 1000.0
+    frame = frame.rename(columns={"bx": "mx_uT", "by": "my_uT", "bz": "mz_uT"})
+    path = tmp_path / "mixed.csv"
+    frame[["mx_uT", "my_uT", "mz_uT", "proton_nT"]].to_csv(path, index=False)
+    params = tmp_path / "p.json"
+    code, _, err = run(capsys, "calibrate", path, "--reference-column", "proton_nT",
+                       "--method", "joint", "-o", params, "--low-memory")
+    assert code == 0, err
+    assert "read in nT" in err
+    doc = json.loads(params.read_text())
+    for k in ("s_x", "s_y", "s_z"):
+        assert abs(doc["parameters"][k] - PAPER_TRUTH[k]) < 2e-5
+    # Parameters from the uT log applied to an nT log: the nT log's column names win over the
+    # unit recorded with the parameters.
+    nt_params = tmp_path / "nt.json"
+    assert run(capsys, "calibrate", log_csv, "--method", "joint", "-o", nt_params)[0] == 0
+    code, out, err = run(capsys, "apply", nt_params, path)
+    assert code == 0 and "unit uT taken from the column names" in err
+    corrected = pd.read_csv(__import__("io").StringIO(out))
+    assert corrected["b_total"].std() < 3e-3  # in uT: 2.5 nT of noise

@@ -525,3 +525,27 @@ def test_cli_verbose_sends_ipopt_log_to_stderr(tmp_path, capsys):
     code, out, err = _run(["orthogonality", "invert", str(log), "-v"], capsys)
     assert code == 0 and "EXIT" in err
     assert json.loads(out)["status"] == "Solve_Succeeded"  # stdout holds only the JSON
+
+
+def test_invert_reads_the_unit_from_the_column_names_and_flags_near_bound_solutions(tmp_path,
+                                                                                    capsys):
+    # Angles well outside the default +-0.5 deg bound, log in uT by its column names.
+    rng = np.random.default_rng(21)
+    v = rng.standard_normal((1500, 3))
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    a, b, g = np.radians([-2.0, -1.5, 1.0])
+    T = np.array([[np.cos(a) * np.cos(g), np.cos(a) * np.sin(g), -np.sin(a)],
+                  [0.0, np.cos(b), np.sin(b)], [0.0, 0.0, 1.0]])
+    out = 49000.0 * v @ T.T / 1000.0
+    path = tmp_path / "rot_ut.csv"
+    pd.DataFrame(out, columns=["mx_uT", "my_uT", "mz_uT"]).to_csv(path, index=False)
+    result_path = tmp_path / "inv.json"
+    code = main(["orthogonality", "invert", str(path), "--field", "49000", "-o",
+                 str(result_path)])
+    err = capsys.readouterr().err
+    assert code == 0
+    assert "unit uT taken from the column names" in err
+    document = json.loads(result_path.read_text())
+    assert all(document["bound_active"])
+    assert "objective" in document
+    assert "bound" in err

@@ -14,7 +14,7 @@ import pandas as pd
 
 from .. import compass
 from ..errors import InputError
-from ..io import (FIELD_UNITS_NT, numeric_columns, read_json, read_table, resolve_columns,
+from ..io import (FIELD_UNITS_NT, check_output_path, numeric_columns, read_json, read_table, resolve_columns,
                   suggested_unit, unit_factor)
 from . import emit_csv, emit_json, warn
 
@@ -159,6 +159,7 @@ def _read_sensors(args, mag_unit: str, acc_unit: str):
 
 
 def run_calibrate(args) -> int:
+    check_output_path(args.output)
     frame, mag, acc, kept, mag_columns, acc_columns = _read_sensors(args, args.mag_unit,
                                                                     args.acc_unit)
     field_nt = args.field_nt
@@ -193,6 +194,7 @@ def run_calibrate(args) -> int:
 
 
 def run_attitude(args) -> int:
+    check_output_path(args.output)
     calibration = compass.CompassCalibration.from_dict(
         read_json(args.calibration, what="compass calibration"))
     recorded = calibration.input or {}
@@ -233,6 +235,7 @@ def _numeric_table(frame, columns, path) -> np.ndarray:
 
 
 def run_evaluate(args) -> int:
+    check_output_path(args.output)
     frame = read_table(args.attitude)
     truth = _numeric_table(frame, args.truth_columns, args.attitude)
     estimate = _numeric_table(frame, args.estimate_columns, args.attitude)

@@ -10,14 +10,17 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from ..calibration import METHODS, CalibrationResult, calibrate
+from ..calibration import METHODS, CalibrationResult, calibrate, theta_from_parameters
 from ..errors import InputError
-from ..io import (FIELD_UNITS_NT, csv_engine, csv_to_memmap, numeric_columns, read_json,
-                  read_table, read_table_header, resolve_columns, suggested_unit, unit_factor)
+from ..io import (FIELD_UNITS_NT, check_output_path, csv_engine, csv_to_memmap,
+                  numeric_columns, read_json, read_table, read_table_header, resolve_columns,
+                  suggested_unit, unit_factor, unit_in_name)
 from ..statistics import field_statistics, format_table
 from . import emit_csv, emit_json, warn
 
 TOTAL_COLUMN = "b_total"
+CYCLES_DEFAULT = 50
+RTOL_DEFAULT = 1e-9
 
 
 @dataclass
@@ -45,22 +48,24 @@ def add_log_arguments(parser, default_from: str = "the column names (mx_uT, \"X 
                              "instead of failing")
 
 
-def log_unit(chosen, unit=None) -> str:
-    """The unit of the field columns: `unit`, else the one their names suggest, else nT."""
+def log_unit(chosen, unit=None, fallback: str = "nT") -> str:
+    """The unit of the field columns: `unit` (--unit), else the one their names carry, else
+    `fallback` (nT, or the unit recorded with the parameters being applied)."""
     hinted = suggested_unit(chosen)
     if unit is None:
         if hinted:
             warn(f"unit {hinted} taken from the column names ({', '.join(chosen)})")
-        return hinted or "nT"
+        return hinted or fallback
     if hinted and hinted != unit:
         warn(f"the column names ({', '.join(chosen)}) suggest {hinted}, but --unit is {unit}")
     return unit
 
 
-def read_log(path, columns=None, unit=None, drop_invalid=False, extra_columns=()) -> Log:
+def read_log(path, columns=None, unit=None, drop_invalid=False, extra_columns=(),
+             fallback: str = "nT") -> Log:
     """Read, validate and convert a field log; `extra_columns` must be numeric too.
 
-    unit : the unit of the field columns; None takes it from the column names, else nT.
+    unit : the unit of the field columns; None takes it from the column names, else `fallback`.
     """
     frame = read_table(path)
     chosen = resolve_columns(frame, columns)
@@ -74,22 +79,32 @@ def read_log(path, columns=None, unit=None, drop_invalid=False, extra_columns=()
         raise InputError(f"{path}: no data rows")
     if numeric.dropped:
         warn(f"dropped {numeric.dropped} row(s) with missing or non-numeric values")
-    unit = log_unit(chosen, unit)
+    unit = log_unit(chosen, unit, fallback)
     factor = unit_factor(unit)
     return Log(frame=frame, columns=chosen, samples=numeric.values[:, :3] * factor,
                kept=numeric.kept, unit=unit, base_unit="raw" if unit == "raw" else "nT")
 
 
 def reference_from_args(args, log: Log):
-    """None, the --reference-field value or the --reference-column series, in base units."""
-    factor = unit_factor(log.unit)
+    """None, the --reference-field value or the --reference-column series, in base units.
+
+    The reference is in the log's unit, unless the column's name carries its own ("proton_nT").
+    """
     if getattr(args, "reference_field", None) is not None:
-        return float(args.reference_field) * factor
+        return float(args.reference_field) * unit_factor(log.unit)
     column = getattr(args, "reference_column", None)
     if column:
         values = pd.to_numeric(log.frame[column], errors="coerce").to_numpy(float)[log.kept]
-        return values * factor
+        return values * unit_factor(reference_unit(column, log.unit))
     return None
+
+
+def reference_unit(column: str, log_unit_: str) -> str:
+    """The unit of a reference column: the one its name carries, else the log's."""
+    named = unit_in_name(column)
+    if named and named != log_unit_:
+        warn(f"reference column {column!r} read in {named}, the unit its name carries")
+    return named or log_unit_
 
 
 def _drift():
@@ -111,15 +126,15 @@ def _register_calibrate(sub):
     parser.add_argument("--method", choices=METHODS, default="staged",
                         help="staged: the paper's cycle orthogonal -> scale -> offset (default); "
                              "joint: all nine at once")
-    parser.add_argument("--cycles", type=int, default=50, metavar="K",
-                        help="most staged cycles (default 50)")
+    parser.add_argument("--cycles", type=int, default=CYCLES_DEFAULT, metavar="K",
+                        help=f"most staged cycles (default {CYCLES_DEFAULT})")
     parser.add_argument("--target-std", type=float, metavar="F",
                         help="stop the cycle when std |B1| <= F [unit]")
     parser.add_argument("--target-range", type=float, metavar="F",
                         help="stop the cycle when max - min of |B1| <= F [unit]")
-    parser.add_argument("--rtol", type=float, default=1e-9,
+    parser.add_argument("--rtol", type=float, default=RTOL_DEFAULT,
                         help="stop the cycle when the objective improves by less than this "
-                             "fraction (default 1e-9)")
+                             f"fraction (default {RTOL_DEFAULT:g})")
     ref = parser.add_mutually_exclusive_group()
     ref.add_argument("--reference-field", type=float, metavar="F",
                      help="known field magnitude [unit], e.g. a proton reading")
@@ -135,8 +150,15 @@ def _register_calibrate(sub):
 
 
 def run_calibrate(args) -> int:
+    check_output_path(args.output)
     if args.temperature_column or args.temperature_model:
         return _drift().run_temperature_calibrate(args)
+    staged_only = [flag for flag, value in (("--cycles", args.cycles != CYCLES_DEFAULT),
+                                            ("--target-std", args.target_std is not None),
+                                            ("--target-range", args.target_range is not None),
+                                            ("--rtol", args.rtol != RTOL_DEFAULT)) if value]
+    if args.method == "joint" and staged_only:
+        warn(f"{', '.join(staged_only)} only steer the staged cycle; the joint solve ignores them")
     extra = [args.reference_column] if args.reference_column else []
     started = time.perf_counter()
     if args.low_memory:
@@ -146,7 +168,9 @@ def run_calibrate(args) -> int:
                                scale=factor)
         samples, columns, dropped, engine = mapped.values[:, :3], mapped.columns[:3], \
             mapped.dropped, "c (chunked into a memory map)"
-        reference = (mapped.values[:, 3] if args.reference_column
+        reference = (mapped.values[:, 3] / factor
+                     * unit_factor(reference_unit(args.reference_column, unit))
+                     if args.reference_column
                      else None if args.reference_field is None else args.reference_field * factor)
         if dropped:
             warn(f"dropped {dropped} row(s) with missing or non-numeric values")
@@ -198,16 +222,16 @@ def _register_apply(sub):
     parser.set_defaults(func=run_apply)
 
 
-def log_unit_for(args, result: CalibrationResult, document_unit: str | None) -> str:
-    """The log's unit: --unit, else the unit of the log the parameters were estimated from."""
-    if args.unit:
-        unit = args.unit
-    else:
-        unit = document_unit or result.unit
-    if (unit == "raw") != (result.unit == "raw"):
-        raise InputError(f"the parameters are in {result.unit!r} but the log is in {unit!r}; "
-                         f"pass --unit to match")
-    return unit
+def read_log_for(args, result: CalibrationResult, document_unit: str | None,
+                 extra_columns=()) -> Log:
+    """Read a log to apply parameters to. Its unit: --unit, else its column names, else the unit
+    of the log the parameters were estimated from. Counts and field units do not mix."""
+    log = read_log(args.log, args.columns, args.unit, args.drop_invalid, extra_columns,
+                   fallback=document_unit or result.unit)
+    if (log.unit == "raw") != (result.unit == "raw"):
+        raise InputError(f"the parameters are in {result.unit!r} but the log is in "
+                         f"{log.unit!r}; pass --unit to match")
+    return log
 
 
 def _read_params(path):
@@ -218,11 +242,11 @@ def _read_params(path):
 
 
 def run_apply(args) -> int:
+    check_output_path(args.output)
     result, document_unit = _read_params(args.params)
-    unit = log_unit_for(args, result, document_unit)
     temperature = _drift().TemperatureCorrection.from_args(args, "apply")
-    log = read_log(args.log, args.columns, unit, args.drop_invalid, temperature.columns)
-    factor = unit_factor(unit)
+    log = read_log_for(args, result, document_unit, temperature.columns)
+    factor = unit_factor(log.unit)
     corrected = temperature.correct(result, log) / factor
     frame = log.frame.loc[log.kept].copy()
     for k, column in enumerate(log.columns):
@@ -250,17 +274,16 @@ def _register_stats(sub):
 
 
 def run_stats(args) -> int:
-    result = None
-    unit = args.unit
+    temperature = _drift().TemperatureCorrection.from_args(args, "stats")
     if args.params:
         result, document_unit = _read_params(args.params)
-        unit = log_unit_for(args, result, document_unit)
-    temperature = _drift().TemperatureCorrection.from_args(args, "stats")
-    log = read_log(args.log, args.columns, unit, args.drop_invalid, temperature.columns)
+        log = read_log_for(args, result, document_unit, temperature.columns)
+    else:
+        result = None
+        log = read_log(args.log, args.columns, args.unit, args.drop_invalid, temperature.columns)
     rows = [{"label": "measured", **field_statistics(log.samples)}]
     if result is not None:
-        theta = np.concatenate([result.model.offsets, result.model.scales,
-                                result.model.angles_rad])
+        theta = theta_from_parameters(result.model)
         rows.append({"label": "corrected", **field_statistics(log.samples, theta)})
     rows, extra = temperature.stats_rows(args, log, result, rows)  # Eq. 10, temperature row
     for row in rows:

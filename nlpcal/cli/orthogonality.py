@@ -23,9 +23,9 @@ import pandas as pd
 
 from .. import orthogonality as ortho
 from ..errors import InputError
-from ..io import (check_output_path, numeric_columns, read_table, resolve_columns, unit_factor,
-                  write_bytes_atomic)
+from ..io import check_output_path, write_bytes_atomic
 from . import emit_csv, emit_json
+from .core import read_log
 
 PLOT_HINT = "pip install 'nlpcal[plot]'"
 
@@ -77,8 +77,9 @@ def register(sub):
                              f"(default {ortho.DEFAULT_BOUND_DEG:g})")
     invert.add_argument("--columns", nargs="+", metavar="COL",
                         help="the three field columns (default: recognised bx/by/bz, x/y/z, ...)")
-    invert.add_argument("--unit", default="nT",
-                        help="unit of the field columns: nT, uT, mG, G, T (default nT)")
+    invert.add_argument("--unit", default=None, choices=["nT", "uT", "mT", "mG", "G", "T"],
+                        help="unit of the field columns (default: from the column names, "
+                             "mx_uT, \"X (uT)\" ..., else nT)")
     invert.add_argument("--drop-invalid", action="store_true",
                         help="drop rows with missing or non-numeric values instead of failing")
     invert.add_argument("-o", "--output", metavar="OUT.json",
@@ -152,9 +153,8 @@ def _run_map(args) -> int:
 def _run_invert(args) -> int:
     bounds = ortho.check_bounds(args.bound_deg)
     field = None if args.field is None else ortho.check_field(args.field, "reference field")
-    factor = unit_factor(args.unit)
     check_output_path(args.output)
-    samples = [_read_log(path, args.columns, factor, args.drop_invalid) for path in args.logs]
+    samples = [_read_log(path, args.columns, args.unit, args.drop_invalid) for path in args.logs]
     runs = []
     for path, data in zip(args.logs, samples):
         try:
@@ -184,16 +184,14 @@ def _run_invert(args) -> int:
     return 0
 
 
-def _read_log(path, columns, factor, drop_invalid) -> np.ndarray:
-    frame = read_table(path)
+def _read_log(path, columns, unit, drop_invalid) -> np.ndarray:
+    """The field samples of one log in nT (unit: --unit, else the column names, else nT)."""
     try:
-        names = resolve_columns(frame, columns)
+        return read_log(path, columns, unit, drop_invalid).samples
     except InputError as exc:
-        raise InputError(f"{path}: {exc}") from None
-    table = numeric_columns(frame, names, drop_invalid=drop_invalid, source=str(path))
-    if table.dropped:
-        _info(f"{path}: dropped {table.dropped} invalid row(s)")
-    return table.values * factor
+        message = str(exc)
+        raise InputError(message if message.startswith(str(path)) else f"{path}: {message}") \
+            from None
 
 
 # ------------------------------------------------------------------------------------------------
