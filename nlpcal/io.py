@@ -180,7 +180,8 @@ def numeric_columns(frame: pd.DataFrame, columns, *, drop_invalid: bool = False,
         first = int(np.flatnonzero(~valid)[0])
         raise InputError(
             f"{source}: {bad} row(s) have a missing, non-numeric or non-finite value in "
-            f"{', '.join(columns)} (first at data row {first + 1}); fix them or pass --drop-invalid")
+            f"{', '.join(columns)} (first at data row {first + 1}); fix them or pass "
+            f"--drop-invalid")
     return NumericColumns(values=data[valid], kept=valid, dropped=bad)
 
 

@@ -40,7 +40,10 @@ SQRT_SERIES = (1.0, 0.5, -0.125, 0.0625, -0.0390625)
 
 
 def correction_matrix_sx(theta):
-    """M = O_p S_p (Eq. 4 in [1]) from theta = (z [field], s [1], angles [rad]) as a CasADi matrix."""
+    """M = O_p S_p (Eq. 4 in [1]) as a CasADi matrix.
+
+    theta : z [field unit], s [1], angles [rad].
+    """
     entries = correction_matrix_entries(theta[6], theta[7], theta[8], theta[3], theta[4], theta[5],
                                         cos=ca.cos, sin=ca.sin)
     return ca.blockcat([[ca.SX(v) if isinstance(v, float) else v for v in row] for row in entries])

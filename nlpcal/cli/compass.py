@@ -14,8 +14,8 @@ import pandas as pd
 
 from .. import compass
 from ..errors import InputError
-from ..io import (FIELD_UNITS_NT, check_output_path, numeric_columns, read_json, read_table, resolve_columns,
-                  suggested_unit, unit_factor)
+from ..io import (FIELD_UNITS_NT, check_output_path, numeric_columns, read_json, read_table,
+                  resolve_columns, suggested_unit, unit_factor)
 from . import emit_csv, emit_json, warn
 
 #: Accelerometer column triples recognised without --acc-columns, tried case-insensitively.
