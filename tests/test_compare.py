@@ -337,3 +337,12 @@ def test_docs_page_has_its_generated_tables_and_small_figures():
         figure = DOCS / "figures" / f"compare_{name}.png"
         assert f"figures/compare_{name}.png" in page
         assert figure.exists() and figure.stat().st_size < 200_000
+
+
+def test_with_a_reference_the_staged_objective_never_increases():
+    from nlpcal.calibration import calibrate
+    samples = simulate(1500, attitudes="turntable", noise=1.0, seed=4).to_numpy()
+    result = calibrate(samples, method="staged", reference_field=49462.0, cycles=12, rtol=0.0)
+    objectives = [row["objective"] for row in result.statistics]
+    for before, after in zip(objectives, objectives[1:]):
+        assert after <= before * (1 + 1e-9), objectives
