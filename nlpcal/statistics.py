@@ -174,7 +174,8 @@ def format_table(rows, unit: str = "nT", extra=()) -> str:
     columns = ["max", "min", "mean", "std", "range", *extra]
     width = max([len("row")] + [len(str(r["label"])) for r in rows])
     header = f"{'row':<{width}}  " + "  ".join(f"{c:>12}" for c in columns)
-    lines = [f"|B1| statistics [{unit}], std with ddof={STD_DDOF}", header, "-" * len(header)]
+    lines = [f"total field [{unit}] (measured: |B_M|; other rows: |B1| corrected by Eq. 4), std "
+             f"with ddof={STD_DDOF}", header, "-" * len(header)]
     for row in rows:
         cells = []
         for c in columns:
@@ -183,7 +184,9 @@ def format_table(rows, unit: str = "nT", extra=()) -> str:
                 cells.append(f"{value:>12d}")
             elif value is None:
                 cells.append(f"{'':>12}")
+            elif c in STAT_KEYS or abs(value) >= 1:
+                cells.append(f"{value:>12.2f}")
             else:
-                cells.append(f"{value:>12.6g}" if c not in STAT_KEYS else f"{value:>12.2f}")
+                cells.append(f"{value:>12.4g}")
         lines.append(f"{str(row['label']):<{width}}  " + "  ".join(cells))
     return "\n".join(lines)

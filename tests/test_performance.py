@@ -50,10 +50,25 @@ def test_csv_streamed_into_a_memmap_matches_pandas(tmp_path):
     assert csv_to_memmap(bad, drop_invalid=True).dropped == 1
 
 
-def test_moment_cost_is_one_pass_with_fixed_size():
-    # Whatever N, the moments have the same size; the pass reads each sample once.
-    for n in (100, CHUNK_ROWS + 1, 3 * CHUNK_ROWS):
+def test_the_gram_matrix_covers_every_sample_whatever_the_chunking():
+    # The moments are the mean over all samples of products of monomials of the centred, scaled
+    # sample: checked here against a direct evaluation of a few of them, for N that are not
+    # multiples of the chunk size, and for several chunk sizes and thread shares.
+    from nlpcal.moments import MONOMIALS, layout
+    for n in (100, CHUNK_ROWS + 1, 3 * CHUNK_ROWS + 17):
         samples, _ = make_log(n=n, noise=1.0, seed=n)
         moments = accumulate(samples, PAPER_FIELD)
         assert moments.gram.shape == (46, 46) and moments.n == n
-        assert moments.gram[0, 0] == pytest.approx(1.0)
+        d = (samples - moments.frame.centre) / moments.length
+        a = np.einsum("ij,ij->i", d, d) - 1.0
+        keys = layout(False).keys
+        for i, j in ((1, 1), (34, 34), (7, 20), (keys.index((0, 1, (0, 0, 0))), 0),
+                     (keys.index((0, 2, (0, 0, 0))), 34)):
+            def feature(k):
+                _, a_power, exps = keys[k]
+                return np.prod(d ** np.array(exps), axis=1) * a ** a_power
+            direct = np.mean(feature(i) * feature(j))
+            assert moments.gram[i, j] == pytest.approx(direct, rel=1e-11, abs=1e-15)
+        assert len(MONOMIALS) == 35
+        again = accumulate(samples, PAPER_FIELD, chunk_rows=1000, frame=moments.frame)
+        np.testing.assert_allclose(again.gram, moments.gram, rtol=1e-11, atol=1e-15)
