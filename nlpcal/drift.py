@@ -49,7 +49,7 @@ import pandas as pd
 from . import __version__
 from .calibration import CalibrationResult
 from .errors import InputError, SolveError
-from .io import (check_reference, check_samples, read_json, write_csv_atomic,
+from .io import (as_samples, check_reference, check_samples, read_json, write_csv_atomic,
                  write_json_atomic)
 from .models import liu2022
 from .models.liu2022 import TEMPERATURE_MODELS, TemperatureModel, k_factor, modulus_line, rmse
@@ -57,6 +57,7 @@ from .models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters, correction_mat
 from .models.zhou2010 import correct as zhou_correct
 from .models.zhou2010 import forward as zhou_forward
 from .moments import sphere_frame
+from .problems import variable_scale
 from .simulate import random_rotations
 from .solver import IpoptOptions, build_nlpsol, solve
 from .statistics import field_statistics, format_table
@@ -254,16 +255,9 @@ def fit_drift(samples, temperature, reference, *, base_temperature: float | None
     The modulus gets the diurnal correction -(F_i - F_1), then a and b of Eq. 1 are the least-
     squares line through (t_i, corrected modulus_i). Raises InputError for unusable input.
     """
-    try:
-        samples = np.asarray(samples, dtype=float)
-    except (TypeError, ValueError):
-        raise InputError("samples must be numeric, an (N, 3) array-like") from None
-    if samples.ndim != 2 or samples.shape[1] != 3:
-        raise InputError(f"samples must have shape (N, 3), got {samples.shape}")
+    samples = as_samples(samples, minimum=MIN_DRIFT_SAMPLES,
+                         purpose="for the line of Eq. 1 and its standard errors")
     n = samples.shape[0]
-    if n < MIN_DRIFT_SAMPLES:
-        raise InputError(f"got {n} samples, need at least {MIN_DRIFT_SAMPLES} for the line of "
-                         f"Eq. 1 and its standard errors")
     if not np.isfinite(samples).all():
         raise InputError("samples contain NaN or infinite values; drop or fix those rows")
     temperature = check_temperature(temperature, n)
@@ -443,9 +437,9 @@ def _theta_from_model(params: Zhou2010Parameters, model: TemperatureModel) -> np
 
 
 def _variable_scale(kind: str, radius: float, max_dt: float) -> np.ndarray:
-    """Typical sizes: offsets 1e-3 of the field, scales 1e-3, angles 1e-2 rad, and temperature
-    coefficients that change the field by 1e-3 over the log's largest |t - t0|."""
-    head = [1e-3 * radius] * 3 + [1e-3] * 3 + [1e-2] * 3
+    """Typical sizes: those of `nlpcal.problems.variable_scale`, and temperature coefficients
+    that change the field by 1e-3 over the log's largest |t - t0|."""
+    head = list(variable_scale(radius))
     span = max(max_dt, 1.0)
     if kind == "common":
         return np.array(head + [1e-3 / span])

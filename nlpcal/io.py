@@ -185,8 +185,9 @@ def numeric_columns(frame: pd.DataFrame, columns, *, drop_invalid: bool = False,
     return NumericColumns(values=data[valid], kept=valid, dropped=bad)
 
 
-def check_samples(samples, *, minimum: int = MIN_SAMPLES) -> np.ndarray:
-    """Validate an (N, 3) array of field samples and return it as float64."""
+def as_samples(samples, *, minimum: int = MIN_SAMPLES,
+               purpose: str = "for nine parameters") -> np.ndarray:
+    """An (N, 3) float64 array of field samples with at least `minimum` rows, or InputError."""
     try:
         samples = np.asarray(samples, dtype=float)
     except (TypeError, ValueError):
@@ -194,8 +195,16 @@ def check_samples(samples, *, minimum: int = MIN_SAMPLES) -> np.ndarray:
     if samples.ndim != 2 or samples.shape[1] != 3:
         raise InputError(f"samples must have shape (N, 3), got {samples.shape}")
     if samples.shape[0] < minimum:
-        raise InputError(
-            f"got {samples.shape[0]} samples, need at least {minimum} for nine parameters")
+        raise InputError(f"got {samples.shape[0]} samples, need at least {minimum} {purpose}")
+    return samples
+
+
+def check_samples(samples, *, minimum: int = MIN_SAMPLES) -> np.ndarray:
+    """Validate an (N, 3) array of field samples from many attitudes; return it as float64.
+
+    Non-finite values, all samples equal and a constant axis are errors.
+    """
+    samples = as_samples(samples, minimum=minimum)
     low, high = np.full(3, np.inf), np.full(3, -np.inf)
     for start in range(0, samples.shape[0], CHECK_CHUNK_ROWS):  # O(chunk) memory: memmaps too
         chunk = samples[start:start + CHECK_CHUNK_ROWS]

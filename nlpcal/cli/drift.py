@@ -66,14 +66,18 @@ def register(sub):
     fit.set_defaults(func=run_fit)
 
 
-def run_fit(args) -> int:
+def _read_with_temperature(args):
+    """The log with its reference and temperature columns: (log, reference, temperature)."""
     check_output_path(args.output)
     _check_distinct(args.temperature_column, args.reference_column)
     log = read_log(args.log, args.columns, args.unit, args.drop_invalid,
-                   [args.temperature_column, args.reference_column])
+                   [args.reference_column, args.temperature_column])
     _check_not_field(log, args.temperature_column, args.reference_column)
-    reference = reference_from_args(args, log)
-    temperature = column_values(log, args.temperature_column)
+    return log, reference_from_args(args, log), column_values(log, args.temperature_column)
+
+
+def run_fit(args) -> int:
+    log, reference, temperature = _read_with_temperature(args)
     fit = fit_drift(log.samples, temperature, reference, base_temperature=args.base_temperature,
                     unit=log.base_unit)
     fit.input = {"log": str(args.log), "columns": log.columns, "log_unit": log.unit,
@@ -155,13 +159,7 @@ def run_temperature_calibrate(args) -> int:
     if not args.reference_column:
         raise InputError("the temperature calibration needs --reference-column COL, a reference "
                          "magnitude per sample (for example a proton magnetometer)")
-    check_output_path(args.output)
-    _check_distinct(args.temperature_column, args.reference_column)
-    log = read_log(args.log, args.columns, args.unit, args.drop_invalid,
-                   [args.reference_column, args.temperature_column])
-    _check_not_field(log, args.temperature_column, args.reference_column)
-    reference = reference_from_args(args, log)
-    temperature = column_values(log, args.temperature_column)
+    log, reference, temperature = _read_with_temperature(args)
     result = calibrate_temperature(log.samples, temperature, reference,
                                    model=args.temperature_model or "common",
                                    base_temperature=args.base_temperature, unit=log.base_unit,
