@@ -152,6 +152,9 @@ def _register_calibrate(sub):
 def run_calibrate(args) -> int:
     check_output_path(args.output)
     if args.temperature_column or args.temperature_model:
+        if args.low_memory:
+            raise InputError("--low-memory does not apply to the temperature calibration, whose "
+                             "problem holds every sample; drop it or average the log first")
         return _drift().run_temperature_calibrate(args)
     staged_only = [flag for flag, value in (("--cycles", args.cycles != CYCLES_DEFAULT),
                                             ("--target-std", args.target_std is not None),
