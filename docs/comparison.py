@@ -6,14 +6,13 @@ For each attitude set of `nlpcal.simulate.ATTITUDES`, a log of the `zhou2010` pr
 parameters and field of Zhou et al. 2010) is simulated with a fixed seed and compared by
 `nlpcal.compare.compare`. The script writes docs/figures/compare_<set>.png (Fig. 2 of the paper
 plus the convergence of every method) and replaces the blocks between
-`<!-- BEGIN GENERATED: name -->` and `<!-- END GENERATED: name -->` in docs/comparison.md. The
+`<!-- BEGIN generated:name -->` and `<!-- END generated:name -->` in docs/comparison.md. The
 prose around the blocks is written by hand; read it again when the numbers change.
 Needs matplotlib (pip install 'nlpcal[plot]').
 """
 
 from __future__ import annotations
 
-import re
 import sys
 import time
 from dataclasses import replace
@@ -27,10 +26,11 @@ sys.path.insert(0, str(HERE.parent))  # run from a checkout without installing
 from nlpcal.calibration import Problem  # noqa: E402
 from nlpcal.compare import CompareSettings, compare, render_png  # noqa: E402
 from nlpcal.conjugate_gradient import CGOptions, run_cg_joint  # noqa: E402
-from nlpcal.io import write_text_atomic  # noqa: E402
 from nlpcal.joint import joint_start  # noqa: E402
 from nlpcal.moments import accumulate  # noqa: E402
 from nlpcal.simulate import ATTITUDES, PRESETS, simulate  # noqa: E402
+
+from generated import replace_block, update_page  # noqa: E402
 
 PAGE = HERE / "comparison.md"
 FIGURES = HERE / "figures"
@@ -151,14 +151,6 @@ def paper_table() -> str:
     return "\n".join(lines)
 
 
-def replace_block(text: str, name: str, body: str) -> str:
-    pattern = re.compile(rf"(<!-- BEGIN GENERATED: {re.escape(name)} -->\n).*?"
-                         rf"(<!-- END GENERATED: {re.escape(name)} -->)", re.S)
-    if not pattern.search(text):
-        raise SystemExit(f"{PAGE}: no generated block named {name!r}")
-    return pattern.sub(lambda m: m.group(1) + body.rstrip() + "\n" + m.group(2), text)
-
-
 def main() -> int:
     FIGURES.mkdir(exist_ok=True)
     preset = PRESETS["zhou2010"]
@@ -184,9 +176,9 @@ def main() -> int:
     blocks["paper-table1"] = paper_table()
     text = PAGE.read_text()
     for name, body in blocks.items():
-        text = replace_block(text, name, body)
-    write_text_atomic(PAGE, text)
-    print(f"wrote {PAGE} and {len(results)} figures in {FIGURES}", file=sys.stderr)
+        text = replace_block(text, name, body, str(PAGE))
+    update_page(PAGE, text, check=False, script="docs/comparison.py")
+    print(f"wrote {len(results)} figures in {FIGURES}", file=sys.stderr)
     return 0
 
 

@@ -18,7 +18,6 @@ import argparse
 import contextlib
 import io
 import json
-import re
 import sys
 import tempfile
 from pathlib import Path
@@ -28,9 +27,10 @@ import pandas as pd
 
 from nlpcal.cli import main as nlpcal
 from nlpcal.drift import DriftFit, TemperatureCalibrationResult, replica_truth, rmse_rows
-from nlpcal.io import write_text_atomic
 from nlpcal.models import liu2022
 from nlpcal.models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
+
+from generated import replace_block, update_page
 
 HERE = Path(__file__).resolve().parent
 PAGE = HERE / "drift.md"
@@ -196,12 +196,7 @@ BLOCKS = {
 
 def render(page: str, results: dict) -> str:
     for name, make in BLOCKS.items():
-        pattern = re.compile(
-            rf"(<!-- BEGIN generated:{name} -->\n).*?(<!-- END generated:{name} -->)", re.S)
-        if not pattern.search(page):
-            raise SystemExit(f"{PAGE}: the markers of block {name!r} are missing")
-        page = pattern.sub(lambda m, text=make(results): m.group(1) + text + "\n" + m.group(2),
-                           page)
+        page = replace_block(page, name, make(results), str(PAGE))
     return page
 
 
@@ -218,20 +213,8 @@ def main(argv=None) -> int:
         for name, make in BLOCKS.items():
             print(f"## {name}\n{make(results)}\n")
         return 0
-    page = PAGE.read_text()
-    updated = render(page, results)
-    if args.check:
-        if updated != page:
-            print(f"{PAGE} is out of date; run python docs/drift_table.py", file=sys.stderr)
-            return 1
-        print(f"{PAGE} is up to date", file=sys.stderr)
-        return 0
-    if updated != page:
-        write_text_atomic(PAGE, updated)
-        print(f"updated {PAGE}", file=sys.stderr)
-    else:
-        print(f"{PAGE} already up to date", file=sys.stderr)
-    return 0
+    return update_page(PAGE, render(PAGE.read_text(), results), check=args.check,
+                       script="docs/drift_table.py")
 
 
 if __name__ == "__main__":

@@ -12,14 +12,14 @@ extra). All numbers are deterministic (fixed seeds).
 from __future__ import annotations
 
 import argparse
-import re
 import sys
 from pathlib import Path
 
 import numpy as np
 
 from nlpcal import orthogonality as ortho
-from nlpcal.io import write_text_atomic
+
+from generated import replace_block, update_page
 
 HERE = Path(__file__).resolve().parent
 PAGE = HERE / "orthogonality.md"
@@ -114,11 +114,7 @@ BLOCKS = {"forward": forward_table, "inversion": inversion_table,
 
 def render(page: str) -> str:
     for name, make in BLOCKS.items():
-        pattern = re.compile(
-            rf"(<!-- BEGIN generated:{name} -->\n).*?(<!-- END generated:{name} -->)", re.S)
-        if not pattern.search(page):
-            raise SystemExit(f"{PAGE}: the markers of block {name!r} are missing")
-        page = pattern.sub(lambda m, text=make(): m.group(1) + text + "\n" + m.group(2), page)
+        page = replace_block(page, name, make(), str(PAGE))
     return page
 
 
@@ -140,21 +136,11 @@ def main(argv=None) -> int:
                         help="only compare the page's tables with freshly computed ones")
     parser.add_argument("--no-figure", action="store_true", help="do not redraw the figure")
     args = parser.parse_args(argv)
-    page = PAGE.read_text()
-    updated = render(page)
-    if args.check:
-        if updated != page:
-            print(f"{PAGE.name} is out of date; run python docs/orthogonality_table.py",
-                  file=sys.stderr)
-            return 1
-        print(f"{PAGE.name} is up to date", file=sys.stderr)
-        return 0
-    if updated != page:
-        write_text_atomic(PAGE, updated)
-        print(f"updated {PAGE.relative_to(HERE.parent)}", file=sys.stderr)
-    if not args.no_figure:
+    status = update_page(PAGE, render(PAGE.read_text()), check=args.check,
+                         script="docs/orthogonality_table.py")
+    if not (args.check or args.no_figure):
         write_figure()
-    return 0
+    return status
 
 
 if __name__ == "__main__":

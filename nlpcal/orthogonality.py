@@ -356,9 +356,11 @@ def worst_case(angles_deg, field_nT, *, verbose: bool = False) -> WorstCase:
                 f"the {what} total-field error found by IPOPT ({b * relative:.6g} nT) misses the "
                 f"analytic value ({b * exact:.6g} nT)", status=best.status)
         theta_deg = math.degrees(best.x[0]) % 360.0
+        phi_deg = float(np.clip(math.degrees(best.x[1]), -90.0, 90.0))
+        if phi_deg < 0.0:  # dB is even in B: of the two antipodes, report the one with phi >= 0
+            theta_deg, phi_deg = (theta_deg + 180.0) % 360.0, -phi_deg
         if theta_deg >= 360.0:
             theta_deg = 0.0
-        phi_deg = float(np.clip(math.degrees(best.x[1]), -90.0, 90.0))
         extremes[sign] = Extremum(b * relative, theta_deg, phi_deg, best.status, best.iterations)
     return WorstCase(
         angles_deg=tuple(float(a) for a in angles), field_nT=b,

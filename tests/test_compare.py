@@ -333,7 +333,7 @@ def test_docs_page_has_its_generated_tables_and_small_figures():
     page = (DOCS / "comparison.md").read_text()
     assert (DOCS / "comparison.py").exists()
     for name in ATTITUDES:
-        assert f"<!-- BEGIN GENERATED: table-{name} -->" in page
+        assert f"<!-- BEGIN generated:table-{name} -->" in page
         figure = DOCS / "figures" / f"compare_{name}.png"
         assert f"figures/compare_{name}.png" in page
         assert figure.exists() and figure.stat().st_size < 200_000
