@@ -15,7 +15,7 @@ from .models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters, correct
 from .moments import Moments, accumulate
 from .problems import GAUGE, SCALE_INDICES, objective_function, pack, variable_scale
 from .staged import StopRule, run_staged
-from .statistics import STD_DDOF, field_statistics, format_table
+from .statistics import STD_DDOF, field_statistics, format_table, standard_error_inflation
 
 FORMAT_VERSION = 1
 METHODS = ("staged", "joint")
@@ -209,8 +209,7 @@ def _uncertainty(problem: Problem, theta, objective: float, hs: np.ndarray,
 
     not_identifiable = set().union(*(involved(k) for k in np.flatnonzero(weak)))
     n = problem.samples.shape[0]
-    rho = min(max(autocorrelation, 0.0), 0.99)
-    inflation = float(np.sqrt((1 + rho) / (1 - rho)))
+    inflation = standard_error_inflation(autocorrelation)
     errors = None
     if not weak.any() and n > 9:
         cov_scaled = basis @ np.linalg.inv(reduced) @ basis.T * (2.0 * objective / (n - 9))

@@ -38,6 +38,7 @@ from . import io
 from .errors import InputError, SolveError
 from .models import qiu2017 as model
 from .solver import build_nlpsol, solve
+from .statistics import lag1_autocorrelation, standard_error_inflation
 
 #: Accelerometer units and their size in g (standard gravity 9.80665 m/s2).
 ACC_UNITS_G = {"g": 1.0, "mg": 1e-3, "m/s2": 1.0 / 9.80665}
@@ -748,9 +749,11 @@ def dip_alignment(down, field_dir) -> dict:
     # d/d delta of d^T exp([delta]x) R b = (R b x d)
     J = np.column_stack([np.cross(rb, down), -np.ones(n)])
     variance = float(residual @ residual) / max(n - 4, 1)
+    # A free-rotation log is a time series: neighbouring residuals alike carry less information.
+    rho = lag1_autocorrelation(residual)
     try:
         covariance = variance * np.linalg.inv(J.T @ J)
-        std = np.sqrt(np.maximum(np.diag(covariance), 0))
+        std = np.sqrt(np.maximum(np.diag(covariance), 0)) * standard_error_inflation(rho)
     except np.linalg.LinAlgError:
         std = np.full(4, np.inf)
     angle = 2 * np.arctan(np.linalg.norm(r))
@@ -761,6 +764,7 @@ def dip_alignment(down, field_dir) -> dict:
             "dip_std": float(std[3] / slope),
             "dip_residual_rms_before": float(np.std(before) / slope),
             "dip_residual_rms": float(np.sqrt(np.mean(residual ** 2)) / slope),
+            "residual_lag1_autocorrelation": rho,
             "ipopt": _ipopt_record(out)}
 
 
@@ -875,7 +879,9 @@ def calibrate_free(mag, acc, *, field_nt: float | None = None, ellipsoid_seed: s
         "dip_std_deg": float(np.degrees(align["dip_std"])),
         "dip_residual_rms_deg_before": float(np.degrees(align["dip_residual_rms_before"])),
         "dip_residual_rms_deg": float(np.degrees(align["dip_residual_rms"])),
-        "note": "rotation vector (axis times angle) taking the magnetometer's calibrated frame "
+        "residual_lag1_autocorrelation": align["residual_lag1_autocorrelation"],
+        "note": "standard deviations widened for the autocorrelation of the dip residuals; "
+                "rotation vector (axis times angle) taking the magnetometer's calibrated frame "
                 "into the accelerometer's, body x, y, z components",
     }
     return CompassCalibration(mode="free-rotation", magnetometer=mag_cal, accelerometer=acc_cal,

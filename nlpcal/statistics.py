@@ -22,6 +22,21 @@ STD_DDOF = 0
 STAT_KEYS = ("max", "min", "mean", "std", "range")
 
 
+def lag1_autocorrelation(residuals) -> float:
+    """Correlation of neighbouring residuals of a time series. [1]"""
+    r = np.asarray(residuals, dtype=float)
+    r = r - r.mean()
+    spread = float(r @ r)
+    return float(r[:-1] @ r[1:]) / spread if r.size > 1 and spread > 0 else 0.0
+
+
+def standard_error_inflation(rho: float) -> float:
+    """sqrt((1 + rho) / (1 - rho)): how much wider standard errors are when neighbouring
+    residuals correlate by rho (an AR(1) approximation; rho <= 0 leaves them as they are). [1]"""
+    rho = min(max(float(rho), 0.0), 0.99)
+    return float(np.sqrt((1 + rho) / (1 - rho)))
+
+
 class MagnitudeStats:
     """Table 1 statistics of |B1| and the exact objective, accumulated chunk by chunk.
 
