@@ -60,7 +60,8 @@ from .moments import sphere_frame
 from .problems import variable_scale
 from .simulate import random_rotations
 from .solver import IpoptOptions, build_nlpsol, solve
-from .statistics import field_statistics, format_table
+from .statistics import (field_statistics, format_table, lag1_autocorrelation,
+                         standard_error_inflation)
 
 DRIFT_FORMAT = "nlpcal-drift"
 DRIFT_FORMAT_VERSION = 1
@@ -289,8 +290,9 @@ def fit_drift(samples, temperature, reference, *, base_temperature: float | None
     rss = float(residual @ residual)
     fit_rmse = float(np.sqrt(rss / n))
     sigma2 = rss / (n - 2) if n > 2 else float("nan")
-    a_se = float(np.sqrt(sigma2 / sxx))
-    b_se = float(np.sqrt(sigma2 * (1.0 / n + t_mean**2 / sxx)))
+    widen = standard_error_inflation(lag1_autocorrelation(residual))  # a log is a time series
+    a_se = float(np.sqrt(sigma2 / sxx)) * widen
+    b_se = float(np.sqrt(sigma2 * (1.0 / n + t_mean**2 / sxx))) * widen
 
     if span < MIN_SPAN_DEGC or not a_se <= MAX_SLOPE_RELATIVE_ERROR * abs(a):
         warnings.append(
@@ -638,7 +640,7 @@ def calibrate_temperature(samples, temperature, reference, *, model: str = "comm
     poor = []
     if not weak.any():
         sd = np.sqrt(np.clip(np.diag(np.linalg.inv(normal)), 0, None) * objective * n / (n - nx))
-        sd_theta = sd * scale
+        sd_theta = sd * scale * standard_error_inflation(lag1_autocorrelation(r))
         sd_theta[6:9] = np.degrees(sd_theta[6:9])
         errors = {name: float(v) for name, v in zip(PARAMETER_NAMES, sd_theta[:9])}
         temperature_errors = {name: float(v) for name, v in

@@ -66,6 +66,7 @@ from .errors import InputError, SolveError
 from .io import check_samples
 from .models.zhou2010 import axis_matrix_entries, correction_matrix_entries
 from .solver import IpoptOptions, SolveOutcome, build_nlpsol, solve
+from .statistics import lag1_autocorrelation, standard_error_inflation
 
 #: Angle names in the order used everywhere (Zhou 2010 convention).
 ANGLE_NAMES = ("alpha", "beta", "gamma")
@@ -583,7 +584,8 @@ def invert(samples, *, field_nT=None, bound_deg=DEFAULT_BOUND_DEG, start_deg=(0.
 
 
 def _standard_errors(samples, angles_deg, residual, spread: bool):
-    """Gauss-Newton standard errors s sqrt(diag((J^T J)^-1)), s^2 = sum r^2 / (N - p). [deg]
+    """Gauss-Newton standard errors s sqrt(diag((J^T J)^-1)), s^2 = sum r^2 / (N - p), widened
+    for the lag-1 autocorrelation of the residuals (`nlpcal.statistics`). [deg]
 
     J_ij = d|B''_i| / d angle_j [nT/deg]; for the spread variant the columns are centred (the
     mean is a fourth, implicit parameter) and p = 4, otherwise p = 3. Returns None when J^T J is
@@ -607,7 +609,8 @@ def _standard_errors(samples, angles_deg, residual, spread: bool):
     if dof <= 0 or np.linalg.cond(normal) > 1e12:
         return None
     variance = float(np.sum(residual ** 2)) / dof
-    return np.sqrt(variance * np.diag(np.linalg.inv(normal)))
+    widen = standard_error_inflation(lag1_autocorrelation(residual))  # neighbours alike in a log
+    return np.sqrt(variance * np.diag(np.linalg.inv(normal))) * widen
 
 
 # --------------------------------------------------------------------------------------------
