@@ -29,11 +29,11 @@ import casadi
 import numpy as np
 
 import nlpcal
-from nlpcal import problems
-from nlpcal.joint import joint_start
+from nlpcal.nlp import blocks as problems
+from nlpcal.calibration.joint import joint_start
 from nlpcal.moments import accumulate
 from nlpcal.models.zhou2010 import correction_matrix_entries
-from nlpcal.simulate import ZHOU2010_FIELD_NT, simulate
+from nlpcal.simulation import ZHOU2010_FIELD_NT, simulate
 
 FIELD = ZHOU2010_FIELD_NT
 

@@ -2,9 +2,9 @@
 
     python docs/comparison.py
 
-For each attitude set of `nlpcal.simulate.ATTITUDES`, a log of the `zhou2010` preset (the final
+For each attitude set of `nlpcal.simulation.ATTITUDES`, a log of the `zhou2010` preset (the final
 parameters and field of Zhou et al. 2010) is simulated with a fixed seed and compared by
-`nlpcal.compare.compare`. The script writes docs/figures/compare_<set>.png (Fig. 2 of the paper
+`nlpcal.comparison.compare`. The script writes docs/figures/compare_<set>.png (Fig. 2 of the paper
 plus the convergence of every method) and replaces the blocks between
 `<!-- BEGIN generated:name -->` and `<!-- END generated:name -->` in docs/comparison.md. The
 prose around the blocks is written by hand; read it again when the numbers change.
@@ -23,12 +23,13 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))  # run from a checkout without installing
 
-from nlpcal.calibration import Problem  # noqa: E402
-from nlpcal.compare import CompareSettings, compare, render_png  # noqa: E402
-from nlpcal.conjugate_gradient import CGOptions, run_cg_joint  # noqa: E402
-from nlpcal.joint import joint_start  # noqa: E402
+from nlpcal.calibration.problem import Problem  # noqa: E402
+from nlpcal.comparison import CompareSettings, compare  # noqa: E402
+from nlpcal.plots import comparison_png  # noqa: E402
+from nlpcal.comparison.conjugate_gradient import CGOptions, run_cg_joint  # noqa: E402
+from nlpcal.calibration.joint import joint_start  # noqa: E402
 from nlpcal.moments import accumulate  # noqa: E402
-from nlpcal.simulate import ATTITUDES, PRESETS, simulate  # noqa: E402
+from nlpcal.simulation import ATTITUDES, PRESETS, simulate  # noqa: E402
 
 from generated import replace_block, update_page  # noqa: E402
 
@@ -161,7 +162,7 @@ def main() -> int:
                            seed=SEED, attitudes=name).to_numpy()
         result = compare(samples, settings=SETTINGS)
         results[name] = result
-        png = render_png(result, title=f"zhou2010 preset, {name} attitudes, N = {N}, "
+        png = comparison_png(result, title=f"zhou2010 preset, {name} attitudes, N = {N}, "
                                        f"seed {SEED}, noise {NOISE:g} nT")
         if len(png) > MAX_PNG_BYTES:
             raise SystemExit(f"compare_{name}.png is {len(png)} bytes, above {MAX_PNG_BYTES}")

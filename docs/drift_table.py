@@ -26,7 +26,8 @@ import numpy as np
 import pandas as pd
 
 from nlpcal.cli import main as nlpcal
-from nlpcal.drift import DriftFit, TemperatureCalibrationResult, replica_truth, rmse_rows
+from nlpcal.drift import DriftFit, TemperatureCalibrationResult, rmse_rows
+from nlpcal.simulation.liu2022 import replica_truth
 from nlpcal.models import liu2022
 from nlpcal.models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
 

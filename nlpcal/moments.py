@@ -36,7 +36,7 @@ References
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 from itertools import combinations_with_replacement
 
 import numpy as np
@@ -101,7 +101,7 @@ class Layout:
         return len(self.keys)
 
 
-@lru_cache(maxsize=None)
+@cache
 def layout(varying_gamma: bool) -> Layout:
     """The feature layout: with gamma constant, powers of gamma fold into the data."""
     keys: list = []
@@ -184,7 +184,7 @@ class Moments:
         return layout(self.reference == "series")
 
 
-@lru_cache(maxsize=None)
+@cache
 def _groups(varying_gamma: bool):
     """Feature columns grouped by their powers of gamma and a, with their monomial columns."""
     column = {exps: i for i, exps in enumerate(MONOMIALS)}

@@ -15,26 +15,11 @@ from __future__ import annotations
 import numpy as np
 
 from .chunks import map_shares
-from .models.zhou2010 import correction_matrix_entries
+from .models.zhou2010 import Zhou2010Parameters, correct, correction_matrix_entries
 
 #: Delta degrees of freedom of the reported std.
 STD_DDOF = 0
 STAT_KEYS = ("max", "min", "mean", "std", "range")
-
-
-def lag1_autocorrelation(residuals) -> float:
-    """Correlation of neighbouring residuals of a time series. [1]"""
-    r = np.asarray(residuals, dtype=float)
-    r = r - r.mean()
-    spread = float(r @ r)
-    return float(r[:-1] @ r[1:]) / spread if r.size > 1 and spread > 0 else 0.0
-
-
-def standard_error_inflation(rho: float) -> float:
-    """sqrt((1 + rho) / (1 - rho)): how much wider standard errors are when neighbouring
-    residuals correlate by rho (an AR(1) approximation; rho <= 0 leaves them as they are). [1]"""
-    rho = min(max(float(rho), 0.0), 0.99)
-    return float(np.sqrt((1 + rho) / (1 - rho)))
 
 
 class MagnitudeStats:
@@ -89,7 +74,7 @@ class MagnitudeStats:
         self.lag += self.last[0] * deviation
         self.ref_lag += self.last[1] * residual
 
-    def merge(self, other: "MagnitudeStats") -> "MagnitudeStats":
+    def merge(self, other: MagnitudeStats) -> MagnitudeStats:
         """Add the sums of `other`, gathered with the same shift, to these."""
         if other.n == 0:
             return self
@@ -203,5 +188,17 @@ def format_table(rows, unit: str = "nT", extra=()) -> str:
                 cells.append(f"{value:>12.2f}")
             else:
                 cells.append(f"{value:>12.4g}")
-        lines.append(f"{str(row['label']):<{width}}  " + "  ".join(cells))
+        lines.append(f"{row['label']!s:<{width}}  " + "  ".join(cells))
     return "\n".join(lines)
+
+
+def direct_objective(samples, theta, reference=None) -> float:
+    """Eq. 8 in [1] (reference None) or mean (|B1_i| - F_i)^2, evaluated sample by sample: the
+    definition the moment objective of `nlpcal.nlp.objective` is checked against. [field^2]
+
+    theta : internal parameters (z [field], s [1], angles [rad]).
+    """
+    magnitude = np.linalg.norm(correct(samples, Zhou2010Parameters.from_theta(theta)), axis=1)
+    if reference is None:
+        return float(np.mean((magnitude - magnitude.mean()) ** 2))
+    return float(np.mean((magnitude - reference) ** 2))

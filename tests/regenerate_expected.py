@@ -7,7 +7,7 @@ The tests never write these files: a change of the numbers has to be made, looke
 committed on purpose (say in the commit why the rows moved).
 
 Each case simulates a log of the `zhou2010` preset (the final parameters and field of Zhou et al.
-2010) with a fixed seed and attitude set, runs `nlpcal.compare.compare` and stores the Table 1
+2010) with a fixed seed and attitude set, runs `nlpcal.comparison.compare` and stores the Table 1
 statistics (max, min, mean, std, range [nT]) of every row: the staged cycle (measured row, then one
 per cycle), the joint IPOPT solve, the joint CG in paper units and scaled, and the CG-staged cycle.
 Iteration counts and wall times are not stored: they are not results.
@@ -30,9 +30,9 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
-from nlpcal.compare import CompareSettings, compare  # noqa: E402
-from nlpcal.conjugate_gradient import CGOptions  # noqa: E402
-from nlpcal.simulate import PRESETS, simulate  # noqa: E402
+from nlpcal.comparison import CompareSettings, compare  # noqa: E402
+from nlpcal.comparison.conjugate_gradient import CGOptions  # noqa: E402
+from nlpcal.simulation import PRESETS, simulate  # noqa: E402
 
 EXPECTED = HERE / "expected"
 STAT_KEYS = ("max", "min", "mean", "std", "range")

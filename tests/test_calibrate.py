@@ -231,8 +231,8 @@ def test_bad_options(noisy):
 
 
 def test_ipopt_failure_is_surfaced(noisy, monkeypatch):
-    from nlpcal import problems
-    from nlpcal.solver import SolveOutcome
+    from nlpcal.nlp import blocks as problems
+    from nlpcal.nlp.solver import SolveOutcome
 
     def failing(*args, **kwargs):
         return SolveOutcome(x=np.zeros(9), f=1.0, status="Maximum_Iterations_Exceeded",

@@ -13,16 +13,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import nlpcal.compare as compare_module
-from nlpcal.calibration import Problem
+import nlpcal.comparison as compare_module
+from nlpcal.calibration.problem import Problem
 from nlpcal.cli import main
-from nlpcal.compare import ROW_FIELDS, ROW_KEYS, CompareSettings, compare
-from nlpcal.conjugate_gradient import CGOptions, conjugate_gradient, run_cg_joint
+from nlpcal.comparison import ROW_FIELDS, ROW_KEYS, CompareSettings, compare
+from nlpcal.comparison.conjugate_gradient import CGOptions, conjugate_gradient, run_cg_joint
 from nlpcal.errors import InputError, SolveError
-from nlpcal.joint import joint_start
+from nlpcal.calibration.joint import joint_start
 from nlpcal.moments import accumulate
-from nlpcal.problems import block_step
-from nlpcal.simulate import ATTITUDES, simulate, world_field
+from nlpcal.nlp.blocks import block_step
+from nlpcal.simulation import ATTITUDES, simulate, world_field
 
 HERE = Path(__file__).resolve().parent
 DOCS = HERE.parent / "docs"

@@ -17,8 +17,12 @@ from scipy.spatial.transform import Rotation
 
 from nlpcal import compass
 from nlpcal.cli import main
+from nlpcal.compass import ellipsoids
+from nlpcal.compass import turns as turns_module
 from nlpcal.models import qiu2017 as model
-from nlpcal.solver import SolveOutcome
+from nlpcal.nlp import compass as compass_nlp
+from nlpcal.nlp.solver import PROBLEMS, SolveOutcome, builds
+from nlpcal.simulation import write_directory_preset
 
 # --------------------------------------------------------------------------------------------------
 # Independent forward model
@@ -263,13 +267,13 @@ def test_ellipsoid_moment_objective_matches_per_sample_evaluation():
     u = rng.normal(size=(30, 3))
     x = np.r_[rng.uniform(0.5, 2, 3), rng.normal(size=3)]
     phi = np.column_stack([u ** 2, u, np.ones(30)])
-    theta = _evaluate_symbolic(compass._axis_ellipsoid_theta, x)
+    theta = _evaluate_symbolic(compass_nlp.axis_ellipsoid_theta, x)
     direct = np.mean((np.sum(x[:3] * (u - x[3:]) ** 2, axis=1) - 1) ** 2)
     assert theta @ (phi.T @ phi / 30) @ theta == pytest.approx(direct, rel=1e-12)
     xg = np.r_[1.2, 0.8, 1.1, 0.1, -0.05, 0.02, rng.normal(size=3)]
     A = np.array([[xg[0], xg[3], xg[4]], [xg[3], xg[1], xg[5]], [xg[4], xg[5], xg[2]]])
-    phig = compass._general_features(u)
-    thetag = _evaluate_symbolic(compass._general_theta, xg)
+    phig = ellipsoids._general_features(u)
+    thetag = _evaluate_symbolic(compass_nlp.general_theta, xg)
     d = u - xg[6:]
     directg = np.mean((np.einsum("ni,ij,nj->n", d, A, d) - 1) ** 2)
     assert thetag @ (phig.T @ phig / 30) @ thetag == pytest.approx(directg, rel=1e-12)
@@ -279,11 +283,14 @@ def test_problems_are_built_once_and_resolved():
     _, (mag, acc, labels), (mag_t, acc_t, _) = turn_replica(51)
     compass.calibrate_turns(mag, acc, labels)
     compass.calibrate_free(mag_t[:300], acc_t[:300])
-    built = {name: id(solver) for name, solver in compass._SOLVERS.items()}
-    assert set(built) == set(compass._BUILDERS)
+    names = [name for name in PROBLEMS if name.startswith("qiu2017.")]
+    assert len(names) == 4
+    built = {name: id(PROBLEMS[name][0]()) for name in names}
+    misses = builds()
     compass.calibrate_turns(mag * 1.01, acc, labels)
     compass.calibrate_free(mag_t[300:600], acc_t[300:600])
-    assert {name: id(solver) for name, solver in compass._SOLVERS.items()} == built
+    assert {name: id(PROBLEMS[name][0]()) for name in names} == built
+    assert builds() == misses
 
 
 def test_inputs_as_list_array_and_dataframe_agree():
@@ -409,7 +416,8 @@ def test_evaluate_wraps_bands_and_offsets():
 
 
 def test_replica_writer_and_simulate_preset(tmp_path):
-    written = compass.write_qiu2017_replica(tmp_path / "new" / "dir", seed=3, noise=None, n=100)
+    written = write_directory_preset("qiu2017", tmp_path / "new" / "dir", seed=3, noise=None,
+                                     n=100)
     assert [p.name for p in written] == ["turns.csv", "test.csv", "truth.json"]
     turns = pd.read_csv(written[0])
     assert len(turns) == 48 and list(pd.unique(turns["turn"])) == ["x", "y", "z", "z2"]
@@ -570,7 +578,7 @@ def test_cli_error_paths(turn_log, capsys, monkeypatch):
         return SolveOutcome(x=np.zeros(2), f=np.nan, status="Maximum_Iterations_Exceeded",
                             success=False, iterations=200)
 
-    monkeypatch.setattr(compass, "solve", failing)
+    monkeypatch.setattr(turns_module, "solve", failing)
     code, err = _run(base, capsys)
     assert code == 1 and "Maximum_Iterations_Exceeded" in err
 

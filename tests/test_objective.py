@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from nlpcal import moments as mom
-from nlpcal import problems
-from nlpcal.objective import direct_objective
+from nlpcal.nlp import blocks as problems
+from nlpcal.statistics import direct_objective
 from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log
 
 THETA_TRUE = np.array([PAPER_TRUTH[k] for k in ("z_x", "z_y", "z_z", "s_x", "s_y", "s_z")]

@@ -18,7 +18,12 @@ import pytest
 from nlpcal import orthogonality as ortho
 from nlpcal.cli import main
 from nlpcal.errors import InputError, SolveError
-from nlpcal.solver import SolveOutcome
+from nlpcal.models import wang2015
+from nlpcal.moments import accumulate
+from nlpcal.nlp.blocks import moment_parameters
+from nlpcal.nlp.orthogonality import inversion_objective, inversion_solver, worst_case_solver
+from nlpcal.nlp.solver import SolveOutcome
+from nlpcal.orthogonality import inversion as inversion_module
 
 PAPER_ANGLES = (0.07, 0.04, 0.1)  # the synthetic inversion of section 2 in Wang et al. [deg]
 FIELD = 55_000.0  # [nT]
@@ -103,7 +108,7 @@ def test_total_field_error_matches_the_independent_model():
     theta, phi = rng.uniform(0, 360, 50), rng.uniform(-90, 90, 50)
     expected = np.linalg.norm(probe_output(FIELD * unit_vectors(theta, phi), angles),
                               axis=1) - FIELD
-    np.testing.assert_allclose(ortho.total_field_error(angles, FIELD, theta, phi), expected,
+    np.testing.assert_allclose(wang2015.total_field_error(angles, FIELD, theta, phi), expected,
                                rtol=0, atol=1e-8)
 
 
@@ -172,9 +177,9 @@ def test_implied_worst_case_of_paper_repeatability():
 
 def test_worst_case_problem_is_built_once():
     ortho.worst_case((0.1, 0.2, 0.3), FIELD)
-    before = ortho._worst_case_solver.cache_info()
+    before = worst_case_solver.cache_info()
     ortho.worst_case((0.3, -0.2, 0.1), 30_000.0)
-    after = ortho._worst_case_solver.cache_info()
+    after = worst_case_solver.cache_info()
     assert after.misses == before.misses and after.hits > before.hits
 
 
@@ -232,34 +237,36 @@ def test_bound_active_warning_when_truth_is_outside():
     assert result.bound_active == [True, False, False]
     assert result.angles_deg[0] == pytest.approx(0.5, abs=1e-6)
     assert len(result.warnings) == 1 and "outside the bounds" in result.warnings[0]
-    assert result.as_dict()["any_bound_active"] is True
+    assert result.to_dict()["any_bound_active"] is True
     wider = ortho.invert(data, bound_deg=[1.0, 0.5, 0.5])
     assert not any(wider.bound_active) and not wider.warnings
     np.testing.assert_allclose(wider.angles_deg, truth, atol=0.002)
 
 
 def test_inversion_objective_matches_direct_per_sample_evaluation():
-    # the matrix-valued MX graph against a plain loop over samples, with padding present
-    data = rotation_log((0.2, -0.1, 0.3), n=37, noise=2.0)
-    angles = np.array([0.05, -0.02, 0.11])
-    capacity = ortho._capacity(len(data))
-    nominal = np.linalg.norm(data, axis=1).mean()
-    padded = np.vstack([data, np.repeat(data[:1], capacity - len(data), axis=0)]) / nominal
-    weights = np.r_[np.full(len(data), 1 / len(data)), np.zeros(capacity - len(data))]
-    oracle = ortho._inversion_solver(capacity).oracle()
-    corrected = np.array([np.linalg.solve(sensor_axes(*angles), b) for b in data])
-    magnitude = np.linalg.norm(corrected, axis=1)
-    for flag, centre in ((0.0, magnitude.mean()), (1.0, 54_990.0)):
-        p = np.concatenate([padded.ravel(), weights, [flag, centre / nominal, 1.0]])
-        value = float(oracle(angles, p)[0]) * nominal ** 2
-        assert value == pytest.approx(np.mean((magnitude - centre) ** 2), rel=1e-9)
+    # The moment objective of the built problem against a plain loop over samples. The moments
+    # carry |B1|^2 / F^2 - 1 = u to fourth order, so the relative error is at most max|u|^3
+    # (`nlpcal.nlp.objective`): 1e-9 at the generating angles, about 1e-7 away from them.
+    truth = (0.2, -0.1, 0.3)
+    data = rotation_log(truth, n=37, noise=2.0)
+    for angles, bound in ((np.array([0.05, -0.02, 0.11]), None), (np.array(truth), 1e-9)):
+        corrected = np.array([np.linalg.solve(sensor_axes(*angles), b) for b in data])
+        magnitude = np.linalg.norm(corrected, axis=1)
+        for reference, centre in ((None, magnitude.mean()), (54_990.0, 54_990.0)):
+            moments = accumulate(data, reference)
+            value = float(inversion_objective(moments.reference)(angles,
+                                                                 moment_parameters(moments))[0])
+            max_u = np.abs((magnitude / centre) ** 2 - 1).max()
+            assert value == pytest.approx(np.mean((magnitude - centre) ** 2),
+                                          rel=bound or max_u**3)
 
 
-def test_inversion_problem_is_built_once_per_size_bucket():
+def test_inversion_problem_is_built_once_for_every_log_length():
     ortho.invert(rotation_log(PAPER_ANGLES, n=100))
-    before = ortho._inversion_solver.cache_info()
-    ortho.invert(rotation_log(PAPER_ANGLES, n=90, seed=3), field_nT=FIELD)  # same bucket (128)
-    assert ortho._inversion_solver.cache_info().misses == before.misses
+    before = inversion_solver.cache_info()
+    ortho.invert(rotation_log(PAPER_ANGLES, n=90, seed=3), field_nT=FIELD)
+    ortho.invert(rotation_log(PAPER_ANGLES, n=5000, seed=4))
+    assert inversion_solver.cache_info().misses == before.misses
 
 
 def test_repeatability_like_table_4():
@@ -276,7 +283,7 @@ def test_repeatability_like_table_4():
     assert report.implied_worst_case_nT == pytest.approx(
         FIELD * math.radians(report.max_abs_deviation_deg), rel=1e-3)
     np.testing.assert_allclose(report.mean_angles_deg, truth, atol=0.002)
-    document = report.as_dict()
+    document = report.to_dict()
     assert document["n_runs"] == 4 and document["field_source"] == "reference"
     with pytest.raises(InputError):
         ortho.repeatability(runs[:1])
@@ -306,7 +313,7 @@ def test_inversion_rejects_zero_magnitude_samples():
 
 
 def test_inversion_failure_is_a_solve_error(monkeypatch):
-    monkeypatch.setattr(ortho, "solve", _failing_solve)
+    monkeypatch.setattr(inversion_module, "solve", _failing_solve)
     with pytest.raises(SolveError) as info:
         ortho.invert(rotation_log(PAPER_ANGLES, n=50))
     assert info.value.status == "Maximum_Iterations_Exceeded"
@@ -508,7 +515,7 @@ def test_cli_invert_solve_failure_exits_1_and_keeps_existing_output(tmp_path, ca
     log = _write_log(tmp_path / "rot.csv", PAPER_ANGLES, n=60)
     out_path = tmp_path / "angles.json"
     out_path.write_text("previous\n")
-    monkeypatch.setattr(ortho, "solve", _failing_solve)
+    monkeypatch.setattr(inversion_module, "solve", _failing_solve)
     code, out, err = _run(["orthogonality", "invert", str(log), "-o", str(out_path)], capsys)
     assert code == 1 and "Maximum_Iterations_Exceeded" in err and str(log) in err
     assert out_path.read_text() == "previous\n"

@@ -15,12 +15,7 @@ from __future__ import annotations
 
 import sys
 
-from ..compare import PLOT_HINT, CompareSettings, compare, render_png, require_matplotlib
-from ..conjugate_gradient import CGOptions
-from ..errors import InputError
-from ..io import check_output_path, csv_engine, unit_factor, write_bytes_atomic
-from . import emit_json
-from .core import add_log_arguments, read_log, reference_from_args
+from .common import add_log_arguments, add_reference_arguments, emit_json, log_options, tell
 
 
 def register(sub):
@@ -46,47 +41,36 @@ def register(sub):
                              "start) (default 1)")
     parser.add_argument("--cg-rel-eps", type=float, default=1e-6, metavar="R",
                         help="CG stop |grad f| <= R |grad f at the start| (default 1e-6)")
-    ref = parser.add_mutually_exclusive_group()
-    ref.add_argument("--reference-field", type=float, metavar="F",
-                     help="known field magnitude [unit], e.g. a proton reading")
-    ref.add_argument("--reference-column", metavar="COL",
-                     help="column of per-sample reference magnitudes [unit]")
+    add_reference_arguments(parser)
     parser.add_argument("-o", "--output", metavar="COMPARE.json",
                         help="write the JSON here (stdout when absent)")
     parser.add_argument("--plot", metavar="COMPARE.png",
-                        help="write the figures here (needs matplotlib: " + PLOT_HINT + ")")
+                        help="write the figures here (needs matplotlib: pip install "
+                             "'nlpcal[plot]')")
     parser.set_defaults(func=run)
 
 
 def run(args) -> int:
-    if args.cycles < 1:
-        raise InputError(f"--cycles must be at least 1, got {args.cycles}")
-    try:
-        cg = CGOptions(step_factor=args.cg_step_factor, rel_eps=args.cg_rel_eps,
-                       max_iter=args.cg_max_iter)
-    except ValueError as exc:
-        raise InputError(f"conjugate gradient settings: {exc}") from None
-    settings = CompareSettings(cycles=args.cycles, rtol=args.rtol, cg=cg)
+    from ..comparison import CompareSettings, compare_log
+    from ..comparison.conjugate_gradient import CGOptions
+    from ..io import check_output_path, read_log, write_bytes_atomic
+    from ..plots import comparison_png, require_matplotlib
+
+    settings = CompareSettings(cycles=args.cycles, rtol=args.rtol,
+                               cg=CGOptions(step_factor=args.cg_step_factor,
+                                            rel_eps=args.cg_rel_eps, max_iter=args.cg_max_iter))
     check_output_path(args.output)
     check_output_path(args.plot)
     if args.plot:
         require_matplotlib()
-    extra = [args.reference_column] if args.reference_column else []
-    log = read_log(args.log, args.columns, args.unit, args.drop_invalid, extra)
-    reference = reference_from_args(args, log)
-    result = compare(log.samples, reference_field=reference, settings=settings,
-                     unit=log.base_unit)
-    png = render_png(result, title=str(args.log)) if args.plot else None
-    document = result.to_dict()
-    document["input"] = {"log": str(args.log), "columns": log.columns, "log_unit": log.unit,
-                         "csv_engine": csv_engine(), "rows_dropped": int((~log.kept).sum()),
-                         "unit_factor_nT": unit_factor(log.unit)}
-    if args.reference_column:
-        document["reference"]["column"] = args.reference_column
+    log = read_log(args.log, **log_options(args))
+    tell(log.notes)
+    result = compare_log(log, settings=settings)
+    png = comparison_png(result, title=str(args.log)) if args.plot else None
     print(result.table(), file=sys.stderr)
     for message in result.warnings:
         print(f"nlpcal compare: warning: {message}", file=sys.stderr)
-    emit_json(document, args.output)
+    emit_json(result.to_dict(), args.output)
     if png is not None:
         write_bytes_atomic(args.plot, png)
         print(f"nlpcal compare: wrote {args.plot}", file=sys.stderr)

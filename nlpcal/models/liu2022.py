@@ -135,7 +135,7 @@ class TemperatureModel:
                              f"{', '.join(TEMPERATURE_MODELS)}")
 
     @classmethod
-    def from_drift(cls, a: float, b: float, base_temperature: float) -> "TemperatureModel":
+    def from_drift(cls, a: float, b: float, base_temperature: float) -> TemperatureModel:
         """The common model of Eq. 9 in [1] from the line of Eq. 1."""
         return cls("common", float(base_temperature),
                    k_slope_per_degC=float(a / modulus_line(base_temperature, a, b)))
@@ -157,7 +157,7 @@ class TemperatureModel:
         zeta = np.asarray(self.offset_slope_per_degC, dtype=float)
         return (1.0 + params.scales) * (1.0 + sigma * dt), params.offsets + zeta * dt
 
-    def as_dict(self) -> dict:
+    def to_dict(self) -> dict:
         document = {"kind": self.kind, "base_temperature_degC": self.base_temperature_degC}
         if self.kind == "common":
             document["k_slope_per_degC"] = self.k_slope_per_degC
@@ -166,8 +166,10 @@ class TemperatureModel:
             document["offset_slope_per_degC"] = [float(v) for v in self.offset_slope_per_degC]
         return document
 
+    as_dict = to_dict  # the name of nlpcal 0.1; kept for one release
+
     @classmethod
-    def from_dict(cls, document: dict) -> "TemperatureModel":
+    def from_dict(cls, document: dict) -> TemperatureModel:
         """Inverse of `as_dict`; raises KeyError, TypeError or ValueError on a bad document."""
         kind = document["kind"]
         t0 = float(document["base_temperature_degC"])

@@ -64,24 +64,40 @@ class Zhou2010Parameters:
     gamma_deg: float = 0.0
 
     @classmethod
-    def from_dict(cls, values: dict) -> "Zhou2010Parameters":
+    def from_dict(cls, values: dict) -> Zhou2010Parameters:
+        """From the nine named values (raises KeyError when one is missing)."""
         missing = [name for name in PARAMETER_NAMES if name not in values]
         if missing:
             raise KeyError(f"parameters missing: {', '.join(missing)}")
         return cls(**{name: float(values[name]) for name in PARAMETER_NAMES})
 
     @classmethod
-    def from_vector(cls, vector) -> "Zhou2010Parameters":
+    def from_theta(cls, theta) -> Zhou2010Parameters:
+        """From the internal vector theta: z [field unit], s [1], angles [rad]."""
+        theta = np.asarray(theta, dtype=float).ravel()
+        return cls.from_vector(np.concatenate([theta[:6], np.degrees(theta[6:9])]))
+
+    @classmethod
+    def from_vector(cls, vector) -> Zhou2010Parameters:
         vector = np.asarray(vector, dtype=float).ravel()
         if vector.size != 9:
             raise ValueError(f"expected 9 parameters, got {vector.size}")
         return cls(*map(float, vector))
 
-    def as_dict(self) -> dict:
+    def to_dict(self) -> dict:
+        """The nine named values."""
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
+    as_dict = to_dict  # the name of nlpcal 0.1; kept for one release
+
     def as_vector(self) -> np.ndarray:
+        """The nine values in PARAMETER_NAMES order (angles in degrees)."""
         return np.array([getattr(self, name) for name in PARAMETER_NAMES])
+
+    @property
+    def theta(self) -> np.ndarray:
+        """The internal vector the NLPs use: z [field unit], s [1], angles [rad]."""
+        return np.concatenate([self.offsets, self.scales, self.angles_rad])
 
     @property
     def offsets(self) -> np.ndarray:

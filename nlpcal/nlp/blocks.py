@@ -29,15 +29,14 @@ References
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 
 import casadi as ca
 import numpy as np
 
-from . import moments as mom
+from .. import moments as mom
+from ..errors import SolveError
 from .objective import objective_expression
-from .errors import SolveError
-from .solver import IpoptOptions, SolveOutcome, build_nlpsol, solve
+from .solver import IpoptOptions, SolveOutcome, build_nlpsol, problem, solve
 
 #: Indices of theta freed by each problem, in the paper's stage order.
 BLOCKS = {
@@ -100,15 +99,20 @@ def _symbols(reference: str) -> Symbols:
     )
 
 
+def moment_parameters(moments: mom.Moments) -> np.ndarray:
+    """The data part of every moment problem's parameters: vec(G), the frame centre and L."""
+    return np.concatenate([moments.gram.ravel(order="F"), moments.frame.centre,
+                           [moments.length]])
+
+
 def pack(moments: mom.Moments, theta_ref, var_scale, f_ref: float) -> np.ndarray:
     """Numeric parameter vector for the problems (same order as Symbols.data)."""
-    return np.concatenate([
-        np.asarray(theta_ref, dtype=float), np.asarray(var_scale, dtype=float),
-        moments.gram.ravel(order="F"), moments.frame.centre, [moments.length, f_ref],
-    ])
+    return np.concatenate([np.asarray(theta_ref, dtype=float),
+                           np.asarray(var_scale, dtype=float), moment_parameters(moments),
+                           [f_ref]])
 
 
-@lru_cache(maxsize=None)
+@problem("zhou2010.objective", examples=[("none",), ("constant",), ("series",)])
 def objective_function(reference: str) -> ca.Function:
     """f(theta, p) [field^2] and its gradient and Hessian in theta, for checks and uncertainty.
 
@@ -145,7 +149,8 @@ class BlockProblem:
         return upper + np.triu(upper, 1).T
 
 
-@lru_cache(maxsize=None)
+@problem("zhou2010.block", examples=[(b, r) for b in BLOCKS for r in ("none", "constant",
+                                                                      "series")])
 def block_problem(block: str, reference: str, options: IpoptOptions = IpoptOptions()):
     """The problem of one block (stage or joint) for one kind of reference.
 

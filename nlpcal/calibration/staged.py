@@ -7,7 +7,7 @@ target; (8)-(9) otherwise re-solve the angles with the latest scales and offsets
 correction is applied to the raw data: each stage minimises the objective of the raw samples with
 the other six parameters held at their latest values.
 
-Each stage is one of the three block problems of `nlpcal.problems`, built once and re-solved.
+Each stage is one of the three block problems of `nlpcal.nlp.blocks`, built once and re-solved.
 
 References
 ----------
@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .problems import STAGE_ORDER, block_step
+from ..nlp.blocks import STAGE_ORDER, block_step
 
 
 @dataclass(frozen=True)
@@ -43,7 +43,7 @@ class StopRule:
 def run_staged(problem, rule: StopRule):
     """Cycle the three stages until a stop rule holds.
 
-    problem : a `nlpcal.calibration.Problem` (samples, moments, reference).
+    problem : a `nlpcal.calibration.problem.Problem` (samples, moments, reference).
     Returns (theta, rows, stages, stop_reason): the last parameters, one Table 1 row per cycle
     (after the measured row), the record of every stage solve and why the cycle stopped.
     """

@@ -1,7 +1,7 @@
 """The joint solve: all nine parameters of Eq. 4 in [1] in one IPOPT problem.
 
 The paper argues that a joint solve converges badly because offsets (hundreds of nT), scale
-errors (~1e-3) and angles (~1e-2 rad) differ by orders of magnitude. `nlpcal.problems` scales
+errors (~1e-3) and angles (~1e-2 rad) differ by orders of magnitude. `nlpcal.nlp.blocks` scales
 every variable to order one, and IPOPT uses the exact Hessian of the moment objective.
 
 Start: offsets at the centre of a sphere fitted to the raw samples, angles zero, and scales zero
@@ -18,7 +18,7 @@ import time
 
 import numpy as np
 
-from .problems import block_step
+from ..nlp.blocks import block_step
 
 
 def joint_start(moments) -> np.ndarray:
@@ -33,7 +33,7 @@ def joint_start(moments) -> np.ndarray:
 def run_joint(problem):
     """Solve all nine at once.
 
-    Returns (step, rows, stages): the `nlpcal.problems.Step` of the solve, the measured and the
+    Returns (step, rows, stages): the `nlpcal.nlp.blocks.Step` of the solve, the measured and the
     joint Table 1 rows, and the record of the solve.
     """
     rows = [problem.measured_row()]

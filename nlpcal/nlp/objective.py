@@ -27,13 +27,11 @@ References
 
 from __future__ import annotations
 
-from functools import lru_cache
-
 import casadi as ca
-import numpy as np
 
-from . import moments as mom
-from .models.zhou2010 import correction_matrix_entries
+from .. import moments as mom
+from ..models.zhou2010 import correction_matrix_entries
+from .solver import problem
 
 #: Coefficients c_k of sqrt(1 + u) = sum_k c_k u^k, k = 0..4.
 SQRT_SERIES = (1.0, 0.5, -0.125, 0.0625, -0.0390625)
@@ -79,7 +77,7 @@ def feature_coefficients(e, layout: mom.Layout):
     return ca.vertcat(*U), ca.vertcat(*P)
 
 
-@lru_cache(maxsize=None)
+@problem("zhou2010.coefficients", examples=[(False,), (True,)])
 def coefficient_function(varying_gamma: bool) -> ca.Function:
     """(theta [internal units], centre [field], L [field]) -> (U, P), a small SX function.
 
@@ -129,20 +127,3 @@ def objective_expression(theta, gram, centre, length, reference: str):
     U, P = coefficient_function(layout.varying_gamma)(theta, centre, length)
     m = power_moments(U, P, gram, layout)
     return spread_objective(m, length) if reference == "none" else reference_objective(m, length)
-
-
-# --- direct per-sample evaluation, the definition the fast path is checked against ------------
-
-def corrected_magnitude(samples, theta) -> np.ndarray:
-    """|B1_i| by Eq. 4 in [1], sample by sample. [field unit]"""
-    entries = correction_matrix_entries(theta[6], theta[7], theta[8], theta[3], theta[4], theta[5])
-    M = np.array(entries, dtype=float)
-    return np.linalg.norm((np.asarray(samples) - theta[0:3]) @ M.T, axis=1)
-
-
-def direct_objective(samples, theta, reference=None) -> float:
-    """Eq. 8 in [1] (reference None) or mean (|B1_i| - F_i)^2, evaluated sample by sample."""
-    magnitude = corrected_magnitude(samples, np.asarray(theta, dtype=float))
-    if reference is None:
-        return float(np.mean((magnitude - magnitude.mean()) ** 2))
-    return float(np.mean((magnitude - reference) ** 2))

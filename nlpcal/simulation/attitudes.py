@@ -1,45 +1,11 @@
-"""Synthetic logs with known truth: attitudes, the forward model of Eq. 4 in [1], noise.
+"""Attitude sets for synthetic logs: (n, 3, 3) world-to-sensor rotations.
 
-The field is a constant vector in the world frame (north-east-down, magnitude `field`,
-inclination `inclination_deg`); each sample sees it through one attitude of the sensor, and the
-sensor output is the forward model B_M = diag(1 + s) T (A B) + Z_p plus white Gaussian noise on
-each axis.
-
-References
-----------
-[1] Zhou et al. (2010), see `nlpcal.models.zhou2010`.
+The world frame is north-east-down; each set describes how a sensor is turned while it logs.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
-import pandas as pd
-
-from .errors import InputError
-from .models.zhou2010 import Zhou2010Parameters, forward
-
-#: Final parameters and mean field of the laboratory application in [1] (section 6, Table 1).
-ZHOU2010_PARAMETERS = Zhou2010Parameters(
-    z_x=-71.55, z_y=188.13, z_z=116.29,
-    s_x=0.0072, s_y=-0.0024, s_z=-0.0049,
-    alpha_deg=-2.34, beta_deg=1.29, gamma_deg=-0.27,
-)
-ZHOU2010_FIELD_NT = 49462.0
-
-
-@dataclass(frozen=True)
-class Preset:
-    parameters: Zhou2010Parameters
-    field: float  # [nT]
-    description: str
-
-
-PRESETS = {
-    "zhou2010": Preset(ZHOU2010_PARAMETERS, ZHOU2010_FIELD_NT,
-                       "final parameters and field (49 462 nT) of Zhou et al. 2010, Table 1"),
-}
 
 
 def random_rotations(n: int, rng: np.random.Generator) -> np.ndarray:
@@ -159,49 +125,3 @@ def world_field(field: float, inclination_deg: float = 60.0) -> np.ndarray:
     """Field vector in north-east-down coordinates, pointing north and down. [nT]"""
     inc = np.radians(inclination_deg)
     return field * np.array([np.cos(inc), 0.0, np.sin(inc)])
-
-
-def simulate(n: int = 2000, *, parameters: Zhou2010Parameters = ZHOU2010_PARAMETERS,
-             field: float = ZHOU2010_FIELD_NT, noise: float = 1.0, seed: int = 0,
-             attitudes: str = "uniform", inclination_deg: float = 60.0) -> pd.DataFrame:
-    """A log of n samples with columns bx, by, bz. [nT]
-
-    parameters : the truth of Eq. 4 in [1].
-    field : magnitude of the constant field. [nT]
-    noise : standard deviation of white noise on each axis. [nT]
-    attitudes : a name in ATTITUDES.
-    """
-    if n < 1:
-        raise InputError(f"-n must be positive, got {n}")
-    if noise < 0 or not np.isfinite(noise):
-        raise InputError(f"--noise must be a non-negative number, got {noise}")
-    if not field > 0:
-        raise InputError(f"the field must be positive, got {field}")
-    if attitudes not in ATTITUDES:
-        raise InputError(f"unknown attitude set {attitudes!r}; expected one of "
-                         f"{', '.join(ATTITUDES)}")
-    rng = np.random.default_rng(seed)
-    rotations = ATTITUDES[attitudes](n, rng)
-    true_field = rotations @ world_field(field, inclination_deg)  # A B, ideal sensor frame
-    output = forward(true_field, parameters) + noise * rng.normal(size=(n, 3))
-    return pd.DataFrame(output, columns=["bx", "by", "bz"])
-
-
-def parameters_from_json(document) -> tuple[Zhou2010Parameters, float | None]:
-    """Truth from a JSON document: {"parameters": {...}, "field_nT": F} or the nine keys alone."""
-    if not isinstance(document, dict):
-        raise InputError("the parameters JSON must be an object")
-    values = document.get("parameters", document)
-    try:
-        params = Zhou2010Parameters.from_dict(values)
-    except KeyError as exc:
-        raise InputError(f"parameters JSON: {exc.args[0]}") from None
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"parameters JSON: {exc}") from None
-    field = document.get("field_nT", document.get("field"))
-    if field is not None:
-        try:
-            field = float(field)
-        except (TypeError, ValueError):
-            raise InputError(f"parameters JSON: field_nT must be a number, got {field!r}") from None
-    return params, field

@@ -14,7 +14,7 @@ because offsets [nT], scale errors [1] and angles [rad] differ in unit and magni
 to set and the iteration often does not converge; it therefore solves one block at a time inside
 the cycle of Fig. 1. This module runs the method as written so that the claim can be tested:
 
-* the gradient is the exact gradient of the moment objective, `nlpcal.problems.objective_function`
+* the gradient is the exact gradient of the moment objective, `nlpcal.nlp.blocks.objective_function`
   (Eq. 8, or its reference variant when a reference field is given);
 * `scaled=False` (the paper's setting) iterates on X in the units of Eq. 4: z [field unit],
   s [1] and the angles [rad]; `scaled=True` iterates on X / D with D = `variable_scale` (the
@@ -53,12 +53,20 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from functools import lru_cache
 
 import casadi as ca
 import numpy as np
 
-from .problems import BLOCKS, SCALE_INDICES, STAGE_ORDER, objective_function, pack, variable_scale
+from .. import validation
+from ..nlp.blocks import (
+    BLOCKS,
+    SCALE_INDICES,
+    STAGE_ORDER,
+    objective_function,
+    pack,
+    variable_scale,
+)
+from ..nlp.solver import problem
 
 #: Statuses of a CG solve.
 CONVERGED, MAX_ITERATIONS, DIVERGED = "converged", "max_iterations", "diverged"
@@ -82,12 +90,9 @@ class CGOptions:
     scaled: bool = False
 
     def __post_init__(self):
-        if not (self.step_factor > 0 and np.isfinite(self.step_factor)):
-            raise ValueError(f"step_factor must be positive, got {self.step_factor}")
-        if not (self.rel_eps > 0 and np.isfinite(self.rel_eps)):
-            raise ValueError(f"rel_eps must be positive, got {self.rel_eps}")
-        if int(self.max_iter) < 1:
-            raise ValueError(f"max_iter must be at least 1, got {self.max_iter}")
+        validation.number(self.step_factor, "step_factor (--cg-step-factor)", positive=True)
+        validation.number(self.rel_eps, "rel_eps (--cg-rel-eps)", positive=True)
+        validation.count(self.max_iter, "max_iter (--cg-max-iter)")
 
 
 @dataclass
@@ -120,13 +125,13 @@ class CGOutcome:
     def converged(self) -> bool:
         return self.status == CONVERGED
 
-    def as_dict(self) -> dict:
+    def to_dict(self) -> dict:
         return {"status": self.status, "iterations": self.iterations, "a": self.a,
                 "eps": self.eps, "f_start": self.f_start, "f_end": self.f_end,
                 "grad_norm": self.grad_norm, "grad_norm_blocks": dict(self.grad_norm_blocks)}
 
 
-@lru_cache(maxsize=None)
+@problem("zhou2010.value_and_gradient", examples=[("none",), ("constant",), ("series",)])
 def _value_and_gradient(kind: str) -> ca.Function:
     """f and grad f of `objective_function(kind)` without its Hessian (cheaper per step).
 
@@ -252,7 +257,7 @@ def conjugate_gradient(moments, block: str, theta, options: CGOptions = CGOption
 def run_cg_joint(problem, start, options: CGOptions = CGOptions(), label: str = "cg joint"):
     """All nine parameters at once by the CG of section 5 in [1].
 
-    problem : a `nlpcal.calibration.Problem`; start : X_0 (internal units).
+    problem : a `nlpcal.calibration.problem.Problem`; start : X_0 (internal units).
     Returns (theta, row, outcome): the Table 1 row carries the iterations, the wall time, the
     status ("converged", "max_iterations", "diverged") and the constants a and eps.
     """
@@ -260,7 +265,7 @@ def run_cg_joint(problem, start, options: CGOptions = CGOptions(), label: str = 
     theta, outcome = conjugate_gradient(problem.moments, "joint", start, options,
                                         objective=objective)
     row = problem.row(label, theta, iterations=outcome.iterations, wall_s=outcome.wall_s)
-    row.update(variant="scaled" if options.scaled else "unscaled", **outcome.as_dict())
+    row.update(variant="scaled" if options.scaled else "unscaled", **outcome.to_dict())
     row["iterations"] = int(outcome.iterations)
     return theta, row, outcome
 
@@ -269,7 +274,8 @@ def run_cg_staged(problem, max_cycles: int, options: CGOptions = CGOptions(), rt
     """The cycle of Fig. 1 in [1] with every stage solved by the CG of section 5.
 
     Same stages, order, start (every block at zero) and stop rule (a cycle that lowers the Eq. 8
-    objective by less than rtol of its value ends the run) as `nlpcal.staged.run_staged`.
+    objective by less than rtol of its value ends the run) as
+    `nlpcal.calibration.staged.run_staged`.
     Returns (theta, rows, stages): the measured row then one row per cycle (iterations summed over
     its three stages; status "converged" only when all three converged), and every stage outcome.
     """
@@ -287,7 +293,7 @@ def run_cg_staged(problem, max_cycles: int, options: CGOptions = CGOptions(), rt
                                                 eps=eps.get(stage), objective=objective)
             eps.setdefault(stage, outcome.eps)
             outcomes.append(outcome)
-            stages.append({"cycle": cycle, "stage": stage, **outcome.as_dict(),
+            stages.append({"cycle": cycle, "stage": stage, **outcome.to_dict(),
                            "history": list(outcome.history)})
         row = problem.row(f"cg cycle {cycle}", theta,
                           iterations=sum(o.iterations for o in outcomes),

@@ -22,24 +22,23 @@ References
 
 from __future__ import annotations
 
-import io as _stdio
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from . import __version__
-from .calibration import Problem
+from .. import units, validation
+from ..calibration.joint import joint_start, run_joint
+from ..calibration.problem import Problem
+from ..calibration.staged import StopRule, run_staged
+from ..io.logs import Log
+from ..models.zhou2010 import Zhou2010Parameters, correct
+from ..moments import accumulate
+from ..nlp.blocks import objective_function, pack
+from ..results import Document, DocumentReader
+from ..statistics import STD_DDOF, format_table
+from ..version import __version__
 from .conjugate_gradient import CGOptions, run_cg_joint, run_cg_staged
-from .errors import InputError
-from .io import check_reference, check_samples
-from .joint import joint_start, run_joint
-from .models.zhou2010 import Zhou2010Parameters, correct
-from .moments import accumulate
-from .problems import objective_function, pack
-from .staged import StopRule, run_staged
-from .statistics import STD_DDOF, format_table
 
-FORMAT_VERSION = 1
 #: Keys of compare.json that hold Table 1 rows (issue 3; keep exactly).
 ROW_KEYS = ("staged", "joint", "cg_joint", "cg_staged")
 #: The statistics every row carries.
@@ -48,7 +47,6 @@ ROW_FIELDS = ("max", "min", "mean", "std", "range", "objective", "iterations", "
 REACHED_JOINT_RTOL = 0.01
 #: Most points kept per trajectory in the JSON (log-spaced in the iteration count).
 TRAJECTORY_POINTS = 200
-PLOT_HINT = "pip install 'nlpcal[plot]'"
 
 
 @dataclass(frozen=True)
@@ -65,22 +63,24 @@ class CompareSettings:
     cg: CGOptions = field(default_factory=lambda: CGOptions(max_iter=5000))
 
     def __post_init__(self):
-        if int(self.cycles) < 1:
-            raise InputError(f"cycles must be at least 1, got {self.cycles}")
-        if not (self.rtol >= 0 and np.isfinite(self.rtol)):
-            raise InputError(f"rtol must be a non-negative number, got {self.rtol}")
+        validation.count(self.cycles, "cycles (--cycles)")
+        validation.number(self.rtol, "rtol (--rtol)", minimum=0.0)
 
 
 @dataclass
-class Comparison:
+class Comparison(Document):
     """The four methods on one log: Table 1 rows, trajectories and a summary.
 
     staged : measured row, then one row per cycle. joint : one row. cg_joint : the CG on all nine,
     unscaled (the paper's setting) then scaled. cg_staged : measured row, then one row per cycle.
     trajectories : method -> {"iterations": cumulative solver iterations, "objective": [field^2]}.
+    samples : the log (in memory only: the figures need it; None for a comparison read back).
     """
 
-    samples: np.ndarray
+    FORMAT = "nlpcal-comparison"
+    WHAT = "nlpcal comparison"
+
+    samples: np.ndarray | None
     staged: list
     joint: dict
     cg_joint: list
@@ -91,13 +91,14 @@ class Comparison:
     settings: CompareSettings
     unit: str = "nT"
     warnings: list = field(default_factory=list)
+    n_samples: int = 0
+    input: dict = field(default_factory=dict)
 
-    def to_dict(self) -> dict:
-        return {
-            "format_version": FORMAT_VERSION,
+    def body(self) -> dict:
+        document = {
             "unit": self.unit,
             "std_ddof": STD_DDOF,
-            "n_samples": int(self.samples.shape[0]),
+            "n_samples": self.n_samples,
             "reference": dict(self.reference),
             "staged": list(self.staged),
             "joint": dict(self.joint),
@@ -110,6 +111,23 @@ class Comparison:
             "warnings": list(self.warnings),
             "nlpcal_version": __version__,
         }
+        if self.input:
+            document["input"] = dict(self.input)
+        return document
+
+    @classmethod
+    def from_body(cls, reader: DocumentReader) -> Comparison:
+        settings = reader.reader("settings")
+        cg = settings.mapping("cg", {})
+        return cls(samples=None, staged=reader.items("staged"), joint=reader.mapping("joint"),
+                   cg_joint=reader.items("cg_joint"), cg_staged=reader.items("cg_staged"),
+                   trajectories=reader.mapping("trajectories", {}),
+                   summary=reader.mapping("summary", {}), reference=reader.mapping("reference"),
+                   settings=CompareSettings(cycles=settings.integer("cycles", minimum=1),
+                                            rtol=settings.number("rtol", minimum=0.0),
+                                            cg=CGOptions(**cg)),
+                   unit=reader.string("unit", "nT"), warnings=reader.strings("warnings", []),
+                   n_samples=reader.integer("n_samples", 0), input=reader.mapping("input", {}))
 
     def table(self) -> str:
         """All rows in the layout of Table 1 of [1], one block per method."""
@@ -126,6 +144,8 @@ class Comparison:
 
     def magnitudes(self, row) -> np.ndarray:
         """|B1| of every sample for a row's parameters (the measured |B_M| for the measured row)."""
+        if self.samples is None:
+            raise ValueError("a comparison read back from a document has no samples")
         if "parameters" not in row:
             return np.linalg.norm(self.samples, axis=1)
         params = Zhou2010Parameters.from_dict(row["parameters"])
@@ -157,7 +177,7 @@ def _joint_trajectory(step, iterations: int, f_end: float) -> dict:
         if len(scaled) != iterations + 1:
             raise ValueError("iteration record does not match the solve")
         objective = [v * float(step.f_ref) for v in scaled]
-    except Exception:  # noqa: BLE001 - a missing record only coarsens the figure
+    except Exception:
         return {"iterations": [0, iterations], "objective": [f_start, f_end]}
     return {"iterations": list(range(len(objective))), "objective": objective}
 
@@ -215,7 +235,7 @@ def block_coupling(moments, theta) -> dict:
     basis[0:3, 3 + sizes[1]:] = np.eye(3)
     h = basis.T @ hess @ basis
     h = 0.5 * (h + h.T)
-    edges = np.cumsum((0,) + sizes)
+    edges = np.cumsum((0, *sizes))
     parts = [slice(edges[k], edges[k + 1]) for k in range(3)]
     lower = np.zeros_like(h)
     for i in range(3):
@@ -271,17 +291,21 @@ def _summary(staged, stop_reason, joint, cg_joint, cg_staged) -> dict:
 
 
 def compare(samples, *, reference_field=None, settings: CompareSettings = CompareSettings(),
-            unit: str = "nT") -> Comparison:
+            unit: str = "nT", reference_unit: str | None = None) -> Comparison:
     """Run the staged cycle, the joint solve and the paper's CG (joint and staged) on one log.
 
-    samples : (N, 3) raw sensor output B_M. [nT, or `unit`]
-    reference_field : None (Eq. 8), a float F or N values F_i. [nT, or `unit`]
+    samples : (N, 3) raw sensor output B_M. [unit]
+    reference_field : None (Eq. 8), a number F or N values F_i. [reference_unit, default unit]
     settings : cycles, rtol and the CG settings.
+    unit : the unit of the samples; the comparison is in nT (or raw for counts).
 
     Returns a Comparison. Raises InputError for unusable input and SolveError when IPOPT fails.
     """
-    samples = check_samples(samples)
-    reference = check_reference(reference_field, samples.shape[0])
+    units.check_compatible(unit, reference_unit or unit)
+    samples = validation.samples(samples)
+    reference = validation.reference(reference_field, samples.shape[0])
+    samples = units.to_base(samples, unit)
+    reference = units.to_base(reference, reference_unit or unit)
     problem = Problem(samples=samples, reference=reference, moments=accumulate(samples, reference))
     moments = problem.moments
 
@@ -329,107 +353,19 @@ def compare(samples, *, reference_field=None, settings: CompareSettings = Compar
     if bad:
         warnings.append(f"conjugate gradient stages that did not converge in: {', '.join(bad)}")
 
-    mode = moments.reference
-    reference_doc = {"mode": mode}
-    if mode == "constant":
-        reference_doc["field"] = float(reference)
-    elif mode == "series":
-        reference_doc["field_mean"] = float(np.mean(reference))
     return Comparison(samples=samples, staged=staged, joint=joint, cg_joint=cg_joint,
                       cg_staged=cg_staged, trajectories=trajectories, summary=summary,
-                      reference=reference_doc, settings=settings, unit=unit, warnings=warnings)
+                      reference=problem.reference_document(), settings=settings,
+                      unit=units.base_unit(unit), warnings=warnings,
+                      n_samples=int(samples.shape[0]))
 
 
-# --- figures (matplotlib is optional: the `plot` extra) -----------------------------------------
-
-def require_matplotlib() -> None:
-    """Raise InputError with the install command when matplotlib is missing."""
-    try:
-        import matplotlib  # noqa: F401
-        from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: F401
-    except ImportError:
-        raise InputError(f"the figure needs matplotlib; {PLOT_HINT}") from None
-
-
-#: Most samples drawn per curve; longer logs are strided evenly.
-PLOT_SAMPLES = 4000
-#: Most cycles drawn one by one in panel (a) (the paper shows seven); the last is always drawn.
-PLOT_CYCLES = 7
-
-
-def render_png(comparison: Comparison, *, dpi: int = 80, title: str | None = None) -> bytes:
-    """PNG of Fig. 2 of [1] for this comparison, plus the convergence of every method.
-
-    (a) |B1| over the samples after each cycle of the staged method; (b) measured |B_M| vs one
-    pass vs the last cycle vs the joint solve; (c) objective against cumulative solver
-    iterations for every method, log scales. Uses the Agg canvas, never pyplot's global state.
-    """
-    require_matplotlib()
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    unit = comparison.unit
-    n = comparison.samples.shape[0]
-    stride = max(1, -(-n // PLOT_SAMPLES))
-    index = np.arange(0, n, stride)
-
-    def magnitude(row):
-        return comparison.magnitudes(row)[::stride]
-
-    figure = Figure(figsize=(14.0, 4.3), dpi=dpi, layout="constrained")
-    FigureCanvasAgg(figure)
-    ax_a, ax_b, ax_c = figure.subplots(1, 3)
-
-    cycles = comparison.staged[1:]
-    shown = list(range(min(PLOT_CYCLES, len(cycles))))
-    if cycles and len(cycles) - 1 not in shown:
-        shown.append(len(cycles) - 1)
-    colours = [f"C{k % 10}" for k in range(len(shown))]
-    for colour, k in zip(colours, shown):
-        ax_a.plot(index, magnitude(cycles[k]), lw=0.6, color=colour,
-                  label=f"{cycles[k]['label']} (std {cycles[k]['std']:.3g})")
-    ax_a.set_title("(a) |B1| after each staged cycle")
-    ax_a.set_xlabel("sample")
-    ax_a.set_ylabel(f"|B1| [{unit}]")
-    ax_a.legend(fontsize=7, loc="upper right")
-
-    curves = [("measured", comparison.staged[0], "0.6")]
-    if cycles:
-        curves.append(("one pass", cycles[0], "C1"))
-        curves.append((f"last cycle ({len(cycles)})", cycles[-1], "C0"))
-    curves.append(("joint IPOPT", comparison.joint, "C3"))
-    for name, row, colour in curves:
-        ax_b.plot(index, magnitude(row), lw=0.6, color=colour,
-                  label=f"{name} (std {row['std']:.3g})")
-    ax_b.set_title("(b) before and after calibration")
-    ax_b.set_xlabel("sample")
-    ax_b.set_ylabel(f"|B| [{unit}]")
-    ax_b.legend(fontsize=7, loc="upper right")
-
-    styles = {"staged": ("staged cycle, IPOPT stages", "C0", ".-"),
-              "joint": ("joint IPOPT", "C3", "s-"),
-              "cg_joint": ("CG joint, paper units", "C1", "-"),
-              "cg_joint_scaled": ("CG joint, scaled", "C4", "-"),
-              "cg_staged": ("CG staged cycle", "C2", "-")}
-    for name, (label, colour, style) in styles.items():
-        path = comparison.trajectories.get(name)
-        if not path:
-            continue
-        its = np.asarray(path["iterations"], dtype=float)
-        values = np.asarray(path["objective"], dtype=float)
-        positive = values > 0  # a log axis; an exact zero objective is not drawn
-        ax_c.plot(its[positive], values[positive], style, color=colour, lw=1.0, ms=3,
-                  label=label)
-    ax_c.set_xscale("symlog", linthresh=10)
-    ax_c.set_yscale("log")
-    ax_c.set_xlim(left=0)
-    ax_c.set_title("(c) objective vs cumulative iterations")
-    ax_c.set_xlabel("cumulative solver iterations")
-    ax_c.set_ylabel(f"objective [{unit}^2]")
-    ax_c.legend(fontsize=7, loc="upper right")
-    if title:
-        figure.suptitle(title, fontsize=10)
-    buffer = _stdio.BytesIO()
-    figure.savefig(buffer, format="png", dpi=dpi)
-    return buffer.getvalue()
-
+def compare_log(log: Log, *, settings: CompareSettings = CompareSettings()) -> Comparison:
+    """`compare` on a log read by `nlpcal.io.read_log` (its reference included); the comparison
+    records the log under `input`."""
+    result = compare(log.samples, reference_field=log.reference, settings=settings,
+                     unit=log.base_unit)
+    result.input = log.metadata(unit_factor_nT=units.field_factor(log.unit))
+    if log.reference_column:
+        result.reference["column"] = log.reference_column
+    return result

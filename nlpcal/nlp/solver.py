@@ -1,16 +1,27 @@
-"""IPOPT settings and the one way nlpcal calls a CasADi `nlpsol`.
+"""IPOPT settings, the one build-once idiom of nlpcal's NLPs, and the one way to call them.
 
-Every problem in nlpcal is built once as a symbolic NLP with the data as parameters `p`, and
-re-solved with new numbers. IPOPT does not raise on failure: `solve` always reads
-`stats()["success"]` and `["return_status"]` and hands them back.
+Every optimisation problem in nlpcal is a symbolic CasADi NLP whose size does not depend on the
+number of samples: the data enter as parameters `p` of fixed size (moment matrices, sums), and the
+problem is built once per process and re-solved with new numbers. The idiom is one decorator:
+
+    @problem("zhou2010.block", examples=[("joint", "none"), ...])
+    def block_problem(block, reference): ...    # returns what it built
+
+which caches the builder per argument tuple and registers it, so a single test can check, for
+every problem nlpcal has, that it is built once and that its parameter vector has the same size
+for any log. IPOPT does not raise on failure: `solve` always reads `stats()["success"]` and
+`["return_status"]` and hands them back.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import casadi as ca
 import numpy as np
+
+from ..errors import SolveError
 
 
 @dataclass(frozen=True)
@@ -41,6 +52,27 @@ class IpoptOptions:
         return {"ipopt": ipopt, "print_time": False}
 
 
+#: Every registered problem builder: name -> (cached builder, example argument tuples).
+PROBLEMS: dict = {}
+
+
+def problem(name: str, examples=((),)):
+    """Register a problem builder under `name` and cache it per argument tuple (build once).
+
+    examples : argument tuples with which the registry test builds the problem.
+    """
+    def register(builder):
+        cached = lru_cache(maxsize=None)(builder)
+        PROBLEMS[name] = (cached, tuple(examples))
+        return cached
+    return register
+
+
+def builds() -> int:
+    """How many problems have been built in this process (cache misses of every builder)."""
+    return sum(builder.cache_info().misses for builder, _ in PROBLEMS.values())
+
+
 #: IPOPT statuses that count as solved.
 SUCCESS_STATUSES = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 
@@ -63,6 +95,16 @@ class SolveOutcome:
     success: bool
     iterations: int
     lam_x: np.ndarray | None = None
+
+    def record(self) -> dict:
+        """IPOPT's status and iteration count, for a result document."""
+        return {"status": self.status, "iterations": self.iterations}
+
+    def checked(self, what: str) -> SolveOutcome:
+        """This outcome, or SolveError when IPOPT did not solve `what`."""
+        if not self.success:
+            raise SolveError(f"IPOPT did not solve the {what}", self.status, self)
+        return self
 
 
 def solve(solver, *, x0, p, lbx=-np.inf, ubx=np.inf, lbg=None, ubg=None) -> SolveOutcome:

@@ -1,0 +1,183 @@
+"""What a nine-parameter calibration is worth: standard errors, identifiability, coverage, and
+what the data cannot tell, in words.
+
+References
+----------
+[1] Zhou et al. (2010), see `nlpcal.models.zhou2010`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import inference
+from ..errors import SolveError
+from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters, correct
+from ..moments import Moments
+from ..nlp.blocks import SCALE_INDICES, objective_function, pack, variable_scale
+from ..statistics import field_statistics
+from .problem import Problem
+
+#: Standard errors above these are "poorly determined": offsets 1 % of the field, scale errors
+#: 0.01, angles 1 deg.
+POORLY_DETERMINED = np.array([1e-2] * 3 + [1e-2] * 3 + [1.0] * 3)
+#: The 26 directions of a cube's faces, edges and corners: the bins of `direction_coverage`.
+_BIN_DIRECTIONS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)
+                            if (i, j, k) != (0, 0, 0)], dtype=float)
+_BIN_DIRECTIONS /= np.linalg.norm(_BIN_DIRECTIONS, axis=1, keepdims=True)
+#: Fewer bins than this fraction are reported as poor attitude coverage.
+COVERAGE_WARN = 0.5
+#: Above this relative gap between the moment objective and the exact one at the solution, the
+#: distance to the exact optimum is estimated (`exact_optimum_shift`).
+SERIES_CHECK = 1e-8
+#: An estimated distance to the exact optimum above this many standard errors is a warning.
+SHIFT_WARN = 0.1
+
+
+def scaled_hessian(moments: Moments, theta, step=None) -> np.ndarray:
+    """D H D: the Hessian of the objective [field^2] in the scaled variables theta = D x.
+
+    From the joint problem's own Hessian when `step` is its solve, else from the full objective.
+    """
+    scale = variable_scale(moments.frame.radius)
+    if step is not None and step.problem.block == "joint":
+        return step.f_ref * step.problem.hessian(step.x, step.p)
+    p = pack(moments, theta, scale, 1.0)
+    hess = np.asarray(objective_function(moments.reference)(theta, p)[2], dtype=float)
+    return scale[:, None] * hess * scale[None, :]
+
+
+def gauge_basis(moments: Moments) -> np.ndarray:
+    """Orthonormal basis of the scaled variables the gauge leaves free (all nine with a reference;
+    eight without one, s_x + s_y + s_z = 0)."""
+    if moments.reference != "none":
+        return np.eye(9)
+    normal = np.zeros(9)
+    normal[list(SCALE_INDICES)] = variable_scale(moments.frame.radius)[list(SCALE_INDICES)]
+    return np.linalg.svd(normal[None, :])[2][1:].T  # 9 x 8, orthogonal to the gauge's normal
+
+
+def _names(indices) -> list:
+    return [PARAMETER_NAMES[i] for i in sorted(indices)]
+
+
+def uncertainty(problem: Problem, objective: float, hs: np.ndarray,
+                autocorrelation: float = 0.0):
+    """Standard errors [parameter units] and the identifiability block of a result.
+
+    For f = (1/N) sum r_i^2 the Gauss-Newton information is N H / 2 (`nlpcal.inference`), here
+    in the scaled variables of the problems; without a reference it is taken on the gauge's null
+    space.
+    """
+    moments = problem.moments
+    n = problem.samples.shape[0]
+    result = inference.estimate(inference.information_from_hessian(hs, n),
+                                residual_variance=n * objective / max(n - 9, 1),
+                                basis=gauge_basis(moments), autocorrelation=autocorrelation,
+                                dof=n - 9)
+    errors = None
+    if result.covariance is not None:
+        sd = result.standard_errors * variable_scale(moments.frame.radius)
+        sd[6:9] = np.degrees(sd[6:9])
+        errors = {name: float(v) for name, v in zip(PARAMETER_NAMES, sd)}
+    limits = np.concatenate([POORLY_DETERMINED[:3] * moments.frame.radius,
+                             POORLY_DETERMINED[3:]])
+    poorly = [name for name, limit in zip(PARAMETER_NAMES, limits)
+              if errors is not None and errors[name] > limit]
+    return errors, {
+        "not_identifiable": _names(result.weak),
+        "poorly_determined": poorly,
+        "weakest_combination": _names(result.weakest),
+        "hessian_eigenvalues_scaled": [float(v) for v in result.eigenvalues * 2.0 / n],
+        "residual_lag1_autocorrelation": float(autocorrelation),
+        "standard_error_inflation": result.inflation,
+        "poorly_determined_limits": {n_: float(v) for n_, v in zip(PARAMETER_NAMES, limits)},
+    }
+
+
+def direction_coverage(samples, theta, max_points: int = 20000) -> dict:
+    """How many of 26 direction bins the corrected field B1 visits (a strided subsample)."""
+    sub = samples[:: max(1, samples.shape[0] // max_points)]
+    b1 = correct(sub, Zhou2010Parameters.from_theta(theta))
+    nearest = np.argmax(b1 @ _BIN_DIRECTIONS.T, axis=1)
+    covered = int(np.unique(nearest).size)
+    return {"direction_bins": 26, "covered": covered, "fraction": covered / 26}
+
+
+def exact_optimum_shift(problem: Problem, theta, hs: np.ndarray, errors) -> float | None:
+    """How far the exact optimum lies from `theta`, in standard errors (largest over parameters).
+
+    One Newton step on the exact per-sample objective: its gradient by central differences
+    (18 passes over the data), the Hessian of the moment objective. Without a reference the step
+    stays in the gauge's null space.
+    """
+    if errors is None:
+        return None
+    scale = variable_scale(problem.moments.frame.radius)
+    h = 1e-3  # in scaled variables: 1e-6 of the field for offsets, 1e-6 for scales, 1e-5 rad
+
+    def exact(x):
+        return field_statistics(problem.samples, theta + scale * x, problem.reference)["objective"]
+
+    grad = np.array([(exact(h * e) - exact(-h * e)) / (2 * h) for e in np.eye(9)])
+    basis = gauge_basis(problem.moments)
+    reduced = basis.T @ hs @ basis
+    step = -basis @ np.linalg.solve(0.5 * (reduced + reduced.T), basis.T @ grad)
+    shift = step * scale
+    shift[6:9] = np.degrees(shift[6:9])
+    sd = np.array([errors[name] for name in PARAMETER_NAMES])
+    return float(np.max(np.abs(shift) / np.where(sd > 0, sd, np.inf)))
+
+
+def explain_failure(problem: Problem, failure: SolveError) -> SolveError:
+    """Say which parameters the data determine least, when IPOPT fails.
+
+    The Hessian is taken where the failing solve started (failure.result).
+    """
+    theta = failure.result
+    if theta is None or not np.all(np.isfinite(theta)):
+        return failure
+    hs = scaled_hessian(problem.moments, theta)
+    objective = field_statistics(problem.samples, theta, problem.reference)["objective"]
+    _, identifiability = uncertainty(problem, objective, hs)
+    weak = identifiability["not_identifiable"]
+    if weak:
+        reason = f"the data do not determine {', '.join(weak)}"
+    else:
+        reason = (f"the least determined combination involves "
+                  f"{', '.join(identifiability['weakest_combination'])}")
+    return SolveError(f"{failure}: {reason}; rotate the sensor through more attitudes",
+                      failure.status, result=theta)
+
+
+def warnings_for(problem: Problem, theta, hs, errors, identifiability: dict, final: dict) -> list:
+    """What the data cannot tell, in words (and the exact-optimum check, into identifiability)."""
+    warnings = []
+    if problem.moments.reference == "none":
+        warnings.append("absolute scale not identifiable without a reference field: the scales "
+                        "are fixed by the gauge s_x + s_y + s_z = 0; the scale ratios, offsets "
+                        "and angles are determined. Give a reference field for absolute scales.")
+    if identifiability["not_identifiable"]:
+        warnings.append("not identifiable from this attitude coverage: "
+                        + ", ".join(identifiability["not_identifiable"])
+                        + "; rotate the sensor through more attitudes")
+    coverage = identifiability["coverage"]
+    if coverage["fraction"] < COVERAGE_WARN:
+        warnings.append(f"poor attitude coverage: the corrected field visits "
+                        f"{coverage['covered']} of 26 direction bins; the result leans on a "
+                        f"small part of the sphere")
+    if identifiability["poorly_determined"]:
+        warnings.append("poorly determined (standard error above the limits in "
+                        "identifiability.poorly_determined_limits): "
+                        + ", ".join(identifiability["poorly_determined"]))
+    if final.get("series_rel_error", 0.0) > SERIES_CHECK:
+        shift = exact_optimum_shift(problem, theta, hs, errors)
+        identifiability["exact_optimum_shift_in_standard_errors"] = shift
+        if shift is None or shift > SHIFT_WARN:
+            where = ("could not be located (no standard errors)" if shift is None
+                     else f"is estimated to lie {shift:.2g} standard errors away")
+            warnings.append(f"the moment expansion of the objective is inexact here "
+                            f"({final['series_rel_error']:.1e} relative; |B1|^2 varies by up to "
+                            f"{final['max_abs_u']:.1%}); the exact optimum {where}; check the "
+                            f"reference field and the data for disturbances")
+    return warnings

@@ -1,0 +1,144 @@
+"""`CalibrationResult`: the nine parameters of Eq. 4, how they were found and what they are worth.
+
+References
+----------
+[1] Zhou et al. (2010), see `nlpcal.models.zhou2010`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .. import units, validation
+from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters, correct
+from ..results import Document, DocumentReader
+from ..statistics import STD_DDOF, format_table
+from ..version import __version__
+
+#: Plausible ranges of the parameters read from a document: scale errors keep every gain within
+#: (0.1, 10); angles within +-89 deg; offsets within 1e9 of the field unit (1 T in nT). [1], [deg]
+SCALE_RANGE = (-0.9, 9.0)
+OFFSET_LIMIT = 1e9
+
+
+def read_parameters(reader: DocumentReader, key: str = "parameters") -> Zhou2010Parameters:
+    """The nine parameters of a document, each a finite number within its plausible range."""
+    values = reader.reader(key)
+    limits = {**{name: (-OFFSET_LIMIT, OFFSET_LIMIT) for name in PARAMETER_NAMES[:3]},
+              **{name: SCALE_RANGE for name in PARAMETER_NAMES[3:6]},
+              **{name: (-validation.MAX_ANGLE_DEG, validation.MAX_ANGLE_DEG)
+                 for name in PARAMETER_NAMES[6:]}}
+    return Zhou2010Parameters(**{name: values.number(name, minimum=low, maximum=high)
+                                 for name, (low, high) in limits.items()})
+
+
+@dataclass
+class CalibrationResult(Document):
+    """A calibration: the nine parameters of Eq. 4 in [1], Table 1 rows and how they were found.
+
+    parameters : z_x, z_y, z_z [unit], s_x, s_y, s_z [1], alpha_deg, beta_deg, gamma_deg [deg].
+    statistics : Table 1 rows (label, max, min, mean, std, range [unit], objective [unit^2],
+        iterations, wall_s [s]); the first is the measured |B_M|.
+    unit : the unit of offsets and rows: "nT", or "raw" for counts.
+    standard_errors : per parameter, in its unit; None when the data leave a direction free.
+    identifiability : what the attitude coverage determines (`nlpcal.calibration.diagnostics`).
+    input : where the samples came from (file, columns, the unit of the file).
+    """
+
+    FORMAT = "nlpcal-calibration"
+    LEGACY_FORMATS = (("parameters", None),)
+    WHAT = "nlpcal parameters file"
+    #: A temperature calibration holds the nine parameters at its base temperature too; read as a
+    #: CalibrationResult, it gives the system correction at t0.
+    ALSO_READS = ("nlpcal-temperature-calibration",)
+
+    @classmethod
+    def accepts(cls, document: dict) -> bool:
+        return document.get("format") in cls.ALSO_READS or super().accepts(document)
+
+    parameters: dict
+    statistics: list
+    method: str = "staged"
+    reference: dict = field(default_factory=lambda: {"mode": "none"})
+    gauge: dict | None = None
+    solver: dict = field(default_factory=dict)
+    unit: str = "nT"
+    standard_errors: dict | None = None
+    identifiability: dict = field(default_factory=dict)
+    warnings: list = field(default_factory=list)
+    n_samples: int = 0
+    version: str = __version__
+    input: dict = field(default_factory=dict)
+
+    @property
+    def model(self) -> Zhou2010Parameters:
+        return Zhou2010Parameters.from_dict(self.parameters)
+
+    @property
+    def log_unit(self) -> str:
+        """The unit of the log the parameters were estimated from (the result's unit if unknown)."""
+        recorded = self.input.get("log_unit")
+        return recorded if recorded in units.FIELD_UNITS_NT else self.unit
+
+    def apply(self, samples, unit: str | None = None) -> np.ndarray:
+        """Corrected field B1 = O_p S_p (B_M - Z_p), Eq. 4 in [1].
+
+        samples : (N, 3) raw output, in `unit` (default: the unit of the calibration).
+        Returns (N, 3) corrected field in the same unit as `samples`.
+        """
+        samples = validation.vectors(samples)
+        unit = unit or self.unit
+        units.check_compatible(self.unit, unit, "the samples")
+        corrected = correct(units.to_base(samples, unit), self.model)
+        return units.from_base(corrected, unit)
+
+    def table(self) -> str:
+        return format_table(self.statistics, self.unit, extra=("iterations",))
+
+    def body(self) -> dict:
+        document = {
+            "parameters": dict(self.parameters),
+            "statistics": list(self.statistics),
+            "std_ddof": STD_DDOF,
+            "method": self.method,
+            "reference": dict(self.reference),
+            "gauge": self.gauge,
+            "solver": dict(self.solver),
+            "unit": self.unit,
+            "standard_errors": self.standard_errors,
+            "identifiability": dict(self.identifiability),
+            "warnings": list(self.warnings),
+            "n_samples": self.n_samples,
+            "nlpcal_version": self.version,
+        }
+        if self.input:
+            document["input"] = dict(self.input)
+        return document
+
+    @classmethod
+    def fields_from(cls, reader: DocumentReader) -> dict:
+        """The constructor arguments stored in a document (shared with the temperature kind)."""
+        errors = reader.reader("standard_errors", None)
+        return {
+            "parameters": read_parameters(reader).to_dict(),
+            "statistics": reader.items("statistics", []),
+            "method": reader.string("method", "staged"),
+            "reference": reader.mapping("reference", {"mode": "none"}),
+            "gauge": reader.mapping("gauge", None),
+            "solver": reader.mapping("solver", {}),
+            "unit": reader.string("unit", "nT", options=list(units.FIELD_UNITS_NT)),
+            "standard_errors": None if errors is None else {
+                name: errors.number(name, positive=False, minimum=0.0)
+                for name in PARAMETER_NAMES if errors.has(name)},
+            "identifiability": reader.mapping("identifiability", {}),
+            "warnings": reader.strings("warnings", []),
+            "n_samples": reader.integer("n_samples", 0),
+            "version": reader.string("nlpcal_version", "unknown"),
+            "input": reader.mapping("input", {}),
+        }
+
+    @classmethod
+    def from_body(cls, reader: DocumentReader) -> CalibrationResult:
+        return cls(**cls.fields_from(reader))

@@ -1,0 +1,220 @@
+"""`nlpcal calibrate`, `nlpcal apply` and `nlpcal stats`: the nine-parameter model on logs, with
+the temperature options of Liu et al. (2022).
+
+    nlpcal calibrate LOG.csv --reference-column COL --temperature-column COL
+                     [--temperature-model common|per-axis] [--base-temperature T0] [-o params.json]
+    nlpcal apply PARAMS.json LOG.csv [--drift drift.json] [--temperature-column COL] [-o out.csv]
+    nlpcal stats LOG.csv [--params PARAMS.json] [--reference-column COL]
+                     [--drift drift.json] [--temperature-column COL] [--json]
+
+Temperatures are in degC. `calibrate --temperature-column` estimates the nine parameters and the
+temperature coefficients together; its parameters file carries a "temperature_model" object that
+`apply` and `stats` use with the log's temperature column. `apply --drift` divides the raw vector
+by k(t) (Eq. 9) before Eq. 4; `stats --reference-column` adds the RMSE of Eq. 10 to every row, so
+`stats LOG --reference-column F --params P --drift D` prints the paper's three rows.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+from .common import (
+    add_log_arguments,
+    add_reference_arguments,
+    emit_csv,
+    emit_json,
+    log_options,
+    tell,
+    warn,
+)
+
+TOTAL_COLUMN = "b_total"
+TEMPERATURE_MODELS = ("common", "per-axis")
+#: Defaults of the staged cycle (the library's `nlpcal.calibration.CYCLES_DEFAULT`, ...).
+CYCLES_DEFAULT = 50
+RTOL_DEFAULT = 1e-9
+
+
+def register(sub):
+    _register_calibrate(sub)
+    _register_apply(sub)
+    _register_stats(sub)
+
+
+# --- calibrate ----------------------------------------------------------------------------------
+
+def _register_calibrate(sub):
+    parser = sub.add_parser(
+        "calibrate", help="estimate the nine parameters of Eq. 4 from a log",
+        description="Estimate offsets, scale errors and non-orthogonality angles (Zhou et al. "
+                    "2010, Eq. 4) by minimising the spread of |B1| (Eq. 8), or its distance to a "
+                    "reference field. Prints the Table 1 rows to stderr.")
+    parser.add_argument("log", metavar="LOG.csv")
+    add_log_arguments(parser)
+    parser.add_argument("--method", choices=("staged", "joint"), default="staged",
+                        help="staged: the paper's cycle orthogonal -> scale -> offset (default); "
+                             "joint: all nine at once")
+    parser.add_argument("--cycles", type=int, default=CYCLES_DEFAULT, metavar="K",
+                        help=f"most staged cycles (default {CYCLES_DEFAULT})")
+    parser.add_argument("--target-std", type=float, metavar="F",
+                        help="stop the cycle when std |B1| <= F [unit]")
+    parser.add_argument("--target-range", type=float, metavar="F",
+                        help="stop the cycle when max - min of |B1| <= F [unit]")
+    parser.add_argument("--rtol", type=float, default=RTOL_DEFAULT,
+                        help="stop the cycle when the objective improves by less than this "
+                             f"fraction (default {RTOL_DEFAULT:g})")
+    add_reference_arguments(parser)
+    parser.add_argument("--temperature-column", metavar="COL",
+                        help="column of temperatures [degC]: estimate the nine parameters and "
+                             "temperature coefficients together (needs --reference-column; "
+                             "--method, --cycles and the targets do not apply)")
+    parser.add_argument("--temperature-model", choices=TEMPERATURE_MODELS,
+                        help="common: one factor k(t) on scale and offset of all axes (Liu et "
+                             "al. 2022, Eq. 9; the default); per-axis: linear scale and "
+                             "offset drift per axis. Angles stay temperature-free")
+    parser.add_argument("--base-temperature", type=float, metavar="T0",
+                        help="temperature at which the nine parameters are reported [degC] "
+                             "(default: the log's mean)")
+    parser.add_argument("--low-memory", action="store_true",
+                        help="stream the log into a memory-mapped temporary file in chunks, so "
+                             "that logs larger than memory can be calibrated")
+    parser.add_argument("-o", "--output", metavar="PARAMS.json",
+                        help="write the parameters here (stdout when absent)")
+    parser.set_defaults(func=run_calibrate)
+
+
+def run_calibrate(args) -> int:
+    from ..calibration import calibrate_log
+    from ..drift.temperature import calibrate_temperature_log
+    from ..errors import InputError
+    from ..io import check_output_path, read_log
+
+    check_output_path(args.output)
+    temperature = args.temperature_column or args.temperature_model
+    if args.temperature_model and not args.temperature_column:
+        raise InputError("--temperature-model needs --temperature-column COL")
+    if temperature and not args.reference_column:
+        raise InputError("the temperature calibration needs --reference-column COL, a reference "
+                         "magnitude per sample (for example a proton magnetometer)")
+    staged_only = [flag for flag, value in (("--cycles", args.cycles != CYCLES_DEFAULT),
+                                            ("--target-std", args.target_std is not None),
+                                            ("--target-range", args.target_range is not None),
+                                            ("--rtol", args.rtol != RTOL_DEFAULT)) if value]
+    if (args.method == "joint" or temperature) and staged_only:
+        warn(f"{', '.join(staged_only)} only steer the staged cycle; the joint solve ignores them")
+    started = time.perf_counter()
+    extra = [args.temperature_column] if args.temperature_column else []
+    log = read_log(args.log, **log_options(args), extra_columns=extra, low_memory=args.low_memory)
+    tell(log.notes)
+    read_s = time.perf_counter() - started
+    started = time.perf_counter()
+    if temperature:
+        result = calibrate_temperature_log(log, args.temperature_column,
+                                           model=args.temperature_model or "common",
+                                           base_temperature=args.base_temperature)
+    else:
+        result = calibrate_log(log, method=args.method, cycles=args.cycles, rtol=args.rtol,
+                               target_std=args.target_std, target_range=args.target_range)
+    warn(f"read {log.n} rows in {read_s:.2f} s (pandas {log.engine} engine); calibrated in "
+         f"{time.perf_counter() - started:.2f} s")
+    print(result.table(), file=sys.stderr)
+    tell(result.warnings)
+    emit_json(result.to_dict(), args.output)
+    return 0
+
+
+# --- apply --------------------------------------------------------------------------------------
+
+def _add_temperature_arguments(parser):
+    parser.add_argument("--drift", metavar="DRIFT.json",
+                        help="output of 'nlpcal drift fit': divide the raw vector by k(t) "
+                             "(Eq. 9) before the correction")
+    parser.add_argument("--temperature-column", metavar="COL",
+                        help="column of temperatures [degC] for --drift or for parameters with "
+                             "a temperature model (default: the column they were fitted with)")
+
+
+def _register_apply(sub):
+    parser = sub.add_parser(
+        "apply", help="correct a log with calibrated parameters (Eq. 4)",
+        description="Write the log with its field columns corrected by Eq. 4 and a total-field "
+                    f"column '{TOTAL_COLUMN}' added; all other columns are kept.")
+    parser.add_argument("params", metavar="PARAMS.json")
+    parser.add_argument("log", metavar="LOG.csv")
+    add_log_arguments(parser, "the column names, else the unit of the calibrated log")
+    _add_temperature_arguments(parser)
+    parser.add_argument("-o", "--output", metavar="CORRECTED.csv",
+                        help="corrected log (stdout when absent)")
+    parser.set_defaults(func=run_apply)
+
+
+def _correction(args, require_temperature: bool):
+    """The Correction that --params/PARAMS.json, --drift and --temperature-column ask for."""
+    from ..correction import Correction, load_parameters
+    from ..drift.fit import DriftFit
+    from ..io import read_table_header
+
+    params_path = getattr(args, "params", None)
+    parameters = load_parameters(params_path) if params_path else None
+    drift = DriftFit.load(args.drift) if args.drift else None
+    header = list(read_table_header(args.log).columns)
+    return Correction.plan(parameters, drift, args.temperature_column, log_columns=header,
+                           require_temperature=require_temperature)
+
+
+def run_apply(args) -> int:
+    from ..correction import read_log_for
+    from ..io import check_output_path
+
+    check_output_path(args.output)
+    correction = _correction(args, require_temperature=True)
+    log = read_log_for(args.log, correction, **log_options(args))
+    tell(log.notes)
+    corrected = correction.apply(log)
+    tell(correction.notes)
+    frame = log.written_back(corrected, TOTAL_COLUMN)
+    emit_csv(frame, args.output)  # exact values: the other columns pass through unchanged
+    if args.output:
+        warn(f"wrote {len(frame)} corrected rows to {args.output}")
+    return 0
+
+
+# --- stats --------------------------------------------------------------------------------------
+
+def _register_stats(sub):
+    parser = sub.add_parser(
+        "stats", help="Table 1 statistics of |B| (and of |B1| with --params)",
+        description="Print max, min, mean, std (ddof=0) and range of the total field: the "
+                    "measured row, and the corrected row when --params is given.")
+    parser.add_argument("log", metavar="LOG.csv")
+    add_log_arguments(parser, "the column names, else the unit of the calibrated log")
+    parser.add_argument("--params", metavar="PARAMS.json")
+    _add_temperature_arguments(parser)
+    parser.add_argument("--reference-column", metavar="COL",
+                        help="column of reference magnitudes [unit]: add the RMSE of Eq. 10 "
+                             "(Liu et al. 2022) to every row")
+    parser.add_argument("--json", action="store_true", help="print the rows as JSON")
+    parser.set_defaults(func=run_stats)
+
+
+def run_stats(args) -> int:
+    from ..correction import read_log_for, statistics_rows
+    from ..io import read_log
+    from ..statistics import format_table
+
+    if args.params or args.drift or args.temperature_column:
+        correction = _correction(args, require_temperature=False)
+        log = read_log_for(args.log, correction, **log_options(args))
+    else:
+        correction = None
+        log = read_log(args.log, **log_options(args))
+    tell(log.notes)
+    rows, extra = statistics_rows(log, correction)
+    if correction is not None:
+        tell(correction.notes)
+    if args.json:
+        emit_json({"unit": log.base_unit, "std_ddof": 0, "rows": rows}, None)
+    else:
+        print(format_table(rows, log.base_unit, extra=extra))
+    return 0

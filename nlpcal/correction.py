@@ -1,0 +1,161 @@
+"""Applying results to logs: the library verbs behind `nlpcal apply` and `nlpcal stats`.
+
+A `Correction` is what is applied to a log: the nine parameters of a calibration (Eq. 4 of Zhou
+et al. 2010), optionally with the temperature model of a joint temperature calibration, or the
+k(t) of a drift fit (Eq. 9 of Liu et al. 2022) before them. It knows which log columns it needs
+(the temperature column) and says what it decided on the user's behalf in `notes`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import units
+from .calibration.result import CalibrationResult
+from .drift.evaluation import evaluation_row
+from .drift.fit import DriftFit
+from .drift.temperature import TemperatureCalibrationResult
+from .errors import InputError
+from .io.logs import Log, read_log
+from .models.liu2022 import rmse
+from .models.zhou2010 import correct
+from .results import load_any
+from .statistics import field_statistics
+
+#: Note when a log's temperatures lie further than this outside the fitted range. [degC]
+EXTRAPOLATION_NOTE_DEGC = 1.0
+
+
+def load_parameters(path) -> CalibrationResult | TemperatureCalibrationResult:
+    """A parameters file: the nine parameters, with or without a temperature model."""
+    return load_any(path, (TemperatureCalibrationResult, CalibrationResult))
+
+
+@dataclass
+class Correction:
+    """What is applied to a log.
+
+    parameters : a CalibrationResult or a TemperatureCalibrationResult, or None (drift alone).
+    drift : a DriftFit whose k(t) divides the raw vector first (Eq. 9), or None.
+    temperature_column : the log's temperature column [degC], or None (no temperature step).
+    notes : what was decided on the user's behalf.
+    """
+
+    parameters: CalibrationResult | TemperatureCalibrationResult | None = None
+    drift: DriftFit | None = None
+    temperature_column: str | None = None
+    notes: list = field(default_factory=list)
+
+    @classmethod
+    def plan(cls, parameters=None, drift: DriftFit | None = None,
+             temperature_column: str | None = None, *, log_columns=(),
+             require_temperature: bool = True) -> Correction:
+        """Check that the pieces fit together and choose the temperature column.
+
+        log_columns : the columns of the log it will be applied to (to find the temperature
+            column the model was fitted with).
+        require_temperature : a temperature model without its column is an error (apply);
+            False leaves the temperature step out with a note (stats).
+        """
+        notes: list = []
+        model = parameters if isinstance(parameters, TemperatureCalibrationResult) else None
+        if drift is not None and model is not None:
+            raise InputError("the parameters file already carries a temperature model; --drift "
+                             "applies only to parameters without one, so drop --drift")
+        if temperature_column and drift is None and model is None:
+            raise InputError("--temperature-column needs --drift DRIFT.json or parameters with a "
+                             "temperature model")
+        if temperature_column is None and (drift is not None or model is not None):
+            if drift is not None:
+                source, stored = "drift file", drift.input.get("temperature_column")
+            else:
+                source, stored = "temperature model", model.temperature_column  # type: ignore
+            if stored and stored in log_columns:
+                temperature_column = stored
+            elif require_temperature or drift is not None:
+                have = ", which the log lacks" if stored else ""
+                raise InputError(f"the {source} needs a temperature column (fitted with "
+                                 f"{stored!r}{have}); pass --temperature-column COL")
+            else:
+                notes.append(f"the log has no column {stored!r} for the temperature model; "
+                             f"pass --temperature-column COL for the temperature row")
+        return cls(parameters, drift, temperature_column, notes)
+
+    @property
+    def unit(self) -> str:
+        """The unit the correction works in (the parameters', else the drift fit's)."""
+        if self.parameters is not None:
+            return self.parameters.unit
+        return self.drift.unit if self.drift is not None else "nT"
+
+    @property
+    def fallback_unit(self) -> str:
+        """The unit to read a log in when neither the user nor its column names give one."""
+        if self.parameters is not None:
+            return self.parameters.input.get("log_unit") or self.parameters.unit
+        return self.unit
+
+    def temperature(self, log: Log) -> np.ndarray:
+        """The log's temperatures [degC], with a note when they leave the fitted range."""
+        values = log.extras[self.temperature_column]
+        if self.drift is not None:
+            low, high, what = *self.drift.temperature_range, "the drift fit"
+        else:
+            low, high = self.parameters.temperature_range  # type: ignore[union-attr]
+            what = "the temperature calibration"
+        beyond = max(float(low) - float(values.min()), float(values.max()) - float(high))
+        if np.isfinite(beyond) and beyond > EXTRAPOLATION_NOTE_DEGC:
+            self.notes.append(f"the log's temperatures {values.min():g} .. {values.max():g} degC "
+                              f"reach {beyond:.3g} degC beyond the range {low:g} .. {high:g} "
+                              f"degC of {what}; the linear temperature model is extrapolated")
+        return values
+
+    def apply(self, log: Log) -> np.ndarray:
+        """Corrected samples of the log. [base unit]"""
+        units.check_compatible(self.unit, log.base_unit, "the log")
+        if self.temperature_column is None:
+            if self.parameters is None:
+                raise InputError("nothing to apply: give parameters or a drift file")
+            return self.parameters.apply(log.samples)
+        temperature = self.temperature(log)
+        if isinstance(self.parameters, TemperatureCalibrationResult):
+            return self.parameters.apply(log.samples, temperature)
+        params = None if self.parameters is None else self.parameters.model
+        return self.drift.correct(log.samples, temperature, params)  # type: ignore[union-attr]
+
+
+def read_log_for(path, correction: Correction, *, reference_column=None, **kw) -> Log:
+    """Read a log to apply `correction` to: its temperature column comes along, and its unit
+    defaults to the unit of the log the parameters were estimated from."""
+    extra = [correction.temperature_column] if correction.temperature_column else []
+    if reference_column and reference_column == correction.temperature_column:
+        raise InputError(f"the temperature and reference columns are both "
+                         f"{reference_column!r}; they must be different columns")
+    return read_log(path, reference_column=reference_column, extra_columns=extra,
+                    fallback_unit=correction.fallback_unit, **kw)
+
+
+def statistics_rows(log: Log, correction: Correction | None = None) -> tuple:
+    """Table 1 rows of a log: measured, corrected (with parameters), corrected with temperature;
+    with the log's reference every row carries the RMSE of Eq. 10 (Liu et al. 2022).
+
+    Returns (rows, extra columns to print).
+    """
+    reference = log.reference
+    rows = [{"label": "measured", **field_statistics(log.samples)}]
+    if correction is not None and correction.parameters is not None:
+        params = correction.parameters.model  # the nine parameters (at t0 with a model)
+        rows.append({"label": "corrected", **field_statistics(log.samples, params.theta)})
+        if reference is not None:
+            corrected = correct(log.samples, params)  # Eq. 4
+            rows[1]["rmse"] = rmse(np.linalg.norm(corrected, axis=1), reference)  # Eq. 10
+    if reference is not None:
+        rows[0]["rmse"] = rmse(np.linalg.norm(log.samples, axis=1), reference)  # Eq. 10
+    if correction is not None and correction.temperature_column is not None:
+        label = "corrected + temperature" if correction.parameters is not None else "temperature"
+        rows.append(evaluation_row(label, correction.apply(log), reference))
+    for row in rows:
+        row.pop("max_abs_u", None)
+    return rows, (("rmse",) if reference is not None else ())

@@ -1,0 +1,111 @@
+"""Files: atomic writers, strict JSON, and the checks of output paths.
+
+An output is written to a temporary file beside it and renamed over it at the end, so a failed or
+killed run never leaves a half-written file nor replaces an existing one. JSON written by nlpcal
+never contains NaN or Infinity: non-finite numbers become null.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+
+
+def plain(value):
+    """`value` with numpy scalars and arrays turned into Python numbers and lists, and every
+    non-finite float into None, so that it serialises as strict JSON."""
+    if isinstance(value, dict):
+        return {str(k): plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [plain(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return [plain(v) for v in value.tolist()]
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        value = float(value)
+        return value if math.isfinite(value) else None
+    return value
+
+
+def json_text(document) -> str:
+    """Strict JSON (no NaN, no Infinity) of a document, indented, with a final newline."""
+    return json.dumps(plain(document), indent=2, allow_nan=False) + "\n"
+
+
+def check_output_path(path) -> None:
+    """Fail before any work when an output's folder does not exist or the path is a folder."""
+    if not path:
+        return
+    path = Path(path)
+    directory = path.parent if str(path.parent) else Path(".")
+    if not directory.is_dir():
+        raise InputError(f"{path}: the folder {directory} does not exist")
+    if path.is_dir():
+        raise InputError(f"{path}: is a directory, expected a file name")
+
+
+def _umask() -> int:
+    current = os.umask(0)
+    os.umask(current)
+    return current
+
+
+def _atomic_write(path, write, binary: bool = False) -> None:
+    path = Path(path)
+    check_output_path(path)
+    directory = path.parent if str(path.parent) else Path(".")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
+    try:
+        with (os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", newline="")) as handle:
+            write(handle)
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual permissions
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+
+
+def write_text_atomic(path, text: str) -> None:
+    """Write text to a temporary file beside `path`, then rename it over `path`."""
+    _atomic_write(path, lambda handle: handle.write(text))
+
+
+def write_bytes_atomic(path, data: bytes) -> None:
+    """Write bytes (a PNG, say) to a temporary file beside `path`, then rename it over `path`."""
+    _atomic_write(path, lambda handle: handle.write(data), binary=True)
+
+
+def write_json_atomic(path, document) -> None:
+    """Strict JSON (`json_text`) written atomically."""
+    write_text_atomic(path, json_text(document))
+
+
+def write_csv_atomic(path, frame, float_format: str | None = None) -> None:
+    """Write a table atomically; without float_format every value round-trips exactly."""
+    _atomic_write(path, lambda handle: frame.to_csv(handle, index=False,
+                                                    float_format=float_format))
+
+
+def read_json(path, what: str = "JSON file"):
+    """The parsed JSON of a file, or InputError naming the file and what is wrong with it."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    if path.is_dir():
+        raise InputError(f"{path}: is a directory, expected a {what}")
+    try:
+        return json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not a valid {what} ({exc})") from None

@@ -1,0 +1,276 @@
+"""The three non-orthogonality angles from rotation logs (section 2 of Wang et al. 2015), and the
+repeatability of several inversions of one probe (Table 4).
+
+The inversion minimises the spread of the corrected total field |T^-1 B'_i| around its mean (the
+paper's objective), or its distance to a known field, under bounds on the angles. Its objective is
+the orthogonal block of Eq. 8 of Zhou et al. (2010) with unit scales and zero offsets, evaluated
+from the Gram matrix of `nlpcal.moments`: the problem has the same size for every log
+(`nlpcal.nlp.orthogonality.inversion_solver`). The Table 1 statistics before and after are exact
+passes over the samples.
+
+References
+----------
+[1] Wang et al. (2015), see `nlpcal.models.wang2015`.
+[2] Zhou et al. (2010), see `nlpcal.models.zhou2010`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .. import inference, validation
+from ..errors import InputError, QualityError, SolveError
+from ..models.wang2015 import ANGLE_NAMES
+from ..moments import accumulate
+from ..nlp.blocks import moment_parameters
+from ..nlp.orthogonality import inversion_objective, inversion_solver
+from ..nlp.solver import solve
+from ..results import Document, DocumentReader
+from ..statistics import field_statistics
+from .worst_case import implied_worst_case
+
+#: Default bound of the inversion, as in section 2 of [1]. [deg]
+DEFAULT_BOUND_DEG = 0.5
+#: Fewest samples the inversion accepts (three angles plus the mean field).
+MIN_INVERSION_SAMPLES = 10
+#: A solution within this fraction of its bound counts as on the bound. [1]
+BOUND_ACTIVE_REL_TOL = 1e-3
+
+
+@dataclass
+class Inversion(Document):
+    """Angles inverted from one rotation log (section 2 in [1])."""
+
+    FORMAT = "nlpcal-orthogonality-inversion"
+    LEGACY_FORMATS = (("schema", "nlpcal.orthogonality.inversion/1"),)
+    WHAT = "nlpcal inversion file"
+
+    angles_deg: np.ndarray  #: (alpha, beta, gamma). [deg]
+    angles_std_deg: np.ndarray | None  #: standard errors scaled by the residual variance. [deg]
+    variant: str  #: "reference" (known field) or "spread" (around the mean, the paper's).
+    field_nT: float | None  #: the reference field of the reference variant. [nT]
+    n_samples: int
+    objective_nT2: float  #: mean squared residual at the solution. [nT^2]
+    rms_before_nT: float  #: rms of |B'| - centre before correction. [nT]
+    rms_after_nT: float  #: rms of |B''| - centre after correction. [nT]
+    corrected_mean_nT: float  #: mean of |B''| after correction. [nT]
+    bound_deg: np.ndarray  #: the bounds +-bound. [deg]
+    bound_active: list  #: per angle: the solution lies on a bound.
+    status: str  #: IPOPT return status.
+    success: bool
+    iterations: int
+    warnings: list = field(default_factory=list)
+    source: str | None = None  #: the log the samples came from, if any.
+    not_identifiable: list = field(default_factory=list)  #: angles the attitudes leave free.
+
+    def body(self) -> dict:
+        document = {
+            "schema": "nlpcal.orthogonality.inversion/1",
+            "angles_deg": [float(a) for a in self.angles_deg],
+            "angles_std_deg": (None if self.angles_std_deg is None
+                               else [float(a) for a in self.angles_std_deg]),
+            "angle_convention": "zhou2010",
+            "variant": self.variant,
+            "field_nT": self.field_nT,
+            "n_samples": self.n_samples,
+            "objective": self.objective_nT2,
+            "objective_nT2": self.objective_nT2,
+            "rms_before_nT": self.rms_before_nT,
+            "rms_after_nT": self.rms_after_nT,
+            "corrected_mean_nT": self.corrected_mean_nT,
+            "bound_deg": [float(b) for b in self.bound_deg],
+            "bound_active": list(self.bound_active),
+            "any_bound_active": any(self.bound_active),
+            "not_identifiable": list(self.not_identifiable),
+            "status": self.status,
+            "success": self.success,
+            "iterations": self.iterations,
+            "warnings": list(self.warnings),
+        }
+        if self.source is not None:
+            document = {"log": self.source, **document}
+        return document
+
+    @classmethod
+    def from_body(cls, reader: DocumentReader) -> Inversion:
+        std = reader.array("angles_std_deg", (3,), None)
+        return cls(angles_deg=reader.array("angles_deg", (3,)), angles_std_deg=std,
+                   variant=reader.string("variant", options=("spread", "reference")),
+                   field_nT=reader.number("field_nT", None, positive=True),
+                   n_samples=reader.integer("n_samples"),
+                   objective_nT2=reader.number("objective_nT2", minimum=0.0),
+                   rms_before_nT=reader.number("rms_before_nT", minimum=0.0),
+                   rms_after_nT=reader.number("rms_after_nT", minimum=0.0),
+                   corrected_mean_nT=reader.number("corrected_mean_nT"),
+                   bound_deg=reader.array("bound_deg", (3,)),
+                   bound_active=reader.items("bound_active"), status=reader.string("status"),
+                   success=bool(reader.raw("success", True)),
+                   iterations=reader.integer("iterations", 0),
+                   warnings=reader.strings("warnings", []), source=reader.string("log", None),
+                   not_identifiable=reader.strings("not_identifiable", []))
+
+
+def invert(samples, *, field_nT=None, bound_deg=DEFAULT_BOUND_DEG, start_deg=(0.0, 0.0, 0.0),
+           source: str | None = None, verbose: bool = False,
+           require_identifiable: bool = True) -> Inversion:
+    """The three non-orthogonality angles from a rotation log, as a bounded IPOPT problem.
+
+    samples : (N, 3) probe output B' from attitudes spread over the sphere in a constant field;
+        unit sensitivities and zero offsets are assumed (remove them first). [nT]
+    field_nT : the known field B. With it, minimise mean_i (|T^-1 B'_i| - B)^2 (reference
+        variant); without it, mean_i (|T^-1 B'_i| - mean_j |T^-1 B'_j|)^2 (spread variant, the
+        objective of section 2 in [1]). [nT]
+    bound_deg : |angle| <= bound, one value or three (section 2 of [1] uses 0.5). [deg]
+    start_deg : IPOPT's start, (0, 0, 0) as in [1]. [deg]
+    require_identifiable : raise QualityError (holding the result) when the attitudes leave an
+        angle undetermined; False returns the result with a warning.
+
+    A solution on a bound gets a warning: the true angle may lie outside the bounds.
+    Raises InputError for unusable samples or options, SolveError when IPOPT fails.
+    """
+    samples = validation.samples(samples, minimum=MIN_INVERSION_SAMPLES,
+                                 purpose="attitudes to invert three angles")
+    bounds = validation.bounds(bound_deg)
+    start = validation.angles(start_deg, what="start angles")
+    if (np.abs(start) > bounds).any():
+        raise InputError(f"the start {validation.fmt_list(start)} deg lies outside the bounds "
+                         f"+-{validation.fmt_list(bounds)} deg")
+    reference = None if field_nT is None else validation.field(field_nT, what="reference field")
+    magnitude = np.linalg.norm(samples, axis=1)
+    nominal = float(np.mean(magnitude))
+    if (magnitude <= 1e-9 * nominal).any():
+        bad = int((magnitude <= 1e-9 * nominal).sum())
+        raise InputError(f"{bad} sample(s) have zero magnitude; drop those rows")
+    n = samples.shape[0]
+    moments = accumulate(samples, reference)
+    kind = moments.reference
+    before = field_statistics(samples, None, reference)
+    scale = moments.length**2 / max(before["objective"], 1e-16 * moments.length**2)
+    p = np.concatenate([moment_parameters(moments), [scale]])
+    outcome = solve(inversion_solver(kind, bool(verbose)), x0=start, p=p, lbx=-bounds, ubx=bounds)
+    where = f"{source}: " if source else ""
+    if not outcome.success:
+        raise SolveError(f"{where}IPOPT did not converge on the angles", status=outcome.status,
+                         result=outcome)
+    angles = np.clip(outcome.x, -bounds, bounds)
+    theta = np.concatenate([np.zeros(6), np.radians(angles)])
+    after = field_statistics(samples, theta, reference)
+    active = [bool(bounds[i] - abs(angles[i]) <= BOUND_ACTIVE_REL_TOL * bounds[i])
+              for i in range(3)]
+    warnings = [f"{where}{name} = {value:+.6g} deg lies on its bound +-{bound:g} deg: the true "
+                f"angle may lie outside the bounds; widen the bound and invert again"
+                for name, is_active, value, bound in zip(ANGLE_NAMES, active, angles, bounds)
+                if is_active]
+    uncertainty = _uncertainty(moments, angles, after, spread=reference is None)
+    weak = [ANGLE_NAMES[i] for i in uncertainty.weak]
+    if weak:
+        warnings.append(f"{where}the attitudes do not determine {', '.join(weak)}; rotate the "
+                        f"probe through directions spread over the whole sphere")
+    result = Inversion(
+        angles_deg=angles, angles_std_deg=uncertainty.standard_errors,
+        variant="spread" if reference is None else "reference", field_nT=reference,
+        n_samples=n, objective_nT2=after["objective"],
+        rms_before_nT=math.sqrt(before["objective"]), rms_after_nT=math.sqrt(after["objective"]),
+        corrected_mean_nT=after["mean"], bound_deg=bounds, bound_active=active,
+        status=outcome.status, success=outcome.success, iterations=outcome.iterations,
+        warnings=warnings, source=source, not_identifiable=weak)
+    if weak and require_identifiable:
+        raise QualityError(f"{where}the attitudes do not determine {', '.join(weak)}; rotate the "
+                           f"probe through directions spread over the whole sphere",
+                           "Not_Identifiable", result=result)
+    return result
+
+
+def _uncertainty(moments, angles_deg, after: dict, spread: bool) -> inference.Uncertainty:
+    """Standard errors of the angles [deg] from the Hessian of the moment objective, scaled by
+    the residual variance with N - p degrees of freedom (p = 4 for the spread variant, whose
+    mean is a fourth, implicit parameter; 3 otherwise) and widened for autocorrelation."""
+    n = moments.n
+    dof = n - (4 if spread else 3)
+    hessian = np.asarray(inversion_objective(moments.reference)(angles_deg,
+                                                                 moment_parameters(moments))[1],
+                         dtype=float)
+    return inference.estimate(inference.information_from_hessian(hessian, n),
+                              residual_variance=n * after["objective"] / max(dof, 1),
+                              autocorrelation=after["residual_lag1_autocorrelation"], dof=dof)
+
+
+@dataclass
+class Repeatability(Document):
+    """Several inversions of the same probe (Table 4 in [1])."""
+
+    FORMAT = "nlpcal-orthogonality-repeatability"
+    LEGACY_FORMATS = (("schema", "nlpcal.orthogonality.repeatability/1"),)
+    WHAT = "nlpcal repeatability file"
+
+    runs: list  #: the Inversion of each log.
+    mean_angles_deg: np.ndarray  #: mean over the runs. [deg]
+    deviations_deg: np.ndarray  #: each run minus the mean, (runs, 3). [deg]
+    max_deviation_deg: np.ndarray  #: largest |deviation| per angle. [deg]
+    max_abs_deviation_deg: float  #: largest |deviation| over all angles and runs. [deg]
+    field_nT: float  #: field at which the deviation is turned into a total-field error. [nT]
+    field_source: str  #: "reference" (the given field) or "corrected mean" (of all runs).
+    implied_worst_case_nT: float  #: implied_worst_case(max_abs_deviation_deg, field_nT). [nT]
+
+    @property
+    def warnings(self) -> list:
+        return [w for run in self.runs for w in run.warnings]
+
+    def body(self) -> dict:
+        return {
+            "schema": "nlpcal.orthogonality.repeatability/1",
+            "angles_deg": [float(a) for a in self.mean_angles_deg],
+            "angle_convention": "zhou2010",
+            "n_runs": len(self.runs),
+            "runs": [run.to_dict() for run in self.runs],
+            "mean_angles_deg": [float(a) for a in self.mean_angles_deg],
+            "deviations_deg": [[float(v) for v in row] for row in self.deviations_deg],
+            "max_deviation_deg": [float(v) for v in self.max_deviation_deg],
+            "max_abs_deviation_deg": self.max_abs_deviation_deg,
+            "field_nT": self.field_nT,
+            "field_source": self.field_source,
+            "implied_worst_case_nT": self.implied_worst_case_nT,
+            "any_bound_active": any(any(run.bound_active) for run in self.runs),
+            "warnings": self.warnings,
+        }
+
+    @classmethod
+    def from_body(cls, reader: DocumentReader) -> Repeatability:
+        runs = [Inversion.from_dict(run, reader.source) for run in reader.items("runs")]
+        count = len(runs)
+        return cls(runs=runs, mean_angles_deg=reader.array("mean_angles_deg", (3,)),
+                   deviations_deg=reader.array("deviations_deg", (count, 3)),
+                   max_deviation_deg=reader.array("max_deviation_deg", (3,)),
+                   max_abs_deviation_deg=reader.number("max_abs_deviation_deg", minimum=0.0),
+                   field_nT=reader.number("field_nT", positive=True),
+                   field_source=reader.string("field_source"),
+                   implied_worst_case_nT=reader.number("implied_worst_case_nT", minimum=0.0))
+
+
+def repeatability(runs, field_nT=None) -> Repeatability:
+    """Mean, spread and implied total-field error of several inversions of one probe.
+
+    runs : Inversion results of the same probe (at least two).
+    field_nT : field for the implied error; default the mean corrected field of the runs. [nT]
+    The implied error is the worst case over all directions when every angle is off by the
+    largest deviation from the mean (section 3 of [1]: 0.004 deg -> at most 3.8 nT).
+    """
+    runs = list(runs)
+    if len(runs) < 2:
+        raise InputError(f"repeatability needs at least two inversions, got {len(runs)}")
+    angles = np.array([run.angles_deg for run in runs], dtype=float)
+    mean = angles.mean(axis=0)
+    deviations = angles - mean
+    max_deviation = np.abs(deviations).max(axis=0)
+    if field_nT is None:
+        b, source = float(np.mean([run.corrected_mean_nT for run in runs])), "corrected mean"
+    else:
+        b, source = validation.field(field_nT), "reference"
+    largest = float(max_deviation.max())
+    return Repeatability(
+        runs=runs, mean_angles_deg=mean, deviations_deg=deviations,
+        max_deviation_deg=max_deviation, max_abs_deviation_deg=largest, field_nT=b,
+        field_source=source, implied_worst_case_nT=implied_worst_case(largest, b))

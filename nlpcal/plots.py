@@ -1,0 +1,174 @@
+"""Every figure nlpcal draws, with matplotlib (optional: pip install 'nlpcal[plot]').
+
+Figures are drawn on matplotlib's Agg canvas through `Figure`, never through pyplot's global
+state, and returned as PNG bytes for an atomic writer.
+"""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+
+from .errors import InputError
+from .models import wang2015
+
+PLOT_HINT = "pip install 'nlpcal[plot]'"
+
+
+def require_matplotlib(three_d: bool = False) -> None:
+    """Raise InputError with the install command when matplotlib (or its 3-d axes) is missing."""
+    try:
+        import matplotlib  # noqa: F401
+        from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: F401
+        if three_d:
+            from mpl_toolkits.mplot3d import Axes3D  # noqa: F401  (registers the 3d projection)
+    except ImportError:
+        raise InputError(f"the figure needs matplotlib; {PLOT_HINT}") from None
+
+
+def _png(figure, dpi: int) -> bytes:
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=dpi)
+    return buffer.getvalue()
+
+
+# --- the comparison of methods (Fig. 2 of Zhou et al. 2010) -----------------------------------
+
+#: Most samples drawn per curve; longer logs are strided evenly.
+PLOT_SAMPLES = 4000
+#: Most cycles drawn one by one in panel (a) (the paper shows seven); the last is always drawn.
+PLOT_CYCLES = 7
+
+
+def comparison_png(comparison, *, dpi: int = 80, title: str | None = None) -> bytes:
+    """PNG of Fig. 2 of [1] for this comparison, plus the convergence of every method.
+
+    (a) |B1| over the samples after each cycle of the staged method; (b) measured |B_M| vs one
+    pass vs the last cycle vs the joint solve; (c) objective against cumulative solver
+    iterations for every method, log scales. Uses the Agg canvas, never pyplot's global state.
+    """
+    require_matplotlib()
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    unit = comparison.unit
+    n = comparison.samples.shape[0]
+    stride = max(1, -(-n // PLOT_SAMPLES))
+    index = np.arange(0, n, stride)
+
+    def magnitude(row):
+        return comparison.magnitudes(row)[::stride]
+
+    figure = Figure(figsize=(14.0, 4.3), dpi=dpi, layout="constrained")
+    FigureCanvasAgg(figure)
+    ax_a, ax_b, ax_c = figure.subplots(1, 3)
+
+    cycles = comparison.staged[1:]
+    shown = list(range(min(PLOT_CYCLES, len(cycles))))
+    if cycles and len(cycles) - 1 not in shown:
+        shown.append(len(cycles) - 1)
+    colours = [f"C{k % 10}" for k in range(len(shown))]
+    for colour, k in zip(colours, shown):
+        ax_a.plot(index, magnitude(cycles[k]), lw=0.6, color=colour,
+                  label=f"{cycles[k]['label']} (std {cycles[k]['std']:.3g})")
+    ax_a.set_title("(a) |B1| after each staged cycle")
+    ax_a.set_xlabel("sample")
+    ax_a.set_ylabel(f"|B1| [{unit}]")
+    ax_a.legend(fontsize=7, loc="upper right")
+
+    curves = [("measured", comparison.staged[0], "0.6")]
+    if cycles:
+        curves.append(("one pass", cycles[0], "C1"))
+        curves.append((f"last cycle ({len(cycles)})", cycles[-1], "C0"))
+    curves.append(("joint IPOPT", comparison.joint, "C3"))
+    for name, row, colour in curves:
+        ax_b.plot(index, magnitude(row), lw=0.6, color=colour,
+                  label=f"{name} (std {row['std']:.3g})")
+    ax_b.set_title("(b) before and after calibration")
+    ax_b.set_xlabel("sample")
+    ax_b.set_ylabel(f"|B| [{unit}]")
+    ax_b.legend(fontsize=7, loc="upper right")
+
+    styles = {"staged": ("staged cycle, IPOPT stages", "C0", ".-"),
+              "joint": ("joint IPOPT", "C3", "s-"),
+              "cg_joint": ("CG joint, paper units", "C1", "-"),
+              "cg_joint_scaled": ("CG joint, scaled", "C4", "-"),
+              "cg_staged": ("CG staged cycle", "C2", "-")}
+    for name, (label, colour, style) in styles.items():
+        path = comparison.trajectories.get(name)
+        if not path:
+            continue
+        its = np.asarray(path["iterations"], dtype=float)
+        values = np.asarray(path["objective"], dtype=float)
+        positive = values > 0  # a log axis; an exact zero objective is not drawn
+        ax_c.plot(its[positive], values[positive], style, color=colour, lw=1.0, ms=3,
+                  label=label)
+    ax_c.set_xscale("symlog", linthresh=10)
+    ax_c.set_yscale("log")
+    ax_c.set_xlim(left=0)
+    ax_c.set_title("(c) objective vs cumulative iterations")
+    ax_c.set_xlabel("cumulative solver iterations")
+    ax_c.set_ylabel(f"objective [{unit}^2]")
+    ax_c.legend(fontsize=7, loc="upper right")
+    if title:
+        figure.suptitle(title, fontsize=10)
+    return _png(figure, dpi)
+
+
+# --- the total-field error of non-orthogonal axes (Fig. 3 and 4 of Wang et al. 2015) -------
+
+def orthogonality_map_png(angles_deg, field_nT, theta, phi, error, worst=None, *, dpi: int = 90,
+                   sphere_step_deg: float = 4.0) -> bytes:
+    """PNG of the sphere (Fig. 3 in Wang et al. 2015) beside the theta-phi map (Fig. 4).
+
+    theta [deg] (n_theta,), phi [deg] (n_phi,), error [nT] (n_phi, n_theta) as returned by
+    `nlpcal.models.wang2015.error_map`; worst an optional `WorstCase` whose extremes are marked.
+    Uses matplotlib's Agg canvas through `Figure`, never pyplot's global state.
+    """
+    require_matplotlib(three_d=True)
+    from matplotlib import colormaps
+    from matplotlib.colors import Normalize
+    from matplotlib.figure import Figure
+
+    limit = float(np.abs(error).max()) or 1.0
+    norm = Normalize(-limit, limit)
+    cmap = colormaps["RdBu_r"]  # red positive, blue negative, as in the paper
+    figure = Figure(figsize=(11.0, 4.4), dpi=dpi, layout="constrained")
+    sphere = figure.add_subplot(1, 2, 1, projection="3d")
+    plane = figure.add_subplot(1, 2, 2)
+
+    # Fig. 3: the sphere coloured by dB
+    s_theta = np.arange(0.0, 360.0 + sphere_step_deg / 2, sphere_step_deg)
+    s_phi = np.linspace(-90.0, 90.0, int(round(180.0 / sphere_step_deg)) + 1)
+    g_theta, g_phi = np.meshgrid(s_theta, s_phi)
+    u = wang2015.direction(g_theta, g_phi)
+    s_error = wang2015.total_field_error(angles_deg, field_nT, g_theta, g_phi)
+    sphere.plot_surface(u[..., 0], u[..., 1], u[..., 2], facecolors=cmap(norm(s_error)),
+                        rstride=1, cstride=1, linewidth=0, antialiased=False, shade=False)
+    sphere.set_box_aspect((1, 1, 1))
+    sphere.set_xlabel("X")
+    sphere.set_ylabel("Y")
+    sphere.set_zlabel("Z")
+    sphere.set_title("total-field error on the sphere of directions")
+
+    # Fig. 4: the theta-phi map
+    mesh = plane.pcolormesh(theta, phi, error, cmap=cmap, norm=norm, shading="nearest",
+                            rasterized=True)
+    plane.set_xlim(0, 360)
+    plane.set_ylim(-90, 90)
+    plane.set_xticks(np.arange(0, 361, 60))
+    plane.set_yticks(np.arange(-90, 91, 30))
+    plane.set_xlabel(r"$\theta$ [deg]")
+    plane.set_ylabel(r"$\varphi$ [deg]")
+    if worst is not None:
+        for extreme, marker, label in ((worst.largest_positive, "^", "max"),
+                                       (worst.most_negative, "v", "min")):
+            plane.plot(extreme.theta_deg, extreme.phi_deg, marker, color="k", ms=8,
+                       label=f"{label} {extreme.delta_B_nT:+.2f} nT")
+        plane.legend(loc="lower right", fontsize=8)
+    a, b, g = (float(v) for v in angles_deg)
+    plane.set_title(rf"$\Delta B(\theta, \varphi)$, angles ({a:g}, {b:g}, {g:g}) deg, "
+                    rf"$|B|$ = {field_nT:g} nT")
+    figure.colorbar(mesh, ax=plane, label=r"$\Delta B = |B'| - |B|$ [nT]")
+    return _png(figure, dpi)

@@ -1,0 +1,257 @@
+"""One versioned document base for every result nlpcal writes and reads back.
+
+Every result type is a dataclass that derives from `Document` and names its kind once:
+
+    FORMAT = "nlpcal-calibration"     the discriminator written as "format"
+    FORMAT_VERSION = 1                written as "format_version"
+
+and implements `body()` (the document without the envelope) and `from_body(reader)`. The base
+gives every kind the same verbs: `to_dict`, `to_json`, `save`, and `from_dict`, `from_json`,
+`load`. Reading goes through a `DocumentReader`, which checks each field's type, shape, finiteness
+and range and turns any malformed document into an `InputError` that names the file and the
+field, so a document read from disk is validated as strictly as a CSV.
+
+Documents written by nlpcal 0.1.0 had no "format" key; `load_any` recognises them by their keys.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+from .errors import InputError
+from .io.files import json_text, read_json, write_json_atomic
+from .version import __version__
+
+#: Deepest nesting accepted in a document (deeper JSON is refused before it is walked).
+MAX_DEPTH = 32
+_MISSING: Any = object()
+
+
+class DocumentReader:
+    """Typed access to the fields of a JSON document, with one error style.
+
+    `source` names the document in messages ("params.json", "the drift file").
+    """
+
+    def __init__(self, document, source: str = "document", path: str = ""):
+        if not isinstance(document, dict):
+            raise InputError(f"{source}: expected a JSON object, got {type(document).__name__}")
+        self.document = document
+        self.source = source
+        self.path = path
+
+    def _where(self, key) -> str:
+        return f"{self.source}: {self.path}{key}"
+
+    def has(self, key) -> bool:
+        return self.document.get(key) is not None
+
+    def raw(self, key, default=_MISSING):
+        if key not in self.document or self.document[key] is None:
+            if default is _MISSING:
+                raise InputError(f"{self.source}: missing {self.path}{key}")
+            return default
+        return self.document[key]
+
+    def number(self, key, default=_MISSING, *, positive: bool = False, minimum=None,
+               maximum=None):
+        value = self.raw(key, default)
+        if value is default and default is not _MISSING:
+            return default
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise InputError(f"{self._where(key)} must be a number, got {value!r:.40}")
+        value = float(value)
+        if not math.isfinite(value):
+            raise InputError(f"{self._where(key)} must be finite, got {value}")
+        if positive and not value > 0:
+            raise InputError(f"{self._where(key)} must be positive, got {value:g}")
+        if minimum is not None and value < minimum:
+            raise InputError(f"{self._where(key)} must be at least {minimum:g}, got {value:g}")
+        if maximum is not None and value > maximum:
+            raise InputError(f"{self._where(key)} must be at most {maximum:g}, got {value:g}")
+        return value
+
+    def integer(self, key, default=_MISSING, *, minimum: int = 0):
+        value = self.raw(key, default)
+        if value is default and default is not _MISSING:
+            return default
+        if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+            raise InputError(f"{self._where(key)} must be an integer of at least {minimum}, got "
+                             f"{value!r:.40}")
+        return value
+
+    def string(self, key, default=_MISSING, *, options=None):
+        value = self.raw(key, default)
+        if value is default and default is not _MISSING:
+            return default
+        if not isinstance(value, str):
+            raise InputError(f"{self._where(key)} must be a string, got {value!r:.40}")
+        if options is not None and value not in options:
+            raise InputError(f"{self._where(key)} must be one of {', '.join(options)}, got "
+                             f"{value!r:.40}")
+        return value
+
+    def array(self, key, shape, default=_MISSING) -> np.ndarray:
+        """A finite float array of `shape` (a list of numbers, or a list of such lists)."""
+        value = self.raw(key, default)
+        if value is default and default is not _MISSING:
+            return default
+        if not _numeric_nest(value):
+            raise InputError(f"{self._where(key)} must be numbers of shape {shape}")
+        array = np.asarray(value, dtype=float)
+        if array.shape != tuple(shape):
+            raise InputError(f"{self._where(key)} must have shape {tuple(shape)}, got "
+                             f"{array.shape}")
+        if not np.isfinite(array).all():
+            raise InputError(f"{self._where(key)} contains non-finite values")
+        return array
+
+    def mapping(self, key, default=_MISSING):
+        value = self.raw(key, default)
+        if value is default and default is not _MISSING:
+            return default
+        if not isinstance(value, dict):
+            raise InputError(f"{self._where(key)} must be a JSON object")
+        return value
+
+    def items(self, key, default=_MISSING) -> list:
+        value = self.raw(key, default)
+        if value is default and default is not _MISSING:
+            return default
+        if not isinstance(value, list):
+            raise InputError(f"{self._where(key)} must be a list")
+        return value
+
+    def strings(self, key, default=_MISSING) -> list:
+        value = self.items(key, default)
+        if value is default and default is not _MISSING:
+            return default
+        if not all(isinstance(v, str) for v in value):
+            raise InputError(f"{self._where(key)} must be a list of strings")
+        return list(value)
+
+    def reader(self, key, default=_MISSING) -> DocumentReader:
+        """A reader of the object at `key` (messages name the path to it)."""
+        value = self.mapping(key, default)
+        return DocumentReader(value, self.source, f"{self.path}{key}.")
+
+
+def _numeric_nest(value) -> bool:
+    if isinstance(value, list):
+        return all(_numeric_nest(v) for v in value)
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _depth(value, limit: int = MAX_DEPTH) -> int:
+    """Nesting depth of a parsed JSON value, stopping at `limit`."""
+    stack, deepest = [(value, 1)], 1
+    while stack:
+        item, level = stack.pop()
+        deepest = max(deepest, level)
+        if deepest > limit:
+            return deepest
+        children = item.values() if isinstance(item, dict) else item if isinstance(
+            item, list) else ()
+        stack.extend((child, level + 1) for child in children)
+    return deepest
+
+
+class Document:
+    """Base of every result nlpcal serialises (dataclasses that set FORMAT and FORMAT_VERSION)."""
+
+    FORMAT: ClassVar[str] = ""
+    FORMAT_VERSION: ClassVar[int] = 1
+    #: Earlier discriminators still read: (key, value) pairs that identify the same kind.
+    LEGACY_FORMATS: ClassVar[tuple] = ()
+    #: What the kind is called in messages.
+    WHAT: ClassVar[str] = "nlpcal document"
+
+    def body(self) -> dict:
+        raise NotImplementedError
+
+    @classmethod
+    def from_body(cls, reader: DocumentReader):
+        raise NotImplementedError
+
+    # -- writing -----------------------------------------------------------------------------
+
+    def to_dict(self) -> dict:
+        """The document: "format", "format_version", the body and "nlpcal_version"."""
+        body = self.body()
+        return {"format": self.FORMAT, "format_version": self.FORMAT_VERSION, **body,
+                "nlpcal_version": body.get("nlpcal_version", __version__)}
+
+    def to_json(self) -> str:
+        """Strict JSON of the document (non-finite numbers written as null)."""
+        return json_text(self.to_dict())
+
+    def save(self, path) -> None:
+        """Write the document to `path` atomically."""
+        write_json_atomic(path, self.to_dict())
+
+    # -- reading -----------------------------------------------------------------------------
+
+    @classmethod
+    def accepts(cls, document: dict) -> bool:
+        """Whether `document` is of this kind (its "format", or a legacy marker)."""
+        if document.get("format") == cls.FORMAT:
+            return True
+        return "format" not in document and any(
+            document.get(key) == value if value is not None else key in document
+            for key, value in cls.LEGACY_FORMATS)
+
+    @classmethod
+    def from_dict(cls, document, source: str = ""):
+        """The result stored in `document`; InputError when it is not a valid one of this kind."""
+        source = source or cls.WHAT
+        if not isinstance(document, dict):
+            raise InputError(f"{source}: not an {cls.WHAT} (expected a JSON object)")
+        if _depth(document) > MAX_DEPTH:
+            raise InputError(f"{source}: nested deeper than {MAX_DEPTH} levels; not an "
+                             f"{cls.WHAT}")
+        if not cls.accepts(document):
+            found = document.get("format")
+            raise InputError(f"{source}: not an {cls.WHAT} (format {found!r}; expected "
+                             f"{cls.FORMAT!r})")
+        version = document.get("format_version", cls.FORMAT_VERSION)
+        if version != cls.FORMAT_VERSION:
+            raise InputError(f"{source}: format_version {version!r}; this nlpcal reads "
+                             f"format_version {cls.FORMAT_VERSION} of {cls.WHAT}s")
+        return cls.from_body(DocumentReader(document, source))
+
+    @classmethod
+    def from_json(cls, text: str, source: str = ""):
+        try:
+            document = json.loads(text)
+        except (json.JSONDecodeError, RecursionError) as exc:
+            raise InputError(f"{source or cls.WHAT}: not valid JSON ({exc})") from None
+        return cls.from_dict(document, source)
+
+    @classmethod
+    def load(cls, path):
+        """Read and validate the document at `path`."""
+        return cls.from_dict(read_json_document(path, cls.WHAT), str(path))
+
+
+def read_json_document(path, what: str = "JSON document"):
+    """The parsed JSON of a file, refusing files nested deeper than MAX_DEPTH."""
+    try:
+        return read_json(path, what)
+    except RecursionError:
+        raise InputError(f"{path}: nested deeper than Python can read; not a {what}") from None
+
+
+def load_any(path, kinds):
+    """Read `path` as whichever of the Document classes `kinds` accepts it."""
+    document = read_json_document(path, "nlpcal document")
+    if isinstance(document, dict):
+        for kind in kinds:
+            if kind.accepts(document):
+                return kind.from_dict(document, str(Path(path)))
+    names = ", ".join(kind.WHAT for kind in kinds)
+    raise InputError(f"{path}: not one of: {names}")

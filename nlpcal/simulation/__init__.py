@@ -1,0 +1,115 @@
+"""Synthetic logs with known truth: attitudes, the forward model of Eq. 4 in [1], noise.
+
+The field is a constant vector in the world frame (north-east-down, magnitude `field`,
+inclination `inclination_deg`); each sample sees it through one attitude of the sensor, and the
+sensor output is the forward model B_M = diag(1 + s) T (A B) + Z_p plus white Gaussian noise on
+each axis.
+
+References
+----------
+[1] Zhou et al. (2010), see `nlpcal.models.zhou2010`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .. import validation
+from ..calibration.result import read_parameters
+from ..errors import InputError
+from ..models.zhou2010 import Zhou2010Parameters, forward
+from ..results import DocumentReader
+from . import liu2022, qiu2017
+from .attitudes import ATTITUDES, random_rotations, world_field
+
+__all__ = [
+    "ATTITUDES",
+    "DIRECTORY_PRESETS",
+    "PRESETS",
+    "ZHOU2010_FIELD_NT",
+    "ZHOU2010_PARAMETERS",
+    "Preset",
+    "liu2022",
+    "parameters_from_json",
+    "qiu2017",
+    "random_rotations",
+    "simulate",
+    "world_field",
+    "write_directory_preset",
+]
+
+#: Final parameters and mean field of the laboratory application in [1] (section 6, Table 1).
+ZHOU2010_PARAMETERS = Zhou2010Parameters(
+    z_x=-71.55, z_y=188.13, z_z=116.29,
+    s_x=0.0072, s_y=-0.0024, s_z=-0.0049,
+    alpha_deg=-2.34, beta_deg=1.29, gamma_deg=-0.27,
+)
+ZHOU2010_FIELD_NT = 49462.0
+
+
+@dataclass(frozen=True)
+class Preset:
+    parameters: Zhou2010Parameters
+    field: float  # [nT]
+    description: str
+
+
+PRESETS = {
+    "zhou2010": Preset(ZHOU2010_PARAMETERS, ZHOU2010_FIELD_NT,
+                       "final parameters and field (49 462 nT) of Zhou et al. 2010, Table 1"),
+}
+
+#: Presets that write a folder of logs rather than one log: name -> writer, called as
+#: writer(out_dir, seed=..., noise=..., n=...) and returning the paths it wrote (atomically).
+DIRECTORY_PRESETS = {
+    "liu2022": liu2022.write_replica,
+    "qiu2017": qiu2017.write_replica,
+}
+
+
+def simulate(n: int = 2000, *, parameters: Zhou2010Parameters = ZHOU2010_PARAMETERS,
+             field: float = ZHOU2010_FIELD_NT, noise: float = 1.0, seed: int = 0,
+             attitudes: str = "uniform", inclination_deg: float = 60.0) -> pd.DataFrame:
+    """A log of n samples with columns bx, by, bz. [nT]
+
+    parameters : the truth of Eq. 4 in [1].
+    field : magnitude of the constant field. [nT]
+    noise : standard deviation of white noise on each axis. [nT]
+    attitudes : a name in ATTITUDES.
+    """
+    n = validation.count(n, "the number of samples (-n)")
+    noise = validation.number(noise, "the noise (--noise)", minimum=0.0, unit="nT")
+    field = validation.number(field, "the field", positive=True, unit="nT")
+    validation.choice(attitudes, "attitude set", list(ATTITUDES))
+    rng = np.random.default_rng(seed)
+    rotations = ATTITUDES[attitudes](n, rng)
+    true_field = rotations @ world_field(field, inclination_deg)  # A B, ideal sensor frame
+    output = forward(true_field, parameters) + noise * rng.normal(size=(n, 3))
+    return pd.DataFrame(output, columns=["bx", "by", "bz"])
+
+
+def write_directory_preset(name: str, out_dir, *, seed: int = 0, noise=None, n=None) -> list:
+    """Write the folder of logs of a directory preset; returns the paths written."""
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError(f"{out_dir}: exists and is not a folder")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    return DIRECTORY_PRESETS[name](out_dir, seed=seed, noise=noise, n=n)
+
+
+def parameters_from_json(document, source: str = "the parameters JSON"):
+    """Truth from a JSON document: {"parameters": {...}, "field_nT": F} or the nine keys alone.
+
+    Returns (Zhou2010Parameters, field [nT] or None); every value is checked.
+    """
+    reader = DocumentReader(document, source)
+    if not reader.has("parameters"):
+        reader = DocumentReader({"parameters": document, **{
+            k: v for k, v in document.items() if k in ("field_nT", "field")}}, source)
+    params = read_parameters(reader)
+    key = "field_nT" if reader.has("field_nT") else "field"
+    return params, reader.number(key, None, positive=True)

@@ -1,0 +1,210 @@
+"""Every check of numbers that enter nlpcal, shared by the library and the command line.
+
+Each check returns the value in the form nlpcal computes with, or raises `InputError` with one
+sentence that says what was received, what was expected and how to fix it. Documents read from
+files are checked field by field with `nlpcal.results.DocumentReader`, which calls these.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .errors import InputError
+
+#: Fewest samples accepted for the nine parameters: nine plus the mean field of Eq. 8.
+MIN_SAMPLES = 10
+#: Rows per chunk when validating, so that a memory-mapped log is never copied whole.
+CHECK_CHUNK_ROWS = 65536
+#: Largest angle accepted anywhere: at 90 deg axes become parallel and matrices singular. [deg]
+MAX_ANGLE_DEG = 89.0
+
+
+def fmt_list(values) -> str:
+    """Numbers as "[a, b, c]" for messages."""
+    return "[" + ", ".join(f"{v:g}" for v in np.asarray(values, dtype=float).ravel()) + "]"
+
+
+def number(value, what: str, *, positive: bool = False, minimum=None, maximum=None,
+           unit: str = "") -> float:
+    """A finite float, optionally positive or within [minimum, maximum]."""
+    suffix = f" {unit}" if unit else ""
+    try:
+        result = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{what} must be a number{suffix}, got {value!r}") from None
+    if not math.isfinite(result):
+        raise InputError(f"{what} must be a finite number{suffix}, got {result:g}")
+    if positive and not result > 0:
+        raise InputError(f"{what} must be a positive number{suffix}, got {result:g}")
+    if minimum is not None and result < minimum:
+        raise InputError(f"{what} must be at least {minimum:g}{suffix}, got {result:g}")
+    if maximum is not None and result > maximum:
+        raise InputError(f"{what} must be at most {maximum:g}{suffix}, got {result:g}")
+    return result
+
+
+def optional_number(value, what: str, **kw):
+    """None, or `number(value, what, **kw)`."""
+    return None if value is None else number(value, what, **kw)
+
+
+def count(value, what: str, *, minimum: int = 1) -> int:
+    """An integer of at least `minimum`."""
+    try:
+        result = int(value)
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(f"{what} must be an integer, got {value!r}") from None
+    if result != value and not (isinstance(value, float) and value.is_integer()):
+        raise InputError(f"{what} must be an integer, got {value!r}")
+    if result < minimum:
+        raise InputError(f"{what} must be at least {minimum}, got {result}")
+    return result
+
+
+def choice(value, what: str, options) -> str:
+    if value not in options:
+        raise InputError(f"unknown {what} {value!r}; expected one of {', '.join(options)}")
+    return value
+
+
+def vectors(values, what: str = "samples", *, minimum: int = 1,
+            purpose: str = "") -> np.ndarray:
+    """An (N, 3) float64 array with at least `minimum` rows (finite values not checked here)."""
+    try:
+        array = np.asarray(values, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"{what} must be numeric, an (N, 3) array-like") from None
+    if array.ndim != 2 or array.shape[1] != 3:
+        raise InputError(f"{what} must have shape (N, 3), got {array.shape}")
+    if array.shape[0] < minimum:
+        need = f" {purpose}" if purpose else ""
+        raise InputError(f"got {array.shape[0]} {what}, need at least {minimum}{need}")
+    return array
+
+
+def finite_vectors(values, what: str = "samples", *, minimum: int = 1,
+                   purpose: str = "") -> np.ndarray:
+    """`vectors` whose every value is finite, checked chunk by chunk (memory maps stay mapped)."""
+    array = vectors(values, what, minimum=minimum, purpose=purpose)
+    for start in range(0, array.shape[0], CHECK_CHUNK_ROWS):
+        if not np.isfinite(array[start:start + CHECK_CHUNK_ROWS]).all():
+            raise InputError(f"{what} contain NaN or infinite values; drop or fix those rows")
+    return array
+
+
+def samples(values, *, minimum: int = MIN_SAMPLES,
+            purpose: str = "for nine parameters") -> np.ndarray:
+    """Field samples from many attitudes, (N, 3) float64: finite, not all equal, no constant axis.
+    """
+    array = vectors(values, "samples", minimum=minimum, purpose=purpose)
+    low, high = np.full(3, np.inf), np.full(3, -np.inf)
+    for start in range(0, array.shape[0], CHECK_CHUNK_ROWS):  # O(chunk) memory: memmaps too
+        chunk = array[start:start + CHECK_CHUNK_ROWS]
+        if not np.isfinite(chunk).all():
+            raise InputError("samples contain NaN or infinite values; drop or fix those rows")
+        low, high = np.minimum(low, chunk.min(axis=0)), np.maximum(high, chunk.max(axis=0))
+    if np.all(low == high):
+        raise InputError("all samples are equal; calibration needs many attitudes")
+    if np.any(low == high):
+        axes = ", ".join("xyz"[k] for k in np.flatnonzero(low == high))
+        raise InputError(f"the {axes} column is constant: that axis never saw the field change; "
+                         f"calibration needs attitudes that turn every axis")
+    return array
+
+
+def reference(value, n: int, what: str = "the reference field"):
+    """None, a positive number, or N positive values (a series sampled with the log)."""
+    if value is None:
+        return None
+    try:
+        array = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"{what} must be a number or an array of numbers") from None
+    if array.ndim == 0:
+        return number(array, what, positive=True)
+    array = array.ravel()
+    if array.size != n:
+        raise InputError(f"{what} has {array.size} values for {n} samples")
+    if not np.isfinite(array).all():
+        raise InputError(f"{what} contains NaN or infinite values")
+    if (array <= 0).any():
+        raise InputError(f"{what} has {int((array <= 0).sum())} non-positive value(s); a field "
+                         f"magnitude must be positive")
+    return array
+
+
+def temperature(values, n: int) -> np.ndarray:
+    """N finite temperatures. [degC]"""
+    try:
+        array = np.asarray(values, dtype=float).ravel()
+    except (TypeError, ValueError):
+        raise InputError("the temperatures must be numbers [degC]") from None
+    if array.size != n:
+        raise InputError(f"got {array.size} temperatures for {n} samples")
+    if not np.isfinite(array).all():
+        raise InputError("the temperatures contain NaN or infinite values; drop or fix those rows")
+    return array
+
+
+def angles(values, what: str = "angles", size: int = 3,
+           names: str = "alpha beta gamma") -> np.ndarray:
+    """`size` finite angles, each within +-MAX_ANGLE_DEG. [deg]"""
+    try:
+        array = np.asarray(values, dtype=float).ravel()
+    except (TypeError, ValueError):
+        raise InputError(f"{what} must be {size} numbers ({names}) in degrees") from None
+    if array.size != size:
+        raise InputError(f"got {array.size} {what}, expected {size} ({names}) in degrees")
+    if not np.isfinite(array).all():
+        raise InputError(f"{what} must be finite, got {fmt_list(array)} deg")
+    if (np.abs(array) > MAX_ANGLE_DEG).any():
+        raise InputError(f"{what} must lie within +-{MAX_ANGLE_DEG:g} deg (the axes become "
+                         f"parallel at 90 deg), got {fmt_list(array)} deg")
+    return array
+
+
+def field(value, what: str = "field") -> float:
+    """A positive finite field magnitude. [nT]"""
+    return number(value, f"the {what}", positive=True, unit="in nT")
+
+
+def bounds(values) -> np.ndarray:
+    """One bound for all three angles or three bounds; each in (0, MAX_ANGLE_DEG]. [deg]"""
+    try:
+        array = np.asarray(values, dtype=float).ravel()
+    except (TypeError, ValueError):
+        raise InputError("the bound must be one or three positive numbers in degrees") from None
+    if array.size == 1:
+        array = np.repeat(array, 3)
+    if array.size != 3:
+        raise InputError(f"got {array.size} bounds, expected 1 or 3 (alpha beta gamma) in degrees")
+    if not np.isfinite(array).all() or (array <= 0).any() or (array > MAX_ANGLE_DEG).any():
+        raise InputError(f"bounds must lie in (0, {MAX_ANGLE_DEG:g}] deg, got "
+                         f"{fmt_list(array)} deg")
+    return array
+
+
+def matrix(values, what: str, shape=(3, 3), *, invertible: bool = False) -> np.ndarray:
+    """A finite float matrix of `shape`; with `invertible`, well conditioned enough to invert."""
+    try:
+        array = np.asarray(values, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"{what} must be a {shape[0]} x {shape[1]} matrix of numbers") from None
+    if array.shape != tuple(shape):
+        raise InputError(f"{what} must be a {shape[0]} x {shape[1]} matrix, got shape "
+                         f"{array.shape}")
+    if not np.isfinite(array).all():
+        raise InputError(f"{what} contains NaN or infinite values")
+    if invertible and not np.linalg.cond(array) < 1e12:
+        raise InputError(f"{what} is singular (or nearly): it cannot be inverted")
+    return array
+
+
+def same_rows(*pairs) -> None:
+    """Arrays that describe the same rows: pairs of (what, length)."""
+    lengths = {n for _, n in pairs}
+    if len(lengths) > 1:
+        listed = ", ".join(f"{n} {what}" for what, n in pairs)
+        raise InputError(f"got {listed}; they must be the same rows")
