@@ -29,10 +29,10 @@ import casadi
 import numpy as np
 
 import nlpcal
-from nlpcal.nlp import blocks as problems
 from nlpcal.calibration.joint import joint_start
-from nlpcal.moments import accumulate
 from nlpcal.models.zhou2010 import correction_matrix_entries
+from nlpcal.moments import accumulate
+from nlpcal.nlp import blocks as problems
 from nlpcal.simulation import ZHOU2010_FIELD_NT, simulate
 
 FIELD = ZHOU2010_FIELD_NT
@@ -40,8 +40,7 @@ FIELD = ZHOU2010_FIELD_NT
 
 def gram_pass(samples):
     x, y, z = samples.T
-    features = np.column_stack([x * x, y * y, z * z, x * y, x * z, y * z, x, y, z,
-                                np.ones_like(x)])
+    features = np.column_stack([x * x, y * y, z * z, x * y, x * z, y * z, x, y, z, np.ones_like(x)])
     return features.T @ features
 
 
@@ -66,8 +65,9 @@ def scipy_least_squares(samples):
     start = joint_start(accumulate(samples[:20000], FIELD))
 
     def residual(theta):
-        M = np.array(correction_matrix_entries(theta[6], theta[7], theta[8],
-                                               theta[3], theta[4], theta[5]))
+        M = np.array(
+            correction_matrix_entries(theta[6], theta[7], theta[8], theta[3], theta[4], theta[5])
+        )
         return np.linalg.norm((samples - theta[:3]) @ M.T, axis=1) - FIELD
 
     return least_squares(residual, start, x_scale=problems.variable_scale(FIELD))
@@ -91,9 +91,11 @@ def peak_mib(function, samples) -> float:
 
 
 def machine() -> str:
-    return (f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-            f"Python {platform.python_version()}, numpy {np.__version__}, "
-            f"casadi {casadi.__version__}, nlpcal {nlpcal.__version__}")
+    return (
+        f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+        f"Python {platform.python_version()}, numpy {np.__version__}, "
+        f"casadi {casadi.__version__}, nlpcal {nlpcal.__version__}"
+    )
 
 
 def main(argv=None):
@@ -104,9 +106,21 @@ def main(argv=None):
     args = parser.parse_args(argv)
     print(f"# machine: {machine()}")
     print(f"# medians over {args.repeats} repeats; ratios to the Gram pass on the same array")
-    header = ("N", "gram_s", "joint_s", "joint/gram", "staged_s", "staged/gram", "scipy_s",
-              "scipy/gram", "joint_it", "staged_it", "peak_joint_MiB", "peak_staged_MiB",
-              "data_MiB")
+    header = (
+        "N",
+        "gram_s",
+        "joint_s",
+        "joint/gram",
+        "staged_s",
+        "staged/gram",
+        "scipy_s",
+        "scipy/gram",
+        "joint_it",
+        "staged_it",
+        "peak_joint_MiB",
+        "peak_staged_MiB",
+        "data_MiB",
+    )
     print(" | ".join(header))
     for size in args.sizes:
         n = int(size)
@@ -119,11 +133,18 @@ def main(argv=None):
         else:
             scipy_s, _ = timed(scipy_least_squares, samples, max(1, min(args.repeats, 3)))
         row = (
-            f"{n:.0e}", f"{gram_s:.4f}", f"{joint_s:.4f}", f"{joint_s / gram_s:.1f}",
-            f"{staged_s:.4f}", f"{staged_s / gram_s:.1f}", f"{scipy_s:.3f}",
-            f"{scipy_s / gram_s:.1f}", str(joint_result.solver["iterations"]),
+            f"{n:.0e}",
+            f"{gram_s:.4f}",
+            f"{joint_s:.4f}",
+            f"{joint_s / gram_s:.1f}",
+            f"{staged_s:.4f}",
+            f"{staged_s / gram_s:.1f}",
+            f"{scipy_s:.3f}",
+            f"{scipy_s / gram_s:.1f}",
+            str(joint_result.solver["iterations"]),
             str(staged_result.solver["iterations"]),
-            f"{peak_mib(joint, samples):.1f}", f"{peak_mib(staged, samples):.1f}",
+            f"{peak_mib(joint, samples):.1f}",
+            f"{peak_mib(staged, samples):.1f}",
             f"{samples.nbytes / 2**20:.1f}",
         )
         print(" | ".join(row), flush=True)

@@ -23,15 +23,15 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))  # run from a checkout without installing
 
+from generated import replace_block, update_page  # noqa: E402
+
+from nlpcal.calibration.joint import joint_start  # noqa: E402
 from nlpcal.calibration.problem import Problem  # noqa: E402
 from nlpcal.comparison import CompareSettings, compare  # noqa: E402
-from nlpcal.plots import comparison_png  # noqa: E402
 from nlpcal.comparison.conjugate_gradient import CGOptions, run_cg_joint  # noqa: E402
-from nlpcal.calibration.joint import joint_start  # noqa: E402
 from nlpcal.moments import accumulate  # noqa: E402
+from nlpcal.plots import comparison_png  # noqa: E402
 from nlpcal.simulation import ATTITUDES, PRESETS, simulate  # noqa: E402
-
-from generated import replace_block, update_page  # noqa: E402
 
 PAGE = HERE / "comparison.md"
 FIGURES = HERE / "figures"
@@ -62,18 +62,19 @@ def _row_line(row, extra=True) -> str:
     cells = [row["label"]] + [f"{row[k]:.2f}" for k in ("max", "min", "mean", "std", "range")]
     if extra:
         status = row.get("status", "")
-        cells += [f"{row['objective']:.4g}", str(row["iterations"]), f"{row['wall_s']:.3f}",
-                  status]
+        cells += [f"{row['objective']:.4g}", str(row["iterations"]), f"{row['wall_s']:.3f}", status]
     return "| " + " | ".join(cells) + " |"
 
 
-HEADER = ("| row | max | min | mean | std | range | objective [nT^2] | iterations | wall [s] "
-          "| status |\n|---|---|---|---|---|---|---|---|---|---|")
+HEADER = (
+    "| row | max | min | mean | std | range | objective [nT^2] | iterations | wall [s] "
+    "| status |\n|---|---|---|---|---|---|---|---|---|---|"
+)
 
 
 def _cycles_shown(rows):
     """The measured row, the first SHOWN_CYCLES cycles and the last."""
-    keep = rows[:SHOWN_CYCLES + 1]
+    keep = rows[: SHOWN_CYCLES + 1]
     if len(rows) > SHOWN_CYCLES + 1:
         keep = keep + [rows[-1]]
     return keep
@@ -92,11 +93,13 @@ def table_for(result) -> str:
 
 
 def summary_table(results) -> str:
-    lines = ["| attitude set | staged: cycles run (stop) | staged: cycles to within 1 % of "
-             "joint std | staged std after 7 cycles / joint | joint IPOPT iterations | "
-             "CG joint (paper units) | CG joint (scaled) | CG staged: cycles to within 1 % | "
-             "iterations, staged IPOPT / CG staged | every CG stage converged |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| attitude set | staged: cycles run (stop) | staged: cycles to within 1 % of "
+        "joint std | staged std after 7 cycles / joint | joint IPOPT iterations | "
+        "CG joint (paper units) | CG joint (scaled) | CG staged: cycles to within 1 % | "
+        "iterations, staged IPOPT / CG staged | every CG stage converged |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for name, result in results.items():
         s = result.summary
         seventh = result.staged[min(SHOWN_CYCLES, len(result.staged) - 1)]["std"]
@@ -112,36 +115,47 @@ def summary_table(results) -> str:
             f"{cg_cell(cg['unscaled'])} | {cg_cell(cg['scaled'])} | "
             f"{s['cg_staged_cycles_to_joint'] if s['cg_staged_cycles_to_joint'] else 'not reached'}"
             f" | {s['staged_iterations']} / {s['cg_staged_iterations']} | "
-            f"{'yes' if s['cg_staged_all_stages_converged'] else 'no'} |")
+            f"{'yes' if s['cg_staged_all_stages_converged'] else 'no'} |"
+        )
     return "\n".join(lines)
 
 
 def coupling_table(results) -> str:
-    lines = ["| attitude set | rho (Gauss-Seidel) | rho^2 per cycle | cycles for 1e-6 | "
-             "orthogonal-scale | orthogonal-offset | scale-offset |",
-             "|---|---|---|---|---|---|---|"]
+    lines = [
+        "| attitude set | rho (Gauss-Seidel) | rho^2 per cycle | cycles for 1e-6 | "
+        "orthogonal-scale | orthogonal-offset | scale-offset |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for name, result in results.items():
         c = result.summary["block_coupling"]
         cc = c["canonical_correlations"]
         cycles = "-" if c["cycles_per_1e6"] is None else f"{c['cycles_per_1e6']:.0f}"
-        lines.append(f"| {name} | {c['rho']:.4f} | {c['rho_squared']:.4f} | {cycles} | "
-                     f"{cc['orthogonal-scale']:.3f} | {cc['orthogonal-offset']:.3f} | "
-                     f"{cc['scale-offset']:.3f} |")
+        lines.append(
+            f"| {name} | {c['rho']:.4f} | {c['rho_squared']:.4f} | {cycles} | "
+            f"{cc['orthogonal-scale']:.3f} | {cc['orthogonal-offset']:.3f} | "
+            f"{cc['scale-offset']:.3f} |"
+        )
     return "\n".join(lines)
 
 
 def cg_sensitivity(samples) -> str:
     """The joint CG in paper units for a few step constants, from the joint start and from 0."""
     problem = Problem(samples=samples, reference=None, moments=accumulate(samples))
-    lines = ["| start | step factor (a = factor / lambda_max) | status | iterations | std [nT] |",
-             "|---|---|---|---|---|"]
-    for start_name, start in (("sphere fit (as joint IPOPT)", joint_start(problem.moments)),
-                              ("zero (as the staged cycle)", np.zeros(9))):
+    lines = [
+        "| start | step factor (a = factor / lambda_max) | status | iterations | std [nT] |",
+        "|---|---|---|---|---|",
+    ]
+    for start_name, start in (
+        ("sphere fit (as joint IPOPT)", joint_start(problem.moments)),
+        ("zero (as the staged cycle)", np.zeros(9)),
+    ):
         for factor in STEP_FACTORS:
             options = replace(SETTINGS.cg, step_factor=factor)
             _, row, _ = run_cg_joint(problem, start, options)
-            lines.append(f"| {start_name} | {factor:g} | {row['status']} | {row['iterations']} | "
-                         f"{row['std']:.2f} |")
+            lines.append(
+                f"| {start_name} | {factor:g} | {row['status']} | {row['iterations']} | "
+                f"{row['std']:.2f} |"
+            )
     return "\n".join(lines)
 
 
@@ -158,18 +172,27 @@ def main() -> int:
     results, blocks = {}, {}
     for name in ATTITUDES:
         started = time.perf_counter()
-        samples = simulate(N, parameters=preset.parameters, field=preset.field, noise=NOISE,
-                           seed=SEED, attitudes=name).to_numpy()
+        samples = simulate(
+            N,
+            parameters=preset.parameters,
+            field=preset.field,
+            noise=NOISE,
+            seed=SEED,
+            attitudes=name,
+        ).to_numpy()
         result = compare(samples, settings=SETTINGS)
         results[name] = result
-        png = comparison_png(result, title=f"zhou2010 preset, {name} attitudes, N = {N}, "
-                                       f"seed {SEED}, noise {NOISE:g} nT")
+        png = comparison_png(
+            result,
+            title=f"zhou2010 preset, {name} attitudes, N = {N}, seed {SEED}, noise {NOISE:g} nT",
+        )
         if len(png) > MAX_PNG_BYTES:
             raise SystemExit(f"compare_{name}.png is {len(png)} bytes, above {MAX_PNG_BYTES}")
         (FIGURES / f"compare_{name}.png").write_bytes(png)
         blocks[f"table-{name}"] = table_for(result)
-        print(f"{name}: {time.perf_counter() - started:.1f} s, {len(png) // 1024} kB",
-              file=sys.stderr)
+        print(
+            f"{name}: {time.perf_counter() - started:.1f} s, {len(png) // 1024} kB", file=sys.stderr
+        )
         if name == "uniform":
             blocks["cg-sensitivity"] = cg_sensitivity(samples)
     blocks["summary"] = summary_table(results)

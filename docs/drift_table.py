@@ -24,14 +24,13 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from generated import replace_block, update_page
 
 from nlpcal.cli import main as nlpcal
 from nlpcal.drift import DriftFit, TemperatureCalibrationResult, rmse_rows
-from nlpcal.simulation.liu2022 import replica_truth
 from nlpcal.models import liu2022
 from nlpcal.models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
-
-from generated import replace_block, update_page
+from nlpcal.simulation.liu2022 import replica_truth
 
 HERE = Path(__file__).resolve().parent
 PAGE = HERE / "drift.md"
@@ -52,8 +51,11 @@ def run(*argv) -> str:
 
 def load(path):
     frame = pd.read_csv(path)
-    return (frame[["bx", "by", "bz"]].to_numpy(), frame["temp_c"].to_numpy(),
-            frame["proton_nT"].to_numpy())
+    return (
+        frame[["bx", "by", "bz"]].to_numpy(),
+        frame["temp_c"].to_numpy(),
+        frame["proton_nT"].to_numpy(),
+    )
 
 
 def experiment(folder: Path) -> dict:
@@ -66,24 +68,45 @@ def experiment(folder: Path) -> dict:
     # the joint estimate on the same data (base + drift logs in one file), and on the sweep log
     both = pd.concat([pd.read_csv(d / "base.csv"), pd.read_csv(d / "drift.csv")])
     both.to_csv(d / "base_drift.csv", index=False)
-    run("calibrate", d / "base_drift.csv", *COLUMNS, "--temperature-model", "common",
-        "--base-temperature", T0, "-o", d / "joint_base_drift.json")
+    run(
+        "calibrate",
+        d / "base_drift.csv",
+        *COLUMNS,
+        "--temperature-model",
+        "common",
+        "--base-temperature",
+        T0,
+        "-o",
+        d / "joint_base_drift.json",
+    )
     for model in ("common", "per-axis"):
-        run("calibrate", d / "sweep.csv", *COLUMNS, "--temperature-model", model,
-            "--base-temperature", T0, "-o", d / f"joint_sweep_{model}.json")
+        run(
+            "calibrate",
+            d / "sweep.csv",
+            *COLUMNS,
+            "--temperature-model",
+            model,
+            "--base-temperature",
+            T0,
+            "-o",
+            d / f"joint_sweep_{model}.json",
+        )
 
     params, model = replica_truth(d / "truth.json")
     base = Zhou2010Parameters.from_dict(json.loads((d / "base.json").read_text())["parameters"])
     fit = DriftFit.load(d / "drift.json")
-    joints = {name: TemperatureCalibrationResult.load(d / f"{name}.json")
-              for name in ("joint_base_drift", "joint_sweep_common", "joint_sweep_per-axis")}
+    joints = {
+        name: TemperatureCalibrationResult.load(d / f"{name}.json")
+        for name in ("joint_base_drift", "joint_sweep_common", "joint_sweep_per-axis")
+    }
     estimates = {
         "pipeline": (base, fit),
         "joint_base_drift": (joints["joint_base_drift"].model, joints["joint_base_drift"]),
-        "joint_sweep_common": (joints["joint_sweep_common"].model,
-                               joints["joint_sweep_common"]),
-        "joint_sweep_per-axis": (joints["joint_sweep_per-axis"].model,
-                                 joints["joint_sweep_per-axis"]),
+        "joint_sweep_common": (joints["joint_sweep_common"].model, joints["joint_sweep_common"]),
+        "joint_sweep_per-axis": (
+            joints["joint_sweep_per-axis"].model,
+            joints["joint_sweep_per-axis"],
+        ),
         "truth": (params, None),
     }
     rmse = {}
@@ -95,17 +118,34 @@ def experiment(folder: Path) -> dict:
                 corrected = liu2022.correct(samples, temperature, params, model)
                 rows.append({"rmse": liu2022.rmse(np.linalg.norm(corrected, axis=1), reference)})
             else:
-                rows = rmse_rows(samples, reference, params=nine, temperature=temperature,
-                                 correction=correction)
+                rows = rmse_rows(
+                    samples, reference, params=nine, temperature=temperature, correction=correction
+                )
             rmse[log, name] = [row["rmse"] for row in rows]
     # the stats command gives the pipeline's rows too (check that the CLI agrees)
-    stats = json.loads(run("stats", d / "field.csv", "--params", d / "base.json", "--drift",
-                           d / "drift.json", *COLUMNS, "--json"))
+    stats = json.loads(
+        run(
+            "stats",
+            d / "field.csv",
+            "--params",
+            d / "base.json",
+            "--drift",
+            d / "drift.json",
+            *COLUMNS,
+            "--json",
+        )
+    )
     cli = [row["rmse"] for row in stats["rows"]]
     if not np.allclose(cli, rmse["field", "pipeline"], rtol=1e-9):
         raise SystemExit(f"nlpcal stats disagrees with the library: {cli}")
-    return {"rmse": rmse, "fit": fit, "truth": (params, model), "base": base, "joints": joints,
-            "truth_doc": json.loads((d / "truth.json").read_text())}
+    return {
+        "rmse": rmse,
+        "fit": fit,
+        "truth": (params, model),
+        "base": base,
+        "joints": joints,
+        "truth_doc": json.loads((d / "truth.json").read_text()),
+    }
 
 
 LABELS = ("raw", "system", "system + temperature")
@@ -149,28 +189,51 @@ def fit_table(results: dict) -> str:
         f"| k slope c = a/(a t0 + b) [1e-6/°C] | {1e6 * paper_c:.3f} | "
         f"{1e6 * truth['temperature_model']['k_slope_per_degC']:.3f} | {1e6 * fit.k_slope:.3f} |",
     ]
-    lines += ["", "| estimate | c [1e-6/°C] (± s.e.) | largest offset error [nT] | "
-                  "largest scale error [1e-6] | largest angle error [mdeg] |",
-              "|---|---|---|---|---|"]
+    lines += [
+        "",
+        "| estimate | c [1e-6/°C] (± s.e.) | largest offset error [nT] | "
+        "largest scale error [1e-6] | largest angle error [mdeg] |",
+        "|---|---|---|---|---|",
+    ]
     params = results["truth"][0]
 
     def errors(nine):
         diff = nine.as_vector() - params.as_vector()
-        return (np.max(np.abs(diff[0:3])), 1e6 * np.max(np.abs(diff[3:6])),
-                1e3 * np.max(np.abs(diff[6:9])))
+        return (
+            np.max(np.abs(diff[0:3])),
+            1e6 * np.max(np.abs(diff[3:6])),
+            1e3 * np.max(np.abs(diff[6:9])),
+        )
 
-    rows = [("pipeline (base calibration + drift fit)", results["base"],
-             f"{1e6 * fit.k_slope:.3f} ± {1e6 * fit_c_se:.3f}")]
-    for name, title in (("joint_base_drift", "joint common: base + drift logs"),
-                        ("joint_sweep_common", "joint common: sweep log")):
+    rows = [
+        (
+            "pipeline (base calibration + drift fit)",
+            results["base"],
+            f"{1e6 * fit.k_slope:.3f} ± {1e6 * fit_c_se:.3f}",
+        )
+    ]
+    for name, title in (
+        ("joint_base_drift", "joint common: base + drift logs"),
+        ("joint_sweep_common", "joint common: sweep log"),
+    ):
         result = joints[name]
         se = (result.temperature_standard_errors or {}).get("k_slope_per_degC", float("nan"))
-        rows.append((title, result.model,
-                     f"{1e6 * result.temperature_model.k_slope_per_degC:.3f} ± {1e6 * se:.3f}"))
+        rows.append(
+            (
+                title,
+                result.model,
+                f"{1e6 * result.temperature_model.k_slope_per_degC:.3f} ± {1e6 * se:.3f}",
+            )
+        )
     result = joints["joint_sweep_per-axis"]
     sigma = result.temperature_model.scale_slope_per_degC
-    rows.append(("joint per-axis: sweep log (σ x, y, z)", result.model,
-                 ", ".join(f"{1e6 * v:.2f}" for v in sigma)))
+    rows.append(
+        (
+            "joint per-axis: sweep log (σ x, y, z)",
+            result.model,
+            ", ".join(f"{1e6 * v:.2f}" for v in sigma),
+        )
+    )
     for title, nine, c in rows:
         dz, ds, da = errors(nine)
         lines.append(f"| {title} | {c} | {dz:.3f} | {ds:.2f} | {da:.3f} |")
@@ -182,9 +245,11 @@ def truth_table(results: dict) -> str:
     doc = results["truth_doc"]
     names = ", ".join(PARAMETER_NAMES)
     values = ", ".join(f"{v:g}" for v in params.as_vector())
-    return (f"Replica truth ({names}): {values}; field F0 = {doc['field_nT']:.2f} nT, "
-            f"inclination {doc['inclination_deg']:g}°, fluxgate noise {doc['noise_nT']:g} nT per "
-            f"axis, proton noise {doc['proton_noise_nT']:g} nT, seed {doc['seed']}.")
+    return (
+        f"Replica truth ({names}): {values}; field F0 = {doc['field_nT']:.2f} nT, "
+        f"inclination {doc['inclination_deg']:g}°, fluxgate noise {doc['noise_nT']:g} nT per "
+        f"axis, proton noise {doc['proton_noise_nT']:g} nT, seed {doc['seed']}."
+    )
 
 
 BLOCKS = {
@@ -204,8 +269,9 @@ def render(page: str, results: dict) -> str:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     group = parser.add_mutually_exclusive_group()
-    group.add_argument("--check", action="store_true",
-                       help="exit 1 if docs/drift.md is out of date; write nothing")
+    group.add_argument(
+        "--check", action="store_true", help="exit 1 if docs/drift.md is out of date; write nothing"
+    )
     group.add_argument("--print", action="store_true", help="print the tables; write nothing")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as folder:
@@ -214,8 +280,9 @@ def main(argv=None) -> int:
         for name, make in BLOCKS.items():
             print(f"## {name}\n{make(results)}\n")
         return 0
-    return update_page(PAGE, render(PAGE.read_text(), results), check=args.check,
-                       script="docs/drift_table.py")
+    return update_page(
+        PAGE, render(PAGE.read_text(), results), check=args.check, script="docs/drift_table.py"
+    )
 
 
 if __name__ == "__main__":

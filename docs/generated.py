@@ -15,8 +15,11 @@ from nlpcal.io import write_text_atomic
 
 def replace_block(page: str, name: str, body: str, where: str = "the page") -> str:
     """`page` with the block `name` replaced by `body`."""
-    pattern = re.compile(rf"(<!-- BEGIN generated:{re.escape(name)} -->\n).*?"
-                         rf"(<!-- END generated:{re.escape(name)} -->)", re.S)
+    pattern = re.compile(
+        rf"(<!-- BEGIN generated:{re.escape(name)} -->\n).*?"
+        rf"(<!-- END generated:{re.escape(name)} -->)",
+        re.S,
+    )
     if not pattern.search(page):
         raise SystemExit(f"{where}: the markers of block {name!r} are missing")
     return pattern.sub(lambda m: m.group(1) + body.rstrip() + "\n" + m.group(2), page)

@@ -16,10 +16,9 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from generated import replace_block, update_page
 
 from nlpcal import orthogonality as ortho
-
-from generated import replace_block, update_page
 
 HERE = Path(__file__).resolve().parent
 PAGE = HERE / "orthogonality.md"
@@ -53,10 +52,12 @@ def _g(value, digits=4) -> str:
 
 
 def forward_table() -> str:
-    rows = ["| alpha [deg] | beta [deg] | gamma [deg] | max abs dB [nT] | largest dB [nT] "
-            "at (theta, phi) [deg] | most negative dB [nT] at (theta, phi) [deg] | "
-            "small-angle value [nT] |",
-            "|---:|---:|---:|---:|---|---|---:|"]
+    rows = [
+        "| alpha [deg] | beta [deg] | gamma [deg] | max abs dB [nT] | largest dB [nT] "
+        "at (theta, phi) [deg] | most negative dB [nT] at (theta, phi) [deg] | "
+        "small-angle value [nT] |",
+        "|---:|---:|---:|---:|---|---|---:|",
+    ]
     for angles in TYPICAL_ANGLES:
         w = ortho.worst_case(angles, FIELD)
         pos, neg = w.largest_positive, w.most_negative
@@ -64,14 +65,17 @@ def forward_table() -> str:
             f"| {angles[0]:g} | {angles[1]:g} | {angles[2]:g} | {_g(w.max_abs_error_nT, 2)} | "
             f"{pos.delta_B_nT:+.2f} at ({pos.theta_deg:.1f}, {pos.phi_deg:.1f}) | "
             f"{neg.delta_B_nT:+.2f} at ({neg.theta_deg:.1f}, {neg.phi_deg:.1f}) | "
-            f"{_g(w.small_angle_nT, 2)} |")
+            f"{_g(w.small_angle_nT, 2)} |"
+        )
     return "\n".join(rows)
 
 
 def inversion_table() -> str:
-    rows = ["| variant | noise per axis [nT] | alpha [deg] | beta [deg] | gamma [deg] | "
-            "largest error [deg] | IPOPT iterations | rms of dB before -> after [nT] |",
-            "|---|---:|---:|---:|---:|---:|---:|---|"]
+    rows = [
+        "| variant | noise per axis [nT] | alpha [deg] | beta [deg] | gamma [deg] | "
+        "largest error [deg] | IPOPT iterations | rms of dB before -> after [nT] |",
+        "|---|---:|---:|---:|---:|---:|---:|---|",
+    ]
     for noise in (0.0, 1.0, 5.0):
         data = ortho.synthetic_rotation(PAPER_ANGLES, FIELD, n=500, noise_nT=noise, seed=7)
         for field in (None, FIELD):
@@ -83,33 +87,43 @@ def inversion_table() -> str:
             after_text = "< 1e-6" if r.rms_after_nT < 1e-6 else f"{r.rms_after_nT:.3g}"
             rows.append(
                 f"| {r.variant} | {noise:g} | {a:.6f} | {b:.6f} | {g:.6f} | {error_text} | "
-                f"{r.iterations} | {r.rms_before_nT:.2f} -> {after_text} |")
+                f"{r.iterations} | {r.rms_before_nT:.2f} -> {after_text} |"
+            )
     return "\n".join(rows)
 
 
 def repeatability_table() -> str:
-    runs = [ortho.invert(ortho.synthetic_rotation(REPEAT_ANGLES, FIELD, n=400, noise_nT=10.0,
-                                                  seed=100 + k))
-            for k in range(5)]
+    runs = [
+        ortho.invert(
+            ortho.synthetic_rotation(REPEAT_ANGLES, FIELD, n=400, noise_nT=10.0, seed=100 + k)
+        )
+        for k in range(5)
+    ]
     report = ortho.repeatability(runs, field_nT=FIELD)
-    rows = ["| run | alpha [deg] | beta [deg] | gamma [deg] | deviation from the mean, "
-            "largest [deg] |",
-            "|---|---:|---:|---:|---:|"]
+    rows = [
+        "| run | alpha [deg] | beta [deg] | gamma [deg] | deviation from the mean, largest [deg] |",
+        "|---|---:|---:|---:|---:|",
+    ]
     for k, (run, dev) in enumerate(zip(runs, report.deviations_deg), start=1):
         a, b, g = run.angles_deg
         rows.append(f"| {k} | {a:.5f} | {b:.5f} | {g:.5f} | {np.abs(dev).max():.5f} |")
     a, b, g = report.mean_angles_deg
     rows.append(f"| mean | {a:.5f} | {b:.5f} | {g:.5f} | {report.max_abs_deviation_deg:.5f} |")
     rows.append("")
-    rows.append(f"Largest deviation {report.max_abs_deviation_deg:.5f} deg -> worst-case "
-                f"total-field error {report.implied_worst_case_nT:.2f} nT at {FIELD:g} nT. "
-                f"The paper's 0.004 deg gives "
-                f"{ortho.implied_worst_case(0.004, FIELD):.2f} nT (\"at most 3.8 nT\").")
+    rows.append(
+        f"Largest deviation {report.max_abs_deviation_deg:.5f} deg -> worst-case "
+        f"total-field error {report.implied_worst_case_nT:.2f} nT at {FIELD:g} nT. "
+        f"The paper's 0.004 deg gives "
+        f'{ortho.implied_worst_case(0.004, FIELD):.2f} nT ("at most 3.8 nT").'
+    )
     return "\n".join(rows)
 
 
-BLOCKS = {"forward": forward_table, "inversion": inversion_table,
-          "repeatability": repeatability_table}
+BLOCKS = {
+    "forward": forward_table,
+    "inversion": inversion_table,
+    "repeatability": repeatability_table,
+}
 
 
 def render(page: str) -> str:
@@ -123,8 +137,7 @@ def write_figure() -> None:
 
     angles = (0.1, 0.1, 0.1)
     theta, phi, error = ortho.error_map(angles, FIELD, step_deg=1.0)
-    png = render_map_png(angles, FIELD, theta, phi, error, ortho.worst_case(angles, FIELD),
-                         dpi=80)
+    png = render_map_png(angles, FIELD, theta, phi, error, ortho.worst_case(angles, FIELD), dpi=80)
     FIGURE.parent.mkdir(exist_ok=True)
     write_bytes_atomic(FIGURE, png)
     print(f"wrote {FIGURE.relative_to(HERE.parent)} ({len(png) // 1024} kB)", file=sys.stderr)
@@ -132,12 +145,16 @@ def write_figure() -> None:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--check", action="store_true",
-                        help="only compare the page's tables with freshly computed ones")
+    parser.add_argument(
+        "--check",
+        action="store_true",
+        help="only compare the page's tables with freshly computed ones",
+    )
     parser.add_argument("--no-figure", action="store_true", help="do not redraw the figure")
     args = parser.parse_args(argv)
-    status = update_page(PAGE, render(PAGE.read_text()), check=args.check,
-                         script="docs/orthogonality_table.py")
+    status = update_page(
+        PAGE, render(PAGE.read_text()), check=args.check, script="docs/orthogonality_table.py"
+    )
     if not (args.check or args.no_figure):
         write_figure()
     return status

@@ -48,7 +48,10 @@ def map_shares(work, n: int, chunk_rows: int, workers: int | None = None) -> lis
     if len(ranges) == 1:
         return [work(*ranges[0])]
     controller = _blas_controller()
-    limit = (controller.limit(limits=1, user_api="blas") if controller is not None
-             else contextlib.nullcontext())
+    limit = (
+        controller.limit(limits=1, user_api="blas")
+        if controller is not None
+        else contextlib.nullcontext()
+    )
     with limit, ThreadPoolExecutor(max_workers=len(ranges)) as pool:
         return list(pool.map(lambda r: work(*r), ranges))

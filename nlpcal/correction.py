@@ -49,9 +49,15 @@ class Correction:
     notes: list = field(default_factory=list)
 
     @classmethod
-    def plan(cls, parameters=None, drift: DriftFit | None = None,
-             temperature_column: str | None = None, *, log_columns=(),
-             require_temperature: bool = True) -> Correction:
+    def plan(
+        cls,
+        parameters=None,
+        drift: DriftFit | None = None,
+        temperature_column: str | None = None,
+        *,
+        log_columns=(),
+        require_temperature: bool = True,
+    ) -> Correction:
         """Check that the pieces fit together and choose the temperature column.
 
         log_columns : the columns of the log it will be applied to (to find the temperature
@@ -62,11 +68,15 @@ class Correction:
         notes: list = []
         model = parameters if isinstance(parameters, TemperatureCalibrationResult) else None
         if drift is not None and model is not None:
-            raise InputError("the parameters file already carries a temperature model; --drift "
-                             "applies only to parameters without one, so drop --drift")
+            raise InputError(
+                "the parameters file already carries a temperature model; --drift "
+                "applies only to parameters without one, so drop --drift"
+            )
         if temperature_column and drift is None and model is None:
-            raise InputError("--temperature-column needs --drift DRIFT.json or parameters with a "
-                             "temperature model")
+            raise InputError(
+                "--temperature-column needs --drift DRIFT.json or parameters with a "
+                "temperature model"
+            )
         if temperature_column is None and (drift is not None or model is not None):
             if drift is not None:
                 source, stored = "drift file", drift.input.get("temperature_column")
@@ -76,11 +86,15 @@ class Correction:
                 temperature_column = stored
             elif require_temperature or drift is not None:
                 have = ", which the log lacks" if stored else ""
-                raise InputError(f"the {source} needs a temperature column (fitted with "
-                                 f"{stored!r}{have}); pass --temperature-column COL")
+                raise InputError(
+                    f"the {source} needs a temperature column (fitted with "
+                    f"{stored!r}{have}); pass --temperature-column COL"
+                )
             else:
-                notes.append(f"the log has no column {stored!r} for the temperature model; "
-                             f"pass --temperature-column COL for the temperature row")
+                notes.append(
+                    f"the log has no column {stored!r} for the temperature model; "
+                    f"pass --temperature-column COL for the temperature row"
+                )
         return cls(parameters, drift, temperature_column, notes)
 
     @property
@@ -107,9 +121,11 @@ class Correction:
             what = "the temperature calibration"
         beyond = max(float(low) - float(values.min()), float(values.max()) - float(high))
         if np.isfinite(beyond) and beyond > EXTRAPOLATION_NOTE_DEGC:
-            self.notes.append(f"the log's temperatures {values.min():g} .. {values.max():g} degC "
-                              f"reach {beyond:.3g} degC beyond the range {low:g} .. {high:g} "
-                              f"degC of {what}; the linear temperature model is extrapolated")
+            self.notes.append(
+                f"the log's temperatures {values.min():g} .. {values.max():g} degC "
+                f"reach {beyond:.3g} degC beyond the range {low:g} .. {high:g} "
+                f"degC of {what}; the linear temperature model is extrapolated"
+            )
         return values
 
     def apply(self, log: Log) -> np.ndarray:
@@ -118,7 +134,7 @@ class Correction:
         if self.temperature_column is None:
             if self.parameters is None:
                 raise InputError("nothing to apply: give parameters or a drift file")
-            return self.parameters.apply(log.samples)
+            return correct(log.samples, self.parameters.model)  # Eq. 4 (at t0 with a model)
         temperature = self.temperature(log)
         if isinstance(self.parameters, TemperatureCalibrationResult):
             return self.parameters.apply(log.samples, temperature)
@@ -131,10 +147,17 @@ def read_log_for(path, correction: Correction, *, reference_column=None, **kw) -
     defaults to the unit of the log the parameters were estimated from."""
     extra = [correction.temperature_column] if correction.temperature_column else []
     if reference_column and reference_column == correction.temperature_column:
-        raise InputError(f"the temperature and reference columns are both "
-                         f"{reference_column!r}; they must be different columns")
-    return read_log(path, reference_column=reference_column, extra_columns=extra,
-                    fallback_unit=correction.fallback_unit, **kw)
+        raise InputError(
+            f"the temperature and reference columns are both "
+            f"{reference_column!r}; they must be different columns"
+        )
+    return read_log(
+        path,
+        reference_column=reference_column,
+        extra_columns=extra,
+        fallback_unit=correction.fallback_unit,
+        **kw,
+    )
 
 
 def statistics_rows(log: Log, correction: Correction | None = None) -> tuple:

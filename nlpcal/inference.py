@@ -86,8 +86,15 @@ class Uncertainty:
         return self.covariance / np.outer(scale, scale)
 
 
-def estimate(information, *, residual_variance: float, scale=None, basis=None,
-             autocorrelation: float = 0.0, dof: int = 1) -> Uncertainty:
+def estimate(
+    information,
+    *,
+    residual_variance: float,
+    scale=None,
+    basis=None,
+    autocorrelation: float = 0.0,
+    dof: int = 1,
+) -> Uncertainty:
     """Covariance and identifiability from the Gauss-Newton information of a least-squares fit.
 
     information : (p, p) J^T J of the residuals in the parameters' own units, or already in the
@@ -120,9 +127,15 @@ def estimate(information, *, residual_variance: float, scale=None, basis=None,
         cov_scaled = b @ np.linalg.inv(reduced) @ b.T * (float(residual_variance) * inflation**2)
         covariance = d[:, None] * cov_scaled * d[None, :]
         errors = np.sqrt(np.clip(np.diag(covariance), 0, None))
-    return Uncertainty(covariance=covariance, standard_errors=errors, eigenvalues=values,
-                       weak=weak, weakest=sorted(involved(0)) if values.size else [],
-                       autocorrelation=float(autocorrelation), inflation=inflation)
+    return Uncertainty(
+        covariance=covariance,
+        standard_errors=errors,
+        eigenvalues=values,
+        weak=weak,
+        weakest=sorted(involved(0)) if values.size else [],
+        autocorrelation=float(autocorrelation),
+        inflation=inflation,
+    )
 
 
 def information_from_hessian(hessian, n: int) -> np.ndarray:

@@ -48,8 +48,18 @@ from .statistics import MagnitudeStats, reference_chunk
 CHUNK_ROWS = 8192
 
 #: Exponents of psi = (x^2, y^2, z^2, xy, xz, yz, x, y, z, 1).
-PSI_EXPONENTS = ((2, 0, 0), (0, 2, 0), (0, 0, 2), (1, 1, 0), (1, 0, 1), (0, 1, 1),
-                 (1, 0, 0), (0, 1, 0), (0, 0, 1), (0, 0, 0))
+PSI_EXPONENTS = (
+    (2, 0, 0),
+    (0, 2, 0),
+    (0, 0, 2),
+    (1, 1, 0),
+    (1, 0, 1),
+    (0, 1, 1),
+    (1, 0, 0),
+    (0, 1, 0),
+    (0, 0, 1),
+    (0, 0, 0),
+)
 N_PSI = len(PSI_EXPONENTS)
 #: (k, l) with k <= l: the products psi_k psi_l that (e . psi)^2 needs.
 PAIR_INDICES = tuple((k, l) for k in range(N_PSI) for l in range(k, N_PSI))
@@ -57,7 +67,7 @@ PAIR_INDICES = tuple((k, l) for k in range(N_PSI) for l in range(k, N_PSI))
 
 def _monomials(max_degree: int):
     """Exponent triples of degree <= max_degree, by degree, and how to build each one."""
-    exps = [(0, 0, 0)]
+    exps: list[tuple[int, ...]] = [(0, 0, 0)]
     recipe = [(-1, -1)]  # (parent index, variable): monomial = parent * d[:, variable]
     for degree in range(1, max_degree + 1):
         for combo in combinations_with_replacement(range(3), degree):
@@ -203,7 +213,7 @@ def _features(d, a, gamma, lay: Layout, out) -> None:
     gamma constant the first rows of the layout are the monomials themselves, built in place.
     """
     in_place = not lay.varying_gamma
-    mono = out[:len(MONOMIALS)] if in_place else np.empty((len(MONOMIALS), d.shape[1]))
+    mono = out[: len(MONOMIALS)] if in_place else np.empty((len(MONOMIALS), d.shape[1]))
     mono[0] = 1.0
     for index in range(1, len(MONOMIALS)):
         parent, variable = _RECIPE[index]
@@ -219,8 +229,9 @@ def _features(d, a, gamma, lay: Layout, out) -> None:
         out[rows] = block
 
 
-def accumulate(samples: np.ndarray, reference=None, frame: Frame | None = None,
-               chunk_rows: int = CHUNK_ROWS) -> Moments:
+def accumulate(
+    samples: np.ndarray, reference=None, frame: Frame | None = None, chunk_rows: int = CHUNK_ROWS
+) -> Moments:
     """One pass over the samples that builds the Gram matrix of the features, chunk by chunk.
 
     samples : (N, 3) raw sensor output B_M. [field unit]
@@ -247,8 +258,9 @@ def accumulate(samples: np.ndarray, reference=None, frame: Frame | None = None,
         for start in range(begin, end, chunk_rows):
             stop = min(start + chunk_rows, end)
             raw = samples[start:stop]
-            measured.add(np.sqrt(np.einsum("ij,ij->i", raw, raw)),
-                         reference_chunk(reference, start, stop))
+            measured.add(
+                np.sqrt(np.einsum("ij,ij->i", raw, raw)), reference_chunk(reference, start, stop)
+            )
             d = (raw - frame.centre).T / length  # 3 x rows
             radius_sq = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
             if field is None:
@@ -269,5 +281,6 @@ def accumulate(samples: np.ndarray, reference=None, frame: Frame | None = None,
         gram += part_gram
         measured.merge(part_measured)
     gram /= n
-    return Moments(gram=gram, frame=frame, length=length, n=n, reference=kind,
-                   measured=measured.result())
+    return Moments(
+        gram=gram, frame=frame, length=length, n=n, reference=kind, measured=measured.result()
+    )

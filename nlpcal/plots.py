@@ -21,6 +21,7 @@ def require_matplotlib(three_d: bool = False) -> None:
     try:
         import matplotlib  # noqa: F401
         from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: F401
+
         if three_d:
             from mpl_toolkits.mplot3d import Axes3D  # noqa: F401  (registers the 3d projection)
     except ImportError:
@@ -70,8 +71,13 @@ def comparison_png(comparison, *, dpi: int = 80, title: str | None = None) -> by
         shown.append(len(cycles) - 1)
     colours = [f"C{k % 10}" for k in range(len(shown))]
     for colour, k in zip(colours, shown):
-        ax_a.plot(index, magnitude(cycles[k]), lw=0.6, color=colour,
-                  label=f"{cycles[k]['label']} (std {cycles[k]['std']:.3g})")
+        ax_a.plot(
+            index,
+            magnitude(cycles[k]),
+            lw=0.6,
+            color=colour,
+            label=f"{cycles[k]['label']} (std {cycles[k]['std']:.3g})",
+        )
     ax_a.set_title("(a) |B1| after each staged cycle")
     ax_a.set_xlabel("sample")
     ax_a.set_ylabel(f"|B1| [{unit}]")
@@ -83,18 +89,21 @@ def comparison_png(comparison, *, dpi: int = 80, title: str | None = None) -> by
         curves.append((f"last cycle ({len(cycles)})", cycles[-1], "C0"))
     curves.append(("joint IPOPT", comparison.joint, "C3"))
     for name, row, colour in curves:
-        ax_b.plot(index, magnitude(row), lw=0.6, color=colour,
-                  label=f"{name} (std {row['std']:.3g})")
+        ax_b.plot(
+            index, magnitude(row), lw=0.6, color=colour, label=f"{name} (std {row['std']:.3g})"
+        )
     ax_b.set_title("(b) before and after calibration")
     ax_b.set_xlabel("sample")
     ax_b.set_ylabel(f"|B| [{unit}]")
     ax_b.legend(fontsize=7, loc="upper right")
 
-    styles = {"staged": ("staged cycle, IPOPT stages", "C0", ".-"),
-              "joint": ("joint IPOPT", "C3", "s-"),
-              "cg_joint": ("CG joint, paper units", "C1", "-"),
-              "cg_joint_scaled": ("CG joint, scaled", "C4", "-"),
-              "cg_staged": ("CG staged cycle", "C2", "-")}
+    styles = {
+        "staged": ("staged cycle, IPOPT stages", "C0", ".-"),
+        "joint": ("joint IPOPT", "C3", "s-"),
+        "cg_joint": ("CG joint, paper units", "C1", "-"),
+        "cg_joint_scaled": ("CG joint, scaled", "C4", "-"),
+        "cg_staged": ("CG staged cycle", "C2", "-"),
+    }
     for name, (label, colour, style) in styles.items():
         path = comparison.trajectories.get(name)
         if not path:
@@ -102,8 +111,7 @@ def comparison_png(comparison, *, dpi: int = 80, title: str | None = None) -> by
         its = np.asarray(path["iterations"], dtype=float)
         values = np.asarray(path["objective"], dtype=float)
         positive = values > 0  # a log axis; an exact zero objective is not drawn
-        ax_c.plot(its[positive], values[positive], style, color=colour, lw=1.0, ms=3,
-                  label=label)
+        ax_c.plot(its[positive], values[positive], style, color=colour, lw=1.0, ms=3, label=label)
     ax_c.set_xscale("symlog", linthresh=10)
     ax_c.set_yscale("log")
     ax_c.set_xlim(left=0)
@@ -118,8 +126,18 @@ def comparison_png(comparison, *, dpi: int = 80, title: str | None = None) -> by
 
 # --- the total-field error of non-orthogonal axes (Fig. 3 and 4 of Wang et al. 2015) -------
 
-def orthogonality_map_png(angles_deg, field_nT, theta, phi, error, worst=None, *, dpi: int = 90,
-                   sphere_step_deg: float = 4.0) -> bytes:
+
+def orthogonality_map_png(
+    angles_deg,
+    field_nT,
+    theta,
+    phi,
+    error,
+    worst=None,
+    *,
+    dpi: int = 90,
+    sphere_step_deg: float = 4.0,
+) -> bytes:
     """PNG of the sphere (Fig. 3 in Wang et al. 2015) beside the theta-phi map (Fig. 4).
 
     theta [deg] (n_theta,), phi [deg] (n_phi,), error [nT] (n_phi, n_theta) as returned by
@@ -144,8 +162,17 @@ def orthogonality_map_png(angles_deg, field_nT, theta, phi, error, worst=None, *
     g_theta, g_phi = np.meshgrid(s_theta, s_phi)
     u = wang2015.direction(g_theta, g_phi)
     s_error = wang2015.total_field_error(angles_deg, field_nT, g_theta, g_phi)
-    sphere.plot_surface(u[..., 0], u[..., 1], u[..., 2], facecolors=cmap(norm(s_error)),
-                        rstride=1, cstride=1, linewidth=0, antialiased=False, shade=False)
+    sphere.plot_surface(
+        u[..., 0],
+        u[..., 1],
+        u[..., 2],
+        facecolors=cmap(norm(s_error)),
+        rstride=1,
+        cstride=1,
+        linewidth=0,
+        antialiased=False,
+        shade=False,
+    )
     sphere.set_box_aspect((1, 1, 1))
     sphere.set_xlabel("X")
     sphere.set_ylabel("Y")
@@ -153,8 +180,9 @@ def orthogonality_map_png(angles_deg, field_nT, theta, phi, error, worst=None, *
     sphere.set_title("total-field error on the sphere of directions")
 
     # Fig. 4: the theta-phi map
-    mesh = plane.pcolormesh(theta, phi, error, cmap=cmap, norm=norm, shading="nearest",
-                            rasterized=True)
+    mesh = plane.pcolormesh(
+        theta, phi, error, cmap=cmap, norm=norm, shading="nearest", rasterized=True
+    )
     plane.set_xlim(0, 360)
     plane.set_ylim(-90, 90)
     plane.set_xticks(np.arange(0, 361, 60))
@@ -162,13 +190,23 @@ def orthogonality_map_png(angles_deg, field_nT, theta, phi, error, worst=None, *
     plane.set_xlabel(r"$\theta$ [deg]")
     plane.set_ylabel(r"$\varphi$ [deg]")
     if worst is not None:
-        for extreme, marker, label in ((worst.largest_positive, "^", "max"),
-                                       (worst.most_negative, "v", "min")):
-            plane.plot(extreme.theta_deg, extreme.phi_deg, marker, color="k", ms=8,
-                       label=f"{label} {extreme.delta_B_nT:+.2f} nT")
+        for extreme, marker, label in (
+            (worst.largest_positive, "^", "max"),
+            (worst.most_negative, "v", "min"),
+        ):
+            plane.plot(
+                extreme.theta_deg,
+                extreme.phi_deg,
+                marker,
+                color="k",
+                ms=8,
+                label=f"{label} {extreme.delta_B_nT:+.2f} nT",
+            )
         plane.legend(loc="lower right", fontsize=8)
     a, b, g = (float(v) for v in angles_deg)
-    plane.set_title(rf"$\Delta B(\theta, \varphi)$, angles ({a:g}, {b:g}, {g:g}) deg, "
-                    rf"$|B|$ = {field_nT:g} nT")
+    plane.set_title(
+        rf"$\Delta B(\theta, \varphi)$, angles ({a:g}, {b:g}, {g:g}) deg, "
+        rf"$|B|$ = {field_nT:g} nT"
+    )
     figure.colorbar(mesh, ax=plane, label=r"$\Delta B = |B'| - |B|$ [nT]")
     return _png(figure, dpi)

@@ -58,8 +58,7 @@ class DocumentReader:
             return default
         return self.document[key]
 
-    def number(self, key, default=_MISSING, *, positive: bool = False, minimum=None,
-               maximum=None):
+    def number(self, key, default=_MISSING, *, positive: bool = False, minimum=None, maximum=None):
         value = self.raw(key, default)
         if value is default and default is not _MISSING:
             return default
@@ -81,8 +80,9 @@ class DocumentReader:
         if value is default and default is not _MISSING:
             return default
         if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-            raise InputError(f"{self._where(key)} must be an integer of at least {minimum}, got "
-                             f"{value!r:.40}")
+            raise InputError(
+                f"{self._where(key)} must be an integer of at least {minimum}, got {value!r:.40}"
+            )
         return value
 
     def string(self, key, default=_MISSING, *, options=None):
@@ -92,8 +92,9 @@ class DocumentReader:
         if not isinstance(value, str):
             raise InputError(f"{self._where(key)} must be a string, got {value!r:.40}")
         if options is not None and value not in options:
-            raise InputError(f"{self._where(key)} must be one of {', '.join(options)}, got "
-                             f"{value!r:.40}")
+            raise InputError(
+                f"{self._where(key)} must be one of {', '.join(options)}, got {value!r:.40}"
+            )
         return value
 
     def array(self, key, shape, default=_MISSING) -> np.ndarray:
@@ -105,8 +106,9 @@ class DocumentReader:
             raise InputError(f"{self._where(key)} must be numbers of shape {shape}")
         array = np.asarray(value, dtype=float)
         if array.shape != tuple(shape):
-            raise InputError(f"{self._where(key)} must have shape {tuple(shape)}, got "
-                             f"{array.shape}")
+            raise InputError(
+                f"{self._where(key)} must have shape {tuple(shape)}, got {array.shape}"
+            )
         if not np.isfinite(array).all():
             raise InputError(f"{self._where(key)} contains non-finite values")
         return array
@@ -155,8 +157,9 @@ def _depth(value, limit: int = MAX_DEPTH) -> int:
         deepest = max(deepest, level)
         if deepest > limit:
             return deepest
-        children = item.values() if isinstance(item, dict) else item if isinstance(
-            item, list) else ()
+        children = (
+            item.values() if isinstance(item, dict) else item if isinstance(item, list) else ()
+        )
         stack.extend((child, level + 1) for child in children)
     return deepest
 
@@ -183,8 +186,12 @@ class Document:
     def to_dict(self) -> dict:
         """The document: "format", "format_version", the body and "nlpcal_version"."""
         body = self.body()
-        return {"format": self.FORMAT, "format_version": self.FORMAT_VERSION, **body,
-                "nlpcal_version": body.get("nlpcal_version", __version__)}
+        return {
+            "format": self.FORMAT,
+            "format_version": self.FORMAT_VERSION,
+            **body,
+            "nlpcal_version": body.get("nlpcal_version", __version__),
+        }
 
     def to_json(self) -> str:
         """Strict JSON of the document (non-finite numbers written as null)."""
@@ -203,7 +210,8 @@ class Document:
             return True
         return "format" not in document and any(
             document.get(key) == value if value is not None else key in document
-            for key, value in cls.LEGACY_FORMATS)
+            for key, value in cls.LEGACY_FORMATS
+        )
 
     @classmethod
     def from_dict(cls, document, source: str = ""):
@@ -212,16 +220,18 @@ class Document:
         if not isinstance(document, dict):
             raise InputError(f"{source}: not an {cls.WHAT} (expected a JSON object)")
         if _depth(document) > MAX_DEPTH:
-            raise InputError(f"{source}: nested deeper than {MAX_DEPTH} levels; not an "
-                             f"{cls.WHAT}")
+            raise InputError(f"{source}: nested deeper than {MAX_DEPTH} levels; not an {cls.WHAT}")
         if not cls.accepts(document):
             found = document.get("format")
-            raise InputError(f"{source}: not an {cls.WHAT} (format {found!r}; expected "
-                             f"{cls.FORMAT!r})")
+            raise InputError(
+                f"{source}: not an {cls.WHAT} (format {found!r}; expected {cls.FORMAT!r})"
+            )
         version = document.get("format_version", cls.FORMAT_VERSION)
         if version != cls.FORMAT_VERSION:
-            raise InputError(f"{source}: format_version {version!r}; this nlpcal reads "
-                             f"format_version {cls.FORMAT_VERSION} of {cls.WHAT}s")
+            raise InputError(
+                f"{source}: format_version {version!r}; this nlpcal reads "
+                f"format_version {cls.FORMAT_VERSION} of {cls.WHAT}s"
+            )
         return cls.from_body(DocumentReader(document, source))
 
     @classmethod

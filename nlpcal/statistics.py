@@ -35,7 +35,9 @@ class MagnitudeStats:
         self.shift = shift
         self.total = self.total_sq = self.ref_sq = self.ref_total = 0.0
         self.lag = self.ref_lag = 0.0  # sums of products of neighbouring deviations, residuals
-        self.first = self.last = None  # (deviation, residual) at the ends, to join neighbours
+        # (deviation, residual) at the ends, to join neighbours across chunks
+        self.first: tuple[float, float] = (0.0, 0.0)
+        self.last: tuple[float, float] | None = None
         self.high, self.low = -np.inf, np.inf
         self.u_high = self.u_low = 0.0
         self.has_reference = False
@@ -50,16 +52,16 @@ class MagnitudeStats:
         deviation = magnitude - self.shift
         residual = deviation if reference is None else magnitude - reference
         self.n += magnitude.size
-        self.total += deviation.sum()
-        self.total_sq += deviation @ deviation
-        self.lag += deviation[:-1] @ deviation[1:]
+        self.total += float(deviation.sum())
+        self.total_sq += float(deviation @ deviation)
+        self.lag += float(deviation[:-1] @ deviation[1:])
         self.high = max(self.high, float(magnitude.max()))
         self.low = min(self.low, float(magnitude.min()))
         if reference is not None:
             self.has_reference = True
-            self.ref_total += residual.sum()
-            self.ref_sq += residual @ residual
-            self.ref_lag += residual[:-1] @ residual[1:]
+            self.ref_total += float(residual.sum())
+            self.ref_sq += float(residual @ residual)
+            self.ref_lag += float(residual[:-1] @ residual[1:])
             ratio = (magnitude / reference) ** 2 - 1.0
             self.u_high = max(self.u_high, float(ratio.max()))
             self.u_low = min(self.u_low, float(ratio.min()))
@@ -102,7 +104,7 @@ class MagnitudeStats:
         n = self.n
         mean_dev = self.total / n
         variance = max(self.total_sq / n - mean_dev**2, 0.0)
-        mean = self.shift + mean_dev
+        mean = (self.shift or 0.0) + mean_dev
         pairs = max(n - 1, 1)
         if self.has_reference:
             objective, u_high, u_low = self.ref_sq / n, self.u_high, self.u_low
@@ -114,9 +116,13 @@ class MagnitudeStats:
             u_high, u_low = (self.high / mean) ** 2 - 1.0, (self.low / mean) ** 2 - 1.0
             spread, lag = variance, self.lag / pairs - mean_dev**2
         return {
-            "max": self.high, "min": self.low, "mean": float(mean),
-            "std": float(np.sqrt(variance * n / (n - STD_DDOF))), "range": self.high - self.low,
-            "objective": float(objective), "max_abs_u": float(max(abs(u_high), abs(u_low))),
+            "max": self.high,
+            "min": self.low,
+            "mean": float(mean),
+            "std": float(np.sqrt(variance * n / (n - STD_DDOF))),
+            "range": self.high - self.low,
+            "objective": float(objective),
+            "max_abs_u": float(max(abs(u_high), abs(u_low))),
             "residual_lag1_autocorrelation": float(lag / spread) if spread > 0 else 0.0,
         }
 
@@ -141,8 +147,10 @@ def field_statistics(samples, theta=None, reference=None, chunk_rows: int = 1638
     else:
         theta = np.asarray(theta, dtype=float)
         offset = theta[0:3]
-        matrix = np.array(correction_matrix_entries(theta[6], theta[7], theta[8],
-                                                    theta[3], theta[4], theta[5]), dtype=float)
+        matrix = np.array(
+            correction_matrix_entries(theta[6], theta[7], theta[8], theta[3], theta[4], theta[5]),
+            dtype=float,
+        )
     (m00, m01, m02), (_, m11, m12), (_, _, m22) = matrix  # upper triangular (Eq. 4)
 
     def magnitude(start, stop):
@@ -174,8 +182,12 @@ def format_table(rows, unit: str = "nT", extra=()) -> str:
     columns = ["max", "min", "mean", "std", "range", *extra]
     width = max([len("row")] + [len(str(r["label"])) for r in rows])
     header = f"{'row':<{width}}  " + "  ".join(f"{c:>12}" for c in columns)
-    lines = [f"total field [{unit}] (measured: |B_M|; other rows: |B1| corrected by Eq. 4), std "
-             f"with ddof={STD_DDOF}", header, "-" * len(header)]
+    lines = [
+        f"total field [{unit}] (measured: |B_M|; other rows: |B1| corrected by Eq. 4), std "
+        f"with ddof={STD_DDOF}",
+        header,
+        "-" * len(header),
+    ]
     for row in rows:
         cells = []
         for c in columns:

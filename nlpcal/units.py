@@ -19,8 +19,19 @@ FIELD_UNITS_NT = {"nT": 1.0, "uT": 1e3, "mT": 1e6, "mG": 1e2, "G": 1e5, "T": 1e9
 ACC_UNITS_G = {"g": 1.0, "mg": 1e-3, "m/s2": 1.0 / 9.80665}
 
 #: Unit suffixes of field column names, and the unit they suggest ("raw" for counts).
-FIELD_SUFFIXES = {"nt": "nT", "ut": "uT", "mt": "mT", "mg": "mG", "gauss": "G", "g": "G", "t": "T",
-                  "counts": "raw", "count": "raw", "lsb": "raw", "raw": "raw"}
+FIELD_SUFFIXES = {
+    "nt": "nT",
+    "ut": "uT",
+    "mt": "mT",
+    "mg": "mG",
+    "gauss": "G",
+    "g": "G",
+    "t": "T",
+    "counts": "raw",
+    "count": "raw",
+    "lsb": "raw",
+    "raw": "raw",
+}
 
 #: Unit suffixes of accelerometer column names.
 ACC_SUFFIXES = {"g": "g", "mg": "mg", "mps2": "m/s2", "ms2": "m/s2", "m/s2": "m/s2"}
@@ -34,16 +45,18 @@ def clean(text: str) -> str:
 def field_factor(unit: str) -> float:
     """Size of one `unit` of field in nT (1 for "raw"). [nT/unit]"""
     if unit not in FIELD_UNITS_NT:
-        raise InputError(f"unknown field unit {unit!r}; expected one of "
-                         f"{', '.join(FIELD_UNITS_NT)}")
+        raise InputError(
+            f"unknown field unit {unit!r}; expected one of {', '.join(FIELD_UNITS_NT)}"
+        )
     return FIELD_UNITS_NT[unit]
 
 
 def acc_factor(unit: str) -> float:
     """Size of one `unit` of specific force in g. [g/unit]"""
     if unit not in ACC_UNITS_G:
-        raise InputError(f"unknown accelerometer unit {unit!r}; expected one of "
-                         f"{', '.join(ACC_UNITS_G)}")
+        raise InputError(
+            f"unknown accelerometer unit {unit!r}; expected one of {', '.join(ACC_UNITS_G)}"
+        )
     return ACC_UNITS_G[unit]
 
 
@@ -76,15 +89,17 @@ def from_base(values, unit: str):
 def check_compatible(unit: str, other: str, what: str = "the reference") -> None:
     """Counts and field units do not mix: both "raw" or neither."""
     if (unit == "raw") != (other == "raw"):
-        raise InputError(f"{what} is in {other!r} but the samples are in {unit!r}; counts (raw) "
-                         f"and field units cannot be converted into each other")
+        raise InputError(
+            f"{what} is in {other!r} but the samples are in {unit!r}; counts (raw) "
+            f"and field units cannot be converted into each other"
+        )
 
 
 def unit_in_name(name: str, suffixes=FIELD_SUFFIXES):
     """The unit a single column name carries ("proton_nT", "F (nT)", "field_uT"), or None."""
     low = name.lower().strip()
     if low.endswith(")") and "(" in low:
-        return suffixes.get(clean(low[low.rindex("(") + 1:]))
+        return suffixes.get(clean(low[low.rindex("(") + 1 :]))
     if "_" in low:
         return suffixes.get(clean(low.rsplit("_", 1)[1]))
     return None
@@ -97,14 +112,25 @@ def axis_templates(columns):
         low = name.lower()
         for i, ch in enumerate(low):
             if ch in "xyz":
-                groups.setdefault((low[:i], low[i + 1:]), {})[ch] = name
+                groups.setdefault((low[:i], low[i + 1 :]), {})[ch] = name
     return {t: (g["x"], g["y"], g["z"]) for t, g in groups.items() if len(g) == 3}
 
 
 #: Prefixes of names recognised as magnetometer axes once the axis letter, spaces and
 #: punctuation are taken out (bx, mag_x, mx_uT, "Magnetometer X (uT)", x ...).
-MAGNETIC_PREFIXES = ("", "b", "m", "mag", "magn", "magnetometer", "magnetic", "h", "field",
-                     "compass", "b1")
+MAGNETIC_PREFIXES = (
+    "",
+    "b",
+    "m",
+    "mag",
+    "magn",
+    "magnetometer",
+    "magnetic",
+    "h",
+    "field",
+    "compass",
+    "b1",
+)
 #: Prefixes of accelerometer axes (ax, acc_x, accel_x, "Accelerometer X (g)").
 ACC_PREFIXES = ("a", "acc", "accel", "accelerometer", "acceleration", "f")
 
@@ -119,6 +145,6 @@ def suggested_unit(columns, prefixes=MAGNETIC_PREFIXES, suffixes=FIELD_SUFFIXES)
     """The unit a column suffix such as _uT, (uT) or _gauss suggests for an axis triple, or None."""
     low = columns[0].lower()
     for i, ch in enumerate(low):
-        if ch in "xyz" and is_axis_template((low[:i], low[i + 1:]), prefixes, suffixes):
-            return suffixes.get(clean(low[i + 1:]))
+        if ch in "xyz" and is_axis_template((low[:i], low[i + 1 :]), prefixes, suffixes):
+            return suffixes.get(clean(low[i + 1 :]))
     return None

@@ -26,8 +26,9 @@ def fmt_list(values) -> str:
     return "[" + ", ".join(f"{v:g}" for v in np.asarray(values, dtype=float).ravel()) + "]"
 
 
-def number(value, what: str, *, positive: bool = False, minimum=None, maximum=None,
-           unit: str = "") -> float:
+def number(
+    value, what: str, *, positive: bool = False, minimum=None, maximum=None, unit: str = ""
+) -> float:
     """A finite float, optionally positive or within [minimum, maximum]."""
     suffix = f" {unit}" if unit else ""
     try:
@@ -69,8 +70,7 @@ def choice(value, what: str, options) -> str:
     return value
 
 
-def vectors(values, what: str = "samples", *, minimum: int = 1,
-            purpose: str = "") -> np.ndarray:
+def vectors(values, what: str = "samples", *, minimum: int = 1, purpose: str = "") -> np.ndarray:
     """An (N, 3) float64 array with at least `minimum` rows (finite values not checked here)."""
     try:
         array = np.asarray(values, dtype=float)
@@ -84,24 +84,26 @@ def vectors(values, what: str = "samples", *, minimum: int = 1,
     return array
 
 
-def finite_vectors(values, what: str = "samples", *, minimum: int = 1,
-                   purpose: str = "") -> np.ndarray:
+def finite_vectors(
+    values, what: str = "samples", *, minimum: int = 1, purpose: str = ""
+) -> np.ndarray:
     """`vectors` whose every value is finite, checked chunk by chunk (memory maps stay mapped)."""
     array = vectors(values, what, minimum=minimum, purpose=purpose)
     for start in range(0, array.shape[0], CHECK_CHUNK_ROWS):
-        if not np.isfinite(array[start:start + CHECK_CHUNK_ROWS]).all():
+        if not np.isfinite(array[start : start + CHECK_CHUNK_ROWS]).all():
             raise InputError(f"{what} contain NaN or infinite values; drop or fix those rows")
     return array
 
 
-def samples(values, *, minimum: int = MIN_SAMPLES,
-            purpose: str = "for nine parameters") -> np.ndarray:
-    """Field samples from many attitudes, (N, 3) float64: finite, not all equal, no constant axis.
-    """
+def samples(
+    values, *, minimum: int = MIN_SAMPLES, purpose: str = "for nine parameters"
+) -> np.ndarray:
+    """Field samples from many attitudes, (N, 3) float64: finite, not all equal, and no axis
+    constant."""
     array = vectors(values, "samples", minimum=minimum, purpose=purpose)
     low, high = np.full(3, np.inf), np.full(3, -np.inf)
     for start in range(0, array.shape[0], CHECK_CHUNK_ROWS):  # O(chunk) memory: memmaps too
-        chunk = array[start:start + CHECK_CHUNK_ROWS]
+        chunk = array[start : start + CHECK_CHUNK_ROWS]
         if not np.isfinite(chunk).all():
             raise InputError("samples contain NaN or infinite values; drop or fix those rows")
         low, high = np.minimum(low, chunk.min(axis=0)), np.maximum(high, chunk.max(axis=0))
@@ -109,8 +111,10 @@ def samples(values, *, minimum: int = MIN_SAMPLES,
         raise InputError("all samples are equal; calibration needs many attitudes")
     if np.any(low == high):
         axes = ", ".join("xyz"[k] for k in np.flatnonzero(low == high))
-        raise InputError(f"the {axes} column is constant: that axis never saw the field change; "
-                         f"calibration needs attitudes that turn every axis")
+        raise InputError(
+            f"the {axes} column is constant: that axis never saw the field change; "
+            f"calibration needs attitudes that turn every axis"
+        )
     return array
 
 
@@ -130,8 +134,10 @@ def reference(value, n: int, what: str = "the reference field"):
     if not np.isfinite(array).all():
         raise InputError(f"{what} contains NaN or infinite values")
     if (array <= 0).any():
-        raise InputError(f"{what} has {int((array <= 0).sum())} non-positive value(s); a field "
-                         f"magnitude must be positive")
+        raise InputError(
+            f"{what} has {int((array <= 0).sum())} non-positive value(s); a field "
+            f"magnitude must be positive"
+        )
     return array
 
 
@@ -148,8 +154,9 @@ def temperature(values, n: int) -> np.ndarray:
     return array
 
 
-def angles(values, what: str = "angles", size: int = 3,
-           names: str = "alpha beta gamma") -> np.ndarray:
+def angles(
+    values, what: str = "angles", size: int = 3, names: str = "alpha beta gamma"
+) -> np.ndarray:
     """`size` finite angles, each within +-MAX_ANGLE_DEG. [deg]"""
     try:
         array = np.asarray(values, dtype=float).ravel()
@@ -160,8 +167,10 @@ def angles(values, what: str = "angles", size: int = 3,
     if not np.isfinite(array).all():
         raise InputError(f"{what} must be finite, got {fmt_list(array)} deg")
     if (np.abs(array) > MAX_ANGLE_DEG).any():
-        raise InputError(f"{what} must lie within +-{MAX_ANGLE_DEG:g} deg (the axes become "
-                         f"parallel at 90 deg), got {fmt_list(array)} deg")
+        raise InputError(
+            f"{what} must lie within +-{MAX_ANGLE_DEG:g} deg (the axes become "
+            f"parallel at 90 deg), got {fmt_list(array)} deg"
+        )
     return array
 
 
@@ -181,8 +190,9 @@ def bounds(values) -> np.ndarray:
     if array.size != 3:
         raise InputError(f"got {array.size} bounds, expected 1 or 3 (alpha beta gamma) in degrees")
     if not np.isfinite(array).all() or (array <= 0).any() or (array > MAX_ANGLE_DEG).any():
-        raise InputError(f"bounds must lie in (0, {MAX_ANGLE_DEG:g}] deg, got "
-                         f"{fmt_list(array)} deg")
+        raise InputError(
+            f"bounds must lie in (0, {MAX_ANGLE_DEG:g}] deg, got {fmt_list(array)} deg"
+        )
     return array
 
 
@@ -193,8 +203,9 @@ def matrix(values, what: str, shape=(3, 3), *, invertible: bool = False) -> np.n
     except (TypeError, ValueError):
         raise InputError(f"{what} must be a {shape[0]} x {shape[1]} matrix of numbers") from None
     if array.shape != tuple(shape):
-        raise InputError(f"{what} must be a {shape[0]} x {shape[1]} matrix, got shape "
-                         f"{array.shape}")
+        raise InputError(
+            f"{what} must be a {shape[0]} x {shape[1]} matrix, got shape {array.shape}"
+        )
     if not np.isfinite(array).all():
         raise InputError(f"{what} contains NaN or infinite values")
     if invertible and not np.linalg.cond(array) < 1e12:

@@ -56,27 +56,45 @@ def case_path(attitudes: str, seed: int) -> Path:
 
 def run_case(attitudes: str, seed: int, n: int):
     preset = PRESETS["zhou2010"]
-    samples = simulate(n, parameters=preset.parameters, field=preset.field, noise=NOISE,
-                       seed=seed, attitudes=attitudes).to_numpy()
+    samples = simulate(
+        n,
+        parameters=preset.parameters,
+        field=preset.field,
+        noise=NOISE,
+        seed=seed,
+        attitudes=attitudes,
+    ).to_numpy()
     return compare(samples, settings=SETTINGS)
 
 
 def table_rows(result) -> dict:
     """The stored part of a Comparison: labels and Table 1 statistics of every row."""
+
     def strip(rows):
         return [{"label": r["label"], **{k: r[k] for k in STAT_KEYS}} for r in rows]
 
-    return {"staged": strip(result.staged), "joint": strip([result.joint])[0],
-            "cg_joint": strip(result.cg_joint), "cg_staged": strip(result.cg_staged)}
+    return {
+        "staged": strip(result.staged),
+        "joint": strip([result.joint])[0],
+        "cg_joint": strip(result.cg_joint),
+        "cg_staged": strip(result.cg_staged),
+    }
 
 
 def document(attitudes: str, seed: int, n: int, result) -> dict:
     return {
         "what": "Table 1 statistics of nlpcal compare; regenerate with "
-                "tests/regenerate_expected.py only",
-        "case": {"preset": "zhou2010", "attitudes": attitudes, "seed": seed, "n": n,
-                 "noise_nT": NOISE, "cycles": SETTINGS.cycles, "rtol": SETTINGS.rtol,
-                 "cg_max_iter": SETTINGS.cg.max_iter},
+        "tests/regenerate_expected.py only",
+        "case": {
+            "preset": "zhou2010",
+            "attitudes": attitudes,
+            "seed": seed,
+            "n": n,
+            "noise_nT": NOISE,
+            "cycles": SETTINGS.cycles,
+            "rtol": SETTINGS.rtol,
+            "cg_max_iter": SETTINGS.cg.max_iter,
+        },
         "tolerance": {"abs_nT": TOLERANCE_NT, "rel": TOLERANCE_REL},
         **table_rows(result),
     }
@@ -90,15 +108,18 @@ def differences(expected: dict, got: dict) -> list:
         if isinstance(want, dict):
             want, have = [want], [have]
         if [r["label"] for r in want] != [r["label"] for r in have]:
-            problems.append(f"{key}: rows {[r['label'] for r in have]}, expected "
-                            f"{[r['label'] for r in want]}")
+            problems.append(
+                f"{key}: rows {[r['label'] for r in have]}, expected {[r['label'] for r in want]}"
+            )
             continue
         for w, h in zip(want, have):
             for stat in STAT_KEYS:
                 limit = TOLERANCE_NT + TOLERANCE_REL * abs(w[stat])
                 if abs(h[stat] - w[stat]) > limit:
-                    problems.append(f"{key} / {w['label']} / {stat}: {h[stat]:.6f}, expected "
-                                    f"{w[stat]:.6f} (tolerance {limit:.1e})")
+                    problems.append(
+                        f"{key} / {w['label']} / {stat}: {h[stat]:.6f}, expected "
+                        f"{w[stat]:.6f} (tolerance {limit:.1e})"
+                    )
     return problems
 
 

@@ -8,9 +8,15 @@ its offset. Directions come from normalised Gaussian vectors (uniform on the sph
 import numpy as np
 
 PAPER_TRUTH = {  # final parameters of Zhou et al. (2010), section 6
-    "z_x": -71.55, "z_y": 188.13, "z_z": 116.29,
-    "s_x": 0.0072, "s_y": -0.0024, "s_z": -0.0049,
-    "alpha_deg": -2.34, "beta_deg": 1.29, "gamma_deg": -0.27,
+    "z_x": -71.55,
+    "z_y": 188.13,
+    "z_z": 116.29,
+    "s_x": 0.0072,
+    "s_y": -0.0024,
+    "s_z": -0.0049,
+    "alpha_deg": -2.34,
+    "beta_deg": 1.29,
+    "gamma_deg": -0.27,
 }
 PAPER_FIELD = 49462.0
 

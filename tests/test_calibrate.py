@@ -3,11 +3,11 @@
 import numpy as np
 import pandas as pd
 import pytest
+from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log, planar_directions
 
 import nlpcal
 from nlpcal import CalibrationResult, calibrate
 from nlpcal.errors import InputError, QualityError, SolveError
-from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log, planar_directions
 
 OFFSETS = ("z_x", "z_y", "z_z")
 SCALES = ("s_x", "s_y", "s_z")
@@ -43,8 +43,9 @@ def assert_recovered(params, *, absolute_scale, offset_tol=0.5, scale_tol=2e-5, 
 @pytest.mark.parametrize("method", ["staged", "joint"])
 @pytest.mark.parametrize("with_reference", [False, True])
 def test_recovers_the_truth_from_noisy_data(noisy, method, with_reference):
-    result = calibrate(noisy, method=method,
-                       reference_field=PAPER_FIELD if with_reference else None)
+    result = calibrate(
+        noisy, method=method, reference_field=PAPER_FIELD if with_reference else None
+    )
     assert_recovered(result.parameters, absolute_scale=with_reference)
     assert result.solver["success"]
     # The truth lies within four standard errors of the estimate.
@@ -54,14 +55,22 @@ def test_recovers_the_truth_from_noisy_data(noisy, method, with_reference):
 
 # Noise-free data: the joint solve reaches the truth to rounding; the staged cycle stops once the
 # spread is at the resolution of the float64 moments (PRECISION_FLOOR, about 5e-4 nT here).
-@pytest.mark.parametrize("method, offset_tol, scale_tol, angle_tol", [
-    ("staged", 1e-3, 1e-8, 1e-6), ("joint", 1e-8, 1e-12, 1e-10)])
-def test_noise_free_data_are_recovered_to_solver_tolerance(method, offset_tol, scale_tol,
-                                                           angle_tol):
+@pytest.mark.parametrize(
+    "method, offset_tol, scale_tol, angle_tol",
+    [("staged", 1e-3, 1e-8, 1e-6), ("joint", 1e-8, 1e-12, 1e-10)],
+)
+def test_noise_free_data_are_recovered_to_solver_tolerance(
+    method, offset_tol, scale_tol, angle_tol
+):
     samples, _ = make_log(n=600, noise=0.0, seed=2)
     result = calibrate(samples, method=method, reference_field=PAPER_FIELD, rtol=1e-14)
-    assert_recovered(result.parameters, absolute_scale=True, offset_tol=offset_tol,
-                     scale_tol=scale_tol, angle_tol=angle_tol)
+    assert_recovered(
+        result.parameters,
+        absolute_scale=True,
+        offset_tol=offset_tol,
+        scale_tol=scale_tol,
+        angle_tol=angle_tol,
+    )
     assert result.statistics[-1]["std"] < 1e-3
 
 
@@ -199,13 +208,16 @@ def test_a_cap_of_directions_is_reported_as_poor_coverage():
         assert any("poor attitude coverage" in w for w in result.warnings)
 
 
-@pytest.mark.parametrize("bad, message", [
-    (np.zeros((5, 3)) + np.arange(3), "need at least 10"),
-    (np.ones((50, 3)), "all samples are equal"),
-    (np.full((50, 2), 1.0), "shape (N, 3)"),
-    (np.where(np.eye(50, 3) > 0, np.nan, 1.0) + np.arange(150).reshape(50, 3), "NaN"),
-    ([["a", "b", "c"]] * 20, "numeric"),
-])
+@pytest.mark.parametrize(
+    "bad, message",
+    [
+        (np.zeros((5, 3)) + np.arange(3), "need at least 10"),
+        (np.ones((50, 3)), "all samples are equal"),
+        (np.full((50, 2), 1.0), "shape (N, 3)"),
+        (np.where(np.eye(50, 3) > 0, np.nan, 1.0) + np.arange(150).reshape(50, 3), "NaN"),
+        ([["a", "b", "c"]] * 20, "numeric"),
+    ],
+)
 def test_bad_samples(bad, message):
     with pytest.raises(InputError, match=message.replace("(", r"\(").replace(")", r"\)")):
         calibrate(bad)
@@ -235,8 +247,13 @@ def test_ipopt_failure_is_surfaced(noisy, monkeypatch):
     from nlpcal.nlp.solver import SolveOutcome
 
     def failing(*args, **kwargs):
-        return SolveOutcome(x=np.zeros(9), f=1.0, status="Maximum_Iterations_Exceeded",
-                            success=False, iterations=200)
+        return SolveOutcome(
+            x=np.zeros(9),
+            f=1.0,
+            status="Maximum_Iterations_Exceeded",
+            success=False,
+            iterations=200,
+        )
 
     monkeypatch.setattr(problems, "solve", failing)
     with pytest.raises(SolveError) as info:

@@ -5,10 +5,10 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
+from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log
 
 from nlpcal.cli import main
 from nlpcal.models.zhou2010 import Zhou2010Parameters, correct
-from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log
 
 
 @pytest.fixture(scope="module")
@@ -41,14 +41,20 @@ def test_calibrate_recovers_the_truth(log_csv, tmp_path, capsys, method):
     assert doc["statistics"][0]["label"] == "measured"
     assert doc["method"] == method and doc["unit"] == "nT" and doc["format_version"] == 1
     assert doc["gauge"]["constraint"] == "s_x + s_y + s_z = 0"
-    assert doc["solver"]["status"] in ("Solve_Succeeded", "Solved_To_Acceptable_Level",
-                                       "At_Precision_Floor", "Search_Direction_Becomes_Too_Small")
+    assert doc["solver"]["status"] in (
+        "Solve_Succeeded",
+        "Solved_To_Acceptable_Level",
+        "At_Precision_Floor",
+        "Search_Direction_Becomes_Too_Small",
+    )
     assert doc["solver"]["iterations"] > 0
     p = doc["parameters"]
     for k in ("z_x", "z_y", "z_z"):
         assert abs(p[k] - PAPER_TRUTH[k]) < 0.5
-    g, t = np.array([1 + p[f"s_{a}"] for a in "xyz"]), np.array(
-        [1 + PAPER_TRUTH[f"s_{a}"] for a in "xyz"])
+    g, t = (
+        np.array([1 + p[f"s_{a}"] for a in "xyz"]),
+        np.array([1 + PAPER_TRUTH[f"s_{a}"] for a in "xyz"]),
+    )
     np.testing.assert_allclose(g / g[0], t / t[0], atol=2e-5)
     for k in ("alpha_deg", "beta_deg", "gamma_deg"):
         assert abs(p[k] - PAPER_TRUTH[k]) < 1e-3
@@ -57,8 +63,9 @@ def test_calibrate_recovers_the_truth(log_csv, tmp_path, capsys, method):
 def test_calibrate_with_a_reference_identifies_the_scales(log_csv, tmp_path, capsys):
     for flags in (["--reference-field", PAPER_FIELD], ["--reference-column", "proton_nT"]):
         out_path = tmp_path / "p.json"
-        code, _, err = run(capsys, "calibrate", log_csv, *flags, "--method", "joint", "-o",
-                           out_path)
+        code, _, err = run(
+            capsys, "calibrate", log_csv, *flags, "--method", "joint", "-o", out_path
+        )
         assert code == 0, err
         doc = json.loads(out_path.read_text())
         assert doc["gauge"] is None
@@ -132,12 +139,15 @@ def test_simulate_preset_and_custom_truth(tmp_path, capsys):
 def test_python_dash_m(log_csv):
     import subprocess
     import sys
-    done = subprocess.run([sys.executable, "-m", "nlpcal", "stats", str(log_csv)],
-                          capture_output=True, text=True)
+
+    done = subprocess.run(
+        [sys.executable, "-m", "nlpcal", "stats", str(log_csv)], capture_output=True, text=True
+    )
     assert done.returncode == 0 and "measured" in done.stdout
 
 
 # --- errors ---------------------------------------------------------------------------------
+
 
 def write(tmp_path, name, text):
     path = tmp_path / name
@@ -150,22 +160,33 @@ def good_rows(n=30, seed=0):
     return "\n".join(",".join(f"{v:.3f}" for v in row) for row in samples)
 
 
-@pytest.mark.parametrize("name, text, extra, message", [
-    ("missing.csv", None, [], "no such file"),
-    ("empty.csv", "", [], "empty"),
-    ("text.csv", "bx,by,bz\n" + good_rows() + "\n1,abc,3\n", [], "non-numeric"),
-    ("nan.csv", "bx,by,bz\n" + good_rows() + "\n1,,3\n", [], "non-numeric"),
-    ("few.csv", "bx,by,bz\n1,2,3\n4,5,6\n7,8,9\n", [], "at least 10"),
-    ("nocols.csv", "a,b,c\n" + good_rows(), [], "no magnetometer columns"),
-    ("ambig.csv", "bx,by,bz,x,y,z\n" + "\n".join(r + "," + r for r in good_rows().split("\n")),
-     [], "ambiguous"),
-    ("equal.csv", "bx,by,bz\n" + "\n".join(["1,2,3"] * 30), [], "all samples are equal"),
-    ("cols.csv", "bx,by,bz\n" + good_rows(), ["--columns", "bx", "by", "qq"], "'qq' not found"),
-    ("refneg.csv", "bx,by,bz,f\n" + "\n".join(r + ",-5" for r in good_rows().split("\n")),
-     ["--reference-column", "f"], "non-positive"),
-    ("refmiss.csv", "bx,by,bz\n" + good_rows(), ["--reference-column", "f"], "'f' not found"),
-    ("badref.csv", "bx,by,bz\n" + good_rows(), ["--reference-field", "-3"], "positive"),
-])
+@pytest.mark.parametrize(
+    "name, text, extra, message",
+    [
+        ("missing.csv", None, [], "no such file"),
+        ("empty.csv", "", [], "empty"),
+        ("text.csv", "bx,by,bz\n" + good_rows() + "\n1,abc,3\n", [], "non-numeric"),
+        ("nan.csv", "bx,by,bz\n" + good_rows() + "\n1,,3\n", [], "non-numeric"),
+        ("few.csv", "bx,by,bz\n1,2,3\n4,5,6\n7,8,9\n", [], "at least 10"),
+        ("nocols.csv", "a,b,c\n" + good_rows(), [], "no magnetometer columns"),
+        (
+            "ambig.csv",
+            "bx,by,bz,x,y,z\n" + "\n".join(r + "," + r for r in good_rows().split("\n")),
+            [],
+            "ambiguous",
+        ),
+        ("equal.csv", "bx,by,bz\n" + "\n".join(["1,2,3"] * 30), [], "all samples are equal"),
+        ("cols.csv", "bx,by,bz\n" + good_rows(), ["--columns", "bx", "by", "qq"], "'qq' not found"),
+        (
+            "refneg.csv",
+            "bx,by,bz,f\n" + "\n".join(r + ",-5" for r in good_rows().split("\n")),
+            ["--reference-column", "f"],
+            "non-positive",
+        ),
+        ("refmiss.csv", "bx,by,bz\n" + good_rows(), ["--reference-column", "f"], "'f' not found"),
+        ("badref.csv", "bx,by,bz\n" + good_rows(), ["--reference-field", "-3"], "positive"),
+    ],
+)
 def test_calibrate_input_errors_exit_2(tmp_path, capsys, name, text, extra, message):
     path = tmp_path / name if text is None else write(tmp_path, name, text)
     code, out, err = run(capsys, "calibrate", path, *extra)
@@ -184,8 +205,12 @@ def test_drop_invalid_reports_the_count(tmp_path, capsys):
 
 def test_usage_errors_exit_2(capsys, log_csv):
     assert run(capsys, "calibrate", log_csv, "--method", "cg")[0] == 2
-    assert run(capsys, "calibrate", log_csv, "--reference-field", 1, "--reference-column",
-               "proton_nT")[0] == 2
+    assert (
+        run(
+            capsys, "calibrate", log_csv, "--reference-field", 1, "--reference-column", "proton_nT"
+        )[0]
+        == 2
+    )
     assert run(capsys, "frobnicate")[0] == 2
     assert run(capsys)[0] == 2
     assert run(capsys, "simulate", "--preset", "nope")[0] == 2
@@ -209,11 +234,13 @@ def test_apply_and_stats_errors(tmp_path, capsys, log_csv):
 def test_failed_solve_exits_1_and_keeps_the_old_output(tmp_path, capsys, log_csv, monkeypatch):
     from nlpcal.nlp import blocks as problems
     from nlpcal.nlp.solver import SolveOutcome
+
     out_path = write(tmp_path, "p.json", "previous result\n")
 
     def failing(*args, **kwargs):
-        return SolveOutcome(x=np.zeros(9), f=2.0, status="Restoration_Failed", success=False,
-                            iterations=3)
+        return SolveOutcome(
+            x=np.zeros(9), f=2.0, status="Restoration_Failed", success=False, iterations=3
+        )
 
     monkeypatch.setattr(problems, "solve", failing)
     code, _, err = run(capsys, "calibrate", log_csv, "-o", out_path)
@@ -223,8 +250,9 @@ def test_failed_solve_exits_1_and_keeps_the_old_output(tmp_path, capsys, log_csv
 
 
 def test_output_folder_missing_exits_2(tmp_path, capsys, log_csv):
-    code, _, err = run(capsys, "calibrate", log_csv, "--method", "joint", "-o",
-                       tmp_path / "nope" / "p.json")
+    code, _, err = run(
+        capsys, "calibrate", log_csv, "--method", "joint", "-o", tmp_path / "nope" / "p.json"
+    )
     assert code == 2 and "does not exist" in err
 
 
@@ -236,8 +264,18 @@ def test_low_memory_gives_the_same_answer(log_csv, tmp_path, capsys):
     frame.to_csv(path, index=False)
     docs = []
     for extra in ([], ["--low-memory"]):
-        code, out, err = run(capsys, "calibrate", path, "--unit", "uT", "--method", "joint",
-                             "--reference-column", "proton", *extra)
+        code, out, err = run(
+            capsys,
+            "calibrate",
+            path,
+            "--unit",
+            "uT",
+            "--method",
+            "joint",
+            "--reference-column",
+            "proton",
+            *extra,
+        )
         assert code == 0, err
         assert "pandas" in err and "engine" in err
         docs.append(json.loads(out))
@@ -263,6 +301,7 @@ def test_unit_from_column_names(log_csv, tmp_path, capsys):
 
 def test_unidentifiable_log_exits_1_and_writes_nothing(tmp_path, capsys):
     from synthetic import planar_directions
+
     rng = np.random.default_rng(11)
     samples, _ = make_log(n=800, noise=1.0, seed=12, directions=planar_directions(800, rng))
     path = tmp_path / "planar.csv"
@@ -301,8 +340,18 @@ def test_units_of_reference_column_and_applied_log(log_csv, tmp_path, capsys):
     path = tmp_path / "mixed.csv"
     frame[["mx_uT", "my_uT", "mz_uT", "proton_nT"]].to_csv(path, index=False)
     params = tmp_path / "p.json"
-    code, _, err = run(capsys, "calibrate", path, "--reference-column", "proton_nT",
-                       "--method", "joint", "-o", params, "--low-memory")
+    code, _, err = run(
+        capsys,
+        "calibrate",
+        path,
+        "--reference-column",
+        "proton_nT",
+        "--method",
+        "joint",
+        "-o",
+        params,
+        "--low-memory",
+    )
     assert code == 0, err
     assert "read in nT" in err
     doc = json.loads(params.read_text())

@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 
 import nlpcal.comparison as compare_module
+from nlpcal.calibration.joint import joint_start
 from nlpcal.calibration.problem import Problem
 from nlpcal.cli import main
 from nlpcal.comparison import ROW_FIELDS, ROW_KEYS, CompareSettings, compare
 from nlpcal.comparison.conjugate_gradient import CGOptions, conjugate_gradient, run_cg_joint
 from nlpcal.errors import InputError, SolveError
-from nlpcal.calibration.joint import joint_start
 from nlpcal.moments import accumulate
 from nlpcal.nlp.blocks import block_step
 from nlpcal.simulation import ATTITUDES, simulate, world_field
@@ -29,8 +29,9 @@ DOCS = HERE.parent / "docs"
 
 
 def _load_regenerate():
-    spec = importlib.util.spec_from_file_location("regenerate_expected",
-                                                  HERE / "regenerate_expected.py")
+    spec = importlib.util.spec_from_file_location(
+        "regenerate_expected", HERE / "regenerate_expected.py"
+    )
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -53,12 +54,15 @@ CASE_IDS = [case[0] for case in REGEN.CASES]
 
 # --- attitude sets ------------------------------------------------------------------------------
 
+
 def test_uniform_stays_the_default_and_unchanged():
     # simulate()'s default (uniform attitudes) must not move when attitude sets are added
     first = simulate(3, seed=0).to_numpy()
-    expected = [[-10684.78591395223, 7111.247542986748, -47702.93242340344],
-                [-28111.38144285496, 40266.114489199375, 7958.711850980351],
-                [29019.713215873817, -17021.786743953355, -35189.23977226553]]
+    expected = [
+        [-10684.78591395223, 7111.247542986748, -47702.93242340344],
+        [-28111.38144285496, 40266.114489199375, 7958.711850980351],
+        [29019.713215873817, -17021.786743953355, -35189.23977226553],
+    ]
     np.testing.assert_allclose(first, expected, rtol=1e-12)
     assert list(ATTITUDES)[0] == "uniform"
     assert {"turntable", "tilt_band", "clustered"} <= set(ATTITUDES)
@@ -70,8 +74,9 @@ def test_attitudes_are_rotations_and_reproducible(name):
     r2 = ATTITUDES[name](301, np.random.default_rng(4))
     assert r1.shape == (301, 3, 3)
     np.testing.assert_array_equal(r1, r2)
-    np.testing.assert_allclose(r1 @ r1.transpose(0, 2, 1), np.broadcast_to(np.eye(3), r1.shape),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        r1 @ r1.transpose(0, 2, 1), np.broadcast_to(np.eye(3), r1.shape), atol=1e-12
+    )
     np.testing.assert_allclose(np.linalg.det(r1), 1.0, atol=1e-12)
 
 
@@ -121,6 +126,7 @@ def test_simulate_cli_accepts_the_new_sets(tmp_path, capsys):
 
 # --- the conjugate gradient of section 5 --------------------------------------------------------
 
+
 @pytest.fixture(scope="module")
 def uniform_problem():
     samples = simulate(800, seed=5).to_numpy()
@@ -146,8 +152,9 @@ def test_cg_stage_reaches_the_ipopt_stage(uniform_problem):
 
 
 def test_cg_keeps_the_gauge_and_reports_the_cap(uniform_problem):
-    theta, outcome = conjugate_gradient(uniform_problem.moments, "scale", np.zeros(9),
-                                        CGOptions(max_iter=5))
+    theta, outcome = conjugate_gradient(
+        uniform_problem.moments, "scale", np.zeros(9), CGOptions(max_iter=5)
+    )
     assert outcome.iterations == 5 and outcome.status == "max_iterations"
     assert abs(theta[3:6].sum()) < 1e-15
     assert len(outcome.history) == 6  # start + one value per step
@@ -155,8 +162,9 @@ def test_cg_keeps_the_gauge_and_reports_the_cap(uniform_problem):
 
 def test_cg_divergence_is_reported_and_gives_back_the_start(uniform_problem):
     start = joint_start(uniform_problem.moments)
-    theta, outcome = conjugate_gradient(uniform_problem.moments, "joint", start,
-                                        CGOptions(step_factor=1e4, max_iter=50))
+    theta, outcome = conjugate_gradient(
+        uniform_problem.moments, "joint", start, CGOptions(step_factor=1e4, max_iter=50)
+    )
     assert outcome.status == "diverged"
     np.testing.assert_array_equal(theta, start)
 
@@ -176,6 +184,7 @@ def test_joint_cg_in_paper_units_does_not_converge_but_scaled_does(uniform_probl
 
 
 # --- compare: the four methods ------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("case", REGEN.CASES, ids=CASE_IDS)
 def test_table1_rows_match_the_stored_expectations(case):
@@ -233,8 +242,11 @@ def test_cycle_iterations_sum_the_three_stages():
 
 def test_compare_with_a_reference_field():
     samples = simulate(300, seed=8, attitudes="clustered").to_numpy()
-    result = compare(samples, reference_field=49462.0,
-                     settings=CompareSettings(cycles=3, cg=CGOptions(max_iter=200)))
+    result = compare(
+        samples,
+        reference_field=49462.0,
+        settings=CompareSettings(cycles=3, cg=CGOptions(max_iter=200)),
+    )
     assert result.reference == {"mode": "constant", "field": 49462.0}
     objectives = [row["objective"] for row in result.staged]
     assert all(b <= a * (1 + 1e-9) for a, b in zip(objectives, objectives[1:]))
@@ -249,6 +261,7 @@ def test_compare_rejects_bad_settings_and_input():
 
 
 # --- the command line ---------------------------------------------------------------------------
+
 
 @pytest.fixture(scope="module")
 def log_csv(tmp_path_factory):
@@ -283,15 +296,18 @@ def test_cli_compare_to_stdout_with_reference_column(log_csv, capsys):
     assert document["reference"]["column"] == "F"
 
 
-@pytest.mark.parametrize("extra, message", [
-    (["--cycles", "0"], "--cycles"),
-    (["--columns", "a", "b", "c"], "not found"),
-    (["--reference-field", "49000", "--reference-column", "F"], "not allowed"),
-    (["--reference-column", "nope"], "not found"),
-    (["--cg-max-iter", "0"], "max_iter"),
-    (["-o", "/nonexistent-folder/x.json"], "does not exist"),
-    (["--plot", "/nonexistent-folder/x.png"], "does not exist"),
-])
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--cycles", "0"], "--cycles"),
+        (["--columns", "a", "b", "c"], "not found"),
+        (["--reference-field", "49000", "--reference-column", "F"], "not allowed"),
+        (["--reference-column", "nope"], "not found"),
+        (["--cg-max-iter", "0"], "max_iter"),
+        (["-o", "/nonexistent-folder/x.json"], "does not exist"),
+        (["--plot", "/nonexistent-folder/x.png"], "does not exist"),
+    ],
+)
 def test_cli_compare_usage_errors_exit_2(log_csv, capsys, extra, message):
     assert main(["compare", str(log_csv), *extra]) == 2
     assert message in capsys.readouterr().err
@@ -302,8 +318,7 @@ def test_cli_compare_missing_file_exits_2(tmp_path, capsys):
     assert "no such file" in capsys.readouterr().err
 
 
-def test_cli_compare_without_matplotlib_says_how_to_install(log_csv, tmp_path, monkeypatch,
-                                                             capsys):
+def test_cli_compare_without_matplotlib_says_how_to_install(log_csv, tmp_path, monkeypatch, capsys):
     real_import = builtins.__import__
 
     def no_matplotlib(name, *args, **kwargs):
@@ -329,6 +344,7 @@ def test_cli_compare_solver_failure_exits_1(log_csv, monkeypatch, capsys):
 
 # --- the docs page ------------------------------------------------------------------------------
 
+
 def test_docs_page_has_its_generated_tables_and_small_figures():
     page = (DOCS / "comparison.md").read_text()
     assert (DOCS / "comparison.py").exists()
@@ -341,6 +357,7 @@ def test_docs_page_has_its_generated_tables_and_small_figures():
 
 def test_with_a_reference_the_staged_objective_never_increases():
     from nlpcal.calibration import calibrate
+
     samples = simulate(1500, attitudes="turntable", noise=1.0, seed=4).to_numpy()
     result = calibrate(samples, method="staged", reference_field=49462.0, cycles=12, rtol=0.0)
     objectives = [row["objective"] for row in result.statistics]

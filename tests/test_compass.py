@@ -45,10 +45,14 @@ def ned_field(total=FIELD_NT, dip_deg=DIP_DEG):
 def sensor_axes(angles_deg):
     """Unit sensor axes (rows): axis x leans toward y and z by (a_xy, a_xz), and so on."""
     a_xy, a_xz, b_yx, b_yz, g_zx, g_zy = np.radians(angles_deg)
-    rows = np.array([[1.0, np.tan(a_xy), np.tan(a_xz)],
-                     [np.tan(b_yx), 1.0, np.tan(b_yz)],
-                     [np.tan(g_zx), np.tan(g_zy), 1.0]])
-    return rows / np.sqrt((rows ** 2).sum(axis=1))[:, None]
+    rows = np.array(
+        [
+            [1.0, np.tan(a_xy), np.tan(a_xz)],
+            [np.tan(b_yx), 1.0, np.tan(b_yz)],
+            [np.tan(g_zx), np.tan(g_zy), 1.0],
+        ]
+    )
+    return rows / np.sqrt((rows**2).sum(axis=1))[:, None]
 
 
 def read_sensor(vectors, errors, noise, rng):
@@ -62,10 +66,16 @@ def read_sensor(vectors, errors, noise, rng):
 
 def random_errors(rng):
     return {
-        "mag": {"angles_deg": rng.uniform(-2, 2, 6), "s": rng.uniform(-0.05, 0.05, 3),
-                "bias": rng.uniform(-3000, 3000, 3)},
-        "acc": {"angles_deg": rng.uniform(-2, 2, 6), "s": rng.uniform(-0.05, 0.05, 3),
-                "bias": rng.uniform(-0.05, 0.05, 3)},
+        "mag": {
+            "angles_deg": rng.uniform(-2, 2, 6),
+            "s": rng.uniform(-0.05, 0.05, 3),
+            "bias": rng.uniform(-3000, 3000, 3),
+        },
+        "acc": {
+            "angles_deg": rng.uniform(-2, 2, 6),
+            "s": rng.uniform(-0.05, 0.05, 3),
+            "bias": rng.uniform(-0.05, 0.05, 3),
+        },
     }
 
 
@@ -73,8 +83,10 @@ def measure(C, errors, rng, mag_noise=MAG_NOISE_NT, acc_noise=ACC_NOISE_G, field
     field = ned_field() if field is None else field
     f_body = C @ np.array([0.0, 0.0, -1.0])  # specific force at rest [g]
     b_body = C @ field
-    return (read_sensor(b_body, errors["mag"], mag_noise, rng),
-            read_sensor(f_body, errors["acc"], acc_noise, rng))
+    return (
+        read_sensor(b_body, errors["mag"], mag_noise, rng),
+        read_sensor(f_body, errors["acc"], acc_noise, rng),
+    )
 
 
 def paper_turns(heading0_deg=75.0):
@@ -86,8 +98,12 @@ def paper_turns(heading0_deg=75.0):
         "y": [start * Rotation.from_euler("y", t, degrees=True) for t in steps],
         "z": [start * Rotation.from_euler("z", t, degrees=True) for t in steps],
         # housing rolled 90 deg, then turned about the horizontal table axis = housing z
-        "z2": [start * Rotation.from_euler("x", 90, degrees=True)
-               * Rotation.from_euler("z", t, degrees=True) for t in steps],
+        "z2": [
+            start
+            * Rotation.from_euler("x", 90, degrees=True)
+            * Rotation.from_euler("z", t, degrees=True)
+            for t in steps
+        ],
     }
     labels = np.repeat(list(turns), len(steps))
     C = np.stack([r.as_matrix().T for rots in turns.values() for r in rots])
@@ -95,8 +111,9 @@ def paper_turns(heading0_deg=75.0):
 
 
 def random_attitudes(rng, n=2000, max_pitch=85.0):
-    truth = np.column_stack([rng.uniform(-180, 180, n), rng.uniform(-max_pitch, max_pitch, n),
-                             rng.uniform(0, 360, n)])
+    truth = np.column_stack(
+        [rng.uniform(-180, 180, n), rng.uniform(-max_pitch, max_pitch, n), rng.uniform(0, 360, n)]
+    )
     return truth, world_to_body(truth[:, 0], truth[:, 1], truth[:, 2])
 
 
@@ -140,16 +157,18 @@ def test_conventions_worked_example():
     truth, C_ref = random_attitudes(rng, 50, 89.0)
     np.testing.assert_allclose(model.attitude_matrix(*np.radians(truth.T)), C_ref, atol=1e-12)
     roll, pitch, heading = model.euler_from_matrix(C_ref)
-    np.testing.assert_allclose(errors_deg(np.degrees(np.c_[roll, pitch, heading]), truth), 0,
-                               atol=1e-9)
+    np.testing.assert_allclose(
+        errors_deg(np.degrees(np.c_[roll, pitch, heading]), truth), 0, atol=1e-9
+    )
 
 
 def test_mounting_matrix_is_eq3_and_decomposes_exactly():
     angles = np.radians([0.5, -1.0, 1.5, -0.2, 0.7, -1.3])
     E = model.mounting_matrix(angles)
     np.testing.assert_allclose(E, sensor_axes(np.degrees(angles)), atol=1e-15)
-    small = np.eye(3) + np.array([[0, angles[0], angles[1]], [angles[2], 0, angles[3]],
-                                  [angles[4], angles[5], 0]])
+    small = np.eye(3) + np.array(
+        [[0, angles[0], angles[1]], [angles[2], 0, angles[3]], [angles[4], angles[5], 0]]
+    )
     np.testing.assert_allclose(E, small, atol=5e-4)  # Eq. 3 is the first-order form
     M = model.sensor_matrix(angles, [0.02, -0.03, 0.01])
     back, s = model.decompose_sensor_matrix(M)
@@ -160,8 +179,9 @@ def test_mounting_matrix_is_eq3_and_decomposes_exactly():
 @pytest.mark.parametrize("pitch", [-89.0, -60.0, 0.0, 45.0, 89.0])
 def test_attitude_sound_to_89_deg_pitch(pitch):
     rng = np.random.default_rng(2)
-    truth = np.column_stack([rng.uniform(-180, 180, 200), np.full(200, pitch),
-                             rng.uniform(0, 360, 200)])
+    truth = np.column_stack(
+        [rng.uniform(-180, 180, 200), np.full(200, pitch), rng.uniform(0, 360, 200)]
+    )
     C = world_to_body(*truth.T)
     acc, mag = C @ [0, 0, -1.0], C @ ned_field()
     r, p, h = model.attitude_from_vectors(acc, mag)
@@ -210,11 +230,14 @@ def test_turn_mode_meets_done_when_accuracy(seed):
 def test_turn_mode_recovers_the_model_parameters():
     errors, (mag, acc, labels), _ = turn_replica(21)
     cal = compass.calibrate_turns(mag, acc, labels, field_nt=FIELD_NT)
-    for sensor, truth, bias_tol, s_tol in ((cal.magnetometer, errors["mag"], 15.0, 5e-4),
-                                           (cal.accelerometer, errors["acc"], 2e-4, 5e-4)):
+    for sensor, truth, bias_tol, s_tol in (
+        (cal.magnetometer, errors["mag"], 15.0, 5e-4),
+        (cal.accelerometer, errors["acc"], 2e-4, 5e-4),
+    ):
         # noise 10 nT in 50 000 nT (0.2 mg in 1 g) on 48 samples: ~0.01 deg per angle
-        np.testing.assert_allclose(np.degrees(sensor.mounting_angles), truth["angles_deg"],
-                                   atol=0.03)
+        np.testing.assert_allclose(
+            np.degrees(sensor.mounting_angles), truth["angles_deg"], atol=0.03
+        )
         np.testing.assert_allclose(sensor.sensitivity, truth["s"], atol=s_tol)
         np.testing.assert_allclose(sensor.bias, truth["bias"], atol=bias_tol)
     doc = cal.to_dict()
@@ -231,8 +254,9 @@ def test_turn_mode_is_exact_without_noise():
     mag, acc = measure(C, errors, rng, 0.0, 0.0)
     cal = compass.calibrate_turns(mag, acc, labels, field_nt=FIELD_NT)
     for sensor, truth in ((cal.magnetometer, errors["mag"]), (cal.accelerometer, errors["acc"])):
-        np.testing.assert_allclose(np.degrees(sensor.mounting_angles), truth["angles_deg"],
-                                   atol=1e-6)
+        np.testing.assert_allclose(
+            np.degrees(sensor.mounting_angles), truth["angles_deg"], atol=1e-6
+        )
         np.testing.assert_allclose(sensor.sensitivity, truth["s"], atol=1e-8)
 
 
@@ -266,7 +290,7 @@ def test_ellipsoid_moment_objective_matches_per_sample_evaluation():
     rng = np.random.default_rng(5)
     u = rng.normal(size=(30, 3))
     x = np.r_[rng.uniform(0.5, 2, 3), rng.normal(size=3)]
-    phi = np.column_stack([u ** 2, u, np.ones(30)])
+    phi = np.column_stack([u**2, u, np.ones(30)])
     theta = _evaluate_symbolic(compass_nlp.axis_ellipsoid_theta, x)
     direct = np.mean((np.sum(x[:3] * (u - x[3:]) ** 2, axis=1) - 1) ** 2)
     assert theta @ (phi.T @ phi / 30) @ theta == pytest.approx(direct, rel=1e-12)
@@ -369,11 +393,12 @@ def test_free_rotation_rest_tolerance_rejects_moving_samples():
     assert kept <= 1500 - 0.8 * moving[:1500].sum()
     still = ~moving[1500:]
     err = errors_deg(estimate(cal, mag[1500:][still], acc[1500:][still]), truth_acc[1500:][still])
-    rms = np.sqrt(np.mean(err ** 2, axis=0))
+    rms = np.sqrt(np.mean(err**2, axis=0))
     everything = compass.calibrate_free(mag[:1500], acc[:1500], rest_tolerance=None)
-    err_all = errors_deg(estimate(everything, mag[1500:][still], acc[1500:][still]),
-                         truth_acc[1500:][still])
-    rms_all = np.sqrt(np.mean(err_all ** 2, axis=0))
+    err_all = errors_deg(
+        estimate(everything, mag[1500:][still], acc[1500:][still]), truth_acc[1500:][still]
+    )
+    rms_all = np.sqrt(np.mean(err_all**2, axis=0))
     print("rest tolerance rms", rms, "none", rms_all)
     # moving samples whose |acc| happens to be near 1 g still pass: not quite the still-log accuracy
     assert rms[2] <= 0.15
@@ -397,10 +422,10 @@ def test_free_rotation_needs_varied_attitudes():
 
 
 def test_evaluate_wraps_bands_and_offsets():
-    truth = np.array([[0.0, 10.0, 359.0], [179.0, 45.0, 10.0], [0.0, 70.0, 180.0],
-                      [0.0, 90.0, 0.0]])
-    est = np.array([[0.1, 10.1, 1.0], [-179.0, 45.0, 12.0], [0.0, 70.2, 182.0],
-                    [0.0, 89.0, 0.0]])
+    truth = np.array(
+        [[0.0, 10.0, 359.0], [179.0, 45.0, 10.0], [0.0, 70.0, 180.0], [0.0, 90.0, 0.0]]
+    )
+    est = np.array([[0.1, 10.1, 1.0], [-179.0, 45.0, 12.0], [0.0, 70.2, 182.0], [0.0, 89.0, 0.0]])
     stats = compass.evaluate(est, truth)
     assert stats["overall"]["heading"]["max_abs"] == pytest.approx(2.0)
     assert stats["overall"]["roll"]["max_abs"] == pytest.approx(2.0)  # 179 -> -179 is 2 deg
@@ -416,8 +441,7 @@ def test_evaluate_wraps_bands_and_offsets():
 
 
 def test_replica_writer_and_simulate_preset(tmp_path):
-    written = write_directory_preset("qiu2017", tmp_path / "new" / "dir", seed=3, noise=None,
-                                     n=100)
+    written = write_directory_preset("qiu2017", tmp_path / "new" / "dir", seed=3, noise=None, n=100)
     assert [p.name for p in written] == ["turns.csv", "test.csv", "truth.json"]
     turns = pd.read_csv(written[0])
     assert len(turns) == 48 and list(pd.unique(turns["turn"])) == ["x", "y", "z", "z2"]
@@ -426,9 +450,28 @@ def test_replica_writer_and_simulate_preset(tmp_path):
     assert set(truth["truth"]["magnetometer"]["mounting_deg"]) == set(model.ANGLE_NAMES)
     out = tmp_path / "sim"
     assert main(["simulate", "--preset", "qiu2017", "-o", str(out), "-n", "300"]) == 0
-    assert main(["compass", "calibrate", str(out / "turns.csv"), "--mag-columns", "mx_nT", "my_nT",
-                 "mz_nT", "--acc-columns", "ax_g", "ay_g", "az_g", "--turn-column", "turn",
-                 "-o", str(out / "c.json")]) == 0
+    assert (
+        main(
+            [
+                "compass",
+                "calibrate",
+                str(out / "turns.csv"),
+                "--mag-columns",
+                "mx_nT",
+                "my_nT",
+                "mz_nT",
+                "--acc-columns",
+                "ax_g",
+                "ay_g",
+                "az_g",
+                "--turn-column",
+                "turn",
+                "-o",
+                str(out / "c.json"),
+            ]
+        )
+        == 0
+    )
     cal = json.loads((out / "c.json").read_text())
     truth = json.loads((out / "truth.json").read_text())["truth"]
     for sensor in ("magnetometer", "accelerometer"):
@@ -444,13 +487,30 @@ def test_replica_writer_and_simulate_preset(tmp_path):
 @pytest.fixture
 def turn_log(tmp_path):
     _, (mag, acc, labels), (mag_t, acc_t, truth) = turn_replica(111)
-    log = pd.DataFrame({"turn": labels, "mx_uT": mag[:, 0] / 1e3, "my_uT": mag[:, 1] / 1e3,
-                        "mz_uT": mag[:, 2] / 1e3, "ax": acc[:, 0] * 9.80665,
-                        "ay": acc[:, 1] * 9.80665, "az": acc[:, 2] * 9.80665})
-    test = pd.DataFrame({"mx_uT": mag_t[:, 0] / 1e3, "my_uT": mag_t[:, 1] / 1e3,
-                         "mz_uT": mag_t[:, 2] / 1e3, "ax": acc_t[:, 0] * 9.80665,
-                         "ay": acc_t[:, 1] * 9.80665, "az": acc_t[:, 2] * 9.80665,
-                         "roll": truth[:, 0], "pitch": truth[:, 1], "heading": truth[:, 2]})
+    log = pd.DataFrame(
+        {
+            "turn": labels,
+            "mx_uT": mag[:, 0] / 1e3,
+            "my_uT": mag[:, 1] / 1e3,
+            "mz_uT": mag[:, 2] / 1e3,
+            "ax": acc[:, 0] * 9.80665,
+            "ay": acc[:, 1] * 9.80665,
+            "az": acc[:, 2] * 9.80665,
+        }
+    )
+    test = pd.DataFrame(
+        {
+            "mx_uT": mag_t[:, 0] / 1e3,
+            "my_uT": mag_t[:, 1] / 1e3,
+            "mz_uT": mag_t[:, 2] / 1e3,
+            "ax": acc_t[:, 0] * 9.80665,
+            "ay": acc_t[:, 1] * 9.80665,
+            "az": acc_t[:, 2] * 9.80665,
+            "roll": truth[:, 0],
+            "pitch": truth[:, 1],
+            "heading": truth[:, 2],
+        }
+    )
     log.to_csv(tmp_path / "turns.csv", index=False)
     test.to_csv(tmp_path / "test.csv", index=False)
     return tmp_path
@@ -461,38 +521,95 @@ CAL_ARGS = ["--mag-columns", "mx_uT", "my_uT", "mz_uT", "--mag-unit", "uT", "--a
 
 def test_cli_turn_mode_end_to_end(turn_log, capsys):
     d = turn_log
-    assert main(["compass", "calibrate", str(d / "turns.csv"), *CAL_ARGS, "--turn-column", "turn",
-                 "-o", str(d / "compass.json")]) == 0
+    assert (
+        main(
+            [
+                "compass",
+                "calibrate",
+                str(d / "turns.csv"),
+                *CAL_ARGS,
+                "--turn-column",
+                "turn",
+                "-o",
+                str(d / "compass.json"),
+            ]
+        )
+        == 0
+    )
     doc = json.loads((d / "compass.json").read_text())
     assert doc["format"] == "nlpcal-compass" and doc["mode"] == "turns"
     for sensor in ("magnetometer", "accelerometer"):
-        assert {"mounting_deg", "bias", "sensitivity", "quality", "compensation_deg",
-                "correction_matrix"} <= set(doc[sensor])
+        assert {
+            "mounting_deg",
+            "bias",
+            "sensitivity",
+            "quality",
+            "compensation_deg",
+            "correction_matrix",
+        } <= set(doc[sensor])
     assert doc["input"]["mag_unit"] == "uT" and doc["input"]["acc_columns"] == ["ax", "ay", "az"]
     # units and columns default to the calibration's
-    assert main(["compass", "attitude", str(d / "compass.json"), str(d / "test.csv"),
-                 "-o", str(d / "att.csv")]) == 0
+    assert (
+        main(
+            [
+                "compass",
+                "attitude",
+                str(d / "compass.json"),
+                str(d / "test.csv"),
+                "-o",
+                str(d / "att.csv"),
+            ]
+        )
+        == 0
+    )
     att = pd.read_csv(d / "att.csv")
     assert {"roll_deg", "pitch_deg", "heading_deg", "roll"} <= set(att.columns)
     capsys.readouterr()
-    assert main(["compass", "evaluate", str(d / "att.csv"), "--truth-columns", "roll", "pitch",
-                 "heading"]) == 0
+    assert (
+        main(
+            [
+                "compass",
+                "evaluate",
+                str(d / "att.csv"),
+                "--truth-columns",
+                "roll",
+                "pitch",
+                "heading",
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr()
     stats = json.loads(out.out)
     assert stats["overall"]["heading"]["rms"] <= 0.1
     assert stats["bands"][1]["roll"]["max_abs"] <= 0.15
     assert "heading max/rms" in out.err
     # declination shifts heading
-    assert main(["compass", "attitude", str(d / "compass.json"), str(d / "test.csv"),
-                 "--declination-deg", "-6.5", "-o", str(d / "att2.csv")]) == 0
+    assert (
+        main(
+            [
+                "compass",
+                "attitude",
+                str(d / "compass.json"),
+                str(d / "test.csv"),
+                "--declination-deg",
+                "-6.5",
+                "-o",
+                str(d / "att2.csv"),
+            ]
+        )
+        == 0
+    )
     shift = compass.wrap_deg(pd.read_csv(d / "att2.csv")["heading_deg"] - att["heading_deg"])
     np.testing.assert_allclose(shift, -6.5, atol=1e-6)
 
 
 def test_cli_free_mode(turn_log, capsys):
     d = turn_log
-    assert main(["compass", "calibrate", str(d / "test.csv"), *CAL_ARGS, "-o",
-                 str(d / "free.json")]) == 0
+    assert (
+        main(["compass", "calibrate", str(d / "test.csv"), *CAL_ARGS, "-o", str(d / "free.json")])
+        == 0
+    )
     assert "free-rotation mode" in capsys.readouterr().err
     doc = json.loads((d / "free.json").read_text())
     assert doc["mode"] == "free-rotation" and "alignment" in doc
@@ -512,16 +629,37 @@ def test_cli_error_paths(turn_log, capsys, monkeypatch):
     cases = [
         (["compass"], 2, "ACTION"),
         (["compass", "calibrate", str(d / "missing.csv"), *CAL_ARGS], 2, "no such file"),
-        (["compass", "calibrate", turns, "--mag-columns", "mx_uT", "my_uT", "nope"], 2,
-         "column 'nope' not found"),
-        (["compass", "calibrate", turns, "--mag-columns", "mx_uT", "my_uT", "mz_uT",
-          "--acc-columns", "mx_uT", "ay", "az"], 2, "overlap"),
+        (
+            ["compass", "calibrate", turns, "--mag-columns", "mx_uT", "my_uT", "nope"],
+            2,
+            "column 'nope' not found",
+        ),
+        (
+            [
+                "compass",
+                "calibrate",
+                turns,
+                "--mag-columns",
+                "mx_uT",
+                "my_uT",
+                "mz_uT",
+                "--acc-columns",
+                "mx_uT",
+                "ay",
+                "az",
+            ],
+            2,
+            "overlap",
+        ),
         (base[:-1] + ["where"], 2, "turn column 'where' not found"),
         (base + ["--field-nt", "-5"], 2, "positive"),
         (base + ["--mag-unit", "furlong"], 2, "invalid choice"),
         (["compass", "attitude", str(d / "missing.json"), turns], 2, "no such file"),
-        (["compass", "evaluate", turns, "--truth-columns", "a", "b", "c"], 2,
-         "column 'a' not found"),
+        (
+            ["compass", "evaluate", turns, "--truth-columns", "a", "b", "c"],
+            2,
+            "column 'a' not found",
+        ),
     ]
     for argv, code, message in cases:
         got, err = _run(argv, capsys)
@@ -533,22 +671,38 @@ def test_cli_error_paths(turn_log, capsys, monkeypatch):
     bad = log.copy()
     bad.loc[5, "turn"] = "w"
     bad.to_csv(d / "bad_label.csv", index=False)
-    code, err = _run(["compass", "calibrate", str(d / "bad_label.csv"), *CAL_ARGS,
-                      "--turn-column", "turn"], capsys)
+    code, err = _run(
+        ["compass", "calibrate", str(d / "bad_label.csv"), *CAL_ARGS, "--turn-column", "turn"],
+        capsys,
+    )
     assert code == 2 and "turn label" in err
     short = log.drop(index=range(15, 24))
     short.to_csv(d / "short.csv", index=False)
-    code, err = _run(["compass", "calibrate", str(d / "short.csv"), *CAL_ARGS, "--turn-column",
-                      "turn"], capsys)
+    code, err = _run(
+        ["compass", "calibrate", str(d / "short.csv"), *CAL_ARGS, "--turn-column", "turn"], capsys
+    )
     assert code == 2 and "fewer than 6 samples: y (3)" in err
     holes = log.astype({"ax": object})
     holes.loc[3, "ax"] = "n/a"
     holes.to_csv(d / "holes.csv", index=False)
-    code, err = _run(["compass", "calibrate", str(d / "holes.csv"), *CAL_ARGS, "--turn-column",
-                      "turn"], capsys)
+    code, err = _run(
+        ["compass", "calibrate", str(d / "holes.csv"), *CAL_ARGS, "--turn-column", "turn"], capsys
+    )
     assert code == 2 and "--drop-invalid" in err
-    code, err = _run(["compass", "calibrate", str(d / "holes.csv"), *CAL_ARGS, "--turn-column",
-                      "turn", "--drop-invalid", "-o", str(d / "h.json")], capsys)
+    code, err = _run(
+        [
+            "compass",
+            "calibrate",
+            str(d / "holes.csv"),
+            *CAL_ARGS,
+            "--turn-column",
+            "turn",
+            "--drop-invalid",
+            "-o",
+            str(d / "h.json"),
+        ],
+        capsys,
+    )
     assert code == 0 and "skipped 1 row" in err
     log.head(10).drop(columns="turn").to_csv(d / "tiny.csv", index=False)
     code, err = _run(["compass", "calibrate", str(d / "tiny.csv"), *CAL_ARGS], capsys)
@@ -559,15 +713,42 @@ def test_cli_error_paths(turn_log, capsys, monkeypatch):
     (d / "broken.json").write_text("{not json")
     code, err = _run(["compass", "attitude", str(d / "broken.json"), turns, *CAL_ARGS], capsys)
     assert code == 2 and "not a valid" in err
-    code, err = _run(["compass", "evaluate", str(d / "test.csv"), "--truth-columns", "roll",
-                      "pitch", "heading", "--estimate-columns", "roll", "pitch", "heading",
-                      "--pitch-bands", "60", "30"], capsys)
+    code, err = _run(
+        [
+            "compass",
+            "evaluate",
+            str(d / "test.csv"),
+            "--truth-columns",
+            "roll",
+            "pitch",
+            "heading",
+            "--estimate-columns",
+            "roll",
+            "pitch",
+            "heading",
+            "--pitch-bands",
+            "60",
+            "30",
+        ],
+        capsys,
+    )
     assert code == 2 and "pitch bands" in err
 
     # atomic outputs: a failed run leaves an existing output untouched, a missing folder is an error
     (d / "keep.json").write_text("previous")
-    code, _ = _run(["compass", "calibrate", str(d / "short.csv"), *CAL_ARGS, "--turn-column",
-                    "turn", "-o", str(d / "keep.json")], capsys)
+    code, _ = _run(
+        [
+            "compass",
+            "calibrate",
+            str(d / "short.csv"),
+            *CAL_ARGS,
+            "--turn-column",
+            "turn",
+            "-o",
+            str(d / "keep.json"),
+        ],
+        capsys,
+    )
     assert code == 2 and (d / "keep.json").read_text() == "previous"
     code, err = _run(base + ["-o", str(d / "no" / "such" / "c.json")], capsys)
     assert code == 2 and "does not exist" in err
@@ -575,8 +756,13 @@ def test_cli_error_paths(turn_log, capsys, monkeypatch):
 
     # IPOPT failing is exit 1 with its status
     def failing(*args, **kwargs):
-        return SolveOutcome(x=np.zeros(2), f=np.nan, status="Maximum_Iterations_Exceeded",
-                            success=False, iterations=200)
+        return SolveOutcome(
+            x=np.zeros(2),
+            f=np.nan,
+            status="Maximum_Iterations_Exceeded",
+            success=False,
+            iterations=200,
+        )
 
     monkeypatch.setattr(turns_module, "solve", failing)
     code, err = _run(base, capsys)
@@ -602,8 +788,9 @@ def _quat_to_ned_attitude(quat):
 
 def _moving_average(values, width):
     kernel = np.ones(width) / width
-    return np.column_stack([np.convolve(values[:, i], kernel, mode="same")
-                            for i in range(values.shape[1])])
+    return np.column_stack(
+        [np.convolve(values[:, i], kernel, mode="same") for i in range(values.shape[1])]
+    )
 
 
 _BROAD_CACHE: dict = {}
@@ -643,23 +830,69 @@ def _heading_rms(est, truth):
 
 
 def _broad_before_after(tmp_path, mag_uT, acc_mps2, truth, slow):
-    frame = pd.DataFrame({"mx_uT": mag_uT[:, 0], "my_uT": mag_uT[:, 1], "mz_uT": mag_uT[:, 2],
-                          "ax_mps2": acc_mps2[:, 0], "ay_mps2": acc_mps2[:, 1],
-                          "az_mps2": acc_mps2[:, 2], "true_roll": truth[:, 0],
-                          "true_pitch": truth[:, 1], "true_heading": truth[:, 2]})
+    frame = pd.DataFrame(
+        {
+            "mx_uT": mag_uT[:, 0],
+            "my_uT": mag_uT[:, 1],
+            "mz_uT": mag_uT[:, 2],
+            "ax_mps2": acc_mps2[:, 0],
+            "ay_mps2": acc_mps2[:, 1],
+            "az_mps2": acc_mps2[:, 2],
+            "true_roll": truth[:, 0],
+            "true_pitch": truth[:, 1],
+            "true_heading": truth[:, 2],
+        }
+    )
     frame.to_csv(tmp_path / "broad.csv", index=False)
-    args = ["--mag-columns", "mx_uT", "my_uT", "mz_uT", "--acc-columns", "ax_mps2", "ay_mps2",
-            "az_mps2", "--mag-unit", "uT", "--acc-unit", "m/s2"]
-    assert main(["compass", "calibrate", str(tmp_path / "broad.csv"), *args,
-                 "-o", str(tmp_path / "broad.json")]) == 0
-    assert main(["compass", "attitude", str(tmp_path / "broad.json"), str(tmp_path / "broad.csv"),
-                 "-o", str(tmp_path / "broad_att.csv")]) == 0
-    after = pd.read_csv(tmp_path / "broad_att.csv")[["roll_deg", "pitch_deg",
-                                                     "heading_deg"]].to_numpy()
+    args = [
+        "--mag-columns",
+        "mx_uT",
+        "my_uT",
+        "mz_uT",
+        "--acc-columns",
+        "ax_mps2",
+        "ay_mps2",
+        "az_mps2",
+        "--mag-unit",
+        "uT",
+        "--acc-unit",
+        "m/s2",
+    ]
+    assert (
+        main(
+            [
+                "compass",
+                "calibrate",
+                str(tmp_path / "broad.csv"),
+                *args,
+                "-o",
+                str(tmp_path / "broad.json"),
+            ]
+        )
+        == 0
+    )
+    assert (
+        main(
+            [
+                "compass",
+                "attitude",
+                str(tmp_path / "broad.json"),
+                str(tmp_path / "broad.csv"),
+                "-o",
+                str(tmp_path / "broad_att.csv"),
+            ]
+        )
+        == 0
+    )
+    after = pd.read_csv(tmp_path / "broad_att.csv")[
+        ["roll_deg", "pitch_deg", "heading_deg"]
+    ].to_numpy()
     r, p, h = model.attitude_from_vectors(acc_mps2, mag_uT)  # no calibration
     before = np.degrees(np.column_stack([r, p, h]))
-    return ({"all": _heading_rms(before, truth), "slow": _heading_rms(before[slow], truth[slow])},
-            {"all": _heading_rms(after, truth), "slow": _heading_rms(after[slow], truth[slow])})
+    return (
+        {"all": _heading_rms(before, truth), "slow": _heading_rms(before[slow], truth[slow])},
+        {"all": _heading_rms(after, truth), "slow": _heading_rms(after[slow], truth[slow])},
+    )
 
 
 @pytest.mark.realdata
@@ -682,15 +915,24 @@ def test_free_rotation_improves_heading_on_broad(broad_log, tmp_path, capsys):
     1.8 deg RMS on slow samples) and by field-direction scatter (1.3 deg), and the dip alignment's
     ~1.4 deg rotation is fitted to that acceleration (docs/compass.md, "Real data").
     """
-    mag = model.sensor_reading(broad_log["mag"], np.radians([1.0, -0.8, 1.5, 0.6, -1.2, 0.9]),
-                               [0.03, -0.02, 0.01], [3.0, -2.0, 1.5])  # uT
+    mag = model.sensor_reading(
+        broad_log["mag"],
+        np.radians([1.0, -0.8, 1.5, 0.6, -1.2, 0.9]),
+        [0.03, -0.02, 0.01],
+        [3.0, -2.0, 1.5],
+    )  # uT
     mag = mag @ model.attitude_matrix(*np.radians([2.0, -1.5, 3.0])).T
-    acc = model.sensor_reading(broad_log["acc"], np.radians([0.4, -0.3, 0.4, 0.25, -0.3, 0.25]),
-                               [0.02, -0.015, 0.01], [0.2, -0.15, 0.1])  # m/s2
+    acc = model.sensor_reading(
+        broad_log["acc"],
+        np.radians([0.4, -0.3, 0.4, 0.25, -0.3, 0.25]),
+        [0.02, -0.015, 0.01],
+        [0.2, -0.15, 0.1],
+    )  # m/s2
     truth, slow = broad_log["truth"], broad_log["slow"]
     before, after = _broad_before_after(tmp_path, mag, acc, truth, slow)
-    shipped_before, shipped_after = _broad_before_after(tmp_path, broad_log["mag"],
-                                                        broad_log["acc"], truth, slow)
+    shipped_before, shipped_after = _broad_before_after(
+        tmp_path, broad_log["mag"], broad_log["acc"], truth, slow
+    )
     capsys.readouterr()
     assert after["slow"] < 0.75 * before["slow"]
     assert after["all"] < 0.8 * before["all"]

@@ -16,12 +16,12 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from nlpcal import drift
-from nlpcal.drift import temperature as temperature_module
 from nlpcal.cli import main
 from nlpcal.errors import InputError, SolveError
 from nlpcal.models import liu2022
 from nlpcal.models.liu2022 import TemperatureModel
 from nlpcal.models.zhou2010 import Zhou2010Parameters
+from nlpcal.nlp import temperature as temperature_module
 from nlpcal.nlp.solver import builds
 
 # --- an independent forward model ---------------------------------------------------------------
@@ -43,9 +43,13 @@ PROTON_NOISE = 0.1  # [nT]
 def axis_matrix(alpha_deg, beta_deg, gamma_deg):
     """O_p^-1 of Eq. 4 (REFERENCE.md): rows are the sensor axes in the ideal frame."""
     a, b, g = np.radians([alpha_deg, beta_deg, gamma_deg])
-    return np.array([[np.cos(a) * np.cos(g), np.cos(a) * np.sin(g), -np.sin(a)],
-                     [0.0, np.cos(b), np.sin(b)],
-                     [0.0, 0.0, 1.0]])
+    return np.array(
+        [
+            [np.cos(a) * np.cos(g), np.cos(a) * np.sin(g), -np.sin(a)],
+            [0.0, np.cos(b), np.sin(b)],
+            [0.0, 0.0, 1.0],
+        ]
+    )
 
 
 def sensor_output(field_ideal, temperature, *, sigma=None, zeta=None):
@@ -68,17 +72,24 @@ def true_correction(raw, temperature, *, sigma=None, zeta=None):
         k = 1.0 + C_TRUE * dt
         ideal = (raw / k - TRUE_Z) / (1.0 + TRUE_S)
     else:
-        ideal = (raw - TRUE_Z - np.asarray(zeta) * dt) / ((1.0 + TRUE_S) * (1.0 + np.asarray(sigma)
-                                                                         * dt))
+        ideal = (raw - TRUE_Z - np.asarray(zeta) * dt) / (
+            (1.0 + TRUE_S) * (1.0 + np.asarray(sigma) * dt)
+        )
     return np.linalg.solve(T, ideal.T).T
 
 
 def make_log(rng, directions, temperature, proton_true, **drift_kw):
     raw = sensor_output(directions * proton_true[:, None], temperature, **drift_kw)
     raw = raw + NOISE * rng.normal(size=raw.shape)
-    return pd.DataFrame({"mag_x": raw[:, 0], "mag_y": raw[:, 1], "mag_z": raw[:, 2],
-                         "temperature": temperature,
-                         "proton": proton_true + PROTON_NOISE * rng.normal(size=raw.shape[0])})
+    return pd.DataFrame(
+        {
+            "mag_x": raw[:, 0],
+            "mag_y": raw[:, 1],
+            "mag_z": raw[:, 2],
+            "temperature": temperature,
+            "proton": proton_true + PROTON_NOISE * rng.normal(size=raw.shape[0]),
+        }
+    )
 
 
 def attitudes(rng, n):
@@ -103,20 +114,34 @@ def replica(tmp_path_factory):
     folder = tmp_path_factory.mktemp("liu2022_independent")
     n_base, n_drift, n_field, n_sweep = 300, 600, 160, 400
     files = {
-        "base": make_log(rng, attitudes(rng, n_base), T0 + 0.01 * rng.normal(size=n_base),
-                         FIELD + slow(rng, n_base, 4.0)),
-        "drift": make_log(rng, np.tile(Rotation.from_euler("z", 25, degrees=True).apply(WORLD),
-                                       (n_drift, 1)),
-                          np.linspace(8.0, 4.0, n_drift) + 0.01 * rng.normal(size=n_drift),
-                          FIELD + slow(rng, n_drift, 8.0)),
-        "field": make_log(rng, np.repeat(attitudes(rng, n_field // 2), 2, axis=0),
-                          13.0 + 0.02 * rng.normal(size=n_field),
-                          FIELD + 50.0 * np.sin(np.linspace(0, 7, n_field))),
-        "sweep": make_log(rng, attitudes(rng, n_sweep), np.linspace(3.0, 15.0, n_sweep),
-                          FIELD + slow(rng, n_sweep, 6.0)),
+        "base": make_log(
+            rng,
+            attitudes(rng, n_base),
+            T0 + 0.01 * rng.normal(size=n_base),
+            FIELD + slow(rng, n_base, 4.0),
+        ),
+        "drift": make_log(
+            rng,
+            np.tile(Rotation.from_euler("z", 25, degrees=True).apply(WORLD), (n_drift, 1)),
+            np.linspace(8.0, 4.0, n_drift) + 0.01 * rng.normal(size=n_drift),
+            FIELD + slow(rng, n_drift, 8.0),
+        ),
+        "field": make_log(
+            rng,
+            np.repeat(attitudes(rng, n_field // 2), 2, axis=0),
+            13.0 + 0.02 * rng.normal(size=n_field),
+            FIELD + 50.0 * np.sin(np.linspace(0, 7, n_field)),
+        ),
+        "sweep": make_log(
+            rng,
+            attitudes(rng, n_sweep),
+            np.linspace(3.0, 15.0, n_sweep),
+            FIELD + slow(rng, n_sweep, 6.0),
+        ),
     }
     return {name: write(frame, folder / f"{name}.csv") for name, frame in files.items()} | {
-        "dir": folder}
+        "dir": folder
+    }
 
 
 def field_rmse(csv_path, reference_column="proton"):
@@ -151,6 +176,7 @@ def assert_input_error(argv, capsys, *fragments):
 
 # --- the model of Liu et al. 2022 ----------------------------------------------------------------
 
+
 def test_k_factor_eq9_with_the_papers_numbers():
     k = liu2022.k_factor(12.8, A_PAPER, B_PAPER, 7.3)
     assert k == pytest.approx((A_PAPER * 12.8 + B_PAPER) / (A_PAPER * 7.3 + B_PAPER), rel=1e-15)
@@ -163,8 +189,9 @@ def test_k_factor_eq9_with_the_papers_numbers():
 def test_diurnal_correction_and_rmse_eq10():
     modulus = [100.0, 103.0, 99.0]
     reference = [50.0, 52.0, 47.0]
-    np.testing.assert_allclose(liu2022.diurnal_correction(modulus, reference),
-                               [100.0, 101.0, 102.0])
+    np.testing.assert_allclose(
+        liu2022.diurnal_correction(modulus, reference), [100.0, 101.0, 102.0]
+    )
     assert liu2022.rmse([1.0, 2.0, 3.0], [1.0, 2.0, 5.0]) == pytest.approx(np.sqrt(4 / 3))
     assert liu2022.rmse([3.0, 4.0], 3.5) == pytest.approx(0.5)
 
@@ -176,17 +203,23 @@ def test_model_matches_the_independent_forward_model():
     params = Zhou2010Parameters(*TRUE_Z, *TRUE_S, *TRUE_ANGLES_DEG)
     common = TemperatureModel.from_drift(A_PAPER, B_PAPER, T0)
     assert common.k_slope_per_degC == pytest.approx(C_TRUE, rel=1e-15)
-    np.testing.assert_allclose(liu2022.forward(field, t, params, common), sensor_output(field, t),
-                               rtol=0, atol=1e-8)
+    np.testing.assert_allclose(
+        liu2022.forward(field, t, params, common), sensor_output(field, t), rtol=0, atol=1e-8
+    )
     raw = sensor_output(field, t)
     np.testing.assert_allclose(liu2022.correct(raw, t, params, common), field, atol=1e-7)
     # the common model is the per-axis model with sigma = c and zeta = c z
-    same = TemperatureModel("per-axis", T0, scale_slope_per_degC=(C_TRUE,) * 3,
-                            offset_slope_per_degC=tuple(C_TRUE * TRUE_Z))
+    same = TemperatureModel(
+        "per-axis",
+        T0,
+        scale_slope_per_degC=(C_TRUE,) * 3,
+        offset_slope_per_degC=tuple(C_TRUE * TRUE_Z),
+    )
     np.testing.assert_allclose(liu2022.correct(raw, t, params, same), field, atol=1e-7)
     sigma, zeta = (2e-4, -1e-4, 5e-5), (0.3, -0.2, 0.1)
-    per_axis = TemperatureModel("per-axis", T0, scale_slope_per_degC=sigma,
-                                offset_slope_per_degC=zeta)
+    per_axis = TemperatureModel(
+        "per-axis", T0, scale_slope_per_degC=sigma, offset_slope_per_degC=zeta
+    )
     raw = sensor_output(field, t, sigma=sigma, zeta=zeta)
     np.testing.assert_allclose(liu2022.forward(field, t, params, per_axis), raw, atol=1e-8)
     np.testing.assert_allclose(liu2022.correct(raw, t, params, per_axis), field, atol=1e-7)
@@ -203,8 +236,12 @@ def test_casadi_objective_matches_direct_per_sample_evaluation(kind):
     if kind == "common":
         model = TemperatureModel("common", 6.0, k_slope_per_degC=1.9e-4)
     else:
-        model = TemperatureModel("per-axis", 6.0, scale_slope_per_degC=(1e-4, 3e-4, -2e-4),
-                                 offset_slope_per_degC=(0.5, -0.2, 0.8))
+        model = TemperatureModel(
+            "per-axis",
+            6.0,
+            scale_slope_per_degC=(1e-4, 3e-4, -2e-4),
+            offset_slope_per_degC=(0.5, -0.2, 0.8),
+        )
     # direct: typed out here, sample by sample
     T = axis_matrix(*params.as_vector()[6:9])
     direct = []
@@ -218,8 +255,9 @@ def test_casadi_objective_matches_direct_per_sample_evaluation(kind):
             ideal = (b - params.offsets - np.array(model.offset_slope_per_degC) * dt) / gain
         direct.append((np.linalg.norm(np.linalg.solve(T, ideal)) - fi) ** 2)
     expected = float(np.mean(direct))
-    assert drift.objective_value(raw, t, reference, params, model) == pytest.approx(expected,
-                                                                                    rel=1e-10)
+    assert drift.objective_value(raw, t, reference, params, model) == pytest.approx(
+        expected, rel=1e-10
+    )
 
 
 def test_nlp_is_built_once_per_model_whatever_the_size():
@@ -230,17 +268,24 @@ def test_nlp_is_built_once_per_model_whatever_the_size():
     reference = np.full(n, FIELD)
     drift.calibrate_temperature(raw, t, reference, model="common", base_temperature=T0)
     misses = builds()
-    result = drift.calibrate_temperature(raw[::-1].copy(), t[::-1].copy(), reference,
-                                         model="common", base_temperature=T0)
+    result = drift.calibrate_temperature(
+        raw[::-1].copy(), t[::-1].copy(), reference, model="common", base_temperature=T0
+    )
     longer = sensor_output(attitudes(rng, 2 * n) * FIELD, np.linspace(0, 12, 2 * n))
-    drift.calibrate_temperature(longer, np.linspace(0, 12, 2 * n), np.full(2 * n, FIELD),
-                                model="common", base_temperature=T0)
+    drift.calibrate_temperature(
+        longer,
+        np.linspace(0, 12, 2 * n),
+        np.full(2 * n, FIELD),
+        model="common",
+        base_temperature=T0,
+    )
     assert builds() == misses
     assert result.calibration.solver["status"] in ("Solve_Succeeded", "Solved_To_Acceptable_Level")
     assert result.temperature_model.k_slope_per_degC == pytest.approx(C_TRUE, rel=0.02)
 
 
 # --- the drift fit (Eq. 1) -----------------------------------------------------------------------
+
 
 def static_log(t, reference, rng=None, noise=0.0):
     direction = np.tile(WORLD, (t.size, 1))
@@ -256,8 +301,9 @@ def test_fit_drift_recovers_the_line_and_k_from_a_list_array_and_frame():
     raw = static_log(t, reference)
     # the static modulus at the base field is k(t) |D(F_1 u)| = a' t + b' with a'/(a' t0 + b') = C
     frame = pd.DataFrame(raw, columns=["x", "y", "z"])
-    fits = [drift.fit_drift(x, t, reference, base_temperature=T0)
-            for x in (raw.tolist(), raw, frame)]
+    fits = [
+        drift.fit_drift(x, t, reference, base_temperature=T0) for x in (raw.tolist(), raw, frame)
+    ]
     for fit in fits:
         # 2 %: the paper's diurnal correction is applied to the raw modulus, not scaled
         assert fit.k_slope == pytest.approx(C_TRUE, rel=0.02)
@@ -285,8 +331,12 @@ def test_fit_drift_warns_on_a_small_span_with_the_standard_error():
     assert fit.a_standard_error > 0.1 * abs(fit.a)
     assert any("too small" in w and "+/-" in w for w in fit.warnings)
     moved = attitudes(rng, 100) * FIELD
-    fit = drift.fit_drift(sensor_output(moved, np.linspace(4, 8, 100)), np.linspace(4, 8, 100),
-                          np.full(100, FIELD), base_temperature=T0)
+    fit = drift.fit_drift(
+        sensor_output(moved, np.linspace(4, 8, 100)),
+        np.linspace(4, 8, 100),
+        np.full(100, FIELD),
+        base_temperature=T0,
+    )
     assert any("static sensor" in w for w in fit.warnings)
 
 
@@ -307,8 +357,9 @@ def test_fit_drift_rejects_unusable_input():
 
 def test_drift_and_temperature_results_round_trip(tmp_path):
     t = np.linspace(8, 4, 100)
-    fit = drift.fit_drift(static_log(t, np.full(100, FIELD)), t, np.full(100, FIELD),
-                          base_temperature=T0)
+    fit = drift.fit_drift(
+        static_log(t, np.full(100, FIELD)), t, np.full(100, FIELD), base_temperature=T0
+    )
     fit.save(tmp_path / "d.json")
     again = drift.DriftFit.load(tmp_path / "d.json")
     assert again.to_dict() == fit.to_dict()
@@ -318,46 +369,91 @@ def test_drift_and_temperature_results_round_trip(tmp_path):
     n = 200
     ts = np.linspace(0, 15, n)
     raw = sensor_output(attitudes(rng, n) * FIELD, ts) + NOISE * rng.normal(size=(n, 3))
-    result = drift.calibrate_temperature(raw, ts, np.full(n, FIELD), model="per-axis",
-                                         base_temperature=T0, temperature_column="temperature")
+    result = drift.calibrate_temperature(
+        raw,
+        ts,
+        np.full(n, FIELD),
+        model="per-axis",
+        base_temperature=T0,
+        temperature_column="temperature",
+    )
     result.save(tmp_path / "p.json")
     loaded = drift.TemperatureCalibrationResult.load(tmp_path / "p.json")
     np.testing.assert_allclose(loaded.apply(raw, ts), result.apply(raw, ts))
     assert loaded.temperature_column == "temperature"
     # a reader that knows nothing of temperature still reads the nine parameters at t0
     from nlpcal import CalibrationResult
+
     assert CalibrationResult.load(tmp_path / "p.json").parameters == result.parameters
 
 
 # --- the issue's "Done when", through the command line ------------------------------------------
 
+
 def test_pipeline_base_calibration_drift_fit_apply_reaches_the_truth(replica, tmp_path, capsys):
     base = tmp_path / "base.json"
-    assert run(["calibrate", replica["base"], "--reference-column", "proton", "-o", base],
-               capsys)[0] == 0
+    assert (
+        run(["calibrate", replica["base"], "--reference-column", "proton", "-o", base], capsys)[0]
+        == 0
+    )
     fit_path = tmp_path / "drift.json"
-    status, _, err = run(["drift", "fit", replica["drift"], "--temperature-column", "temperature",
-                          "--reference-column", "proton", "--base-temperature", T0,
-                          "-o", fit_path], capsys)
+    status, _, err = run(
+        [
+            "drift",
+            "fit",
+            replica["drift"],
+            "--temperature-column",
+            "temperature",
+            "--reference-column",
+            "proton",
+            "--base-temperature",
+            T0,
+            "-o",
+            fit_path,
+        ],
+        capsys,
+    )
     assert status == 0, err
     document = json.loads(fit_path.read_text())
-    for key in ("a_nT_per_degC", "b_nT", "base_temperature_degC", "fit_rmse_nT", "n",
-                "temperature_range_degC", "a_standard_error_nT_per_degC"):
+    for key in (
+        "a_nT_per_degC",
+        "b_nT",
+        "base_temperature_degC",
+        "fit_rmse_nT",
+        "n",
+        "temperature_range_degC",
+        "a_standard_error_nT_per_degC",
+    ):
         assert key in document
     assert document["n"] == 600 and document["base_temperature_degC"] == T0
     assert document["warnings"] == []
     a, se = document["a_nT_per_degC"], document["a_standard_error_nT_per_degC"]
     # the static modulus slope is C |D(F u)|, about C (F + 0.01 F); 4 standard errors plus 2 %
     # for the diurnal correction, which the paper applies to the raw modulus
-    slope = C_TRUE * np.linalg.norm(sensor_output(np.atleast_2d(
-        Rotation.from_euler("z", 25, degrees=True).apply(WORLD)) * FIELD, [T0])[0])
+    slope = C_TRUE * np.linalg.norm(
+        sensor_output(
+            np.atleast_2d(Rotation.from_euler("z", 25, degrees=True).apply(WORLD)) * FIELD, [T0]
+        )[0]
+    )
     assert abs(a - slope) < 4 * se + 0.02 * slope
 
     system = tmp_path / "system.csv"
     both = tmp_path / "both.csv"
     assert run(["apply", base, replica["field"], "-o", system], capsys)[0] == 0
-    status, _, err = run(["apply", base, replica["field"], "--drift", fit_path,
-                          "--temperature-column", "temperature", "-o", both], capsys)
+    status, _, err = run(
+        [
+            "apply",
+            base,
+            replica["field"],
+            "--drift",
+            fit_path,
+            "--temperature-column",
+            "temperature",
+            "-o",
+            both,
+        ],
+        capsys,
+    )
     assert status == 0, err
     assert "extrapolated" in err  # 13 degC is outside the 4 .. 8 degC of the drift log
     truth = truth_rmse(replica["field"])
@@ -366,25 +462,63 @@ def test_pipeline_base_calibration_drift_fit_apply_reaches_the_truth(replica, tm
     assert field_rmse(system) > 10 * truth  # ~40 nT: system-only stays far above
 
     # the paper's three rows, one command away
-    status, out, _ = run(["stats", replica["field"], "--params", base, "--drift", fit_path,
-                          "--reference-column", "proton", "--temperature-column", "temperature",
-                          "--json"], capsys)
+    status, out, _ = run(
+        [
+            "stats",
+            replica["field"],
+            "--params",
+            base,
+            "--drift",
+            fit_path,
+            "--reference-column",
+            "proton",
+            "--temperature-column",
+            "temperature",
+            "--json",
+        ],
+        capsys,
+    )
     assert status == 0
     rows = json.loads(out)["rows"]
     assert [r["label"] for r in rows] == ["measured", "corrected", "corrected + temperature"]
     assert rows[0]["rmse"] > 500 and rows[1]["rmse"] > 10 * truth
     assert rows[2]["rmse"] == pytest.approx(field_rmse(both), rel=1e-6)
-    status, out, _ = run(["stats", replica["field"], "--params", base, "--drift", fit_path,
-                          "--reference-column", "proton"], capsys)  # column from drift.json
+    status, out, _ = run(
+        [
+            "stats",
+            replica["field"],
+            "--params",
+            base,
+            "--drift",
+            fit_path,
+            "--reference-column",
+            "proton",
+        ],
+        capsys,
+    )  # column from drift.json
     assert status == 0 and "rmse" in out and "corrected + temperature" in out
 
 
 @pytest.mark.parametrize("model", ["common", "per-axis"])
 def test_joint_temperature_calibration_from_one_sweep_log(replica, tmp_path, capsys, model):
     params = tmp_path / f"joint_{model}.json"
-    status, _, err = run(["calibrate", replica["sweep"], "--reference-column", "proton",
-                          "--temperature-column", "temperature", "--temperature-model", model,
-                          "--base-temperature", T0, "-o", params], capsys)
+    status, _, err = run(
+        [
+            "calibrate",
+            replica["sweep"],
+            "--reference-column",
+            "proton",
+            "--temperature-column",
+            "temperature",
+            "--temperature-model",
+            model,
+            "--base-temperature",
+            T0,
+            "-o",
+            params,
+        ],
+        capsys,
+    )
     assert status == 0, err
     document = json.loads(params.read_text())
     block = document["temperature_model"]
@@ -394,8 +528,9 @@ def test_joint_temperature_calibration_from_one_sweep_log(replica, tmp_path, cap
         assert block["k_slope_per_degC"] == pytest.approx(C_TRUE, rel=0.01)
     else:
         np.testing.assert_allclose(block["scale_slope_per_degC"], C_TRUE, rtol=0.05)
-    np.testing.assert_allclose([document["parameters"][k] for k in ("z_x", "z_y", "z_z")], TRUE_Z,
-                               atol=1.0)
+    np.testing.assert_allclose(
+        [document["parameters"][k] for k in ("z_x", "z_y", "z_z")], TRUE_Z, atol=1.0
+    )
     # applies itself with the log's temperature column, no flag needed
     out = tmp_path / f"joint_{model}.csv"
     assert run(["apply", params, replica["field"], "-o", out], capsys)[0] == 0
@@ -404,13 +539,28 @@ def test_joint_temperature_calibration_from_one_sweep_log(replica, tmp_path, cap
     # at least as well as the paper's two-step pipeline from base + drift logs
     base, fit_path, both = (tmp_path / n for n in ("b.json", "d.json", "both.csv"))
     run(["calibrate", replica["base"], "--reference-column", "proton", "-o", base], capsys)
-    run(["drift", "fit", replica["drift"], "--temperature-column", "temperature",
-         "--reference-column", "proton", "--base-temperature", T0, "-o", fit_path], capsys)
+    run(
+        [
+            "drift",
+            "fit",
+            replica["drift"],
+            "--temperature-column",
+            "temperature",
+            "--reference-column",
+            "proton",
+            "--base-temperature",
+            T0,
+            "-o",
+            fit_path,
+        ],
+        capsys,
+    )
     run(["apply", base, replica["field"], "--drift", fit_path, "-o", both], capsys)
     assert field_rmse(out) <= 1.05 * field_rmse(both)
     # the stats rows of the joint result: t0 only, then with its temperature model
-    status, text, _ = run(["stats", replica["field"], "--params", params, "--reference-column",
-                           "proton"], capsys)
+    status, text, _ = run(
+        ["stats", replica["field"], "--params", params, "--reference-column", "proton"], capsys
+    )
     assert status == 0 and "corrected + temperature" in text
 
 
@@ -419,18 +569,45 @@ def test_per_axis_drift_needs_the_per_axis_model(tmp_path, capsys):
     rng = np.random.default_rng(99)
     sigma, zeta = (3.0e-4, -1.0e-4, 1.2e-4), (2.5, -3.0, 1.5)
     n = 400
-    sweep = make_log(rng, attitudes(rng, n), np.linspace(0.0, 16.0, n),
-                     FIELD + slow(rng, n, 5.0), sigma=sigma, zeta=zeta)
-    field = make_log(rng, attitudes(rng, 150), 14.0 + 0.02 * rng.normal(size=150),
-                     np.full(150, FIELD), sigma=sigma, zeta=zeta)
+    sweep = make_log(
+        rng,
+        attitudes(rng, n),
+        np.linspace(0.0, 16.0, n),
+        FIELD + slow(rng, n, 5.0),
+        sigma=sigma,
+        zeta=zeta,
+    )
+    field = make_log(
+        rng,
+        attitudes(rng, 150),
+        14.0 + 0.02 * rng.normal(size=150),
+        np.full(150, FIELD),
+        sigma=sigma,
+        zeta=zeta,
+    )
     sweep_path, field_path = write(sweep, tmp_path / "s.csv"), write(field, tmp_path / "f.csv")
     truth = truth_rmse(field_path, sigma=sigma, zeta=zeta)
     scores = {}
     for model in ("common", "per-axis"):
         params = tmp_path / f"{model}.json"
-        assert run(["calibrate", sweep_path, "--reference-column", "proton",
-                    "--temperature-column", "temperature", "--temperature-model", model,
-                    "-o", params], capsys)[0] == 0
+        assert (
+            run(
+                [
+                    "calibrate",
+                    sweep_path,
+                    "--reference-column",
+                    "proton",
+                    "--temperature-column",
+                    "temperature",
+                    "--temperature-model",
+                    model,
+                    "-o",
+                    params,
+                ],
+                capsys,
+            )[0]
+            == 0
+        )
         out = tmp_path / f"{model}.csv"
         assert run(["apply", params, field_path, "-o", out], capsys)[0] == 0
         scores[model] = field_rmse(out)
@@ -451,13 +628,30 @@ def test_simulate_preset_liu2022_reproduces_the_papers_line(tmp_path, capsys):
     field = pd.read_csv(out / "field.csv")
     assert len(field) == 200 and field["temp_c"].mean() == pytest.approx(12.8, abs=0.05)
     assert 80 <= field["proton_nT"].max() - field["proton_nT"].min() <= 130  # ~100 nT (section 3)
-    assert run(["drift", "fit", out / "drift.csv", "--temperature-column", "temp_c",
-                "--reference-column", "proton_nT", "--base-temperature", 7.3,
-                "-o", out / "drift.json"], capsys)[0] == 0
+    assert (
+        run(
+            [
+                "drift",
+                "fit",
+                out / "drift.csv",
+                "--temperature-column",
+                "temp_c",
+                "--reference-column",
+                "proton_nT",
+                "--base-temperature",
+                7.3,
+                "-o",
+                out / "drift.json",
+            ],
+            capsys,
+        )[0]
+        == 0
+    )
     fit = json.loads((out / "drift.json").read_text())
     assert fit["temperature_range_degC"] == pytest.approx([5.1, 6.8], abs=0.05)
-    assert fit["a_nT_per_degC"] == pytest.approx(A_PAPER, abs=4 * fit[
-        "a_standard_error_nT_per_degC"] + 0.01 * A_PAPER)
+    assert fit["a_nT_per_degC"] == pytest.approx(
+        A_PAPER, abs=4 * fit["a_standard_error_nT_per_degC"] + 0.01 * A_PAPER
+    )
     # the diurnal correction takes the first proton value as base, so b carries its departure
     # from the undisturbed field (disturbances of up to 10 nT, section 1 of the paper)
     first = pd.read_csv(out / "drift.csv")["proton_nT"].iloc[0]
@@ -468,6 +662,7 @@ def test_simulate_preset_liu2022_reproduces_the_papers_line(tmp_path, capsys):
 
 # --- every error path through main(argv): exit 2 with one sentence, exit 1 on IPOPT failure -----
 
+
 @pytest.fixture(scope="module")
 def small(tmp_path_factory):
     """A static drift log and a calibration log with temperature and reference, plus params."""
@@ -476,25 +671,29 @@ def small(tmp_path_factory):
     t = np.linspace(8, 4, 60)
     d = make_log(rng, np.tile(WORLD, (60, 1)), t, np.full(60, FIELD))
     c = make_log(rng, attitudes(rng, 120), np.linspace(2, 14, 120), np.full(120, FIELD))
-    paths = {"drift": write(d, folder / "d.csv"), "cal": write(c, folder / "c.csv"),
-             "dir": folder}
+    paths = {"drift": write(d, folder / "d.csv"), "cal": write(c, folder / "c.csv"), "dir": folder}
     bad_ref = d.copy()
     bad_ref.loc[5, "proton"] = -1.0
     paths["bad_ref"] = write(bad_ref, folder / "bad_ref.csv")
     bad_t = d.copy().astype({"temperature": object})
     bad_t.loc[3, "temperature"] = "warm"
     paths["bad_t"] = write(bad_t, folder / "bad_t.csv")
-    paths["narrow"] = write(make_log(rng, np.tile(WORLD, (60, 1)), np.linspace(6.0, 6.04, 60),
-                                     np.full(60, FIELD)), folder / "narrow.csv")
-    paths["cal_narrow"] = write(make_log(rng, attitudes(rng, 120), np.linspace(6.0, 6.2, 120),
-                                         np.full(120, FIELD)), folder / "cal_narrow.csv")
+    paths["narrow"] = write(
+        make_log(rng, np.tile(WORLD, (60, 1)), np.linspace(6.0, 6.04, 60), np.full(60, FIELD)),
+        folder / "narrow.csv",
+    )
+    paths["cal_narrow"] = write(
+        make_log(rng, attitudes(rng, 120), np.linspace(6.0, 6.2, 120), np.full(120, FIELD)),
+        folder / "cal_narrow.csv",
+    )
     flat = d.copy()
     flat["temperature"] = 6.0
     paths["flat"] = write(flat, folder / "flat.csv")
     paths["no_t"] = write(d.drop(columns="temperature"), folder / "no_t.csv")
     paths["hot"] = write(d.assign(temperature=-1e7), folder / "hot.csv")
-    fit = drift.fit_drift(d[["mag_x", "mag_y", "mag_z"]].to_numpy(), t, d["proton"].to_numpy(),
-                          base_temperature=T0)
+    fit = drift.fit_drift(
+        d[["mag_x", "mag_y", "mag_z"]].to_numpy(), t, d["proton"].to_numpy(), base_temperature=T0
+    )
     fit.input = {"temperature_column": "temperature"}
     fit.save(folder / "drift.json")
     paths["drift_json"] = str(folder / "drift.json")
@@ -504,10 +703,36 @@ def small(tmp_path_factory):
 @pytest.fixture(scope="module")
 def params_files(small, tmp_path_factory):
     folder = tmp_path_factory.mktemp("liu2022_params")
-    assert main(["calibrate", small["cal"], "--reference-column", "proton", "--method", "joint",
-                 "-o", str(folder / "plain.json")]) == 0
-    assert main(["calibrate", small["cal"], "--reference-column", "proton",
-                 "--temperature-column", "temperature", "-o", str(folder / "temp.json")]) == 0
+    assert (
+        main(
+            [
+                "calibrate",
+                small["cal"],
+                "--reference-column",
+                "proton",
+                "--method",
+                "joint",
+                "-o",
+                str(folder / "plain.json"),
+            ]
+        )
+        == 0
+    )
+    assert (
+        main(
+            [
+                "calibrate",
+                small["cal"],
+                "--reference-column",
+                "proton",
+                "--temperature-column",
+                "temperature",
+                "-o",
+                str(folder / "temp.json"),
+            ]
+        )
+        == 0
+    )
     return {"plain": str(folder / "plain.json"), "temp": str(folder / "temp.json")}
 
 
@@ -515,20 +740,40 @@ def test_drift_fit_cli_errors(small, capsys, tmp_path):
     fit = ["drift", "fit"]
     cols = ["--temperature-column", "temperature", "--reference-column", "proton"]
     assert_input_error(fit + [small["no_t"]] + cols, capsys, "'temperature' not found")
-    assert_input_error(fit + [small["drift"], "--temperature-column", "temperature",
-                              "--reference-column", "proton_nT"], capsys, "'proton_nT' not found")
+    assert_input_error(
+        fit
+        + [
+            small["drift"],
+            "--temperature-column",
+            "temperature",
+            "--reference-column",
+            "proton_nT",
+        ],
+        capsys,
+        "'proton_nT' not found",
+    )
     assert_input_error(fit + [small["bad_ref"]] + cols, capsys, "non-positive")
     assert_input_error(fit + [small["bad_t"]] + cols, capsys, "non-numeric", "--drop-invalid")
     assert_input_error(fit + [small["flat"]] + cols, capsys, "temperatures equal")
-    assert_input_error(fit + [small["drift"], "--temperature-column", "proton",
-                              "--reference-column", "proton"], capsys, "must be different")
-    assert_input_error(fit + [small["drift"], "--temperature-column", "mag_x",
-                              "--reference-column", "proton"], capsys, "field columns")
-    assert_input_error(fit + [small["drift"], "--reference-column", "proton"], capsys,
-                       "--temperature-column")
+    assert_input_error(
+        fit + [small["drift"], "--temperature-column", "proton", "--reference-column", "proton"],
+        capsys,
+        "must be different",
+    )
+    assert_input_error(
+        fit + [small["drift"], "--temperature-column", "mag_x", "--reference-column", "proton"],
+        capsys,
+        "field columns",
+    )
+    assert_input_error(
+        fit + [small["drift"], "--reference-column", "proton"], capsys, "--temperature-column"
+    )
     assert_input_error(fit + [str(tmp_path / "absent.csv")] + cols, capsys, "no such file")
-    assert_input_error(fit + [small["drift"]] + cols + ["-o", str(tmp_path / "no" / "d.json")],
-                       capsys, "does not exist")
+    assert_input_error(
+        fit + [small["drift"]] + cols + ["-o", str(tmp_path / "no" / "d.json")],
+        capsys,
+        "does not exist",
+    )
     assert_input_error(["drift"], capsys, "required")
     # --drop-invalid makes the bad temperature row a warning
     status, out, err = run(fit + [small["bad_t"]] + cols + ["--drop-invalid"], capsys)
@@ -537,8 +782,20 @@ def test_drift_fit_cli_errors(small, capsys, tmp_path):
 
 def test_drift_fit_cli_small_span_warning_and_default_base_temperature(small, capsys, tmp_path):
     out = tmp_path / "narrow.json"
-    status, _, err = run(["drift", "fit", small["narrow"], "--temperature-column", "temperature",
-                          "--reference-column", "proton", "-o", out], capsys)
+    status, _, err = run(
+        [
+            "drift",
+            "fit",
+            small["narrow"],
+            "--temperature-column",
+            "temperature",
+            "--reference-column",
+            "proton",
+            "-o",
+            out,
+        ],
+        capsys,
+    )
     assert status == 0
     assert "too small" in err and "standard error" in err and "+/-" in err
     assert "no base temperature given" in err
@@ -552,47 +809,86 @@ def test_drift_fit_cli_small_span_warning_and_default_base_temperature(small, ca
 def test_apply_and_stats_cli_errors(small, params_files, capsys, tmp_path):
     plain, temp = params_files["plain"], params_files["temp"]
     out = str(tmp_path / "o.csv")
-    assert_input_error(["apply", plain, small["drift"], "--temperature-column", "temperature",
-                        "-o", out], capsys, "needs --drift")
-    assert_input_error(["apply", plain, small["no_t"], "--drift", small["drift_json"], "-o", out],
-                       capsys, "pass --temperature-column", "lacks")
-    assert_input_error(["apply", plain, small["drift"], "--drift", small["drift_json"],
-                        "--temperature-column", "temp", "-o", out], capsys, "'temp' not found")
-    assert_input_error(["apply", plain, small["drift"], "--drift", plain, "-o", out], capsys,
-                       "not a drift file")
-    assert_input_error(["apply", temp, small["drift"], "--drift", small["drift_json"], "-o", out],
-                       capsys, "already carries a temperature model")
-    assert_input_error(["apply", temp, small["no_t"], "-o", out], capsys,
-                       "pass --temperature-column")
-    assert_input_error(["apply", plain, small["hot"], "--drift", small["drift_json"], "-o", out],
-                       capsys, "non-positive temperature factor")
+    assert_input_error(
+        ["apply", plain, small["drift"], "--temperature-column", "temperature", "-o", out],
+        capsys,
+        "needs --drift",
+    )
+    assert_input_error(
+        ["apply", plain, small["no_t"], "--drift", small["drift_json"], "-o", out],
+        capsys,
+        "pass --temperature-column",
+        "lacks",
+    )
+    assert_input_error(
+        [
+            "apply",
+            plain,
+            small["drift"],
+            "--drift",
+            small["drift_json"],
+            "--temperature-column",
+            "temp",
+            "-o",
+            out,
+        ],
+        capsys,
+        "'temp' not found",
+    )
+    assert_input_error(
+        ["apply", plain, small["drift"], "--drift", plain, "-o", out], capsys, "not a drift file"
+    )
+    assert_input_error(
+        ["apply", temp, small["drift"], "--drift", small["drift_json"], "-o", out],
+        capsys,
+        "already carries a temperature model",
+    )
+    assert_input_error(
+        ["apply", temp, small["no_t"], "-o", out], capsys, "pass --temperature-column"
+    )
+    assert_input_error(
+        ["apply", plain, small["hot"], "--drift", small["drift_json"], "-o", out],
+        capsys,
+        "non-positive temperature factor",
+    )
     broken = tmp_path / "broken.json"
     broken.write_text("{not json")
-    assert_input_error(["apply", plain, small["drift"], "--drift", broken, "-o", out], capsys,
-                       "not a valid")
+    assert_input_error(
+        ["apply", plain, small["drift"], "--drift", broken, "-o", out], capsys, "not a valid"
+    )
     missing = tmp_path / "missing.json"
     missing.write_text(json.dumps({"a_nT_per_degC": 7.0, "base_temperature_degC": 7.3}))
-    assert_input_error(["apply", plain, small["drift"], "--drift", missing, "-o", out], capsys,
-                       "missing b_nT")
+    assert_input_error(
+        ["apply", plain, small["drift"], "--drift", missing, "-o", out], capsys, "missing b_nT"
+    )
     assert not Path(out).exists()
-    assert_input_error(["stats", small["bad_ref"], "--params", plain, "--reference-column",
-                        "proton"], capsys, "non-positive")
-    assert_input_error(["stats", small["drift"], "--temperature-column", "temperature"], capsys,
-                       "needs --drift")
-    assert_input_error(["stats", small["drift"], "--reference-column", "nope"], capsys,
-                       "'nope' not found")
+    assert_input_error(
+        ["stats", small["bad_ref"], "--params", plain, "--reference-column", "proton"],
+        capsys,
+        "non-positive",
+    )
+    assert_input_error(
+        ["stats", small["drift"], "--temperature-column", "temperature"], capsys, "needs --drift"
+    )
+    assert_input_error(
+        ["stats", small["drift"], "--reference-column", "nope"], capsys, "'nope' not found"
+    )
     # a log without the model's temperature column: stats still gives the rows it can
-    status, text, err = run(["stats", small["no_t"], "--params", temp, "--reference-column",
-                             "proton"], capsys)
+    status, text, err = run(
+        ["stats", small["no_t"], "--params", temp, "--reference-column", "proton"], capsys
+    )
     assert status == 0 and "corrected + temperature" not in text and "no column" in err
     # --drift alone (no --params): Eq. 9 only
-    status, text, _ = run(["stats", small["drift"], "--drift", small["drift_json"],
-                           "--reference-column", "proton"], capsys)
+    status, text, _ = run(
+        ["stats", small["drift"], "--drift", small["drift_json"], "--reference-column", "proton"],
+        capsys,
+    )
     assert status == 0 and "temperature" in text and "rmse" in text
 
 
 def test_apply_without_drift_is_unchanged(small, params_files, capsys, tmp_path):
     from nlpcal import CalibrationResult
+
     out = tmp_path / "plain.csv"
     assert run(["apply", params_files["plain"], small["cal"], "-o", out], capsys)[0] == 0
     frame = pd.read_csv(out)
@@ -603,27 +899,90 @@ def test_apply_without_drift_is_unchanged(small, params_files, capsys, tmp_path)
 
 def test_calibrate_temperature_cli_errors(small, capsys, tmp_path):
     cal = small["cal"]
-    assert_input_error(["calibrate", cal, "--temperature-column", "temperature"], capsys,
-                       "needs --reference-column")
-    assert_input_error(["calibrate", cal, "--reference-field", "50000", "--temperature-column",
-                        "temperature"], capsys, "needs --reference-column")
-    assert_input_error(["calibrate", cal, "--reference-column", "proton", "--temperature-model",
-                        "per-axis"], capsys, "needs --temperature-column")
-    assert_input_error(["calibrate", cal, "--reference-column", "proton", "--temperature-column",
-                        "temp"], capsys, "'temp' not found")
-    assert_input_error(["calibrate", cal, "--reference-column", "proton", "--temperature-column",
-                        "temperature", "--temperature-model", "quadratic"], capsys,
-                       "invalid choice")
-    assert_input_error(["calibrate", small["bad_ref"], "--reference-column", "proton",
-                        "--temperature-column", "temperature"], capsys, "non-positive")
-    assert_input_error(["calibrate", small["flat"], "--reference-column", "proton",
-                        "--temperature-column", "temperature"], capsys, "temperatures equal")
-    assert_input_error(["calibrate", cal, "--reference-column", "proton", "--temperature-column",
-                        "temperature", "-o", str(tmp_path / "no" / "p.json")], capsys,
-                       "does not exist")
+    assert_input_error(
+        ["calibrate", cal, "--temperature-column", "temperature"],
+        capsys,
+        "needs --reference-column",
+    )
+    assert_input_error(
+        ["calibrate", cal, "--reference-field", "50000", "--temperature-column", "temperature"],
+        capsys,
+        "needs --reference-column",
+    )
+    assert_input_error(
+        ["calibrate", cal, "--reference-column", "proton", "--temperature-model", "per-axis"],
+        capsys,
+        "needs --temperature-column",
+    )
+    assert_input_error(
+        ["calibrate", cal, "--reference-column", "proton", "--temperature-column", "temp"],
+        capsys,
+        "'temp' not found",
+    )
+    assert_input_error(
+        [
+            "calibrate",
+            cal,
+            "--reference-column",
+            "proton",
+            "--temperature-column",
+            "temperature",
+            "--temperature-model",
+            "quadratic",
+        ],
+        capsys,
+        "invalid choice",
+    )
+    assert_input_error(
+        [
+            "calibrate",
+            small["bad_ref"],
+            "--reference-column",
+            "proton",
+            "--temperature-column",
+            "temperature",
+        ],
+        capsys,
+        "non-positive",
+    )
+    assert_input_error(
+        [
+            "calibrate",
+            small["flat"],
+            "--reference-column",
+            "proton",
+            "--temperature-column",
+            "temperature",
+        ],
+        capsys,
+        "temperatures equal",
+    )
+    assert_input_error(
+        [
+            "calibrate",
+            cal,
+            "--reference-column",
+            "proton",
+            "--temperature-column",
+            "temperature",
+            "-o",
+            str(tmp_path / "no" / "p.json"),
+        ],
+        capsys,
+        "does not exist",
+    )
     # a log over 0.2 degC: solved, with a warning that the coefficients are not determined
-    status, out, err = run(["calibrate", small["cal_narrow"], "--reference-column", "proton",
-                            "--temperature-column", "temperature"], capsys)
+    status, out, err = run(
+        [
+            "calibrate",
+            small["cal_narrow"],
+            "--reference-column",
+            "proton",
+            "--temperature-column",
+            "temperature",
+        ],
+        capsys,
+    )
     assert status == 0 and "too small" in err
     assert json.loads(out)["warnings"]
 
@@ -632,26 +991,71 @@ def test_ipopt_failure_exits_1(small, capsys, monkeypatch):
     from nlpcal.nlp.solver import SolveOutcome
 
     def failing(solver, **kwargs):
-        return SolveOutcome(x=np.zeros(10), f=1.0, status="Maximum_Iterations_Exceeded",
-                            success=False, iterations=200)
+        return SolveOutcome(
+            x=np.zeros(10),
+            f=1.0,
+            status="Maximum_Iterations_Exceeded",
+            success=False,
+            iterations=200,
+        )
 
     monkeypatch.setattr(temperature_module, "solve", failing)
-    status, _, err = run(["calibrate", small["cal"], "--reference-column", "proton",
-                          "--temperature-column", "temperature"], capsys)
+    status, _, err = run(
+        [
+            "calibrate",
+            small["cal"],
+            "--reference-column",
+            "proton",
+            "--temperature-column",
+            "temperature",
+        ],
+        capsys,
+    )
     assert status == 1
     assert "Maximum_Iterations_Exceeded" in err and len(err.strip().splitlines()) == 1
     with pytest.raises(SolveError):
-        drift.calibrate_temperature(np.random.default_rng(0).normal(size=(50, 3)) * 1e4,
-                                    np.linspace(0, 1, 50), np.full(50, FIELD))
+        drift.calibrate_temperature(
+            np.random.default_rng(0).normal(size=(50, 3)) * 1e4,
+            np.linspace(0, 1, 50),
+            np.full(50, FIELD),
+        )
 
 
 def test_outputs_are_atomic(small, capsys, tmp_path):
     target = tmp_path / "drift.json"
     target.write_text("keep")
-    assert_input_error(["drift", "fit", small["flat"], "--temperature-column", "temperature",
-                        "--reference-column", "proton", "-o", target], capsys, "temperatures")
+    assert_input_error(
+        [
+            "drift",
+            "fit",
+            small["flat"],
+            "--temperature-column",
+            "temperature",
+            "--reference-column",
+            "proton",
+            "-o",
+            target,
+        ],
+        capsys,
+        "temperatures",
+    )
     assert target.read_text() == "keep"
-    assert run(["drift", "fit", small["drift"], "--temperature-column", "temperature",
-                "--reference-column", "proton", "-o", target], capsys)[0] == 0
+    assert (
+        run(
+            [
+                "drift",
+                "fit",
+                small["drift"],
+                "--temperature-column",
+                "temperature",
+                "--reference-column",
+                "proton",
+                "-o",
+                target,
+            ],
+            capsys,
+        )[0]
+        == 0
+    )
     assert json.loads(target.read_text())["n"] == 60
     assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]

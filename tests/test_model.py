@@ -2,10 +2,16 @@
 
 import numpy as np
 import pytest
-
-from nlpcal.models.zhou2010 import (PARAMETER_NAMES, Zhou2010Parameters, axis_matrix,
-                                    correct, correction_matrix, forward)
 from synthetic import PAPER_TRUTH, make_log, sensor_axes, sensor_output
+
+from nlpcal.models.zhou2010 import (
+    PARAMETER_NAMES,
+    Zhou2010Parameters,
+    axis_matrix,
+    correct,
+    correction_matrix,
+    forward,
+)
 
 TRUTH = Zhou2010Parameters.from_dict(PAPER_TRUTH)
 
@@ -17,8 +23,9 @@ def test_correction_inverts_the_independent_forward_model():
 
 def test_forward_model_matches_the_independent_one():
     _, field_ideal = make_log(n=200, noise=0.0)
-    np.testing.assert_allclose(forward(field_ideal, TRUTH), sensor_output(field_ideal, PAPER_TRUTH),
-                               rtol=0, atol=1e-8)
+    np.testing.assert_allclose(
+        forward(field_ideal, TRUTH), sensor_output(field_ideal, PAPER_TRUTH), rtol=0, atol=1e-8
+    )
 
 
 def test_correction_matrix_is_the_printed_O_p_times_S_p():

@@ -2,15 +2,16 @@
 
 import numpy as np
 import pytest
+from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log
 
 from nlpcal import moments as mom
 from nlpcal.nlp import blocks as problems
 from nlpcal.statistics import direct_objective
-from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log
 
-THETA_TRUE = np.array([PAPER_TRUTH[k] for k in ("z_x", "z_y", "z_z", "s_x", "s_y", "s_z")]
-                      + list(np.radians([PAPER_TRUTH[k] for k in
-                                         ("alpha_deg", "beta_deg", "gamma_deg")])))
+THETA_TRUE = np.array(
+    [PAPER_TRUTH[k] for k in ("z_x", "z_y", "z_z", "s_x", "s_y", "s_z")]
+    + list(np.radians([PAPER_TRUTH[k] for k in ("alpha_deg", "beta_deg", "gamma_deg")]))
+)
 NEAR = THETA_TRUE + np.array([3.0, -2.0, 4.0, 5e-5, -4e-5, 3e-5, 2e-4, -3e-4, 1e-4])
 
 

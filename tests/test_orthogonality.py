@@ -36,8 +36,11 @@ FIELD = 55_000.0  # [nT]
 def _rotate(vector, axis, angle_rad):
     """Rodrigues' rotation of `vector` about unit `axis` by `angle_rad` (right-handed)."""
     vector, axis = np.asarray(vector, float), np.asarray(axis, float)
-    return (vector * math.cos(angle_rad) + np.cross(axis, vector) * math.sin(angle_rad)
-            + axis * np.dot(axis, vector) * (1.0 - math.cos(angle_rad)))
+    return (
+        vector * math.cos(angle_rad)
+        + np.cross(axis, vector) * math.sin(angle_rad)
+        + axis * np.dot(axis, vector) * (1.0 - math.cos(angle_rad))
+    )
 
 
 def sensor_axes(alpha_deg, beta_deg, gamma_deg):
@@ -60,8 +63,9 @@ def probe_output(field_vectors, angles_deg):
 
 def unit_vectors(theta_deg, phi_deg):
     t, p = np.radians(theta_deg), np.radians(phi_deg)
-    return np.stack(np.broadcast_arrays(np.cos(p) * np.cos(t), np.cos(p) * np.sin(t), np.sin(p)),
-                    axis=-1)
+    return np.stack(
+        np.broadcast_arrays(np.cos(p) * np.cos(t), np.cos(p) * np.sin(t), np.sin(p)), axis=-1
+    )
 
 
 def grid_error(angles_deg, field, step_deg=0.5):
@@ -69,8 +73,15 @@ def grid_error(angles_deg, field, step_deg=0.5):
     theta = np.arange(0.0, 360.0, step_deg)
     phi = np.arange(-90.0, 90.0 + step_deg / 2, step_deg)
     u = unit_vectors(theta[None, :], phi[:, None])
-    return theta, phi, field * (np.linalg.norm(probe_output(u.reshape(-1, 3), angles_deg),
-                                               axis=1).reshape(u.shape[:2]) - 1.0)
+    return (
+        theta,
+        phi,
+        field
+        * (
+            np.linalg.norm(probe_output(u.reshape(-1, 3), angles_deg), axis=1).reshape(u.shape[:2])
+            - 1.0
+        ),
+    )
 
 
 def small_angle_value(angles_deg, field):
@@ -86,8 +97,9 @@ def rotation_log(angles_deg, field=FIELD, n=500, noise=0.0, seed=0):
     k = np.arange(n) + 0.5
     z = 1.0 - 2.0 * k / n
     azimuth = np.radians(137.50776405) * k + rng.uniform(0, 2 * np.pi)
-    directions = np.stack([np.sqrt(1 - z ** 2) * np.cos(azimuth),
-                           np.sqrt(1 - z ** 2) * np.sin(azimuth), z], axis=1)
+    directions = np.stack(
+        [np.sqrt(1 - z**2) * np.cos(azimuth), np.sqrt(1 - z**2) * np.sin(azimuth), z], axis=1
+    )
     output = probe_output(field * directions, angles_deg)
     return output + rng.normal(0.0, noise, output.shape) if noise else output
 
@@ -106,10 +118,12 @@ def test_total_field_error_matches_the_independent_model():
     rng = np.random.default_rng(1)
     angles = rng.uniform(-2, 2, 3)
     theta, phi = rng.uniform(0, 360, 50), rng.uniform(-90, 90, 50)
-    expected = np.linalg.norm(probe_output(FIELD * unit_vectors(theta, phi), angles),
-                              axis=1) - FIELD
-    np.testing.assert_allclose(wang2015.total_field_error(angles, FIELD, theta, phi), expected,
-                               rtol=0, atol=1e-8)
+    expected = (
+        np.linalg.norm(probe_output(FIELD * unit_vectors(theta, phi), angles), axis=1) - FIELD
+    )
+    np.testing.assert_allclose(
+        wang2015.total_field_error(angles, FIELD, theta, phi), expected, rtol=0, atol=1e-8
+    )
 
 
 # ------------------------------------------------------------------------------------------------
@@ -144,15 +158,16 @@ def test_worst_case_agrees_with_dense_grid_and_small_angle_value():
         assert result.max_abs_error_nT == pytest.approx(scale, rel=2e-4)
         # the reported directions do give the reported errors (independent model)
         for extreme in (result.largest_positive, result.most_negative):
-            b = probe_output(field * unit_vectors(extreme.theta_deg, extreme.phi_deg)[None],
-                             angles)
-            assert np.linalg.norm(b) - field == pytest.approx(extreme.delta_B_nT,
-                                                              rel=1e-9, abs=1e-9)
+            b = probe_output(field * unit_vectors(extreme.theta_deg, extreme.phi_deg)[None], angles)
+            assert np.linalg.norm(b) - field == pytest.approx(
+                extreme.delta_B_nT, rel=1e-9, abs=1e-9
+            )
             assert 0.0 <= extreme.theta_deg < 360.0 and -90.0 <= extreme.phi_deg <= 90.0
         # first-order value: relative error O(largest angle [rad]) <= 0.0087 here
         expected = small_angle_value(angles, field)
-        assert result.max_abs_error_nT == pytest.approx(expected,
-                                                        rel=2 * np.radians(np.abs(angles).max()))
+        assert result.max_abs_error_nT == pytest.approx(
+            expected, rel=2 * np.radians(np.abs(angles).max())
+        )
         assert result.small_angle_nT == pytest.approx(expected, rel=1e-12)
 
 
@@ -183,8 +198,9 @@ def test_worst_case_problem_is_built_once():
     assert after.misses == before.misses and after.hits > before.hits
 
 
-@pytest.mark.parametrize("angles", [(0.1, 0.1), (0.1, float("nan"), 0.1), (90.0, 0.0, 0.0),
-                                    ("a", 0, 0)])
+@pytest.mark.parametrize(
+    "angles", [(0.1, 0.1), (0.1, float("nan"), 0.1), (90.0, 0.0, 0.0), ("a", 0, 0)]
+)
 def test_bad_angles_are_input_errors(angles):
     with pytest.raises(InputError):
         ortho.worst_case(angles, FIELD)
@@ -254,11 +270,11 @@ def test_inversion_objective_matches_direct_per_sample_evaluation():
         magnitude = np.linalg.norm(corrected, axis=1)
         for reference, centre in ((None, magnitude.mean()), (54_990.0, 54_990.0)):
             moments = accumulate(data, reference)
-            value = float(inversion_objective(moments.reference)(angles,
-                                                                 moment_parameters(moments))[0])
+            value = float(
+                inversion_objective(moments.reference)(angles, moment_parameters(moments))[0]
+            )
             max_u = np.abs((magnitude / centre) ** 2 - 1).max()
-            assert value == pytest.approx(np.mean((magnitude - centre) ** 2),
-                                          rel=bound or max_u**3)
+            assert value == pytest.approx(np.mean((magnitude - centre) ** 2), rel=bound or max_u**3)
 
 
 def test_inversion_problem_is_built_once_for_every_log_length():
@@ -275,13 +291,14 @@ def test_repeatability_like_table_4():
     report = ortho.repeatability(runs, field_nT=FIELD)
     angles = np.array([r.angles_deg for r in runs])
     np.testing.assert_allclose(report.mean_angles_deg, angles.mean(axis=0))
-    assert report.max_abs_deviation_deg == pytest.approx(
-        np.abs(angles - angles.mean(axis=0)).max())
+    assert report.max_abs_deviation_deg == pytest.approx(np.abs(angles - angles.mean(axis=0)).max())
     assert report.implied_worst_case_nT == pytest.approx(
-        ortho.implied_worst_case(report.max_abs_deviation_deg, FIELD))
+        ortho.implied_worst_case(report.max_abs_deviation_deg, FIELD)
+    )
     # FIELD * d [rad] to first order
     assert report.implied_worst_case_nT == pytest.approx(
-        FIELD * math.radians(report.max_abs_deviation_deg), rel=1e-3)
+        FIELD * math.radians(report.max_abs_deviation_deg), rel=1e-3
+    )
     np.testing.assert_allclose(report.mean_angles_deg, truth, atol=0.002)
     document = report.to_dict()
     assert document["n_runs"] == 4 and document["field_source"] == "reference"
@@ -289,15 +306,18 @@ def test_repeatability_like_table_4():
         ortho.repeatability(runs[:1])
 
 
-@pytest.mark.parametrize("samples, options, words", [
-    (np.ones((5, 3)), {}, "at least 10"),
-    (np.full((20, 3), np.nan), {}, "NaN"),
-    (np.ones((20, 2)), {}, "shape"),
-    (None, {"bound_deg": 0.0}, "bounds"),
-    (None, {"bound_deg": [0.5, 0.5]}, "bounds"),
-    (None, {"start_deg": (0.9, 0, 0)}, "outside the bounds"),
-    (None, {"field_nT": -1.0}, "positive"),
-])
+@pytest.mark.parametrize(
+    "samples, options, words",
+    [
+        (np.ones((5, 3)), {}, "at least 10"),
+        (np.full((20, 3), np.nan), {}, "NaN"),
+        (np.ones((20, 2)), {}, "shape"),
+        (None, {"bound_deg": 0.0}, "bounds"),
+        (None, {"bound_deg": [0.5, 0.5]}, "bounds"),
+        (None, {"start_deg": (0.9, 0, 0)}, "outside the bounds"),
+        (None, {"field_nT": -1.0}, "positive"),
+    ],
+)
 def test_inversion_rejects_bad_input(samples, options, words):
     if samples is None:
         samples = rotation_log(PAPER_ANGLES, n=50)
@@ -320,8 +340,13 @@ def test_inversion_failure_is_a_solve_error(monkeypatch):
 
 
 def _failing_solve(solver, **kwargs):
-    return SolveOutcome(x=np.asarray(kwargs["x0"], float), f=1.0,
-                        status="Maximum_Iterations_Exceeded", success=False, iterations=200)
+    return SolveOutcome(
+        x=np.asarray(kwargs["x0"], float),
+        f=1.0,
+        status="Maximum_Iterations_Exceeded",
+        success=False,
+        iterations=200,
+    )
 
 
 # ------------------------------------------------------------------------------------------------
@@ -343,8 +368,10 @@ def _write_log(path, angles, *, n=300, noise=0.5, seed=0, columns=("bx", "by", "
 
 
 def test_cli_worst_case_to_stdout(capsys):
-    code, out, err = _run(["orthogonality", "worst-case", "--angles-deg", "0.1", "0.1", "0.1",
-                           "--field", "55000"], capsys)
+    code, out, err = _run(
+        ["orthogonality", "worst-case", "--angles-deg", "0.1", "0.1", "0.1", "--field", "55000"],
+        capsys,
+    )
     assert code == 0
     document = json.loads(out)
     assert document["max_abs_error_nT"] == pytest.approx(96.02, abs=0.01)
@@ -356,21 +383,37 @@ def test_cli_worst_case_to_stdout(capsys):
 
 def test_cli_worst_case_to_file(tmp_path, capsys):
     out_path = tmp_path / "wc.json"
-    code, out, err = _run(["orthogonality", "worst-case", "--angles-deg", "0.5", "-0.2", "0.3",
-                           "--field", "48000", "-o", str(out_path)], capsys)
+    code, out, err = _run(
+        [
+            "orthogonality",
+            "worst-case",
+            "--angles-deg",
+            "0.5",
+            "-0.2",
+            "0.3",
+            "--field",
+            "48000",
+            "-o",
+            str(out_path),
+        ],
+        capsys,
+    )
     assert code == 0 and out == "" and "wrote" in err
     assert json.loads(out_path.read_text())["field_nT"] == 48000.0
 
 
-@pytest.mark.parametrize("argv", [
-    ["--angles-deg", "0.1", "nan", "0.1", "--field", "55000"],
-    ["--angles-deg", "0.1", "90", "0.1", "--field", "55000"],
-    ["--angles-deg", "0.1", "x", "0.1", "--field", "55000"],
-    ["--angles-deg", "0.1", "0.1", "--field", "55000"],
-    ["--angles-deg", "0.1", "0.1", "0.1", "--field", "-3"],
-    ["--angles-deg", "0.1", "0.1", "0.1"],
-    ["--angles-deg", "0.1", "0.1", "0.1", "--field", "55000", "-o", "/no/such/dir/x.json"],
-])
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["--angles-deg", "0.1", "nan", "0.1", "--field", "55000"],
+        ["--angles-deg", "0.1", "90", "0.1", "--field", "55000"],
+        ["--angles-deg", "0.1", "x", "0.1", "--field", "55000"],
+        ["--angles-deg", "0.1", "0.1", "--field", "55000"],
+        ["--angles-deg", "0.1", "0.1", "0.1", "--field", "-3"],
+        ["--angles-deg", "0.1", "0.1", "0.1"],
+        ["--angles-deg", "0.1", "0.1", "0.1", "--field", "55000", "-o", "/no/such/dir/x.json"],
+    ],
+)
 def test_cli_worst_case_bad_input_exits_2(argv, capsys):
     code, out, err = _run(["orthogonality", "worst-case", *argv], capsys)
     assert code == 2 and out == ""
@@ -381,9 +424,25 @@ def test_cli_worst_case_bad_input_exits_2(argv, capsys):
 def test_cli_map_csv_and_png(tmp_path, capsys):
     pytest.importorskip("matplotlib")
     png, csv = tmp_path / "map.png", tmp_path / "map.csv"
-    code, out, err = _run(["orthogonality", "map", "--angles-deg", "0.1", "0.1", "0.1",
-                           "--field", "55000", "-o", str(png), "--csv", str(csv),
-                           "--step-deg", "2"], capsys)
+    code, out, err = _run(
+        [
+            "orthogonality",
+            "map",
+            "--angles-deg",
+            "0.1",
+            "0.1",
+            "0.1",
+            "--field",
+            "55000",
+            "-o",
+            str(png),
+            "--csv",
+            str(csv),
+            "--step-deg",
+            "2",
+        ],
+        capsys,
+    )
     assert code == 0
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size < 200_000
     table = pd.read_csv(csv)
@@ -393,8 +452,23 @@ def test_cli_map_csv_and_png(tmp_path, capsys):
 
 
 def test_cli_map_csv_to_stdout(capsys):
-    code, out, err = _run(["orthogonality", "map", "--angles-deg", "0", "0", "0.2",
-                           "--field", "50000", "--csv", "-", "--step-deg", "10"], capsys)
+    code, out, err = _run(
+        [
+            "orthogonality",
+            "map",
+            "--angles-deg",
+            "0",
+            "0",
+            "0.2",
+            "--field",
+            "50000",
+            "--csv",
+            "-",
+            "--step-deg",
+            "10",
+        ],
+        capsys,
+    )
     assert code == 0 and out.splitlines()[0] == "theta_deg,phi_deg,delta_B_nT"
     assert len(out.splitlines()) == 1 + 36 * 19
 
@@ -402,24 +476,41 @@ def test_cli_map_csv_to_stdout(capsys):
 def test_cli_map_without_matplotlib_exits_2(tmp_path, capsys, monkeypatch):
     monkeypatch.setitem(sys.modules, "matplotlib", None)
     png = tmp_path / "map.png"
-    code, out, err = _run(["orthogonality", "map", "--angles-deg", "0.1", "0.1", "0.1",
-                           "--field", "55000", "-o", str(png)], capsys)
+    code, out, err = _run(
+        [
+            "orthogonality",
+            "map",
+            "--angles-deg",
+            "0.1",
+            "0.1",
+            "0.1",
+            "--field",
+            "55000",
+            "-o",
+            str(png),
+        ],
+        capsys,
+    )
     assert code == 2 and "pip install 'nlpcal[plot]'" in err and not png.exists()
 
 
-@pytest.mark.parametrize("extra", [[], ["--csv", "-", "--step-deg", "0"],
-                                   ["--csv", "-", "--step-deg", "45"]])
+@pytest.mark.parametrize(
+    "extra", [[], ["--csv", "-", "--step-deg", "0"], ["--csv", "-", "--step-deg", "45"]]
+)
 def test_cli_map_bad_usage_exits_2(extra, capsys):
-    code, out, err = _run(["orthogonality", "map", "--angles-deg", "0.1", "0.1", "0.1",
-                           "--field", "55000", *extra], capsys)
+    code, out, err = _run(
+        ["orthogonality", "map", "--angles-deg", "0.1", "0.1", "0.1", "--field", "55000", *extra],
+        capsys,
+    )
     assert code == 2 and out == ""
 
 
 def test_cli_invert_one_log(tmp_path, capsys):
     log = _write_log(tmp_path / "rot.csv", PAPER_ANGLES)
     out_path = tmp_path / "angles.json"
-    code, out, err = _run(["orthogonality", "invert", str(log), "--field", "55000",
-                           "-o", str(out_path)], capsys)
+    code, out, err = _run(
+        ["orthogonality", "invert", str(log), "--field", "55000", "-o", str(out_path)], capsys
+    )
     assert code == 0 and out == ""
     document = json.loads(out_path.read_text())
     np.testing.assert_allclose(document["angles_deg"], PAPER_ANGLES, atol=0.002)
@@ -432,8 +523,9 @@ def test_cli_invert_units_and_columns(tmp_path, capsys):
     frame = pd.DataFrame(rotation_log(PAPER_ANGLES, n=200) / 1000.0, columns=["u", "v", "w"])
     log = tmp_path / "ut.csv"
     frame.to_csv(log, index=False)
-    code, out, err = _run(["orthogonality", "invert", str(log), "--columns", "u", "v", "w",
-                           "--unit", "uT"], capsys)
+    code, out, err = _run(
+        ["orthogonality", "invert", str(log), "--columns", "u", "v", "w", "--unit", "uT"], capsys
+    )
     assert code == 0
     document = json.loads(out)
     np.testing.assert_allclose(document["angles_deg"], PAPER_ANGLES, atol=1e-6)
@@ -441,15 +533,18 @@ def test_cli_invert_units_and_columns(tmp_path, capsys):
 
 
 def test_cli_invert_several_logs_reports_repeatability(tmp_path, capsys):
-    logs = [str(_write_log(tmp_path / f"run{i}.csv", (0.064, 0.0, 0.103), noise=3.0, seed=i))
-            for i in range(3)]
+    logs = [
+        str(_write_log(tmp_path / f"run{i}.csv", (0.064, 0.0, 0.103), noise=3.0, seed=i))
+        for i in range(3)
+    ]
     code, out, err = _run(["orthogonality", "invert", *logs, "--field", "55000"], capsys)
     assert code == 0
     document = json.loads(out)
     assert document["n_runs"] == 3 and [r["log"] for r in document["runs"]] == logs
     assert document["angles_deg"] == document["mean_angles_deg"]
     assert document["implied_worst_case_nT"] == pytest.approx(
-        FIELD * math.radians(document["max_abs_deviation_deg"]), rel=1e-3)
+        FIELD * math.radians(document["max_abs_deviation_deg"]), rel=1e-3
+    )
 
 
 def test_cli_invert_bound_active_warns_and_exits_0(tmp_path, capsys):
@@ -473,9 +568,23 @@ def test_cli_invert_drop_invalid(tmp_path, capsys):
     assert json.loads(out)["n_samples"] == 299
 
 
-@pytest.mark.parametrize("case", ["missing", "directory", "empty", "no-columns", "bad-column",
-                                  "two-columns", "few-rows", "bound", "bound-three", "unit",
-                                  "field", "out-folder"])
+@pytest.mark.parametrize(
+    "case",
+    [
+        "missing",
+        "directory",
+        "empty",
+        "no-columns",
+        "bad-column",
+        "two-columns",
+        "few-rows",
+        "bound",
+        "bound-three",
+        "unit",
+        "field",
+        "out-folder",
+    ],
+)
 def test_cli_invert_bad_input_exits_2(case, tmp_path, capsys):
     log = _write_log(tmp_path / "rot.csv", PAPER_ANGLES, n=60)
     argv = ["orthogonality", "invert", str(log)]
@@ -510,8 +619,7 @@ def test_cli_invert_bad_input_exits_2(case, tmp_path, capsys):
     assert message and message[0].startswith("nlpcal orthogonality") and len(message) <= 2
 
 
-def test_cli_invert_solve_failure_exits_1_and_keeps_existing_output(tmp_path, capsys,
-                                                                    monkeypatch):
+def test_cli_invert_solve_failure_exits_1_and_keeps_existing_output(tmp_path, capsys, monkeypatch):
     log = _write_log(tmp_path / "rot.csv", PAPER_ANGLES, n=60)
     out_path = tmp_path / "angles.json"
     out_path.write_text("previous\n")
@@ -534,21 +642,26 @@ def test_cli_verbose_sends_ipopt_log_to_stderr(tmp_path, capsys):
     assert json.loads(out)["status"] == "Solve_Succeeded"  # stdout holds only the JSON
 
 
-def test_invert_reads_the_unit_from_the_column_names_and_flags_near_bound_solutions(tmp_path,
-                                                                                    capsys):
+def test_invert_reads_the_unit_from_the_column_names_and_flags_near_bound_solutions(
+    tmp_path, capsys
+):
     # Angles well outside the default +-0.5 deg bound, log in uT by its column names.
     rng = np.random.default_rng(21)
     v = rng.standard_normal((1500, 3))
     v /= np.linalg.norm(v, axis=1, keepdims=True)
     a, b, g = np.radians([-2.0, -1.5, 1.0])
-    T = np.array([[np.cos(a) * np.cos(g), np.cos(a) * np.sin(g), -np.sin(a)],
-                  [0.0, np.cos(b), np.sin(b)], [0.0, 0.0, 1.0]])
+    T = np.array(
+        [
+            [np.cos(a) * np.cos(g), np.cos(a) * np.sin(g), -np.sin(a)],
+            [0.0, np.cos(b), np.sin(b)],
+            [0.0, 0.0, 1.0],
+        ]
+    )
     out = 49000.0 * v @ T.T / 1000.0
     path = tmp_path / "rot_ut.csv"
     pd.DataFrame(out, columns=["mx_uT", "my_uT", "mz_uT"]).to_csv(path, index=False)
     result_path = tmp_path / "inv.json"
-    code = main(["orthogonality", "invert", str(path), "--field", "49000", "-o",
-                 str(result_path)])
+    code = main(["orthogonality", "invert", str(path), "--field", "49000", "-o", str(result_path)])
     err = capsys.readouterr().err
     assert code == 0
     assert "unit uT taken from the column names" in err

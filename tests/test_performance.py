@@ -5,12 +5,12 @@ import tracemalloc
 import numpy as np
 import pandas as pd
 import pytest
+from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log
 
 from nlpcal import calibrate
 from nlpcal.errors import InputError
 from nlpcal.io import csv_to_memmap
 from nlpcal.moments import CHUNK_ROWS, accumulate
-from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log
 
 
 def test_memory_stays_o_chunk_on_a_memory_mapped_log(tmp_path):
@@ -41,8 +41,9 @@ def test_csv_streamed_into_a_memmap_matches_pandas(tmp_path):
     mapped = csv_to_memmap(path, extra_columns=["proton_nT"], chunk_rows=700)
     assert isinstance(mapped.values, np.memmap)
     assert mapped.columns == ["bx", "by", "bz", "proton_nT"]
-    np.testing.assert_allclose(mapped.values, pd.read_csv(path)[mapped.columns].to_numpy(),
-                               rtol=1e-15)
+    np.testing.assert_allclose(
+        mapped.values, pd.read_csv(path)[mapped.columns].to_numpy(), rtol=1e-15
+    )
     bad = tmp_path / "bad.csv"
     bad.write_text("bx,by,bz\n1,2,3\n4,x,6\n")
     with pytest.raises(InputError, match="non-numeric"):
@@ -55,6 +56,7 @@ def test_the_gram_matrix_covers_every_sample_whatever_the_chunking():
     # sample: checked here against a direct evaluation of a few of them, for N that are not
     # multiples of the chunk size, and for several chunk sizes and thread shares.
     from nlpcal.moments import MONOMIALS, layout
+
     for n in (100, CHUNK_ROWS + 1, 3 * CHUNK_ROWS + 17):
         samples, _ = make_log(n=n, noise=1.0, seed=n)
         moments = accumulate(samples, PAPER_FIELD)
@@ -62,11 +64,18 @@ def test_the_gram_matrix_covers_every_sample_whatever_the_chunking():
         d = (samples - moments.frame.centre) / moments.length
         a = np.einsum("ij,ij->i", d, d) - 1.0
         keys = layout(False).keys
-        for i, j in ((1, 1), (34, 34), (7, 20), (keys.index((0, 1, (0, 0, 0))), 0),
-                     (keys.index((0, 2, (0, 0, 0))), 34)):
+        for i, j in (
+            (1, 1),
+            (34, 34),
+            (7, 20),
+            (keys.index((0, 1, (0, 0, 0))), 0),
+            (keys.index((0, 2, (0, 0, 0))), 34),
+        ):
+
             def feature(k):
                 _, a_power, exps = keys[k]
-                return np.prod(d ** np.array(exps), axis=1) * a ** a_power
+                return np.prod(d ** np.array(exps), axis=1) * a**a_power
+
             direct = np.mean(feature(i) * feature(j))
             assert moments.gram[i, j] == pytest.approx(direct, rel=1e-11, abs=1e-15)
         assert len(MONOMIALS) == 35

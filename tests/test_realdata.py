@@ -17,8 +17,13 @@ def _log(real_data, folder, name, columns, factor):
 
 def test_full_sphere_hmc5883l(real_data):
     # A hand-rotated HMC5883L over the whole sphere, in gauss (SOURCE.md: raw |B| spread 13.6 %).
-    samples = _log(real_data, "sunsided_hmc5883l_fullsphere", "hmc5883l_mag_derived.csv",
-                   ["mx_gauss", "my_gauss", "mz_gauss"], 1e5)
+    samples = _log(
+        real_data,
+        "sunsided_hmc5883l_fullsphere",
+        "hmc5883l_mag_derived.csv",
+        ["mx_gauss", "my_gauss", "mz_gauss"],
+        1e5,
+    )
     staged = calibrate(samples, method="staged")
     joint = calibrate(samples, method="joint")
     measured = staged.statistics[0]["std"]
@@ -36,8 +41,13 @@ def test_full_sphere_hmc5883l(real_data):
 
 def test_partial_coverage_is_reported(real_data):
     # The x-IMU3 example log mostly lies flat: its field directions cover a few bins only.
-    samples = _log(real_data, "xio_fusion_ximu3", "sensor_data.csv",
-                   ["Magnetometer X (uT)", "Magnetometer Y (uT)", "Magnetometer Z (uT)"], 1e3)
+    samples = _log(
+        real_data,
+        "xio_fusion_ximu3",
+        "sensor_data.csv",
+        ["Magnetometer X (uT)", "Magnetometer Y (uT)", "Magnetometer Z (uT)"],
+        1e3,
+    )
     try:
         result = calibrate(samples, method="staged", cycles=10)
     except SolveError as failure:

@@ -32,10 +32,19 @@ CYCLES_DEFAULT = 50
 RTOL_DEFAULT = 1e-9
 
 
-def calibrate(samples, *, method: str = "staged", reference_field=None, unit: str = "nT",
-              reference_unit: str | None = None, cycles: int = CYCLES_DEFAULT,
-              target_std: float | None = None, target_range: float | None = None,
-              rtol: float = RTOL_DEFAULT, require_identifiable: bool = True) -> CalibrationResult:
+def calibrate(
+    samples,
+    *,
+    method: str = "staged",
+    reference_field=None,
+    unit: str = "nT",
+    reference_unit: str | None = None,
+    cycles: int = CYCLES_DEFAULT,
+    target_std: float | None = None,
+    target_range: float | None = None,
+    rtol: float = RTOL_DEFAULT,
+    require_identifiable: bool = True,
+) -> CalibrationResult:
     """Estimate the nine parameters of Eq. 4 in [1] from a log of many attitudes.
 
     samples : (N, 3) array-like of raw sensor output B_M. [unit]
@@ -68,8 +77,9 @@ def calibrate(samples, *, method: str = "staged", reference_field=None, unit: st
     problem = Problem(samples=samples, reference=reference, moments=accumulate(samples, reference))
     try:
         if method == "staged":
-            rule = StopRule(max_cycles=cycles, target_std=target_std, target_range=target_range,
-                            rtol=rtol)
+            rule = StopRule(
+                max_cycles=cycles, target_std=target_std, target_range=target_range, rtol=rtol
+            )
             theta, rows, stages, stop_reason = run_staged(problem, rule)
             hs = scaled_hessian(problem.moments, theta)
         else:
@@ -79,13 +89,16 @@ def calibrate(samples, *, method: str = "staged", reference_field=None, unit: st
     except SolveError as failure:
         raise explain_failure(problem, failure) from None
     final = rows[-1]
-    errors, identifiability = uncertainty(problem, final["objective"], hs,
-                                          final["residual_lag1_autocorrelation"])
+    errors, identifiability = uncertainty(
+        problem, final["objective"], hs, final["residual_lag1_autocorrelation"]
+    )
     identifiability["coverage"] = direction_coverage(samples, theta)
     warnings = warnings_for(problem, theta, hs, errors, identifiability, final)
     if method == "staged" and stop_reason == "max_cycles" and len(rows) > 2:
-        warnings.append(f"the staged cycle stopped at the maximum of {cycles} cycles before "
-                        f"converging (rtol {rtol:g}); results may improve with more cycles")
+        warnings.append(
+            f"the staged cycle stopped at the maximum of {cycles} cycles before "
+            f"converging (rtol {rtol:g}); results may improve with more cycles"
+        )
     mode = problem.moments.reference
     result = CalibrationResult(
         parameters=Zhou2010Parameters.from_theta(theta).to_dict(),
@@ -93,9 +106,14 @@ def calibrate(samples, *, method: str = "staged", reference_field=None, unit: st
         method=method,
         reference=problem.reference_document(),
         gauge=dict(GAUGE) if mode == "none" else None,
-        solver={"name": "ipopt", "status": stages[-1]["status"], "success": True,
-                "iterations": sum(s["iterations"] for s in stages), "stop_reason": stop_reason,
-                "stages": stages},
+        solver={
+            "name": "ipopt",
+            "status": stages[-1]["status"],
+            "success": True,
+            "iterations": sum(s["iterations"] for s in stages),
+            "stop_reason": stop_reason,
+            "stages": stages,
+        },
         unit=units.base_unit(unit),
         standard_errors=errors,
         identifiability=identifiability,
@@ -104,23 +122,33 @@ def calibrate(samples, *, method: str = "staged", reference_field=None, unit: st
         input={"log_unit": unit},
     )
     if require_identifiable and identifiability["not_identifiable"]:
-        raise QualityError(f"the data do not determine "
-                           f"{', '.join(identifiability['not_identifiable'])}; rotate the sensor "
-                           f"through more attitudes (require_identifiable=False returns the "
-                           f"result anyway)", "Not_Identifiable", result=result)
+        raise QualityError(
+            f"the data do not determine "
+            f"{', '.join(identifiability['not_identifiable'])}; rotate the sensor "
+            f"through more attitudes (require_identifiable=False returns the "
+            f"result anyway)",
+            "Not_Identifiable",
+            result=result,
+        )
     return result
 
 
-def calibrate_log(log: Log, *, target_std: float | None = None,
-                  target_range: float | None = None, **options) -> CalibrationResult:
+def calibrate_log(
+    log: Log, *, target_std: float | None = None, target_range: float | None = None, **options
+) -> CalibrationResult:
     """`calibrate` on a log read by `nlpcal.io.read_log` (its reference included).
 
     target_std, target_range : in the unit of the log's field columns.
     The result records the log (file, columns, unit) under `input`.
     """
-    result = calibrate(log.samples, unit=log.base_unit, reference_field=log.reference,
-                       target_std=units.to_base(target_std, log.unit),
-                       target_range=units.to_base(target_range, log.unit), **options)
+    result = calibrate(
+        log.samples,
+        unit=log.base_unit,
+        reference_field=log.reference,
+        target_std=units.to_base(target_std, log.unit),
+        target_range=units.to_base(target_range, log.unit),
+        **options,
+    )
     result.input = log.metadata()
     if log.reference_column:
         result.reference["column"] = log.reference_column

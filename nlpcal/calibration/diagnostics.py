@@ -22,8 +22,16 @@ from .problem import Problem
 #: 0.01, angles 1 deg.
 POORLY_DETERMINED = np.array([1e-2] * 3 + [1e-2] * 3 + [1.0] * 3)
 #: The 26 directions of a cube's faces, edges and corners: the bins of `direction_coverage`.
-_BIN_DIRECTIONS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)
-                            if (i, j, k) != (0, 0, 0)], dtype=float)
+_BIN_DIRECTIONS = np.array(
+    [
+        (i, j, k)
+        for i in (-1, 0, 1)
+        for j in (-1, 0, 1)
+        for k in (-1, 0, 1)
+        if (i, j, k) != (0, 0, 0)
+    ],
+    dtype=float,
+)
 _BIN_DIRECTIONS /= np.linalg.norm(_BIN_DIRECTIONS, axis=1, keepdims=True)
 #: Fewer bins than this fraction are reported as poor attitude coverage.
 COVERAGE_WARN = 0.5
@@ -61,8 +69,7 @@ def _names(indices) -> list:
     return [PARAMETER_NAMES[i] for i in sorted(indices)]
 
 
-def uncertainty(problem: Problem, objective: float, hs: np.ndarray,
-                autocorrelation: float = 0.0):
+def uncertainty(problem: Problem, objective: float, hs: np.ndarray, autocorrelation: float = 0.0):
     """Standard errors [parameter units] and the identifiability block of a result.
 
     For f = (1/N) sum r_i^2 the Gauss-Newton information is N H / 2 (`nlpcal.inference`), here
@@ -71,19 +78,24 @@ def uncertainty(problem: Problem, objective: float, hs: np.ndarray,
     """
     moments = problem.moments
     n = problem.samples.shape[0]
-    result = inference.estimate(inference.information_from_hessian(hs, n),
-                                residual_variance=n * objective / max(n - 9, 1),
-                                basis=gauge_basis(moments), autocorrelation=autocorrelation,
-                                dof=n - 9)
+    result = inference.estimate(
+        inference.information_from_hessian(hs, n),
+        residual_variance=n * objective / max(n - 9, 1),
+        basis=gauge_basis(moments),
+        autocorrelation=autocorrelation,
+        dof=n - 9,
+    )
     errors = None
     if result.covariance is not None:
         sd = result.standard_errors * variable_scale(moments.frame.radius)
         sd[6:9] = np.degrees(sd[6:9])
         errors = {name: float(v) for name, v in zip(PARAMETER_NAMES, sd)}
-    limits = np.concatenate([POORLY_DETERMINED[:3] * moments.frame.radius,
-                             POORLY_DETERMINED[3:]])
-    poorly = [name for name, limit in zip(PARAMETER_NAMES, limits)
-              if errors is not None and errors[name] > limit]
+    limits = np.concatenate([POORLY_DETERMINED[:3] * moments.frame.radius, POORLY_DETERMINED[3:]])
+    poorly = [
+        name
+        for name, limit in zip(PARAMETER_NAMES, limits)
+        if errors is not None and errors[name] > limit
+    ]
     return errors, {
         "not_identifiable": _names(result.weak),
         "poorly_determined": poorly,
@@ -144,40 +156,58 @@ def explain_failure(problem: Problem, failure: SolveError) -> SolveError:
     if weak:
         reason = f"the data do not determine {', '.join(weak)}"
     else:
-        reason = (f"the least determined combination involves "
-                  f"{', '.join(identifiability['weakest_combination'])}")
-    return SolveError(f"{failure}: {reason}; rotate the sensor through more attitudes",
-                      failure.status, result=theta)
+        reason = (
+            f"the least determined combination involves "
+            f"{', '.join(identifiability['weakest_combination'])}"
+        )
+    return SolveError(
+        f"{failure}: {reason}; rotate the sensor through more attitudes",
+        failure.status,
+        result=theta,
+    )
 
 
 def warnings_for(problem: Problem, theta, hs, errors, identifiability: dict, final: dict) -> list:
     """What the data cannot tell, in words (and the exact-optimum check, into identifiability)."""
     warnings = []
     if problem.moments.reference == "none":
-        warnings.append("absolute scale not identifiable without a reference field: the scales "
-                        "are fixed by the gauge s_x + s_y + s_z = 0; the scale ratios, offsets "
-                        "and angles are determined. Give a reference field for absolute scales.")
+        warnings.append(
+            "absolute scale not identifiable without a reference field: the scales "
+            "are fixed by the gauge s_x + s_y + s_z = 0; the scale ratios, offsets "
+            "and angles are determined. Give a reference field for absolute scales."
+        )
     if identifiability["not_identifiable"]:
-        warnings.append("not identifiable from this attitude coverage: "
-                        + ", ".join(identifiability["not_identifiable"])
-                        + "; rotate the sensor through more attitudes")
+        warnings.append(
+            "not identifiable from this attitude coverage: "
+            + ", ".join(identifiability["not_identifiable"])
+            + "; rotate the sensor through more attitudes"
+        )
     coverage = identifiability["coverage"]
     if coverage["fraction"] < COVERAGE_WARN:
-        warnings.append(f"poor attitude coverage: the corrected field visits "
-                        f"{coverage['covered']} of 26 direction bins; the result leans on a "
-                        f"small part of the sphere")
+        warnings.append(
+            f"poor attitude coverage: the corrected field visits "
+            f"{coverage['covered']} of 26 direction bins; the result leans on a "
+            f"small part of the sphere"
+        )
     if identifiability["poorly_determined"]:
-        warnings.append("poorly determined (standard error above the limits in "
-                        "identifiability.poorly_determined_limits): "
-                        + ", ".join(identifiability["poorly_determined"]))
+        warnings.append(
+            "poorly determined (standard error above the limits in "
+            "identifiability.poorly_determined_limits): "
+            + ", ".join(identifiability["poorly_determined"])
+        )
     if final.get("series_rel_error", 0.0) > SERIES_CHECK:
         shift = exact_optimum_shift(problem, theta, hs, errors)
         identifiability["exact_optimum_shift_in_standard_errors"] = shift
         if shift is None or shift > SHIFT_WARN:
-            where = ("could not be located (no standard errors)" if shift is None
-                     else f"is estimated to lie {shift:.2g} standard errors away")
-            warnings.append(f"the moment expansion of the objective is inexact here "
-                            f"({final['series_rel_error']:.1e} relative; |B1|^2 varies by up to "
-                            f"{final['max_abs_u']:.1%}); the exact optimum {where}; check the "
-                            f"reference field and the data for disturbances")
+            where = (
+                "could not be located (no standard errors)"
+                if shift is None
+                else f"is estimated to lie {shift:.2g} standard errors away"
+            )
+            warnings.append(
+                f"the moment expansion of the objective is inexact here "
+                f"({final['series_rel_error']:.1e} relative; |B1|^2 varies by up to "
+                f"{final['max_abs_u']:.1%}); the exact optimum {where}; check the "
+                f"reference field and the data for disturbances"
+            )
     return warnings

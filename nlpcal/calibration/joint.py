@@ -39,8 +39,22 @@ def run_joint(problem):
     rows = [problem.measured_row()]
     started = time.perf_counter()
     step = block_step(problem.moments, "joint", joint_start(problem.moments))
-    rows.append(problem.row("joint", step.theta, step.f_end, iterations=step.iterations,
-                            wall_s=time.perf_counter() - started))
-    stages = [{"cycle": 1, "stage": "joint", "status": step.status,
-               "iterations": step.iterations, "objective": step.f_end}]
+    rows.append(
+        problem.row(
+            "joint",
+            step.theta,
+            step.f_end,
+            iterations=step.iterations,
+            wall_s=time.perf_counter() - started,
+        )
+    )
+    stages = [
+        {
+            "cycle": 1,
+            "stage": "joint",
+            "status": step.status,
+            "iterations": step.iterations,
+            "objective": step.f_end,
+        }
+    ]
     return step, rows, stages

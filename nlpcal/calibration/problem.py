@@ -27,7 +27,7 @@ class Problem:
     """
 
     samples: np.ndarray
-    reference: object
+    reference: float | np.ndarray | None
     moments: Moments
 
     def measured_row(self) -> dict:
@@ -50,8 +50,9 @@ class Problem:
         """The "reference" block of a result: the mode and the field (or its mean)."""
         mode = self.moments.reference
         document: dict = {"mode": mode}
+        field = np.asarray(self.reference, dtype=float)
         if mode == "constant":
-            document["field"] = float(self.reference)  # type: ignore[arg-type]
+            document["field"] = float(field)
         elif mode == "series":
-            document["field_mean"] = float(np.mean(self.reference))  # type: ignore[arg-type]
+            document["field_mean"] = float(field.mean())
         return document

@@ -26,12 +26,20 @@ OFFSET_LIMIT = 1e9
 def read_parameters(reader: DocumentReader, key: str = "parameters") -> Zhou2010Parameters:
     """The nine parameters of a document, each a finite number within its plausible range."""
     values = reader.reader(key)
-    limits = {**{name: (-OFFSET_LIMIT, OFFSET_LIMIT) for name in PARAMETER_NAMES[:3]},
-              **{name: SCALE_RANGE for name in PARAMETER_NAMES[3:6]},
-              **{name: (-validation.MAX_ANGLE_DEG, validation.MAX_ANGLE_DEG)
-                 for name in PARAMETER_NAMES[6:]}}
-    return Zhou2010Parameters(**{name: values.number(name, minimum=low, maximum=high)
-                                 for name, (low, high) in limits.items()})
+    limits = {
+        **{name: (-OFFSET_LIMIT, OFFSET_LIMIT) for name in PARAMETER_NAMES[:3]},
+        **{name: SCALE_RANGE for name in PARAMETER_NAMES[3:6]},
+        **{
+            name: (-validation.MAX_ANGLE_DEG, validation.MAX_ANGLE_DEG)
+            for name in PARAMETER_NAMES[6:]
+        },
+    }
+    return Zhou2010Parameters(
+        **{
+            name: values.number(name, minimum=low, maximum=high)
+            for name, (low, high) in limits.items()
+        }
+    )
 
 
 @dataclass
@@ -129,9 +137,13 @@ class CalibrationResult(Document):
             "gauge": reader.mapping("gauge", None),
             "solver": reader.mapping("solver", {}),
             "unit": reader.string("unit", "nT", options=list(units.FIELD_UNITS_NT)),
-            "standard_errors": None if errors is None else {
+            "standard_errors": None
+            if errors is None
+            else {
                 name: errors.number(name, positive=False, minimum=0.0)
-                for name in PARAMETER_NAMES if errors.has(name)},
+                for name in PARAMETER_NAMES
+                if errors.has(name)
+            },
             "identifiability": reader.mapping("identifiability", {}),
             "warnings": reader.strings("warnings", []),
             "n_samples": reader.integer("n_samples", 0),

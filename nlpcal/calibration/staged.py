@@ -59,10 +59,22 @@ def run_staged(problem, rule: StopRule):
             step = block_step(problem.moments, stage, theta)
             theta = step.theta
             iterations += step.iterations
-            stages.append({"cycle": cycle, "stage": stage, "status": step.status,
-                           "iterations": step.iterations, "objective": step.f_end})
-        row = problem.row(f"cycle {cycle}", theta, step.f_end, iterations=iterations,
-                          wall_s=time.perf_counter() - started)
+            stages.append(
+                {
+                    "cycle": cycle,
+                    "stage": stage,
+                    "status": step.status,
+                    "iterations": step.iterations,
+                    "objective": step.f_end,
+                }
+            )
+        row = problem.row(
+            f"cycle {cycle}",
+            theta,
+            step.f_end,
+            iterations=iterations,
+            wall_s=time.perf_counter() - started,
+        )
         rows.append(row)
         if rule.target_std is not None and row["std"] <= rule.target_std:
             stop_reason = "target_std"
@@ -75,4 +87,3 @@ def run_staged(problem, rule: StopRule):
             break
         previous = row["objective"]
     return theta, rows, stages, stop_reason
-

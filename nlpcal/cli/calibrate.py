@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import sys
 import time
+from typing import TYPE_CHECKING
 
 from .common import (
     add_log_arguments,
@@ -28,6 +29,10 @@ from .common import (
     tell,
     warn,
 )
+
+if TYPE_CHECKING:
+    from ..calibration import CalibrationResult
+    from ..drift.temperature import TemperatureCalibrationResult
 
 TOTAL_COLUMN = "b_total"
 TEMPERATURE_MODELS = ("common", "per-axis")
@@ -44,43 +49,81 @@ def register(sub):
 
 # --- calibrate ----------------------------------------------------------------------------------
 
+
 def _register_calibrate(sub):
     parser = sub.add_parser(
-        "calibrate", help="estimate the nine parameters of Eq. 4 from a log",
+        "calibrate",
+        help="estimate the nine parameters of Eq. 4 from a log",
         description="Estimate offsets, scale errors and non-orthogonality angles (Zhou et al. "
-                    "2010, Eq. 4) by minimising the spread of |B1| (Eq. 8), or its distance to a "
-                    "reference field. Prints the Table 1 rows to stderr.")
+        "2010, Eq. 4) by minimising the spread of |B1| (Eq. 8), or its distance to a "
+        "reference field. Prints the Table 1 rows to stderr.",
+    )
     parser.add_argument("log", metavar="LOG.csv")
     add_log_arguments(parser)
-    parser.add_argument("--method", choices=("staged", "joint"), default="staged",
-                        help="staged: the paper's cycle orthogonal -> scale -> offset (default); "
-                             "joint: all nine at once")
-    parser.add_argument("--cycles", type=int, default=CYCLES_DEFAULT, metavar="K",
-                        help=f"most staged cycles (default {CYCLES_DEFAULT})")
-    parser.add_argument("--target-std", type=float, metavar="F",
-                        help="stop the cycle when std |B1| <= F [unit]")
-    parser.add_argument("--target-range", type=float, metavar="F",
-                        help="stop the cycle when max - min of |B1| <= F [unit]")
-    parser.add_argument("--rtol", type=float, default=RTOL_DEFAULT,
-                        help="stop the cycle when the objective improves by less than this "
-                             f"fraction (default {RTOL_DEFAULT:g})")
+    parser.add_argument(
+        "--method",
+        choices=("staged", "joint"),
+        default="staged",
+        help="staged: the paper's cycle orthogonal -> scale -> offset (default); "
+        "joint: all nine at once",
+    )
+    parser.add_argument(
+        "--cycles",
+        type=int,
+        default=CYCLES_DEFAULT,
+        metavar="K",
+        help=f"most staged cycles (default {CYCLES_DEFAULT})",
+    )
+    parser.add_argument(
+        "--target-std", type=float, metavar="F", help="stop the cycle when std |B1| <= F [unit]"
+    )
+    parser.add_argument(
+        "--target-range",
+        type=float,
+        metavar="F",
+        help="stop the cycle when max - min of |B1| <= F [unit]",
+    )
+    parser.add_argument(
+        "--rtol",
+        type=float,
+        default=RTOL_DEFAULT,
+        help="stop the cycle when the objective improves by less than this "
+        f"fraction (default {RTOL_DEFAULT:g})",
+    )
     add_reference_arguments(parser)
-    parser.add_argument("--temperature-column", metavar="COL",
-                        help="column of temperatures [degC]: estimate the nine parameters and "
-                             "temperature coefficients together (needs --reference-column; "
-                             "--method, --cycles and the targets do not apply)")
-    parser.add_argument("--temperature-model", choices=TEMPERATURE_MODELS,
-                        help="common: one factor k(t) on scale and offset of all axes (Liu et "
-                             "al. 2022, Eq. 9; the default); per-axis: linear scale and "
-                             "offset drift per axis. Angles stay temperature-free")
-    parser.add_argument("--base-temperature", type=float, metavar="T0",
-                        help="temperature at which the nine parameters are reported [degC] "
-                             "(default: the log's mean)")
-    parser.add_argument("--low-memory", action="store_true",
-                        help="stream the log into a memory-mapped temporary file in chunks, so "
-                             "that logs larger than memory can be calibrated")
-    parser.add_argument("-o", "--output", metavar="PARAMS.json",
-                        help="write the parameters here (stdout when absent)")
+    parser.add_argument(
+        "--temperature-column",
+        metavar="COL",
+        help="column of temperatures [degC]: estimate the nine parameters and "
+        "temperature coefficients together (needs --reference-column; "
+        "--method, --cycles and the targets do not apply)",
+    )
+    parser.add_argument(
+        "--temperature-model",
+        choices=TEMPERATURE_MODELS,
+        help="common: one factor k(t) on scale and offset of all axes (Liu et "
+        "al. 2022, Eq. 9; the default); per-axis: linear scale and "
+        "offset drift per axis. Angles stay temperature-free",
+    )
+    parser.add_argument(
+        "--base-temperature",
+        type=float,
+        metavar="T0",
+        help="temperature at which the nine parameters are reported [degC] "
+        "(default: the log's mean)",
+    )
+    parser.add_argument(
+        "--low-memory",
+        action="store_true",
+        help="stream the log into a memory-mapped temporary file in chunks, so "
+        "that logs larger than memory can be calibrated",
+    )
+    parser.add_argument(
+        "-o",
+        "--output",
+        metavar="PARAMS.json",
+        help="write the parameters here (stdout when absent)",
+    )
     parser.set_defaults(func=run_calibrate)
 
 
@@ -95,12 +138,20 @@ def run_calibrate(args) -> int:
     if args.temperature_model and not args.temperature_column:
         raise InputError("--temperature-model needs --temperature-column COL")
     if temperature and not args.reference_column:
-        raise InputError("the temperature calibration needs --reference-column COL, a reference "
-                         "magnitude per sample (for example a proton magnetometer)")
-    staged_only = [flag for flag, value in (("--cycles", args.cycles != CYCLES_DEFAULT),
-                                            ("--target-std", args.target_std is not None),
-                                            ("--target-range", args.target_range is not None),
-                                            ("--rtol", args.rtol != RTOL_DEFAULT)) if value]
+        raise InputError(
+            "the temperature calibration needs --reference-column COL, a reference "
+            "magnitude per sample (for example a proton magnetometer)"
+        )
+    staged_only = [
+        flag
+        for flag, value in (
+            ("--cycles", args.cycles != CYCLES_DEFAULT),
+            ("--target-std", args.target_std is not None),
+            ("--target-range", args.target_range is not None),
+            ("--rtol", args.rtol != RTOL_DEFAULT),
+        )
+        if value
+    ]
     if (args.method == "joint" or temperature) and staged_only:
         warn(f"{', '.join(staged_only)} only steer the staged cycle; the joint solve ignores them")
     started = time.perf_counter()
@@ -109,15 +160,27 @@ def run_calibrate(args) -> int:
     tell(log.notes)
     read_s = time.perf_counter() - started
     started = time.perf_counter()
+    result: CalibrationResult | TemperatureCalibrationResult
     if temperature:
-        result = calibrate_temperature_log(log, args.temperature_column,
-                                           model=args.temperature_model or "common",
-                                           base_temperature=args.base_temperature)
+        result = calibrate_temperature_log(
+            log,
+            args.temperature_column,
+            model=args.temperature_model or "common",
+            base_temperature=args.base_temperature,
+        )
     else:
-        result = calibrate_log(log, method=args.method, cycles=args.cycles, rtol=args.rtol,
-                               target_std=args.target_std, target_range=args.target_range)
-    warn(f"read {log.n} rows in {read_s:.2f} s (pandas {log.engine} engine); calibrated in "
-         f"{time.perf_counter() - started:.2f} s")
+        result = calibrate_log(
+            log,
+            method=args.method,
+            cycles=args.cycles,
+            rtol=args.rtol,
+            target_std=args.target_std,
+            target_range=args.target_range,
+        )
+    warn(
+        f"read {log.n} rows in {read_s:.2f} s (pandas {log.engine} engine); calibrated in "
+        f"{time.perf_counter() - started:.2f} s"
+    )
     print(result.table(), file=sys.stderr)
     tell(result.warnings)
     emit_json(result.to_dict(), args.output)
@@ -126,26 +189,36 @@ def run_calibrate(args) -> int:
 
 # --- apply --------------------------------------------------------------------------------------
 
+
 def _add_temperature_arguments(parser):
-    parser.add_argument("--drift", metavar="DRIFT.json",
-                        help="output of 'nlpcal drift fit': divide the raw vector by k(t) "
-                             "(Eq. 9) before the correction")
-    parser.add_argument("--temperature-column", metavar="COL",
-                        help="column of temperatures [degC] for --drift or for parameters with "
-                             "a temperature model (default: the column they were fitted with)")
+    parser.add_argument(
+        "--drift",
+        metavar="DRIFT.json",
+        help="output of 'nlpcal drift fit': divide the raw vector by k(t) "
+        "(Eq. 9) before the correction",
+    )
+    parser.add_argument(
+        "--temperature-column",
+        metavar="COL",
+        help="column of temperatures [degC] for --drift or for parameters with "
+        "a temperature model (default: the column they were fitted with)",
+    )
 
 
 def _register_apply(sub):
     parser = sub.add_parser(
-        "apply", help="correct a log with calibrated parameters (Eq. 4)",
+        "apply",
+        help="correct a log with calibrated parameters (Eq. 4)",
         description="Write the log with its field columns corrected by Eq. 4 and a total-field "
-                    f"column '{TOTAL_COLUMN}' added; all other columns are kept.")
+        f"column '{TOTAL_COLUMN}' added; all other columns are kept.",
+    )
     parser.add_argument("params", metavar="PARAMS.json")
     parser.add_argument("log", metavar="LOG.csv")
     add_log_arguments(parser, "the column names, else the unit of the calibrated log")
     _add_temperature_arguments(parser)
-    parser.add_argument("-o", "--output", metavar="CORRECTED.csv",
-                        help="corrected log (stdout when absent)")
+    parser.add_argument(
+        "-o", "--output", metavar="CORRECTED.csv", help="corrected log (stdout when absent)"
+    )
     parser.set_defaults(func=run_apply)
 
 
@@ -159,8 +232,13 @@ def _correction(args, require_temperature: bool):
     parameters = load_parameters(params_path) if params_path else None
     drift = DriftFit.load(args.drift) if args.drift else None
     header = list(read_table_header(args.log).columns)
-    return Correction.plan(parameters, drift, args.temperature_column, log_columns=header,
-                           require_temperature=require_temperature)
+    return Correction.plan(
+        parameters,
+        drift,
+        args.temperature_column,
+        log_columns=header,
+        require_temperature=require_temperature,
+    )
 
 
 def run_apply(args) -> int:
@@ -182,18 +260,24 @@ def run_apply(args) -> int:
 
 # --- stats --------------------------------------------------------------------------------------
 
+
 def _register_stats(sub):
     parser = sub.add_parser(
-        "stats", help="Table 1 statistics of |B| (and of |B1| with --params)",
+        "stats",
+        help="Table 1 statistics of |B| (and of |B1| with --params)",
         description="Print max, min, mean, std (ddof=0) and range of the total field: the "
-                    "measured row, and the corrected row when --params is given.")
+        "measured row, and the corrected row when --params is given.",
+    )
     parser.add_argument("log", metavar="LOG.csv")
     add_log_arguments(parser, "the column names, else the unit of the calibrated log")
     parser.add_argument("--params", metavar="PARAMS.json")
     _add_temperature_arguments(parser)
-    parser.add_argument("--reference-column", metavar="COL",
-                        help="column of reference magnitudes [unit]: add the RMSE of Eq. 10 "
-                             "(Liu et al. 2022) to every row")
+    parser.add_argument(
+        "--reference-column",
+        metavar="COL",
+        help="column of reference magnitudes [unit]: add the RMSE of Eq. 10 "
+        "(Liu et al. 2022) to every row",
+    )
     parser.add_argument("--json", action="store_true", help="print the rows as JSON")
     parser.set_defaults(func=run_stats)
 

@@ -25,33 +25,53 @@ def warn(message: str) -> None:
     print(f"nlpcal: {message}", file=sys.stderr)
 
 
-def add_log_arguments(parser, default_from: str = "the column names (mx_uT, \"X (uT)\", "
-                                                    "_gauss, _counts ...), else nT"):
+def add_log_arguments(
+    parser, default_from: str = 'the column names (mx_uT, "X (uT)", _gauss, _counts ...), else nT'
+):
     """--columns, --unit and --drop-invalid, shared by every command that reads a field log."""
-    parser.add_argument("--columns", nargs=3, metavar=("X", "Y", "Z"),
-                        help="the three field columns (default: detected, bx/by/bz, x/y/z, ...)")
-    parser.add_argument("--unit", choices=FIELD_UNITS, default=None,
-                        help=f"unit of the field columns and references (default: from "
-                             f"{default_from}); 'raw' keeps counts or other non-field units")
-    parser.add_argument("--drop-invalid", action="store_true",
-                        help="drop rows with missing or non-numeric values (reporting how many) "
-                             "instead of failing")
+    parser.add_argument(
+        "--columns",
+        nargs=3,
+        metavar=("X", "Y", "Z"),
+        help="the three field columns (default: detected, bx/by/bz, x/y/z, ...)",
+    )
+    parser.add_argument(
+        "--unit",
+        choices=FIELD_UNITS,
+        default=None,
+        help=f"unit of the field columns and references (default: from "
+        f"{default_from}); 'raw' keeps counts or other non-field units",
+    )
+    parser.add_argument(
+        "--drop-invalid",
+        action="store_true",
+        help="drop rows with missing or non-numeric values (reporting how many) instead of failing",
+    )
 
 
 def add_reference_arguments(parser) -> None:
     """--reference-field F | --reference-column COL."""
     ref = parser.add_mutually_exclusive_group()
-    ref.add_argument("--reference-field", type=float, metavar="F",
-                     help="known field magnitude [unit], e.g. a proton reading")
-    ref.add_argument("--reference-column", metavar="COL",
-                     help="column of per-sample reference magnitudes [unit]")
+    ref.add_argument(
+        "--reference-field",
+        type=float,
+        metavar="F",
+        help="known field magnitude [unit], e.g. a proton reading",
+    )
+    ref.add_argument(
+        "--reference-column", metavar="COL", help="column of per-sample reference magnitudes [unit]"
+    )
 
 
 def log_options(args) -> dict:
     """The keyword arguments of `nlpcal.io.read_log` that the common arguments give."""
-    return {"columns": args.columns, "unit": args.unit, "drop_invalid": args.drop_invalid,
-            "reference_column": getattr(args, "reference_column", None),
-            "reference_field": getattr(args, "reference_field", None)}
+    return {
+        "columns": args.columns,
+        "unit": args.unit,
+        "drop_invalid": args.drop_invalid,
+        "reference_column": getattr(args, "reference_column", None),
+        "reference_field": getattr(args, "reference_field", None),
+    }
 
 
 def tell(notes) -> None:
@@ -63,6 +83,7 @@ def tell(notes) -> None:
 def emit_json(document, output) -> None:
     """JSON to -o (written atomically) or to stdout; strict (no NaN, no Infinity)."""
     from ..io.files import json_text, write_text_atomic
+
     text = json_text(document)
     if output:
         write_text_atomic(output, text)
@@ -73,6 +94,7 @@ def emit_json(document, output) -> None:
 def emit_csv(frame, output, float_format: str | None = None) -> None:
     """A table to -o (written atomically) or to stdout; exact values unless float_format."""
     from ..io.files import write_csv_atomic
+
     if output:
         write_csv_atomic(output, frame, float_format)
     else:

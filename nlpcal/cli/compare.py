@@ -20,33 +20,61 @@ from .common import add_log_arguments, add_reference_arguments, emit_json, log_o
 
 def register(sub):
     parser = sub.add_parser(
-        "compare", help="staged cycle vs joint IPOPT vs the paper's conjugate gradient",
+        "compare",
+        help="staged cycle vs joint IPOPT vs the paper's conjugate gradient",
         description="Run, on the same log, the staged cycle of Zhou et al. (2010) Fig. 1 (IPOPT "
-                    "stages), the joint nine-parameter IPOPT solve, and the paper's conjugate "
-                    "gradient of section 5 jointly and stage by stage; write Table 1 rows for "
-                    "each and, with --plot, the figures of Fig. 2 and the objective against "
-                    "cumulative iterations.")
+        "stages), the joint nine-parameter IPOPT solve, and the paper's conjugate "
+        "gradient of section 5 jointly and stage by stage; write Table 1 rows for "
+        "each and, with --plot, the figures of Fig. 2 and the objective against "
+        "cumulative iterations.",
+    )
     parser.add_argument("log", metavar="LOG.csv")
     add_log_arguments(parser)
-    parser.add_argument("--cycles", type=int, default=50, metavar="K",
-                        help="most cycles of the staged and CG-staged runs (default 50); both "
-                             "stop earlier when a cycle no longer lowers the objective")
-    parser.add_argument("--rtol", type=float, default=1e-9,
-                        help="stop a cycle run when the objective improves by less than this "
-                             "fraction (default 1e-9)")
-    parser.add_argument("--cg-max-iter", type=int, default=5000, metavar="N",
-                        help="iteration cap of every conjugate-gradient solve (default 5000)")
-    parser.add_argument("--cg-step-factor", type=float, default=1.0, metavar="C",
-                        help="CG step constant a = C / (largest Hessian eigenvalue at the "
-                             "start) (default 1)")
-    parser.add_argument("--cg-rel-eps", type=float, default=1e-6, metavar="R",
-                        help="CG stop |grad f| <= R |grad f at the start| (default 1e-6)")
+    parser.add_argument(
+        "--cycles",
+        type=int,
+        default=50,
+        metavar="K",
+        help="most cycles of the staged and CG-staged runs (default 50); both "
+        "stop earlier when a cycle no longer lowers the objective",
+    )
+    parser.add_argument(
+        "--rtol",
+        type=float,
+        default=1e-9,
+        help="stop a cycle run when the objective improves by less than this "
+        "fraction (default 1e-9)",
+    )
+    parser.add_argument(
+        "--cg-max-iter",
+        type=int,
+        default=5000,
+        metavar="N",
+        help="iteration cap of every conjugate-gradient solve (default 5000)",
+    )
+    parser.add_argument(
+        "--cg-step-factor",
+        type=float,
+        default=1.0,
+        metavar="C",
+        help="CG step constant a = C / (largest Hessian eigenvalue at the start) (default 1)",
+    )
+    parser.add_argument(
+        "--cg-rel-eps",
+        type=float,
+        default=1e-6,
+        metavar="R",
+        help="CG stop |grad f| <= R |grad f at the start| (default 1e-6)",
+    )
     add_reference_arguments(parser)
-    parser.add_argument("-o", "--output", metavar="COMPARE.json",
-                        help="write the JSON here (stdout when absent)")
-    parser.add_argument("--plot", metavar="COMPARE.png",
-                        help="write the figures here (needs matplotlib: pip install "
-                             "'nlpcal[plot]')")
+    parser.add_argument(
+        "-o", "--output", metavar="COMPARE.json", help="write the JSON here (stdout when absent)"
+    )
+    parser.add_argument(
+        "--plot",
+        metavar="COMPARE.png",
+        help="write the figures here (needs matplotlib: pip install 'nlpcal[plot]')",
+    )
     parser.set_defaults(func=run)
 
 
@@ -56,9 +84,13 @@ def run(args) -> int:
     from ..io import check_output_path, read_log, write_bytes_atomic
     from ..plots import comparison_png, require_matplotlib
 
-    settings = CompareSettings(cycles=args.cycles, rtol=args.rtol,
-                               cg=CGOptions(step_factor=args.cg_step_factor,
-                                            rel_eps=args.cg_rel_eps, max_iter=args.cg_max_iter))
+    settings = CompareSettings(
+        cycles=args.cycles,
+        rtol=args.rtol,
+        cg=CGOptions(
+            step_factor=args.cg_step_factor, rel_eps=args.cg_rel_eps, max_iter=args.cg_max_iter
+        ),
+    )
     check_output_path(args.output)
     check_output_path(args.plot)
     if args.plot:

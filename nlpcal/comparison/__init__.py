@@ -105,8 +105,11 @@ class Comparison(Document):
             "cg_joint": list(self.cg_joint),
             "cg_staged": list(self.cg_staged),
             "summary": dict(self.summary),
-            "settings": {"cycles": int(self.settings.cycles), "rtol": self.settings.rtol,
-                         "cg": asdict(self.settings.cg)},
+            "settings": {
+                "cycles": int(self.settings.cycles),
+                "rtol": self.settings.rtol,
+                "cg": asdict(self.settings.cg),
+            },
             "trajectories": {name: _thin(t) for name, t in self.trajectories.items()},
             "warnings": list(self.warnings),
             "nlpcal_version": __version__,
@@ -119,23 +122,35 @@ class Comparison(Document):
     def from_body(cls, reader: DocumentReader) -> Comparison:
         settings = reader.reader("settings")
         cg = settings.mapping("cg", {})
-        return cls(samples=None, staged=reader.items("staged"), joint=reader.mapping("joint"),
-                   cg_joint=reader.items("cg_joint"), cg_staged=reader.items("cg_staged"),
-                   trajectories=reader.mapping("trajectories", {}),
-                   summary=reader.mapping("summary", {}), reference=reader.mapping("reference"),
-                   settings=CompareSettings(cycles=settings.integer("cycles", minimum=1),
-                                            rtol=settings.number("rtol", minimum=0.0),
-                                            cg=CGOptions(**cg)),
-                   unit=reader.string("unit", "nT"), warnings=reader.strings("warnings", []),
-                   n_samples=reader.integer("n_samples", 0), input=reader.mapping("input", {}))
+        return cls(
+            samples=None,
+            staged=reader.items("staged"),
+            joint=reader.mapping("joint"),
+            cg_joint=reader.items("cg_joint"),
+            cg_staged=reader.items("cg_staged"),
+            trajectories=reader.mapping("trajectories", {}),
+            summary=reader.mapping("summary", {}),
+            reference=reader.mapping("reference"),
+            settings=CompareSettings(
+                cycles=settings.integer("cycles", minimum=1),
+                rtol=settings.number("rtol", minimum=0.0),
+                cg=CGOptions(**cg),
+            ),
+            unit=reader.string("unit", "nT"),
+            warnings=reader.strings("warnings", []),
+            n_samples=reader.integer("n_samples", 0),
+            input=reader.mapping("input", {}),
+        )
 
     def table(self) -> str:
         """All rows in the layout of Table 1 of [1], one block per method."""
         extra = ("objective", "iterations", "wall_s")
-        blocks = [("staged cycle, IPOPT stages", self.staged),
-                  ("joint, IPOPT", [self.joint]),
-                  ("conjugate gradient of section 5, joint", self.cg_joint),
-                  ("conjugate gradient of section 5, staged cycle", self.cg_staged[1:])]
+        blocks = [
+            ("staged cycle, IPOPT stages", self.staged),
+            ("joint, IPOPT", [self.joint]),
+            ("conjugate gradient of section 5, joint", self.cg_joint),
+            ("conjugate gradient of section 5, staged cycle", self.cg_staged[1:]),
+        ]
         parts = []
         for title, rows in blocks:
             parts.append(f"== {title}")
@@ -156,12 +171,19 @@ def _thin(trajectory: dict, points: int = TRAJECTORY_POINTS) -> dict:
     """Keep the first and last points and about `points` log-spaced in between."""
     its = np.asarray(trajectory["iterations"])
     if its.size <= points:
-        return {k: [float(v) if k == "objective" else int(v) for v in trajectory[k]]
-                for k in ("iterations", "objective")}
-    keep = np.unique(np.concatenate([
-        [0, its.size - 1], np.round(np.geomspace(1, its.size - 1, points)).astype(int)]))
-    return {"iterations": [int(its[i]) for i in keep],
-            "objective": [float(trajectory["objective"][i]) for i in keep]}
+        return {
+            k: [float(v) if k == "objective" else int(v) for v in trajectory[k]]
+            for k in ("iterations", "objective")
+        }
+    keep = np.unique(
+        np.concatenate(
+            [[0, its.size - 1], np.round(np.geomspace(1, its.size - 1, points)).astype(int)]
+        )
+    )
+    return {
+        "iterations": [int(its[i]) for i in keep],
+        "objective": [float(trajectory["objective"][i]) for i in keep],
+    }
 
 
 def _joint_trajectory(step, iterations: int, f_end: float) -> dict:
@@ -198,7 +220,8 @@ def _staged_trajectory(rows, stages) -> dict:
 
 def _cg_trajectory(histories) -> dict:
     """Concatenated CG objective histories of successive solves, against cumulative iterations."""
-    iterations, objective = [], []
+    iterations: list[int] = []
+    objective: list[float] = []
     total = 0
     for history in histories:
         for k, value in enumerate(history):
@@ -224,15 +247,17 @@ def block_coupling(moments, theta) -> dict:
     largest canonical correlation between each pair of blocks (1: a direction of one block can
     be traded for one of the other without changing f; 0: independent blocks). [1]
     """
-    hess = np.asarray(objective_function(moments.reference)(
-        theta, pack(moments, theta, np.ones(9), 1.0))[2], dtype=float)
+    hess = np.asarray(
+        objective_function(moments.reference)(theta, pack(moments, theta, np.ones(9), 1.0))[2],
+        dtype=float,
+    )
     gauge = moments.reference == "none"
     scale_basis = np.linalg.svd(np.ones((1, 3)))[2][1:].T if gauge else np.eye(3)
     sizes = (3, scale_basis.shape[1], 3)
     basis = np.zeros((9, sum(sizes)))
     basis[6:9, 0:3] = np.eye(3)  # stage order: orthogonal, scale, offset
-    basis[3:6, 3:3 + sizes[1]] = scale_basis
-    basis[0:3, 3 + sizes[1]:] = np.eye(3)
+    basis[3:6, 3 : 3 + sizes[1]] = scale_basis
+    basis[0:3, 3 + sizes[1] :] = np.eye(3)
     h = basis.T @ hess @ basis
     h = 0.5 * (h + h.T)
     edges = np.cumsum((0, *sizes))
@@ -255,20 +280,40 @@ def block_coupling(moments, theta) -> dict:
                 cross = whiten[i].T @ h[parts[i], parts[j]] @ whiten[j]
                 correlations[f"{names[i]}-{names[j]}"] = float(np.linalg.svd(cross)[1][0])
     except (np.linalg.LinAlgError, FloatingPointError):
-        return {"rho": None, "rho_squared": None, "cycles_per_1e6": None,
-                "canonical_correlations": None}
+        return {
+            "rho": None,
+            "rho_squared": None,
+            "cycles_per_1e6": None,
+            "canonical_correlations": None,
+        }
     rate = rho**2
     cycles = float(np.log(1e-6) / np.log(rate)) if 0 < rate < 1 else None
-    return {"rho": rho, "rho_squared": rate, "cycles_per_1e6": cycles,
-            "canonical_correlations": correlations}
+    return {
+        "rho": rho,
+        "rho_squared": rate,
+        "cycles_per_1e6": cycles,
+        "canonical_correlations": correlations,
+    }
 
 
 def _summary(staged, stop_reason, joint, cg_joint, cg_staged) -> dict:
     joint_std = joint["std"]
-    reached = next((k for k, row in enumerate(staged[1:], start=1)
-                    if row["std"] <= joint_std * (1 + REACHED_JOINT_RTOL)), None)
-    cg_reached = next((k for k, row in enumerate(cg_staged[1:], start=1)
-                       if row["std"] <= joint_std * (1 + REACHED_JOINT_RTOL)), None)
+    reached = next(
+        (
+            k
+            for k, row in enumerate(staged[1:], start=1)
+            if row["std"] <= joint_std * (1 + REACHED_JOINT_RTOL)
+        ),
+        None,
+    )
+    cg_reached = next(
+        (
+            k
+            for k, row in enumerate(cg_staged[1:], start=1)
+            if row["std"] <= joint_std * (1 + REACHED_JOINT_RTOL)
+        ),
+        None,
+    )
     return {
         "staged_cycles": len(staged) - 1,
         "staged_stop_reason": stop_reason,
@@ -279,9 +324,15 @@ def _summary(staged, stop_reason, joint, cg_joint, cg_staged) -> dict:
         "reached_joint_rtol": REACHED_JOINT_RTOL,
         "joint_iterations": int(joint["iterations"]),
         "joint_wall_s": float(joint["wall_s"]),
-        "cg_joint": {row["variant"]: {"status": row["status"], "iterations": row["iterations"],
-                                      "std": row["std"], "wall_s": row["wall_s"]}
-                     for row in cg_joint},
+        "cg_joint": {
+            row["variant"]: {
+                "status": row["status"],
+                "iterations": row["iterations"],
+                "std": row["std"],
+                "wall_s": row["wall_s"],
+            }
+            for row in cg_joint
+        },
         "cg_staged_cycles": len(cg_staged) - 1,
         "cg_staged_iterations": int(sum(r["iterations"] for r in cg_staged)),
         "cg_staged_wall_s": float(sum(r["wall_s"] for r in cg_staged)),
@@ -290,8 +341,14 @@ def _summary(staged, stop_reason, joint, cg_joint, cg_staged) -> dict:
     }
 
 
-def compare(samples, *, reference_field=None, settings: CompareSettings = CompareSettings(),
-            unit: str = "nT", reference_unit: str | None = None) -> Comparison:
+def compare(
+    samples,
+    *,
+    reference_field=None,
+    settings: CompareSettings = CompareSettings(),
+    unit: str = "nT",
+    reference_unit: str | None = None,
+) -> Comparison:
     """Run the staged cycle, the joint solve and the paper's CG (joint and staged) on one log.
 
     samples : (N, 3) raw sensor output B_M. [unit]
@@ -341,30 +398,44 @@ def compare(samples, *, reference_field=None, settings: CompareSettings = Compar
     summary["block_coupling"] = block_coupling(moments, joint_theta)
     warnings = []
     if stop_reason == "max_cycles":
-        warnings.append(f"the staged cycle was still improving after {settings.cycles} cycles "
-                        f"(std {staged[-1]['std']:.4g} vs joint {joint['std']:.4g}); pass a "
-                        f"larger --cycles to see where it ends")
+        warnings.append(
+            f"the staged cycle was still improving after {settings.cycles} cycles "
+            f"(std {staged[-1]['std']:.4g} vs joint {joint['std']:.4g}); pass a "
+            f"larger --cycles to see where it ends"
+        )
     for row in cg_joint:
         if row["status"] != "converged":
-            warnings.append(f"{row['label']}: the conjugate gradient did not converge "
-                            f"({row['status']} after {row['iterations']} iterations; std "
-                            f"{row['std']:.4g} vs joint {joint['std']:.4g})")
+            warnings.append(
+                f"{row['label']}: the conjugate gradient did not converge "
+                f"({row['status']} after {row['iterations']} iterations; std "
+                f"{row['std']:.4g} vs joint {joint['std']:.4g})"
+            )
     bad = [r["label"] for r in cg_staged[1:] if not r.get("converged", True)]
     if bad:
         warnings.append(f"conjugate gradient stages that did not converge in: {', '.join(bad)}")
 
-    return Comparison(samples=samples, staged=staged, joint=joint, cg_joint=cg_joint,
-                      cg_staged=cg_staged, trajectories=trajectories, summary=summary,
-                      reference=problem.reference_document(), settings=settings,
-                      unit=units.base_unit(unit), warnings=warnings,
-                      n_samples=int(samples.shape[0]))
+    return Comparison(
+        samples=samples,
+        staged=staged,
+        joint=joint,
+        cg_joint=cg_joint,
+        cg_staged=cg_staged,
+        trajectories=trajectories,
+        summary=summary,
+        reference=problem.reference_document(),
+        settings=settings,
+        unit=units.base_unit(unit),
+        warnings=warnings,
+        n_samples=int(samples.shape[0]),
+    )
 
 
 def compare_log(log: Log, *, settings: CompareSettings = CompareSettings()) -> Comparison:
     """`compare` on a log read by `nlpcal.io.read_log` (its reference included); the comparison
     records the log under `input`."""
-    result = compare(log.samples, reference_field=log.reference, settings=settings,
-                     unit=log.base_unit)
+    result = compare(
+        log.samples, reference_field=log.reference, settings=settings, unit=log.base_unit
+    )
     result.input = log.metadata(unit_factor_nT=units.field_factor(log.unit))
     if log.reference_column:
         result.reference["column"] = log.reference_column

@@ -126,9 +126,16 @@ class CGOutcome:
         return self.status == CONVERGED
 
     def to_dict(self) -> dict:
-        return {"status": self.status, "iterations": self.iterations, "a": self.a,
-                "eps": self.eps, "f_start": self.f_start, "f_end": self.f_end,
-                "grad_norm": self.grad_norm, "grad_norm_blocks": dict(self.grad_norm_blocks)}
+        return {
+            "status": self.status,
+            "iterations": self.iterations,
+            "a": self.a,
+            "eps": self.eps,
+            "f_start": self.f_start,
+            "f_end": self.f_end,
+            "grad_norm": self.grad_norm,
+            "grad_norm_blocks": dict(self.grad_norm_blocks),
+        }
 
 
 @problem("zhou2010.value_and_gradient", examples=[("none",), ("constant",), ("series",)])
@@ -180,8 +187,15 @@ def _block_norms(gradient: np.ndarray, kind: str) -> dict:
     return norms
 
 
-def conjugate_gradient(moments, block: str, theta, options: CGOptions = CGOptions(), *,
-                       eps: float | None = None, objective: _Objective | None = None):
+def conjugate_gradient(
+    moments,
+    block: str,
+    theta,
+    options: CGOptions = CGOptions(),
+    *,
+    eps: float | None = None,
+    objective: _Objective | None = None,
+):
     """Minimise f over one block of theta by the CG of section 5 in [1], the rest held fixed.
 
     moments : `nlpcal.moments.Moments` of the log.
@@ -226,8 +240,11 @@ def conjugate_gradient(moments, block: str, theta, options: CGOptions = CGOption
             trial = theta.copy()
             trial[free] += D * (p_k * S)  # step (4)
             f_new, g_full_new, g_new = evaluate(trial)
-            if (not np.isfinite(f_new) or not np.all(np.isfinite(g_new))
-                    or abs(f_new) > DIVERGENCE_FACTOR * max(abs(f_start), 1e-300)):
+            if (
+                not np.isfinite(f_new)
+                or not np.all(np.isfinite(g_new))
+                or abs(f_new) > DIVERGENCE_FACTOR * max(abs(f_start), 1e-300)
+            ):
                 status = DIVERGED  # give back the start of this solve
                 iterations = k + 1
                 history.append(f_new)
@@ -247,11 +264,17 @@ def conjugate_gradient(moments, block: str, theta, options: CGOptions = CGOption
             S = -g_new + v_k * S
             g, g_norm = g_new, g_new_norm
     return theta, CGOutcome(
-        status=status, iterations=iterations, a=float(a), eps=float(eps), f_start=float(f_start),
-        f_end=float(f), grad_norm=float(g_norm),
+        status=status,
+        iterations=iterations,
+        a=float(a),
+        eps=float(eps),
+        f_start=float(f_start),
+        f_end=float(f),
+        grad_norm=float(g_norm),
         grad_norm_blocks=_block_norms(g_full, objective.kind),
-        history=history, wall_s=time.perf_counter() - started)
-
+        history=history,
+        wall_s=time.perf_counter() - started,
+    )
 
 
 def run_cg_joint(problem, start, options: CGOptions = CGOptions(), label: str = "cg joint"):
@@ -262,8 +285,9 @@ def run_cg_joint(problem, start, options: CGOptions = CGOptions(), label: str = 
     status ("converged", "max_iterations", "diverged") and the constants a and eps.
     """
     objective = _Objective(problem.moments)
-    theta, outcome = conjugate_gradient(problem.moments, "joint", start, options,
-                                        objective=objective)
+    theta, outcome = conjugate_gradient(
+        problem.moments, "joint", start, options, objective=objective
+    )
     row = problem.row(label, theta, iterations=outcome.iterations, wall_s=outcome.wall_s)
     row.update(variant="scaled" if options.scaled else "unscaled", **outcome.to_dict())
     row["iterations"] = int(outcome.iterations)
@@ -283,21 +307,31 @@ def run_cg_staged(problem, max_cycles: int, options: CGOptions = CGOptions(), rt
     theta = np.zeros(9)
     rows = [problem.measured_row()]
     stages = []
-    eps = {}  # per block, set at its first solve (step (1) of section 5)
+    eps: dict[str, float] = {}  # per block, set at its first solve (step (1) of section 5)
     previous = rows[0]["objective"]
     for cycle in range(1, int(max_cycles) + 1):
         started = time.perf_counter()
         outcomes = []
         for stage in STAGE_ORDER:
-            theta, outcome = conjugate_gradient(problem.moments, stage, theta, options,
-                                                eps=eps.get(stage), objective=objective)
+            theta, outcome = conjugate_gradient(
+                problem.moments, stage, theta, options, eps=eps.get(stage), objective=objective
+            )
             eps.setdefault(stage, outcome.eps)
             outcomes.append(outcome)
-            stages.append({"cycle": cycle, "stage": stage, **outcome.to_dict(),
-                           "history": list(outcome.history)})
-        row = problem.row(f"cg cycle {cycle}", theta,
-                          iterations=sum(o.iterations for o in outcomes),
-                          wall_s=time.perf_counter() - started)
+            stages.append(
+                {
+                    "cycle": cycle,
+                    "stage": stage,
+                    **outcome.to_dict(),
+                    "history": list(outcome.history),
+                }
+            )
+        row = problem.row(
+            f"cg cycle {cycle}",
+            theta,
+            iterations=sum(o.iterations for o in outcomes),
+            wall_s=time.perf_counter() - started,
+        )
         statuses = [o.status for o in outcomes]
         row["status"] = next((s for s in (DIVERGED, MAX_ITERATIONS) if s in statuses), CONVERGED)
         row["converged"] = row["status"] == CONVERGED

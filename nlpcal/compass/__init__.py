@@ -14,6 +14,8 @@ errors against a reference. The model is `nlpcal.models.qiu2017`; the NLPs are i
 
 from ..errors import InputError
 from ..io.logs import SensorLog
+from .ellipsoids import fit_axis_ellipsoid, fit_general_ellipsoid
+from .free import DEFAULT_REST_TOLERANCE, MIN_FREE_SAMPLES, calibrate_free, dip_alignment
 from .orientation import (
     DEFAULT_PITCH_BANDS,
     NEAR_VERTICAL_DEG,
@@ -23,8 +25,6 @@ from .orientation import (
     format_evaluation,
     wrap_deg,
 )
-from .ellipsoids import fit_axis_ellipsoid, fit_general_ellipsoid
-from .free import DEFAULT_REST_TOLERANCE, MIN_FREE_SAMPLES, calibrate_free, dip_alignment
 from .result import CompassCalibration, SensorCalibration
 from .turns import (
     MIN_TURN_SAMPLES,
@@ -35,22 +35,34 @@ from .turns import (
 )
 
 
-def calibrate_sensor_log(log: SensorLog, *, turn_column: str | None = None,
-                         field_nt: float | None = None, ellipsoid_seed: str = "linear",
-                         rest_tolerance: float | None = DEFAULT_REST_TOLERANCE
-                         ) -> CompassCalibration:
+def calibrate_sensor_log(
+    log: SensorLog,
+    *,
+    turn_column: str | None = None,
+    field_nt: float | None = None,
+    ellipsoid_seed: str = "linear",
+    rest_tolerance: float | None = DEFAULT_REST_TOLERANCE,
+) -> CompassCalibration:
     """Calibrate both sensors of a log read by `nlpcal.io.read_sensor_log`: turn mode with the
     turn labels of `turn_column`, free-rotation mode without. The result records the log."""
     if turn_column:
         if turn_column not in log.frame.columns:
-            raise InputError(f"turn column {turn_column!r} not found; the log has columns: "
-                             f"{', '.join(map(str, log.frame.columns))}")
+            raise InputError(
+                f"turn column {turn_column!r} not found; the log has columns: "
+                f"{', '.join(map(str, log.frame.columns))}"
+            )
         labels = log.frame[turn_column].to_numpy(dtype=object)[log.kept]
-        result = calibrate_turns(log.mag, log.acc, labels, field_nt=field_nt,
-                                 ellipsoid_seed=ellipsoid_seed)
+        result = calibrate_turns(
+            log.mag, log.acc, labels, field_nt=field_nt, ellipsoid_seed=ellipsoid_seed
+        )
     else:
-        result = calibrate_free(log.mag, log.acc, field_nt=field_nt,
-                                ellipsoid_seed=ellipsoid_seed, rest_tolerance=rest_tolerance)
+        result = calibrate_free(
+            log.mag,
+            log.acc,
+            field_nt=field_nt,
+            ellipsoid_seed=ellipsoid_seed,
+            rest_tolerance=rest_tolerance,
+        )
     result.input.update(log.metadata(turn_column=turn_column))
     return result
 

@@ -26,11 +26,12 @@ def normalise(u) -> tuple:
 
 
 def _axis_features(z) -> np.ndarray:
-    return np.column_stack([z ** 2, z, np.ones(len(z))])
+    return np.column_stack([z**2, z, np.ones(len(z))])
 
 
-def fit_axis_ellipsoid(u, *, magnitude: float, seed: str = "linear",
-                       sensor: str = "sensor") -> dict:
+def fit_axis_ellipsoid(
+    u, *, magnitude: float, seed: str = "linear", sensor: str = "sensor"
+) -> dict:
     """Axis-aligned ellipsoid v = diag(g) (u - o), |v| = magnitude, as an NLP.
 
     Parameters
@@ -55,22 +56,27 @@ def fit_axis_ellipsoid(u, *, magnitude: float, seed: str = "linear",
         A, B = q[:3], q[3:]
         if np.all(A > 0):
             o = -B / (2 * A)
-            G = 1 + np.sum(A * o ** 2)
+            G = 1 + np.sum(A * o**2)
             if G > 0:
                 x0, seed_used = np.r_[A / G, o], "linear"
     elif seed != "centroid":
         raise InputError(f"unknown ellipsoid seed {seed!r}; expected linear or centroid")
     lbx = np.r_[np.full(3, 1e-6), np.full(3, -np.inf)]
-    out = solve(axis_ellipsoid_nlp(), x0=x0, p=Phi.ravel(order="F"),
-                lbx=lbx).checked(f"{sensor} ellipsoid fit")
+    out = solve(axis_ellipsoid_nlp(), x0=x0, p=Phi.ravel(order="F"), lbx=lbx).checked(
+        f"{sensor} ellipsoid fit"
+    )
     a, o = out.x[:3], out.x[3:]
     gains = magnitude * np.sqrt(a) / spread
     offset = centre + spread * o
     v = (u - offset) * gains
     residual = np.linalg.norm(v, axis=1) - magnitude
-    return {"gains": gains, "offset": offset,
-            "residual_rms": float(np.sqrt(np.mean(residual ** 2))),
-            "seed": seed_used, "ipopt": out.record()}
+    return {
+        "gains": gains,
+        "offset": offset,
+        "residual_rms": float(np.sqrt(np.mean(residual**2))),
+        "seed": seed_used,
+        "ipopt": out.record(),
+    }
 
 
 def _general_features(z) -> np.ndarray:
@@ -78,8 +84,9 @@ def _general_features(z) -> np.ndarray:
     return np.column_stack([x * x, y * y, w * w, x * y, x * w, y * w, x, y, w, np.ones(len(z))])
 
 
-def fit_general_ellipsoid(m, *, magnitude: float, seed: str = "linear",
-                          sensor: str = "sensor") -> dict:
+def fit_general_ellipsoid(
+    m, *, magnitude: float, seed: str = "linear", sensor: str = "sensor"
+) -> dict:
     """General ellipsoid v = L (m - o), L symmetric positive definite, |v| = magnitude, as an NLP.
 
     The symmetric L is the gauge: a rotation of the sensor triad cannot be seen in an ellipsoid, so
@@ -96,12 +103,14 @@ def fit_general_ellipsoid(m, *, magnitude: float, seed: str = "linear",
     if not condition < 1e5:
         raise InputError(
             f"the {sensor} samples cover too few directions for an ellipsoid fit (they lie near a "
-            f"plane or a circle); turn the housing through many different attitudes")
+            f"plane or a circle); turn the housing through many different attitudes"
+        )
     x0, seed_used = np.r_[1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], "centroid"
     if seed == "linear":
         q, *_ = np.linalg.lstsq(design, np.ones(len(z)), rcond=None)
-        A = np.array([[q[0], q[3] / 2, q[4] / 2], [q[3] / 2, q[1], q[5] / 2],
-                      [q[4] / 2, q[5] / 2, q[2]]])
+        A = np.array(
+            [[q[0], q[3] / 2, q[4] / 2], [q[3] / 2, q[1], q[5] / 2], [q[4] / 2, q[5] / 2, q[2]]]
+        )
         if np.all(np.linalg.eigvalsh(A) > 0):
             o = -0.5 * np.linalg.solve(A, q[6:9])
             G = 1 + o @ A @ o
@@ -112,8 +121,13 @@ def fit_general_ellipsoid(m, *, magnitude: float, seed: str = "linear",
     elif seed != "centroid":
         raise InputError(f"unknown ellipsoid seed {seed!r}; expected linear or centroid")
     Phi = phi.T @ phi / len(z)
-    out = solve(general_ellipsoid_nlp(), x0=x0, p=Phi.ravel(order="F"),
-                lbg=np.full(3, 1e-9), ubg=np.full(3, np.inf)).checked(f"{sensor} ellipsoid fit")
+    out = solve(
+        general_ellipsoid_nlp(),
+        x0=x0,
+        p=Phi.ravel(order="F"),
+        lbg=np.full(3, 1e-9),
+        ubg=np.full(3, np.inf),
+    ).checked(f"{sensor} ellipsoid fit")
     a = out.x
     A = np.array([[a[0], a[3], a[4]], [a[3], a[1], a[5]], [a[4], a[5], a[2]]])
     w, V = np.linalg.eigh(A)
@@ -123,5 +137,11 @@ def fit_general_ellipsoid(m, *, magnitude: float, seed: str = "linear",
     offset = centre + spread * a[6:9]
     v = (m - offset) @ L.T
     residual = np.linalg.norm(v, axis=1) - magnitude
-    return {"L": L, "offset": offset, "residual_rms": float(np.sqrt(np.mean(residual ** 2))),
-            "condition": condition, "seed": seed_used, "ipopt": out.record()}
+    return {
+        "L": L,
+        "offset": offset,
+        "residual_rms": float(np.sqrt(np.mean(residual**2))),
+        "condition": condition,
+        "seed": seed_used,
+        "ipopt": out.record(),
+    }

@@ -59,9 +59,13 @@ def dip_alignment(down, field_dir) -> dict:
     psi = np.column_stack([np.einsum("ni,nj->nij", down, field_dir).reshape(n, 9), np.ones(n)])
     Psi = psi.T @ psi / n
     c0 = float(np.mean(np.sum(down * field_dir, axis=1)))
-    out = solve(dip_alignment_nlp(), x0=np.r_[0.0, 0.0, 0.0, c0], p=Psi.ravel(order="F"),
-                lbx=np.r_[np.full(3, -0.5), -1.0], ubx=np.r_[np.full(3, 0.5), 1.0]).checked(
-        "magnetometer-to-accelerometer alignment (dip constancy)")
+    out = solve(
+        dip_alignment_nlp(),
+        x0=np.r_[0.0, 0.0, 0.0, c0],
+        p=Psi.ravel(order="F"),
+        lbx=np.r_[np.full(3, -0.5), -1.0],
+        ubx=np.r_[np.full(3, 0.5), 1.0],
+    ).checked("magnetometer-to-accelerometer alignment (dip constancy)")
     r, c = out.x[:3], float(out.x[3])
     R = _gibbs_matrix(r)
     rb = field_dir @ R.T
@@ -71,20 +75,32 @@ def dip_alignment(down, field_dir) -> dict:
     J = np.column_stack([np.cross(rb, down), -np.ones(n)])
     # A free-rotation log is a time series: neighbouring residuals alike carry less information.
     rho = inference.lag1_autocorrelation(residual)
-    uncertainty = inference.estimate(J.T @ J, residual_variance=float(residual @ residual)
-                                     / max(n - 4, 1), autocorrelation=rho, dof=n - 4)
-    std = (uncertainty.standard_errors if uncertainty.standard_errors is not None
-           else np.full(4, np.inf))
+    uncertainty = inference.estimate(
+        J.T @ J,
+        residual_variance=float(residual @ residual) / max(n - 4, 1),
+        autocorrelation=rho,
+        dof=n - 4,
+    )
+    std = (
+        uncertainty.standard_errors
+        if uncertainty.standard_errors is not None
+        else np.full(4, np.inf)
+    )
     angle = 2 * np.arctan(np.linalg.norm(r))
     axis = r / np.linalg.norm(r) if np.linalg.norm(r) > 0 else np.zeros(3)
     before = np.sum(down * field_dir, axis=1)
-    slope = max(np.sqrt(1 - c ** 2), 1e-12)  # d sin(I) / dI: residuals of sin(I) to angles
-    return {"R": R, "rotation": angle * axis, "rotation_std": std[:3], "dip": float(np.arcsin(c)),
-            "dip_std": float(std[3] / slope),
-            "dip_residual_rms_before": float(np.std(before) / slope),
-            "dip_residual_rms": float(np.sqrt(np.mean(residual ** 2)) / slope),
-            "residual_lag1_autocorrelation": rho,
-            "ipopt": out.record()}
+    slope = max(np.sqrt(1 - c**2), 1e-12)  # d sin(I) / dI: residuals of sin(I) to angles
+    return {
+        "R": R,
+        "rotation": angle * axis,
+        "rotation_std": std[:3],
+        "dip": float(np.arcsin(c)),
+        "dip_std": float(std[3] / slope),
+        "dip_residual_rms_before": float(np.std(before) / slope),
+        "dip_residual_rms": float(np.sqrt(np.mean(residual**2)) / slope),
+        "residual_lag1_autocorrelation": rho,
+        "ipopt": out.record(),
+    }
 
 
 FREE_IDENTIFIABILITY = (
@@ -97,11 +113,18 @@ FREE_IDENTIFIABILITY = (
     "are angles relative to that frame. Components of the magnetometer-to-accelerometer rotation "
     "about body axes the housing never left are not identifiable either (see alignment."
     "rotation_std_deg). The magnetometer's overall scale is fixed by the given field or by "
-    "det(correction_matrix) = 1.")
+    "det(correction_matrix) = 1."
+)
 
 
-def calibrate_free(mag, acc, *, field_nt: float | None = None, ellipsoid_seed: str = "linear",
-                   rest_tolerance: float | None = DEFAULT_REST_TOLERANCE) -> CompassCalibration:
+def calibrate_free(
+    mag,
+    acc,
+    *,
+    field_nt: float | None = None,
+    ellipsoid_seed: str = "linear",
+    rest_tolerance: float | None = DEFAULT_REST_TOLERANCE,
+) -> CompassCalibration:
     """Free-rotation mode: each sensor's general ellipsoid fit, then the dip-angle constancy.
 
     Parameters
@@ -123,8 +146,10 @@ def calibrate_free(mag, acc, *, field_nt: float | None = None, ellipsoid_seed: s
     mag = validation.finite_vectors(mag, "magnetometer readings", minimum=MIN_FREE_SAMPLES)
     acc = validation.finite_vectors(acc, "accelerometer readings", minimum=MIN_FREE_SAMPLES)
     if len(mag) != len(acc):
-        raise InputError(f"got {len(mag)} magnetometer and {len(acc)} accelerometer samples; they "
-                         f"must be the same rows")
+        raise InputError(
+            f"got {len(mag)} magnetometer and {len(acc)} accelerometer samples; they "
+            f"must be the same rows"
+        )
     if field_nt is not None and not (np.isfinite(field_nt) and field_nt > 0):
         raise InputError(f"the field must be a positive number of nT, got {field_nt}")
     if rest_tolerance is not None and not (np.isfinite(rest_tolerance) and rest_tolerance > 0):
@@ -134,8 +159,9 @@ def calibrate_free(mag, acc, *, field_nt: float | None = None, ellipsoid_seed: s
     rest = np.ones(len(acc), dtype=bool)
     iterations = 0
     while True:
-        acc_fit = fit_general_ellipsoid(acc[rest], magnitude=1.0, seed=ellipsoid_seed,
-                                        sensor="accelerometer (samples at rest)")
+        acc_fit = fit_general_ellipsoid(
+            acc[rest], magnitude=1.0, seed=ellipsoid_seed, sensor="accelerometer (samples at rest)"
+        )
         a = (acc - acc_fit["offset"]) @ acc_fit["L"].T
         if rest_tolerance is None or iterations == REST_ITERATIONS:
             break
@@ -145,14 +171,17 @@ def calibrate_free(mag, acc, *, field_nt: float | None = None, ellipsoid_seed: s
             raise InputError(
                 f"only {int(new_rest.sum())} samples look at rest (calibrated |acc| within "
                 f"{rest_tolerance:g} g of 1 g); record more slow or still attitudes or pass a "
-                f"larger rest tolerance")
+                f"larger rest tolerance"
+            )
         if np.array_equal(new_rest, rest):
             break
         rest = new_rest
     if rest.sum() < 0.5 * len(acc):
-        warnings.append(f"only {int(rest.sum())} of {len(acc)} samples look at rest (calibrated "
-                        f"|acc| within {rest_tolerance:g} g of 1 g); the accelerometer fit and the "
-                        f"alignment use those alone")
+        warnings.append(
+            f"only {int(rest.sum())} of {len(acc)} samples look at rest (calibrated "
+            f"|acc| within {rest_tolerance:g} g of 1 g); the accelerometer fit and the "
+            f"alignment use those alone"
+        )
     b = (mag[rest] - mag_fit["offset"]) @ mag_fit["L"].T
     b /= np.linalg.norm(b, axis=1, keepdims=True)
     d = -a[rest] / np.linalg.norm(a[rest], axis=1, keepdims=True)
@@ -171,25 +200,43 @@ def calibrate_free(mag, acc, *, field_nt: float | None = None, ellipsoid_seed: s
             f"the magnetometer-to-accelerometer rotation about body {', '.join(poorly)} is poorly "
             f"determined (std {', '.join(f'{s:.2g}' for s in rotation_std_deg)} deg about "
             f"x, y, z); "
-            f"the log needs more varied attitudes")
+            f"the log needs more varied attitudes"
+        )
     mag_norm = np.linalg.norm((mag - mag_fit["offset"]) @ K_mag.T, axis=1)
     acc_norm = np.linalg.norm(a[rest], axis=1)
     mag_cal = SensorCalibration(
-        sensor="magnetometer", unit="nT", correction=K_mag, bias=mag_fit["offset"],
-        magnitude=float(magnitude), magnitude_source=source,
+        sensor="magnetometer",
+        unit="nT",
+        correction=K_mag,
+        bias=mag_fit["offset"],
+        magnitude=float(magnitude),
+        magnitude_source=source,
         frame="accelerometer (rotated into it by the dip-angle constancy)",
-        quality={"magnitude_residual_rms": float(np.sqrt(np.mean((mag_norm - magnitude) ** 2))),
-                 "ellipsoid_condition": mag_fit["condition"], "ellipsoid_seed": mag_fit["seed"],
-                 "ipopt": {"ellipsoid": mag_fit["ipopt"], "alignment": align["ipopt"]}})
+        quality={
+            "magnitude_residual_rms": float(np.sqrt(np.mean((mag_norm - magnitude) ** 2))),
+            "ellipsoid_condition": mag_fit["condition"],
+            "ellipsoid_seed": mag_fit["seed"],
+            "ipopt": {"ellipsoid": mag_fit["ipopt"], "alignment": align["ipopt"]},
+        },
+    )
     acc_cal = SensorCalibration(
-        sensor="accelerometer", unit="g", correction=acc_fit["L"], bias=acc_fit["offset"],
-        magnitude=1.0, magnitude_source=GRAVITY_SCALE,
+        sensor="accelerometer",
+        unit="g",
+        correction=acc_fit["L"],
+        bias=acc_fit["offset"],
+        magnitude=1.0,
+        magnitude_source=GRAVITY_SCALE,
         frame="accelerometer, symmetric correction (orientation relative to the housing unknown)",
-        quality={"magnitude_residual_rms": float(np.sqrt(np.mean((acc_norm - 1.0) ** 2))),
-                 "rest_samples": int(rest.sum()), "rest_tolerance_g": rest_tolerance,
-                 "rest_refits": iterations,
-                 "ellipsoid_condition": acc_fit["condition"], "ellipsoid_seed": acc_fit["seed"],
-                 "ipopt": {"ellipsoid": acc_fit["ipopt"]}})
+        quality={
+            "magnitude_residual_rms": float(np.sqrt(np.mean((acc_norm - 1.0) ** 2))),
+            "rest_samples": int(rest.sum()),
+            "rest_tolerance_g": rest_tolerance,
+            "rest_refits": iterations,
+            "ellipsoid_condition": acc_fit["condition"],
+            "ellipsoid_seed": acc_fit["seed"],
+            "ipopt": {"ellipsoid": acc_fit["ipopt"]},
+        },
+    )
     alignment = {
         "rotation_deg": [float(v) for v in np.degrees(align["rotation"])],
         "rotation_std_deg": [float(v) for v in rotation_std_deg],
@@ -200,10 +247,15 @@ def calibrate_free(mag, acc, *, field_nt: float | None = None, ellipsoid_seed: s
         "dip_residual_rms_deg": float(np.degrees(align["dip_residual_rms"])),
         "residual_lag1_autocorrelation": align["residual_lag1_autocorrelation"],
         "note": "standard deviations widened for the autocorrelation of the dip residuals; "
-                "rotation vector (axis times angle) taking the magnetometer's calibrated frame "
-                "into the accelerometer's, body x, y, z components",
+        "rotation vector (axis times angle) taking the magnetometer's calibrated frame "
+        "into the accelerometer's, body x, y, z components",
     }
-    return CompassCalibration(mode="free-rotation", magnetometer=mag_cal, accelerometer=acc_cal,
-                              identifiability=FREE_IDENTIFIABILITY, alignment=alignment,
-                              warnings=warnings, input={"samples": len(mag)})
-
+    return CompassCalibration(
+        mode="free-rotation",
+        magnetometer=mag_cal,
+        accelerometer=acc_cal,
+        identifiability=FREE_IDENTIFIABILITY,
+        alignment=alignment,
+        warnings=warnings,
+        input={"samples": len(mag)},
+    )

@@ -34,8 +34,9 @@ class Attitude:
     warnings: list
 
 
-def attitude(calibration: CompassCalibration, mag, acc, *,
-             declination_deg: float = 0.0) -> Attitude:
+def attitude(
+    calibration: CompassCalibration, mag, acc, *, declination_deg: float = 0.0
+) -> Attitude:
     """Roll, pitch and heading from raw readings through the calibration. Eq. 2, 9 and 10 in [1].
 
     Parameters
@@ -59,9 +60,11 @@ def attitude(calibration: CompassCalibration, mag, acc, *,
     near = int(np.sum(np.abs(pitch_deg) > NEAR_VERTICAL_DEG))
     warnings = []
     if near:
-        warnings.append(f"{near} sample(s) have |pitch| > {NEAR_VERTICAL_DEG:g} degrees, where "
-                        f"roll and heading are undefined (only their sum or difference is); treat "
-                        f"those values with caution")
+        warnings.append(
+            f"{near} sample(s) have |pitch| > {NEAR_VERTICAL_DEG:g} degrees, where "
+            f"roll and heading are undefined (only their sum or difference is); treat "
+            f"those values with caution"
+        )
     return Attitude(np.degrees(roll), pitch_deg, np.degrees(heading), near, warnings)
 
 
@@ -73,12 +76,16 @@ def wrap_deg(angle):
 def _stats(errors) -> dict:
     if len(errors) == 0:
         return {"max_abs": None, "rms": None, "mean": None}
-    return {"max_abs": float(np.max(np.abs(errors))), "rms": float(np.sqrt(np.mean(errors ** 2))),
-            "mean": float(np.mean(errors))}
+    return {
+        "max_abs": float(np.max(np.abs(errors))),
+        "rms": float(np.sqrt(np.mean(errors**2))),
+        "mean": float(np.mean(errors)),
+    }
 
 
-def evaluate(estimate, truth, *, pitch_bands=DEFAULT_PITCH_BANDS,
-             remove_heading_offset: bool = False) -> dict:
+def evaluate(
+    estimate, truth, *, pitch_bands=DEFAULT_PITCH_BANDS, remove_heading_offset: bool = False
+) -> dict:
     """Attitude error statistics overall and per band of |true pitch|, like Table 2 of [1].
 
     Parameters
@@ -96,15 +103,19 @@ def evaluate(estimate, truth, *, pitch_bands=DEFAULT_PITCH_BANDS,
     estimate = np.atleast_2d(np.asarray(estimate, dtype=float))
     truth = np.atleast_2d(np.asarray(truth, dtype=float))
     if estimate.shape != truth.shape or estimate.shape[1:] != (3,):
-        raise InputError(f"estimate and truth must both be (N, 3) roll, pitch, heading; got "
-                         f"{estimate.shape} and {truth.shape}")
+        raise InputError(
+            f"estimate and truth must both be (N, 3) roll, pitch, heading; got "
+            f"{estimate.shape} and {truth.shape}"
+        )
     valid = np.isfinite(estimate).all(axis=1) & np.isfinite(truth).all(axis=1)
     if not valid.any():
         raise InputError("no row has finite estimated and true roll, pitch and heading")
     edges = np.asarray(pitch_bands, dtype=float)
     if edges.ndim != 1 or edges.size < 2 or np.any(np.diff(edges) <= 0) or edges[0] < 0:
-        raise InputError(f"pitch bands must be at least two increasing non-negative edges, got "
-                         f"{list(pitch_bands)}")
+        raise InputError(
+            f"pitch bands must be at least two increasing non-negative edges, got "
+            f"{list(pitch_bands)}"
+        )
     errors = wrap_deg(estimate[valid] - truth[valid])
     offset = None
     if remove_heading_offset:
@@ -114,32 +125,45 @@ def evaluate(estimate, truth, *, pitch_bands=DEFAULT_PITCH_BANDS,
 
     def block(mask):
         e = errors[mask]
-        return {"n": int(mask.sum()), "roll": _stats(e[:, 0]), "pitch": _stats(e[:, 1]),
-                "heading": _stats(e[:, 2])}
+        return {
+            "n": int(mask.sum()),
+            "roll": _stats(e[:, 0]),
+            "pitch": _stats(e[:, 1]),
+            "heading": _stats(e[:, 2]),
+        }
 
     bands = []
     for i, (lo, hi) in enumerate(zip(edges[:-1], edges[1:])):
         last = i == len(edges) - 2
         mask = (pitch >= lo) & ((pitch <= hi) if last else (pitch < hi))
         bands.append({"pitch_min_deg": float(lo), "pitch_max_deg": float(hi), **block(mask)})
-    return {"overall": block(np.ones(len(errors), dtype=bool)), "bands": bands,
-            "heading_offset_deg": offset, "rows_skipped": int((~valid).sum())}
+    return {
+        "overall": block(np.ones(len(errors), dtype=bool)),
+        "bands": bands,
+        "heading_offset_deg": offset,
+        "rows_skipped": int((~valid).sum()),
+    }
 
 
 def format_evaluation(stats) -> str:
     """The statistics of `evaluate` as a table for a terminal (the layout of Table 2 in [1])."""
+
     def cell(entry):
         if entry["max_abs"] is None:
             return f"{'-':>17}"
         return f"{entry['max_abs']:8.3f} {entry['rms']:8.3f}"
 
-    lines = [f"{'|pitch| [deg]':>14} {'n':>6} {'roll max/rms':>17} {'pitch max/rms':>17} "
-             f"{'heading max/rms':>17}"]
+    lines = [
+        f"{'|pitch| [deg]':>14} {'n':>6} {'roll max/rms':>17} {'pitch max/rms':>17} "
+        f"{'heading max/rms':>17}"
+    ]
     rows = [(f"{b['pitch_min_deg']:g}-{b['pitch_max_deg']:g}", b) for b in stats["bands"]]
     rows.append(("all", stats["overall"]))
     for label, block in rows:
-        lines.append(f"{label:>14} {block['n']:>6} {cell(block['roll'])} {cell(block['pitch'])} "
-                     f"{cell(block['heading'])}")
+        lines.append(
+            f"{label:>14} {block['n']:>6} {cell(block['roll'])} {cell(block['pitch'])} "
+            f"{cell(block['heading'])}"
+        )
     if stats["heading_offset_deg"] is not None:
         lines.append(f"heading offset removed: {stats['heading_offset_deg']:.3f} deg")
     return "\n".join(lines)

@@ -71,15 +71,19 @@ class SensorCalibration:
             "correction_matrix": [[float(v) for v in row] for row in self.correction],
             "sensor_matrix": [[float(v) for v in row] for row in self.sensor_matrix],
         }
-        if self.compensation is not None:
+        if self.compensation is not None and self.compensation_std is not None:
             out["compensation_deg"] = {
-                axis: {f"toward_{other}": float(np.degrees(value))
-                       for other, value in angles_.items()}
-                for axis, angles_ in self.compensation.items()}
+                axis: {
+                    f"toward_{other}": float(np.degrees(value)) for other, value in angles_.items()
+                }
+                for axis, angles_ in self.compensation.items()
+            }
             out["compensation_std_deg"] = {
-                axis: {f"toward_{other}": float(np.degrees(value))
-                       for other, value in angles_.items()}
-                for axis, angles_ in self.compensation_std.items()}
+                axis: {
+                    f"toward_{other}": float(np.degrees(value)) for other, value in angles_.items()
+                }
+                for axis, angles_ in self.compensation_std.items()
+            }
         out["quality"] = self.quality
         return out
 
@@ -89,13 +93,20 @@ class SensorCalibration:
         invertible: a singular one would give the same heading on every row)."""
         correction = reader.array("correction_matrix", (3, 3))
         if not np.linalg.cond(correction) < 1e12:
-            raise InputError(f"{reader.source}: {sensor}.correction_matrix is singular; recreate "
-                             f"it with 'nlpcal compass calibrate'")
-        return cls(sensor=sensor, unit=reader.string("unit"), correction=correction,
-                   bias=reader.array("bias", (3,)),
-                   magnitude=reader.number("magnitude", float("nan"), positive=True),
-                   magnitude_source=reader.string("magnitude_source", ""),
-                   frame=reader.string("frame", ""), quality=reader.mapping("quality", {}))
+            raise InputError(
+                f"{reader.source}: {sensor}.correction_matrix is singular; recreate "
+                f"it with 'nlpcal compass calibrate'"
+            )
+        return cls(
+            sensor=sensor,
+            unit=reader.string("unit"),
+            correction=correction,
+            bias=reader.array("bias", (3,)),
+            magnitude=reader.number("magnitude", float("nan"), positive=True),
+            magnitude_source=reader.string("magnitude_source", ""),
+            frame=reader.string("frame", ""),
+            quality=reader.mapping("quality", {}),
+        )
 
 
 @dataclass
@@ -128,8 +139,8 @@ class CompassCalibration(Document):
                 "accelerometer": "specific force: at rest the body components of (0, 0, -1) g",
                 "model": "reading = diag(1 + s) E v_body + bias; calibrated v = K (reading - bias)",
                 "mounting_angles": "row x of E ~ (1, tan alpha_xy, tan alpha_xz), row y ~ "
-                                   "(tan beta_yx, 1, tan beta_yz), row z ~ (tan gamma_zx, "
-                                   "tan gamma_zy, 1) (Eq. 3)",
+                "(tan beta_yx, 1, tan beta_yz), row z ~ (tan gamma_zx, "
+                "tan gamma_zy, 1) (Eq. 3)",
             },
             "identifiability": self.identifiability,
             "magnetometer": self.magnetometer.to_dict(),
@@ -145,13 +156,16 @@ class CompassCalibration(Document):
     def from_body(cls, reader: DocumentReader) -> CompassCalibration:
         version = reader.integer("version", cls.FORMAT_VERSION)
         if version != cls.FORMAT_VERSION:
-            raise InputError(f"{reader.source}: compass calibration version {version!r} is not "
-                             f"supported (expected {cls.FORMAT_VERSION})")
-        return cls(mode=reader.string("mode", ""),
-                   magnetometer=SensorCalibration.read("magnetometer",
-                                                       reader.reader("magnetometer")),
-                   accelerometer=SensorCalibration.read("accelerometer",
-                                                        reader.reader("accelerometer")),
-                   identifiability=reader.string("identifiability", ""),
-                   alignment=reader.mapping("alignment", None),
-                   warnings=reader.strings("warnings", []), input=reader.mapping("input", {}))
+            raise InputError(
+                f"{reader.source}: compass calibration version {version!r} is not "
+                f"supported (expected {cls.FORMAT_VERSION})"
+            )
+        return cls(
+            mode=reader.string("mode", ""),
+            magnetometer=SensorCalibration.read("magnetometer", reader.reader("magnetometer")),
+            accelerometer=SensorCalibration.read("accelerometer", reader.reader("accelerometer")),
+            identifiability=reader.string("identifiability", ""),
+            alignment=reader.mapping("alignment", None),
+            warnings=reader.strings("warnings", []),
+            input=reader.mapping("input", {}),
+        )

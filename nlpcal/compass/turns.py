@@ -43,15 +43,19 @@ def parse_turn_labels(labels) -> tuple:
     Raises InputError naming the first labels that are not an axis letter plus an optional suffix.
     """
     labels = pd.Series(labels, dtype=object)
-    names = labels.map(lambda v: "" if v is None or (isinstance(v, float) and np.isnan(v))
-                       else str(v).strip().lower())
+    names = labels.map(
+        lambda v: (
+            "" if v is None or (isinstance(v, float) and np.isnan(v)) else str(v).strip().lower()
+        )
+    )
     matched = names.map(_TURN_LABEL.match)
     bad = names[matched.isna()]
     if len(bad):
         shown = ", ".join(repr(v) for v in pd.unique(bad)[:5])
         raise InputError(
             f"{len(bad)} sample(s) have a turn label that is not x, y or z with an optional suffix "
-            f"(e.g. y2): {shown}; label each sample with the housing axis it was turned about")
+            f"(e.g. y2): {shown}; label each sample with the housing axis it was turned about"
+        )
     axes = np.array([model.AXES.index(m.group(1)) for m in matched], dtype=int)
     return axes, names.to_numpy(dtype=object)
 
@@ -62,12 +66,16 @@ def _check_turns(axes, names) -> dict:
     short = {name: len(idx) for name, idx in turns.items() if len(idx) < MIN_TURN_SAMPLES}
     if short:
         shown = ", ".join(f"{name} ({count})" for name, count in short.items())
-        raise InputError(f"turn(s) with fewer than {MIN_TURN_SAMPLES} samples: {shown}; record a "
-                         f"full turn with a sample at least every 60 degrees")
+        raise InputError(
+            f"turn(s) with fewer than {MIN_TURN_SAMPLES} samples: {shown}; record a "
+            f"full turn with a sample at least every 60 degrees"
+        )
     missing = [model.AXES[k] for k in range(3) if not np.any(axes == k)]
     if missing:
-        raise InputError(f"no turn about the housing {' and '.join(missing)} axis; the turn "
-                         f"protocol needs turns about x, y and z")
+        raise InputError(
+            f"no turn about the housing {' and '.join(missing)} axis; the turn "
+            f"protocol needs turns about x, y and z"
+        )
     return turns
 
 
@@ -90,8 +98,9 @@ def within_turn_scatter(readings, turns: dict, names: list) -> tuple:
     return S, count, len(names)
 
 
-def compensation_angles(readings, turns: dict, axis: int, *, sensor: str = "sensor",
-                        scale: float | None = None) -> dict:
+def compensation_angles(
+    readings, turns: dict, axis: int, *, sensor: str = "sensor", scale: float | None = None
+) -> dict:
     """The compensation angles of sensor axis `axis` from the turns about that housing axis.
 
     The compensated output along k, m_k - tan(c_j) m_j - tan(c_l) m_l (Eq. 4, 5 in [1]), is made
@@ -124,31 +133,42 @@ def compensation_angles(readings, turns: dict, axis: int, *, sensor: str = "sens
     sub = S[1:, 1:]
     if scale is None:
         centred = readings - readings.mean(axis=0)
-        scale = float(np.sqrt(np.mean(np.sum(centred ** 2, axis=1))))
+        scale = float(np.sqrt(np.mean(np.sum(centred**2, axis=1))))
     smallest = float(np.linalg.eigvalsh(sub)[0])
     if not smallest > (MIN_EXCITATION * scale) ** 2 * count:
         raise InputError(
             f"the {sensor}'s {model.AXES[j]} and {model.AXES[l]} outputs hardly change over the "
             f"turns labelled {letter}, so its {letter}-axis mounting cannot be found; check that "
             f"they are full turns about the housing {letter} axis, and add one with that axis "
-            f"away from the sensed field (for the accelerometer, {letter} horizontal)")
+            f"away from the sensed field (for the accelerometer, {letter} horizontal)"
+        )
     excitation = float(sub[0, 0] + sub[1, 1])
     bound = np.radians(MAX_COMPENSATION_DEG)
-    out = solve(compensation_nlp(), x0=np.zeros(2), p=(S / excitation).ravel(order="F"),
-                lbx=-bound, ubx=bound).checked(f"{sensor} {letter}-axis compensation (Eq. 6-8)")
+    out = solve(
+        compensation_nlp(),
+        x0=np.zeros(2),
+        p=(S / excitation).ravel(order="F"),
+        lbx=-bound,
+        ubx=bound,
+    ).checked(f"{sensor} {letter}-axis compensation (Eq. 6-8)")
     c = out.x
     if np.any(np.abs(c) > 0.999 * bound):
         raise InputError(
             f"the {sensor}'s {letter}-axis compensation angles reach the {MAX_COMPENSATION_DEG:g} "
             f"degree bound; the samples labelled {letter} are probably not turns about the housing "
-            f"{letter} axis")
+            f"{letter} axis"
+        )
     dof = count - lost - 2
     objective = max(out.f, 0.0)  # may round to -1e-20 on noiseless data
     # Gauss-Newton in tan(c): the information is the scatter of the two other outputs
-    uncertainty = inference.estimate(sub, residual_variance=objective * excitation / max(dof, 1),
-                                     dof=dof)
-    std = (uncertainty.standard_errors * np.cos(c) ** 2  # d tan(c) / dc = 1 / cos^2(c)
-           if uncertainty.standard_errors is not None else np.full(2, np.inf))
+    uncertainty = inference.estimate(
+        sub, residual_variance=objective * excitation / max(dof, 1), dof=dof
+    )
+    std = (
+        uncertainty.standard_errors * np.cos(c) ** 2  # d tan(c) / dc = 1 / cos^2(c)
+        if uncertainty.standard_errors is not None
+        else np.full(2, np.inf)
+    )
     return {
         "angles": {model.AXES[j]: float(c[0]), model.AXES[l]: float(c[1])},
         "std": {model.AXES[j]: float(std[0]), model.AXES[l]: float(std[1])},
@@ -167,11 +187,12 @@ def _compensation_matrix(compensation: dict) -> np.ndarray:
     return W
 
 
-def _calibrate_sensor_turns(readings, turns, *, sensor: str, unit: str, magnitude: float | None,
-                            seed: str) -> tuple:
+def _calibrate_sensor_turns(
+    readings, turns, *, sensor: str, unit: str, magnitude: float | None, seed: str
+) -> tuple:
     warnings = []
     centred = readings - readings.mean(axis=0)
-    scale = float(np.sqrt(np.mean(np.sum(centred ** 2, axis=1))))
+    scale = float(np.sqrt(np.mean(np.sum(centred**2, axis=1))))
     compensation, compensation_std, quality_turns, ipopt = {}, {}, {}, {}
     for k, letter in enumerate(model.AXES):
         result = compensation_angles(readings, turns, k, sensor=sensor, scale=scale)
@@ -180,8 +201,9 @@ def _calibrate_sensor_turns(readings, turns, *, sensor: str, unit: str, magnitud
         ipopt[f"compensation_{letter}"] = result["ipopt"]
     W = _compensation_matrix(compensation)
     u = readings @ W.T
-    fit = fit_axis_ellipsoid(u, magnitude=1.0 if magnitude is None else magnitude, seed=seed,
-                             sensor=sensor)
+    fit = fit_axis_ellipsoid(
+        u, magnitude=1.0 if magnitude is None else magnitude, seed=seed, sensor=sensor
+    )
     ipopt["ellipsoid"] = fit["ipopt"]
     K = np.diag(fit["gains"]) @ W
     source = "given"
@@ -201,33 +223,44 @@ def _calibrate_sensor_turns(readings, turns, *, sensor: str, unit: str, magnitud
             raise InputError(
                 f"turn {name!r} does not look like a turn about the housing {name[0]} axis: the "
                 f"{sensor}'s calibrated {name[0]} component varies by "
-                f"{100 * spread / magnitude:.2g}% of the field over it; check the turn labels")
+                f"{100 * spread / magnitude:.2g}% of the field over it; check the turn labels"
+            )
         if spread > TURN_WARN_FRACTION * magnitude:
             warnings.append(
                 f"{sensor}: the calibrated {name[0]} component varies by {spread:.4g} {unit} RMS "
                 f"over turn {name!r} ({100 * spread / magnitude:.2g}% of the field); is it really "
-                f"a turn about the housing {name[0]} axis?")
+                f"a turn about the housing {name[0]} axis?"
+            )
     calibration = SensorCalibration(
-        sensor=sensor, unit=unit, correction=K, bias=bias, magnitude=float(magnitude),
-        magnitude_source=source, frame="housing",
-        compensation=compensation, compensation_std=compensation_std,
+        sensor=sensor,
+        unit=unit,
+        correction=K,
+        bias=bias,
+        magnitude=float(magnitude),
+        magnitude_source=source,
+        frame="housing",
+        compensation=compensation,
+        compensation_std=compensation_std,
         quality={
             "turn_axis_residual_rms": quality_turns,
             "magnitude_residual_rms": float(np.sqrt(np.mean((norms - magnitude) ** 2))),
             "ellipsoid_seed": fit["seed"],
             "ipopt": ipopt,
-        })
+        },
+    )
     return calibration, warnings
 
 
 TURN_IDENTIFIABILITY = (
     "turn mode: each sensor's six mounting angles (relative to the housing axes), zero bias and "
     "sensitivity are identified. The magnetometer's overall scale is not, unless the field is "
-    "given: it is then fixed by det(correction_matrix) = 1; heading does not depend on it.")
+    "given: it is then fixed by det(correction_matrix) = 1; heading does not depend on it."
+)
 
 
-def calibrate_turns(mag, acc, turn_labels, *, field_nt: float | None = None,
-                    ellipsoid_seed: str = "linear") -> CompassCalibration:
+def calibrate_turns(
+    mag, acc, turn_labels, *, field_nt: float | None = None, ellipsoid_seed: str = "linear"
+) -> CompassCalibration:
     """The paper's protocol: turns about the housing axes, then ellipsoid fits. [1]
 
     Parameters
@@ -247,20 +280,26 @@ def calibrate_turns(mag, acc, turn_labels, *, field_nt: float | None = None,
     mag = validation.finite_vectors(mag, "magnetometer readings", minimum=3 * MIN_TURN_SAMPLES)
     acc = validation.finite_vectors(acc, "accelerometer readings", minimum=3 * MIN_TURN_SAMPLES)
     if len(mag) != len(acc) or len(turn_labels) != len(mag):
-        raise InputError(f"got {len(mag)} magnetometer, {len(acc)} accelerometer samples and "
-                         f"{len(turn_labels)} turn labels; they must be the same rows")
+        raise InputError(
+            f"got {len(mag)} magnetometer, {len(acc)} accelerometer samples and "
+            f"{len(turn_labels)} turn labels; they must be the same rows"
+        )
     if field_nt is not None and not (np.isfinite(field_nt) and field_nt > 0):
         raise InputError(f"the field must be a positive number of nT, got {field_nt}")
     axes, names = parse_turn_labels(turn_labels)
     turns = _check_turns(axes, names)
-    mag_cal, mag_warn = _calibrate_sensor_turns(mag, turns, sensor="magnetometer", unit="nT",
-                                                magnitude=field_nt, seed=ellipsoid_seed)
-    acc_cal, acc_warn = _calibrate_sensor_turns(acc, turns, sensor="accelerometer", unit="g",
-                                                magnitude=1.0, seed=ellipsoid_seed)
+    mag_cal, mag_warn = _calibrate_sensor_turns(
+        mag, turns, sensor="magnetometer", unit="nT", magnitude=field_nt, seed=ellipsoid_seed
+    )
+    acc_cal, acc_warn = _calibrate_sensor_turns(
+        acc, turns, sensor="accelerometer", unit="g", magnitude=1.0, seed=ellipsoid_seed
+    )
     acc_cal.magnitude_source = GRAVITY_SCALE
     return CompassCalibration(
-        mode="turns", magnetometer=mag_cal, accelerometer=acc_cal,
-        identifiability=TURN_IDENTIFIABILITY, warnings=mag_warn + acc_warn,
-        input={"samples": len(mag),
-               "turns": {name: len(idx) for name, idx in turns.items()}})
-
+        mode="turns",
+        magnetometer=mag_cal,
+        accelerometer=acc_cal,
+        identifiability=TURN_IDENTIFIABILITY,
+        warnings=mag_warn + acc_warn,
+        input={"samples": len(mag), "turns": {name: len(idx) for name, idx in turns.items()}},
+    )

@@ -17,14 +17,22 @@ from ..models.liu2022 import TemperatureModel, rmse
 from .evaluation import evaluation_row, rmse_rows
 from .fit import DriftFit, check_k, fit_drift
 from .temperature import (
-                          TemperatureCalibrationResult,
-                          calibrate_temperature,
-                          coefficient_names,
-                          objective_value,
+    TemperatureCalibrationResult,
+    calibrate_temperature,
+    coefficient_names,
+    objective_value,
 )
 
 __all__ = [
-    "DriftFit", "TemperatureCalibrationResult", "TemperatureModel", "calibrate_temperature",
-    "check_k", "coefficient_names", "evaluation_row", "fit_drift", "objective_value", "rmse",
+    "DriftFit",
+    "TemperatureCalibrationResult",
+    "TemperatureModel",
+    "calibrate_temperature",
+    "check_k",
+    "coefficient_names",
+    "evaluation_row",
+    "fit_drift",
+    "objective_value",
+    "rmse",
     "rmse_rows",
 ]

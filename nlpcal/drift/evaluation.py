@@ -27,8 +27,14 @@ def evaluation_row(label: str, corrected, reference=None) -> dict:
     return row
 
 
-def rmse_rows(samples, reference, *, params: Zhou2010Parameters | None = None, temperature=None,
-              correction=None) -> list:
+def rmse_rows(
+    samples,
+    reference,
+    *,
+    params: Zhou2010Parameters | None = None,
+    temperature=None,
+    correction=None,
+) -> list:
     """The three-row evaluation of [1] (sections 2-3): raw -> system -> system + temperature.
 
     samples : (N, 3) raw output. [nT]
@@ -45,6 +51,9 @@ def rmse_rows(samples, reference, *, params: Zhou2010Parameters | None = None, t
     if correction is not None and temperature is not None:
         corrected = correction.correct(samples, temperature, params)
         system = params is not None or correction.carries_parameters
-        rows.append(evaluation_row("system + temperature" if system else "temperature",
-                                   corrected, reference))
+        rows.append(
+            evaluation_row(
+                "system + temperature" if system else "temperature", corrected, reference
+            )
+        )
     return rows

@@ -113,8 +113,10 @@ class DriftFit(Document):
     @classmethod
     def accepts(cls, document: dict) -> bool:
         if "parameters" in document and "a_nT_per_degC" not in document:
-            raise InputError("this is a parameters file, not a drift file; pass the output of "
-                             "'nlpcal drift fit' to --drift")
+            raise InputError(
+                "this is a parameters file, not a drift file; pass the output of "
+                "'nlpcal drift fit' to --drift"
+            )
         return super().accepts(document)
 
     @classmethod
@@ -123,12 +125,16 @@ class DriftFit(Document):
         b = reader.number("b_nT")
         t0 = reader.number("base_temperature_degC", minimum=-273.15, maximum=1000.0)
         if not modulus_line(t0, a, b) > 0:
-            raise InputError(f"{reader.source}: a t0 + b = {float(modulus_line(t0, a, b)):g} nT, "
-                             f"but the modulus at the base temperature must be positive")
+            raise InputError(
+                f"{reader.source}: a t0 + b = {float(modulus_line(t0, a, b)):g} nT, "
+                f"but the modulus at the base temperature must be positive"
+            )
         span = reader.array("temperature_range_degC", (2,), np.array([t0, t0]))
         nan = float("nan")
         return cls(
-            a=a, b=b, base_temperature=t0,
+            a=a,
+            b=b,
+            base_temperature=t0,
             fit_rmse=reader.number("fit_rmse_nT", nan, minimum=0.0),
             n=reader.integer("n", 0),
             temperature_range=(float(span[0]), float(span[1])),
@@ -147,9 +153,11 @@ def check_k(k, source: str) -> np.ndarray:
     """k(t) must be finite and positive for every sample (a sign change would flip the field)."""
     k = np.asarray(k, dtype=float)
     if not np.isfinite(k).all() or (k <= 0).any():
-        raise InputError(f"{source} gives a non-positive temperature factor k(t) for "
-                         f"{int((~(k > 0)).sum())} sample(s); check the temperature column and "
-                         f"its unit (degC)")
+        raise InputError(
+            f"{source} gives a non-positive temperature factor k(t) for "
+            f"{int((~(k > 0)).sum())} sample(s); check the temperature column and "
+            f"its unit (degC)"
+        )
     return k
 
 
@@ -164,8 +172,15 @@ def _direction_spread(samples: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(unit @ mean, -1.0, 1.0)).max()))
 
 
-def fit_drift(samples, temperature, reference, *, base_temperature: float | None = None,
-              unit: str = "nT", reference_unit: str | None = None) -> DriftFit:
+def fit_drift(
+    samples,
+    temperature,
+    reference,
+    *,
+    base_temperature: float | None = None,
+    unit: str = "nT",
+    reference_unit: str | None = None,
+) -> DriftFit:
     """The paper's drift fit on a static log (section 1 of [1]).
 
     samples : (N, 3) raw fluxgate output of a static sensor. [unit]
@@ -179,8 +194,9 @@ def fit_drift(samples, temperature, reference, *, base_temperature: float | None
     The modulus gets the diurnal correction -(F_i - F_1), then a and b of Eq. 1 are the least-
     squares line through (t_i, corrected modulus_i). Raises InputError for unusable input.
     """
-    samples = validation.finite_vectors(samples, minimum=MIN_DRIFT_SAMPLES,
-                                        purpose="for the line of Eq. 1 and its standard errors")
+    samples = validation.finite_vectors(
+        samples, minimum=MIN_DRIFT_SAMPLES, purpose="for the line of Eq. 1 and its standard errors"
+    )
     n = samples.shape[0]
     temperature = validation.temperature(temperature, n)
     reference = validation.reference(np.asarray(reference, dtype=float).reshape(-1), n)
@@ -190,16 +206,20 @@ def fit_drift(samples, temperature, reference, *, base_temperature: float | None
     t_low, t_high = float(temperature.min()), float(temperature.max())
     span = t_high - t_low
     if span <= 0:
-        raise InputError(f"all {n} temperatures equal {t_low:g} degC; the slope of Eq. 1 needs a "
-                         f"log over a range of temperatures")
+        raise InputError(
+            f"all {n} temperatures equal {t_low:g} degC; the slope of Eq. 1 needs a "
+            f"log over a range of temperatures"
+        )
     warnings = []
     source = "argument"
     if base_temperature is None:
         base_temperature = float(np.mean(temperature))
         source = "log mean"
-        warnings.append(f"no base temperature given: k = 1 at the log's mean temperature "
-                        f"{base_temperature:.3f} degC; pass the temperature of the system "
-                        f"calibration (--base-temperature)")
+        warnings.append(
+            f"no base temperature given: k = 1 at the log's mean temperature "
+            f"{base_temperature:.3f} degC; pass the temperature of the system "
+            f"calibration (--base-temperature)"
+        )
     elif not np.isfinite(base_temperature):
         raise InputError(f"the base temperature must be a finite number, got {base_temperature}")
 
@@ -215,8 +235,12 @@ def fit_drift(samples, temperature, reference, *, base_temperature: float | None
     fit_rmse = float(np.sqrt(rss / n))
     # Standard errors of (a, b): the line's Jacobian is [t_i, 1] (Gauss-Newton is exact here).
     design = np.column_stack([temperature, np.ones(n)])
-    line = inference.estimate(design.T @ design, residual_variance=rss / max(n - 2, 1),
-                              dof=n - 2, autocorrelation=inference.lag1_autocorrelation(residual))
+    line = inference.estimate(
+        design.T @ design,
+        residual_variance=rss / max(n - 2, 1),
+        dof=n - 2,
+        autocorrelation=inference.lag1_autocorrelation(residual),
+    )
     errors = line.standard_errors if line.standard_errors is not None else np.full(2, np.nan)
     a_se, b_se = float(errors[0]), float(errors[1])
 
@@ -226,35 +250,56 @@ def fit_drift(samples, temperature, reference, *, base_temperature: float | None
             f"a = {a:.4g} +/- {a_se:.2g} nT/degC (standard error, "
             f"{a_se / abs(a) if a else float('inf'):.0%} of a); log the static sensor over a "
             f"wider temperature range (at least {MIN_SPAN_DEGC:g} degC and a standard error "
-            f"below {MAX_SLOPE_RELATIVE_ERROR:.0%} of a)")
+            f"below {MAX_SLOPE_RELATIVE_ERROR:.0%} of a)"
+        )
     base_modulus = float(modulus_line(base_temperature, a, b))
     if not base_modulus > 0:
-        raise InputError(f"the fitted line gives a t0 + b = {base_modulus:g} nT at the base "
-                         f"temperature {base_temperature:g} degC; k(t) of Eq. 9 is undefined")
+        raise InputError(
+            f"the fitted line gives a t0 + b = {base_modulus:g} nT at the base "
+            f"temperature {base_temperature:g} degC; k(t) of Eq. 9 is undefined"
+        )
     spread = _direction_spread(samples)
     if spread > STATIC_SPREAD_DEG:
-        warnings.append(f"the field direction turns by up to {spread:.2g} deg across the log; "
-                        f"the drift fit expects a static sensor (attitude changes alter the "
-                        f"modulus through the system errors)")
-    return DriftFit(a=a, b=b, base_temperature=float(base_temperature), fit_rmse=fit_rmse, n=n,
-                    temperature_range=(t_low, t_high), a_standard_error=a_se,
-                    b_standard_error=b_se, diurnal_base=float(reference[0]),
-                    direction_spread=spread, base_temperature_source=source,
-                    unit=units.base_unit(unit),
-                    warnings=warnings)
+        warnings.append(
+            f"the field direction turns by up to {spread:.2g} deg across the log; "
+            f"the drift fit expects a static sensor (attitude changes alter the "
+            f"modulus through the system errors)"
+        )
+    return DriftFit(
+        a=a,
+        b=b,
+        base_temperature=float(base_temperature),
+        fit_rmse=fit_rmse,
+        n=n,
+        temperature_range=(t_low, t_high),
+        a_standard_error=a_se,
+        b_standard_error=b_se,
+        diurnal_base=float(reference[0]),
+        direction_spread=spread,
+        base_temperature_source=source,
+        unit=units.base_unit(unit),
+        warnings=warnings,
+    )
 
 
-
-
-def fit_drift_log(log, temperature_column: str, *,
-                  base_temperature: float | None = None) -> DriftFit:
+def fit_drift_log(
+    log, temperature_column: str, *, base_temperature: float | None = None
+) -> DriftFit:
     """`fit_drift` on a log read by `nlpcal.io.read_log` with its reference column and
     `temperature_column` [degC]; the fit records the log under `input`."""
     if temperature_column == log.reference_column:
-        raise InputError(f"--temperature-column and --reference-column are both "
-                         f"{temperature_column!r}; they must be different columns")
-    fit = fit_drift(log.samples, log.values(temperature_column), log.reference,
-                    base_temperature=base_temperature, unit=log.base_unit)
-    fit.input = log.metadata(temperature_column=temperature_column,
-                             reference_column=log.reference_column)
+        raise InputError(
+            f"--temperature-column and --reference-column are both "
+            f"{temperature_column!r}; they must be different columns"
+        )
+    fit = fit_drift(
+        log.samples,
+        log.values(temperature_column),
+        log.reference,
+        base_temperature=base_temperature,
+        unit=log.base_unit,
+    )
+    fit.input = log.metadata(
+        temperature_column=temperature_column, reference_column=log.reference_column
+    )
     return fit

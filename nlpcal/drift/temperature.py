@@ -21,15 +21,14 @@ import numpy as np
 
 from .. import inference, units, validation
 from ..calibration.result import CalibrationResult
-from ..errors import InputError, SolveError
+from ..errors import InputError
 from ..models import liu2022
 from ..models.liu2022 import TEMPERATURE_MODELS, TemperatureModel
 from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
 from ..models.zhou2010 import correct as zhou_correct
 from ..moments import sphere_frame
 from ..nlp.blocks import variable_scale
-from ..nlp.solver import solve
-from ..nlp.temperature import CHUNK, n_coefficients, residual_function, step_solver
+from ..nlp.temperature import gauss_newton_pass, minimise, n_coefficients
 from ..results import Document, DocumentReader
 from ..statistics import format_table
 from .evaluation import evaluation_row
@@ -39,11 +38,6 @@ MIN_SPAN_DEGC = 0.5
 #: Warn when a temperature coefficient's standard error exceeds this fraction of its variable
 #: scale (its typical size). [1]
 POOR_TEMPERATURE_SE = 0.5
-#: Levenberg-Marquardt: most steps, first damping, and the relative decrease the model must
-#: still promise for another step. [1]
-MAX_STEPS = 200
-FIRST_DAMPING = 1e-3
-STEP_RTOL = 1e-13
 
 
 def coefficient_names(kind: str) -> tuple:
@@ -51,7 +45,8 @@ def coefficient_names(kind: str) -> tuple:
     if kind == "common":
         return ("k_slope_per_degC",)
     return tuple(f"scale_slope_{a}_per_degC" for a in "xyz") + tuple(
-        f"offset_slope_{a}_per_degC" for a in "xyz")
+        f"offset_slope_{a}_per_degC" for a in "xyz"
+    )
 
 
 def coefficient_scale(kind: str, radius: float, max_dt: float) -> np.ndarray:
@@ -68,8 +63,7 @@ def theta_of(params: Zhou2010Parameters, model: TemperatureModel) -> np.ndarray:
     coefficients."""
     if model.kind == "common":
         return np.concatenate([params.theta, [model.k_slope_per_degC]])
-    return np.concatenate([params.theta, model.scale_slope_per_degC,
-                           model.offset_slope_per_degC])
+    return np.concatenate([params.theta, model.scale_slope_per_degC, model.offset_slope_per_degC])
 
 
 def model_of(theta, kind: str, t0: float):
@@ -77,9 +71,12 @@ def model_of(theta, kind: str, t0: float):
     params = Zhou2010Parameters.from_theta(theta[:9])
     if kind == "common":
         return params, TemperatureModel("common", t0, k_slope_per_degC=float(theta[9]))
-    return params, TemperatureModel("per-axis", t0,
-                                    scale_slope_per_degC=tuple(map(float, theta[9:12])),
-                                    offset_slope_per_degC=tuple(map(float, theta[12:15])))
+    return params, TemperatureModel(
+        "per-axis",
+        t0,
+        scale_slope_per_degC=tuple(map(float, theta[9:12])),
+        offset_slope_per_degC=tuple(map(float, theta[12:15])),
+    )
 
 
 def read_temperature_model(reader: DocumentReader) -> TemperatureModel:
@@ -87,12 +84,15 @@ def read_temperature_model(reader: DocumentReader) -> TemperatureModel:
     kind = reader.string("kind", options=TEMPERATURE_MODELS)
     t0 = reader.number("base_temperature_degC", minimum=-273.15, maximum=1000.0)
     if kind == "common":
-        return TemperatureModel(kind, t0, k_slope_per_degC=reader.number(
-            "k_slope_per_degC", minimum=-1.0, maximum=1.0))
-    return TemperatureModel(kind, t0,
-                            scale_slope_per_degC=tuple(reader.array("scale_slope_per_degC", (3,))),
-                            offset_slope_per_degC=tuple(reader.array("offset_slope_per_degC",
-                                                                     (3,))))
+        return TemperatureModel(
+            kind, t0, k_slope_per_degC=reader.number("k_slope_per_degC", minimum=-1.0, maximum=1.0)
+        )
+    return TemperatureModel(
+        kind,
+        t0,
+        scale_slope_per_degC=tuple(reader.array("scale_slope_per_degC", (3,))),
+        offset_slope_per_degC=tuple(reader.array("offset_slope_per_degC", (3,))),
+    )
 
 
 @dataclass
@@ -155,11 +155,14 @@ class TemperatureCalibrationResult(Document):
         temperature = validation.temperature(temperature, samples.shape[0])
         gains, _ = self.temperature_model.gains_offsets(self.model, temperature)
         if not (gains > 0).all():
-            raise InputError("the temperature model gives a non-positive axis gain for "
-                             f"{int((~(gains > 0)).any(axis=1).sum())} sample(s); check the "
-                             f"temperature column and its unit (degC)")
-        corrected = liu2022.correct(units.to_base(samples, unit), temperature, self.model,
-                                    self.temperature_model)
+            raise InputError(
+                "the temperature model gives a non-positive axis gain for "
+                f"{int((~(gains > 0)).any(axis=1).sum())} sample(s); check the "
+                f"temperature column and its unit (degC)"
+            )
+        corrected = liu2022.correct(
+            units.to_base(samples, unit), temperature, self.model, self.temperature_model
+        )
         return units.from_base(corrected, unit)
 
     def correct(self, samples, temperature, params=None) -> np.ndarray:
@@ -185,88 +188,26 @@ class TemperatureCalibrationResult(Document):
         block = reader.reader("temperature_model")
         span = block.array("temperature_range_degC", (2,), np.full(2, np.nan))
         errors = block.mapping("standard_errors", None)
-        return cls(calibration=calibration, temperature_model=read_temperature_model(block),
-                   temperature_column=block.string("temperature_column", None),
-                   temperature_range=(float(span[0]), float(span[1])),
-                   temperature_standard_errors=errors)
+        return cls(
+            calibration=calibration,
+            temperature_model=read_temperature_model(block),
+            temperature_column=block.string("temperature_column", None),
+            temperature_range=(float(span[0]), float(span[1])),
+            temperature_standard_errors=errors,
+        )
 
 
-@dataclass
-class _Sums:
-    """Gauss-Newton sums of one pass: A = Js^T Js / N, b = Js^T r / N, c = r^T r / N (Js the
-    Jacobian in the scaled variables), and the residuals."""
-
-    a: np.ndarray
-    b: np.ndarray
-    c: float
-    residuals: np.ndarray
-
-
-def _gauss_newton_pass(kind: str, theta, scale, samples, dt, reference) -> _Sums:
-    """One chunked pass over the data with the built residual function (fixed chunk width)."""
-    function = residual_function(kind)
-    n, nx = samples.shape[0], theta.size
-    a, b = np.zeros((nx, nx)), np.zeros(nx)
-    residuals = np.empty(n)
-    for start in range(0, n, CHUNK):
-        stop = min(start + CHUNK, n)
-        rows = stop - start
-        block = np.zeros((3, CHUNK))
-        block[:] = samples[start][:, None]  # padding: a copy of a real sample, weight 0
-        block[:, :rows] = samples[start:stop].T
-        pad_dt = np.full(CHUNK, dt[start])
-        pad_dt[:rows] = dt[start:stop]
-        pad_f = np.full(CHUNK, reference[start])
-        pad_f[:rows] = reference[start:stop]
-        r, jac = function(theta, block, pad_dt[None, :], pad_f[None, :])
-        r = np.asarray(r, dtype=float).ravel()[:rows]
-        js = np.asarray(jac, dtype=float)[:rows] * scale[None, :]
-        residuals[start:stop] = r
-        a += js.T @ js
-        b += js.T @ r
-    return _Sums(a / n, b / n, float(residuals @ residuals) / n, residuals)
-
-
-def _minimise(kind, theta, scale, data):
-    """Levenberg-Marquardt from `theta`: each step an IPOPT solve of the Gauss-Newton model.
-
-    Returns (theta, sums at theta, steps taken, IPOPT iterations, last IPOPT status).
-    """
-    sums = _gauss_newton_pass(kind, theta, scale, *data)
-    damping = FIRST_DAMPING * float(np.mean(np.diag(sums.a)))
-    solver = step_solver(kind)
-    steps = iterations = 0
-    status = "Solve_Succeeded"
-    for _ in range(MAX_STEPS):
-        if sums.c == 0.0:
-            break
-        p = np.concatenate([sums.a.ravel(order="F"), sums.b, [sums.c, damping]])
-        outcome = solve(solver, x0=np.zeros(theta.size), p=p)
-        iterations += outcome.iterations
-        status = outcome.status
-        if not outcome.success:
-            raise SolveError(f"IPOPT did not solve a step of the joint temperature calibration "
-                             f"({kind})", outcome.status)
-        promised = sums.c * (1.0 - outcome.f)  # f is the model over c
-        if promised <= STEP_RTOL * sums.c:
-            break
-        trial = theta + scale * outcome.x
-        new = _gauss_newton_pass(kind, trial, scale, *data)
-        if new.c < sums.c:
-            theta, sums, steps = trial, new, steps + 1
-            damping = max(damping / 10.0, 1e-15 * float(np.mean(np.diag(sums.a))))
-        else:
-            damping *= 10.0
-    else:
-        raise SolveError(f"the joint temperature calibration ({kind}) did not converge in "
-                         f"{MAX_STEPS} steps", "Maximum_Iterations_Exceeded")
-    return theta, sums, steps, iterations, status
-
-
-def calibrate_temperature(samples, temperature, reference, *, model: str = "common",
-                          base_temperature: float | None = None, unit: str = "nT",
-                          reference_unit: str | None = None,
-                          temperature_column: str | None = None) -> TemperatureCalibrationResult:
+def calibrate_temperature(
+    samples,
+    temperature,
+    reference,
+    *,
+    model: str = "common",
+    base_temperature: float | None = None,
+    unit: str = "nT",
+    reference_unit: str | None = None,
+    temperature_column: str | None = None,
+) -> TemperatureCalibrationResult:
     """The nine parameters and temperature coefficients from one log.
 
     samples : (N, 3) raw output over many attitudes and temperatures. [unit]
@@ -286,8 +227,10 @@ def calibrate_temperature(samples, temperature, reference, *, model: str = "comm
     n = samples.shape[0]
     temperature = validation.temperature(temperature, n)
     if reference is None:
-        raise InputError("the temperature calibration needs a reference field per sample (a "
-                         "proton magnetometer column)")
+        raise InputError(
+            "the temperature calibration needs a reference field per sample (a "
+            "proton magnetometer column)"
+        )
     reference = validation.reference(reference, n)
     units.check_compatible(unit, reference_unit or unit)
     samples = units.to_base(samples, unit)
@@ -295,30 +238,41 @@ def calibrate_temperature(samples, temperature, reference, *, model: str = "comm
     nx = 9 + n_coefficients(model)
     if n <= nx:
         raise InputError(f"got {n} samples, need more than {nx} for the {model} model")
-    base_temperature = (float(np.mean(temperature)) if base_temperature is None
-                        else validation.number(base_temperature, "the base temperature"))
+    base_temperature = (
+        float(np.mean(temperature))
+        if base_temperature is None
+        else validation.number(base_temperature, "the base temperature")
+    )
     t_low, t_high = float(temperature.min()), float(temperature.max())
     if t_high == t_low:
-        raise InputError(f"all {n} temperatures equal {t_low:g} degC; the temperature "
-                         f"coefficients need a log over a range of temperatures (calibrate "
-                         f"without --temperature-column for a log at one temperature)")
+        raise InputError(
+            f"all {n} temperatures equal {t_low:g} degC; the temperature "
+            f"coefficients need a log over a range of temperatures (calibrate "
+            f"without --temperature-column for a log at one temperature)"
+        )
     dt = temperature - base_temperature
     frame = sphere_frame(samples)
     start = np.zeros(nx)
     start[0:3] = frame.centre
     start[3:6] = frame.radius / float(np.sqrt(np.mean(reference**2))) - 1.0
-    scale = np.concatenate([variable_scale(frame.radius),
-                            coefficient_scale(model, frame.radius, float(np.max(np.abs(dt))))])
+    scale = np.concatenate(
+        [
+            variable_scale(frame.radius),
+            coefficient_scale(model, frame.radius, float(np.max(np.abs(dt)))),
+        ]
+    )
     started = time.perf_counter()
-    theta, sums, steps, iterations, status = _minimise(model, start, scale,
-                                                       (samples, dt, reference))
+    theta, sums, steps, iterations, status = minimise(model, start, scale, (samples, dt, reference))
     wall = time.perf_counter() - started
     params, temperature_model = model_of(theta, model, float(base_temperature))
 
     names = PARAMETER_NAMES + coefficient_names(model)
-    uncertainty = inference.estimate(sums.a * n, residual_variance=sums.c * n / (n - nx),
-                                     autocorrelation=inference.lag1_autocorrelation(
-                                         sums.residuals), dof=n - nx)
+    uncertainty = inference.estimate(
+        sums.a * n,
+        residual_variance=sums.c * n / (n - nx),
+        autocorrelation=inference.lag1_autocorrelation(sums.residuals),
+        dof=n - nx,
+    )
     not_identifiable = [names[i] for i in uncertainty.weak]
     errors = temperature_errors = None
     poor: list = []
@@ -327,17 +281,28 @@ def calibrate_temperature(samples, temperature, reference, *, model: str = "comm
         sd[6:9] = np.degrees(sd[6:9])
         errors = {name: float(v) for name, v in zip(PARAMETER_NAMES, sd[:9])}
         temperature_errors = {name: float(v) for name, v in zip(names[9:], sd[9:])}
-        poor = [name for name, v, size in zip(names[9:], sd[9:], scale[9:])
-                if v > POOR_TEMPERATURE_SE * size]
+        poor = [
+            name
+            for name, v, size in zip(names[9:], sd[9:], scale[9:])
+            if v > POOR_TEMPERATURE_SE * size
+        ]
     warnings = _warnings(t_high - t_low, not_identifiable, poor)
     rows = [
         {**evaluation_row("measured", samples, reference), "iterations": 0, "wall_s": 0.0},
-        {**evaluation_row("system (t0 only)", zhou_correct(samples, params), reference),
-         "iterations": 0, "wall_s": 0.0},
-        {**evaluation_row(f"system + temperature ({model})",
-                          liu2022.correct(samples, temperature, params, temperature_model),
-                          reference),
-         "iterations": iterations, "wall_s": wall},
+        {
+            **evaluation_row("system (t0 only)", zhou_correct(samples, params), reference),
+            "iterations": 0,
+            "wall_s": 0.0,
+        },
+        {
+            **evaluation_row(
+                f"system + temperature ({model})",
+                liu2022.correct(samples, temperature, params, temperature_model),
+                reference,
+            ),
+            "iterations": iterations,
+            "wall_s": wall,
+        },
     ]
     calibration = CalibrationResult(
         parameters=params.to_dict(),
@@ -345,66 +310,102 @@ def calibrate_temperature(samples, temperature, reference, *, model: str = "comm
         method=f"joint-temperature-{model}",
         reference={"mode": "series", "field_mean": float(np.mean(reference))},
         gauge=None,
-        solver={"name": "ipopt", "status": status, "success": True, "iterations": iterations,
-                "stop_reason": "solved", "gauss_newton_steps": steps,
-                "stages": [{"cycle": 1, "stage": f"joint-temperature-{model}", "status": status,
-                            "iterations": iterations}]},
+        solver={
+            "name": "ipopt",
+            "status": status,
+            "success": True,
+            "iterations": iterations,
+            "stop_reason": "solved",
+            "gauss_newton_steps": steps,
+            "stages": [
+                {
+                    "cycle": 1,
+                    "stage": f"joint-temperature-{model}",
+                    "status": status,
+                    "iterations": iterations,
+                }
+            ],
+        },
         unit=units.base_unit(unit),
         standard_errors=errors,
-        identifiability={"not_identifiable": not_identifiable, "poorly_determined": poor,
-                         "gauss_newton_eigenvalues_scaled": [
-                             float(v) for v in uncertainty.eigenvalues]},
+        identifiability={
+            "not_identifiable": not_identifiable,
+            "poorly_determined": poor,
+            "gauss_newton_eigenvalues_scaled": [float(v) for v in uncertainty.eigenvalues],
+        },
         warnings=warnings,
         n_samples=n,
         input={"log_unit": unit},
     )
     return TemperatureCalibrationResult(
-        calibration=calibration, temperature_model=temperature_model,
-        temperature_column=temperature_column, temperature_range=(t_low, t_high),
-        temperature_standard_errors=temperature_errors)
+        calibration=calibration,
+        temperature_model=temperature_model,
+        temperature_column=temperature_column,
+        temperature_range=(t_low, t_high),
+        temperature_standard_errors=temperature_errors,
+    )
 
 
 def _warnings(span: float, not_identifiable: list, poor: list) -> list:
     warnings = []
     if span < MIN_SPAN_DEGC:
-        warnings.append(f"the temperature span {span:.3g} degC is too small to determine the "
-                        f"temperature coefficients; calibrate over a wider temperature range (at "
-                        f"least {MIN_SPAN_DEGC:g} degC)")
+        warnings.append(
+            f"the temperature span {span:.3g} degC is too small to determine the "
+            f"temperature coefficients; calibrate over a wider temperature range (at "
+            f"least {MIN_SPAN_DEGC:g} degC)"
+        )
     if not_identifiable:
-        warnings.append("not identifiable from this log: " + ", ".join(not_identifiable)
-                        + "; log more attitudes at more temperatures")
+        warnings.append(
+            "not identifiable from this log: "
+            + ", ".join(not_identifiable)
+            + "; log more attitudes at more temperatures"
+        )
     elif poor:
-        warnings.append("poorly determined (standard error above half the typical size): "
-                        + ", ".join(poor) + "; log more attitudes over a wider temperature "
-                        "range")
+        warnings.append(
+            "poorly determined (standard error above half the typical size): "
+            + ", ".join(poor)
+            + "; log more attitudes over a wider temperature "
+            "range"
+        )
     return warnings
 
 
-def objective_value(samples, temperature, reference, params: Zhou2010Parameters,
-                    model: TemperatureModel) -> float:
+def objective_value(
+    samples, temperature, reference, params: Zhou2010Parameters, model: TemperatureModel
+) -> float:
     """The joint objective through the built CasADi residual function (for checks). [field^2]"""
     samples = np.asarray(samples, dtype=float)
     n = samples.shape[0]
     dt = np.asarray(temperature, dtype=float) - model.base_temperature_degC
     reference = np.broadcast_to(np.asarray(reference, dtype=float), (n,))
     theta = theta_of(params, model)
-    return _gauss_newton_pass(model.kind, theta, np.ones(theta.size), samples, dt, reference).c
+    return gauss_newton_pass(model.kind, theta, np.ones(theta.size), samples, dt, reference).c
 
 
-def calibrate_temperature_log(log, temperature_column: str, *, model: str = "common",
-                              base_temperature: float | None = None
-                              ) -> TemperatureCalibrationResult:
+def calibrate_temperature_log(
+    log, temperature_column: str, *, model: str = "common", base_temperature: float | None = None
+) -> TemperatureCalibrationResult:
     """`calibrate_temperature` on a log read by `nlpcal.io.read_log` with its reference column
     and `temperature_column` [degC]; the result records the log under `input`."""
     if log.reference is None:
-        raise InputError("the temperature calibration needs --reference-column COL, a reference "
-                         "magnitude per sample (for example a proton magnetometer)")
+        raise InputError(
+            "the temperature calibration needs --reference-column COL, a reference "
+            "magnitude per sample (for example a proton magnetometer)"
+        )
     if temperature_column == log.reference_column:
-        raise InputError(f"the temperature and reference columns are both "
-                         f"{temperature_column!r}; they must be different columns")
-    result = calibrate_temperature(log.samples, log.values(temperature_column), log.reference,
-                                   model=model, base_temperature=base_temperature,
-                                   unit=log.base_unit, temperature_column=temperature_column)
+        raise InputError(
+            f"the temperature and reference columns are both "
+            f"{temperature_column!r}; they must be different columns"
+        )
+    result = calibrate_temperature(
+        log.samples,
+        log.values(temperature_column),
+        log.reference,
+        model=model,
+        base_temperature=base_temperature,
+        unit=log.base_unit,
+        temperature_column=temperature_column,
+    )
     result.calibration.input = log.metadata(temperature_column=temperature_column)
     result.calibration.reference["column"] = log.reference_column
     return result

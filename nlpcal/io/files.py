@@ -67,7 +67,7 @@ def _atomic_write(path, write, binary: bool = False) -> None:
     directory = path.parent if str(path.parent) else Path(".")
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
     try:
-        with (os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", newline="")) as handle:
+        with os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", newline="") as handle:
             write(handle)
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual permissions
         os.replace(tmp, path)
@@ -94,8 +94,7 @@ def write_json_atomic(path, document) -> None:
 
 def write_csv_atomic(path, frame, float_format: str | None = None) -> None:
     """Write a table atomically; without float_format every value round-trips exactly."""
-    _atomic_write(path, lambda handle: frame.to_csv(handle, index=False,
-                                                    float_format=float_format))
+    _atomic_write(path, lambda handle: frame.to_csv(handle, index=False, float_format=float_format))
 
 
 def read_json(path, what: str = "JSON file"):

@@ -69,16 +69,24 @@ class Log:
 
     def metadata(self, **more) -> dict:
         """The "input" block of a result document (and `more` entries)."""
-        return {"log": self.path, "columns": list(self.columns), "log_unit": self.unit,
-                "csv_engine": self.engine, "rows_dropped": int(self.dropped), **more}
+        return {
+            "log": self.path,
+            "columns": list(self.columns),
+            "log_unit": self.unit,
+            "csv_engine": self.engine,
+            "rows_dropped": int(self.dropped),
+            **more,
+        }
 
     def written_back(self, corrected, total_column: str) -> pd.DataFrame:
         """The log's table on the rows of `samples`, its field columns replaced by `corrected`
         [base unit] converted back to the log's unit, and their magnitude in `total_column`.
         Every other column passes through unchanged."""
         if self.frame is None:
-            raise InputError(f"{self.path}: a log streamed into a memory map cannot be written "
-                             f"back; read it without low_memory")
+            raise InputError(
+                f"{self.path}: a log streamed into a memory map cannot be written "
+                f"back; read it without low_memory"
+            )
         values = units.from_base(corrected, self.unit)
         frame = self.frame.loc[self.kept].copy()
         for k, column in enumerate(self.columns):
@@ -101,8 +109,9 @@ def log_unit(columns, unit=None, fallback: str = "nT", notes=None) -> str:
         return hinted or fallback
     units.field_factor(unit)
     if hinted and hinted != unit:
-        notes.append(f"the column names ({', '.join(columns)}) suggest {hinted}, but --unit is "
-                     f"{unit}")
+        notes.append(
+            f"the column names ({', '.join(columns)}) suggest {hinted}, but --unit is {unit}"
+        )
     return unit
 
 
@@ -114,10 +123,19 @@ def reference_unit(column: str, log_unit_: str, notes) -> str:
     return named or log_unit_
 
 
-def read_log(path, columns=None, *, unit: str | None = None, reference_column: str | None = None,
-             reference_field=None, reference_field_unit: str | None = None, extra_columns=(),
-             drop_invalid: bool = False, low_memory: bool = False,
-             fallback_unit: str = "nT") -> Log:
+def read_log(
+    path,
+    columns=None,
+    *,
+    unit: str | None = None,
+    reference_column: str | None = None,
+    reference_field=None,
+    reference_field_unit: str | None = None,
+    extra_columns=(),
+    drop_invalid: bool = False,
+    low_memory: bool = False,
+    fallback_unit: str = "nT",
+) -> Log:
     """Read, validate and convert a field log.
 
     columns : the three field columns (None: detected).
@@ -137,8 +155,9 @@ def read_log(path, columns=None, *, unit: str | None = None, reference_column: s
         chosen = resolve_columns(header, columns)
         extra = [column_name(header, c) for c in extra]
         unit = log_unit(chosen, unit, fallback_unit, notes)
-        mapped = csv_to_memmap(path, chosen, extra, drop_invalid=drop_invalid,
-                               scale=units.field_factor(unit))
+        mapped = csv_to_memmap(
+            path, chosen, extra, drop_invalid=drop_invalid, scale=units.field_factor(unit)
+        )
         values, frame, kept = mapped.values, None, None
         dropped, engine = mapped.dropped, "c (chunked into a memory map)"
         samples = values[:, :3]
@@ -146,8 +165,9 @@ def read_log(path, columns=None, *, unit: str | None = None, reference_column: s
         frame = read_table(path)
         chosen = resolve_columns(frame, columns)
         extra = [column_name(frame, c) for c in extra]
-        numeric = numeric_columns(frame, chosen + extra, drop_invalid=drop_invalid,
-                                  source=str(path))
+        numeric = numeric_columns(
+            frame, chosen + extra, drop_invalid=drop_invalid, source=str(path)
+        )
         if not numeric.kept.any():
             raise InputError(f"{path}: no data rows")
         unit = log_unit(chosen, unit, fallback_unit, notes)
@@ -162,25 +182,40 @@ def read_log(path, columns=None, *, unit: str | None = None, reference_column: s
         name = extra[0]
         ref_unit = reference_unit(name, unit, notes)
         units.check_compatible(unit, ref_unit, f"reference column {name!r}")
-        reference = units.to_base(validation.reference(extras[name], len(extras[name]),
-                                                       f"the reference column {name!r}"),
-                                  ref_unit)
+        reference = units.to_base(
+            validation.reference(extras[name], len(extras[name]), f"the reference column {name!r}"),
+            ref_unit,
+        )
     elif reference_field is not None:
         ref_unit = reference_field_unit or unit
         units.check_compatible(unit, ref_unit)
-        reference = units.to_base(validation.number(reference_field, "the reference field",
-                                                     positive=True), ref_unit)
-    return Log(path=str(path), columns=chosen, samples=samples, unit=unit, reference=reference,
-               reference_column=name, extras=extras, frame=frame, kept=kept, dropped=dropped,
-               engine=engine, notes=notes)
+        reference = units.to_base(
+            validation.number(reference_field, "the reference field", positive=True), ref_unit
+        )
+    return Log(
+        path=str(path),
+        columns=chosen,
+        samples=samples,
+        unit=unit,
+        reference=reference,
+        reference_column=name,
+        extras=extras,
+        frame=frame,
+        kept=kept,
+        dropped=dropped,
+        engine=engine,
+        notes=notes,
+    )
 
 
 def _check_distinct(field_columns, extra_columns) -> None:
     for name in extra_columns:
         if name in field_columns:
-            raise InputError(f"column {name!r} is one of the field columns "
-                             f"({', '.join(field_columns)}); pass the temperature or reference "
-                             f"column, or --columns X Y Z")
+            raise InputError(
+                f"column {name!r} is one of the field columns "
+                f"({', '.join(field_columns)}); pass the temperature or reference "
+                f"column, or --columns X Y Z"
+            )
 
 
 @dataclass
@@ -215,27 +250,42 @@ class SensorLog:
         return out, replaced
 
     def metadata(self, **more) -> dict:
-        return {"file": self.path, "mag_columns": list(self.mag_columns),
-                "acc_columns": list(self.acc_columns), "mag_unit": self.mag_unit,
-                "acc_unit": self.acc_unit, "rows_skipped": int(self.dropped), **more}
+        return {
+            "file": self.path,
+            "mag_columns": list(self.mag_columns),
+            "acc_columns": list(self.acc_columns),
+            "mag_unit": self.mag_unit,
+            "acc_unit": self.acc_unit,
+            "rows_skipped": int(self.dropped),
+            **more,
+        }
 
 
 def _sensor_unit(columns, unit, fallback, prefixes, suffixes, what, notes) -> str:
     hinted = units.suggested_unit(columns, prefixes, suffixes)
     if unit is None:
         if hinted:
-            notes.append(f"{what} unit {hinted} taken from the column names "
-                         f"({', '.join(columns)})")
+            notes.append(f"{what} unit {hinted} taken from the column names ({', '.join(columns)})")
         return hinted or fallback
     if hinted and hinted != unit:
-        notes.append(f"the {what} columns ({', '.join(columns)}) suggest {hinted}, but the "
-                     f"{what} unit given is {unit}")
+        notes.append(
+            f"the {what} columns ({', '.join(columns)}) suggest {hinted}, but the "
+            f"{what} unit given is {unit}"
+        )
     return unit
 
 
-def read_sensor_log(path, mag_columns=None, acc_columns=None, *, mag_unit: str | None = None,
-                    acc_unit: str | None = None, drop_invalid: bool = False,
-                    mag_fallback: str = "nT", acc_fallback: str = "g") -> SensorLog:
+def read_sensor_log(
+    path,
+    mag_columns=None,
+    acc_columns=None,
+    *,
+    mag_unit: str | None = None,
+    acc_unit: str | None = None,
+    drop_invalid: bool = False,
+    mag_fallback: str = "nT",
+    acc_fallback: str = "g",
+) -> SensorLog:
     """Read a magnetometer + accelerometer log; the field in nT, the specific force in g.
 
     Columns are detected unless given; each sensor's unit is the one given, else the one its
@@ -245,28 +295,55 @@ def read_sensor_log(path, mag_columns=None, acc_columns=None, *, mag_unit: str |
     mag_cols = resolve_columns(frame, mag_columns, what="magnetometer")
     acc_cols = resolve_columns(frame, acc_columns, what="accelerometer")
     if set(mag_cols) & set(acc_cols):
-        raise InputError(f"the magnetometer columns ({', '.join(mag_cols)}) and accelerometer "
-                         f"columns ({', '.join(acc_cols)}) overlap; pass --mag-columns and "
-                         f"--acc-columns")
+        raise InputError(
+            f"the magnetometer columns ({', '.join(mag_cols)}) and accelerometer "
+            f"columns ({', '.join(acc_cols)}) overlap; pass --mag-columns and "
+            f"--acc-columns"
+        )
     notes: list = []
-    mag_unit = _sensor_unit(mag_cols, mag_unit, mag_fallback, units.MAGNETIC_PREFIXES,
-                            units.FIELD_SUFFIXES, "magnetometer", notes)
-    acc_unit = _sensor_unit(acc_cols, acc_unit, acc_fallback, units.ACC_PREFIXES,
-                            units.ACC_SUFFIXES, "accelerometer", notes)
+    mag_unit = _sensor_unit(
+        mag_cols,
+        mag_unit,
+        mag_fallback,
+        units.MAGNETIC_PREFIXES,
+        units.FIELD_SUFFIXES,
+        "magnetometer",
+        notes,
+    )
+    acc_unit = _sensor_unit(
+        acc_cols,
+        acc_unit,
+        acc_fallback,
+        units.ACC_PREFIXES,
+        units.ACC_SUFFIXES,
+        "accelerometer",
+        notes,
+    )
     if mag_unit == "raw":
-        raise InputError("the e-compass needs the magnetometer in a field unit (nT, uT, ...), "
-                         "not raw counts; pass --mag-unit")
-    numeric = numeric_columns(frame, mag_cols + acc_cols, drop_invalid=drop_invalid,
-                              source=str(path))
+        raise InputError(
+            "the e-compass needs the magnetometer in a field unit (nT, uT, ...), "
+            "not raw counts; pass --mag-unit"
+        )
+    numeric = numeric_columns(
+        frame, mag_cols + acc_cols, drop_invalid=drop_invalid, source=str(path)
+    )
     if not numeric.kept.any():
         raise InputError(f"{path}: no data rows")
     if numeric.dropped:
         notes.append(f"skipped {numeric.dropped} row(s) with missing or non-numeric values")
-    return SensorLog(path=str(path), frame=frame, kept=numeric.kept,
-                     mag=numeric.values[:, :3] * units.field_factor(mag_unit),
-                     acc=numeric.values[:, 3:] * units.acc_factor(acc_unit),
-                     mag_columns=mag_cols, acc_columns=acc_cols, mag_unit=mag_unit,
-                     acc_unit=acc_unit, dropped=numeric.dropped, notes=notes)
+    return SensorLog(
+        path=str(path),
+        frame=frame,
+        kept=numeric.kept,
+        mag=numeric.values[:, :3] * units.field_factor(mag_unit),
+        acc=numeric.values[:, 3:] * units.acc_factor(acc_unit),
+        mag_columns=mag_cols,
+        acc_columns=acc_cols,
+        mag_unit=mag_unit,
+        acc_unit=acc_unit,
+        dropped=numeric.dropped,
+        notes=notes,
+    )
 
 
 def read_columns(path, columns) -> np.ndarray:

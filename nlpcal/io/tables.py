@@ -19,10 +19,18 @@ from ..errors import InputError
 #: What each sensor's axis columns may be called, for `resolve_columns`:
 #: name -> (prefixes, unit suffixes, examples for messages, flag for messages).
 SENSORS = {
-    "magnetometer": (units.MAGNETIC_PREFIXES, units.FIELD_SUFFIXES,
-                     "bx/by/bz, x/y/z, mag_x/mag_y/mag_z, mx_uT/...", "--columns X Y Z"),
-    "accelerometer": (units.ACC_PREFIXES, units.ACC_SUFFIXES,
-                      "ax/ay/az, acc_x/acc_y/acc_z, ax_g/...", "--acc-columns AX AY AZ"),
+    "magnetometer": (
+        units.MAGNETIC_PREFIXES,
+        units.FIELD_SUFFIXES,
+        "bx/by/bz, x/y/z, mag_x/mag_y/mag_z, mx_uT/...",
+        "--columns X Y Z",
+    ),
+    "accelerometer": (
+        units.ACC_PREFIXES,
+        units.ACC_SUFFIXES,
+        "ax/ay/az, acc_x/acc_y/acc_z, ax_g/...",
+        "--acc-columns AX AY AZ",
+    ),
 }
 
 
@@ -74,19 +82,28 @@ def resolve_columns(frame: pd.DataFrame, columns=None, what: str = "magnetometer
             raise InputError(f"got {len(columns)} {what} columns, expected 3; pass {flag}")
         resolved = [column_name(frame, name) for name in columns]
         if len(set(resolved)) != 3:
-            raise InputError(f"the {what} columns {', '.join(resolved)} repeat a column; pass "
-                             f"three different columns ({flag})")
+            raise InputError(
+                f"the {what} columns {', '.join(resolved)} repeat a column; pass "
+                f"three different columns ({flag})"
+            )
         return resolved
-    matches = [triple for template, triple in units.axis_templates(found).items()
-               if units.is_axis_template(template, prefixes, suffixes)]
+    matches = [
+        triple
+        for template, triple in units.axis_templates(found).items()
+        if units.is_axis_template(template, prefixes, suffixes)
+    ]
     if len(matches) == 1:
         return list(matches[0])
     if not matches:
-        raise InputError(f"no {what} columns recognised ({examples}); the log has columns: "
-                         f"{', '.join(found)}; pass {flag}")
+        raise InputError(
+            f"no {what} columns recognised ({examples}); the log has columns: "
+            f"{', '.join(found)}; pass {flag}"
+        )
     options = "; ".join(" ".join(m) for m in matches)
-    raise InputError(f"ambiguous {what} columns ({options}); the log has columns: "
-                     f"{', '.join(found)}; pass {flag}")
+    raise InputError(
+        f"ambiguous {what} columns ({options}); the log has columns: "
+        f"{', '.join(found)}; pass {flag}"
+    )
 
 
 def column_name(frame: pd.DataFrame, name: str) -> str:
@@ -96,8 +113,9 @@ def column_name(frame: pd.DataFrame, name: str) -> str:
     lower = {str(c).lower(): c for c in frame.columns}
     if str(name).lower() in lower:
         return lower[str(name).lower()]
-    raise InputError(f"column {name!r} not found; the log has columns: "
-                     f"{', '.join(map(str, frame.columns))}")
+    raise InputError(
+        f"column {name!r} not found; the log has columns: {', '.join(map(str, frame.columns))}"
+    )
 
 
 @dataclass
@@ -109,8 +127,9 @@ class NumericColumns:
     dropped: int
 
 
-def numeric_columns(frame: pd.DataFrame, columns, *, drop_invalid: bool = False,
-                    source: str = "log") -> NumericColumns:
+def numeric_columns(
+    frame: pd.DataFrame, columns, *, drop_invalid: bool = False, source: str = "log"
+) -> NumericColumns:
     """Take `columns` as a float array; non-numeric, empty or non-finite cells are errors.
 
     With drop_invalid, such rows are dropped instead and counted.
@@ -121,14 +140,15 @@ def numeric_columns(frame: pd.DataFrame, columns, *, drop_invalid: bool = False,
         if not pd.api.types.is_numeric_dtype(column) or pd.api.types.is_bool_dtype(column):
             column = pd.to_numeric(column, errors="coerce")
         data[:, k] = column.to_numpy(dtype=float, na_value=np.nan)
-    valid = np.isfinite(data).all(axis=1)
+    valid = np.asarray(np.isfinite(data).all(axis=1))
     bad = int((~valid).sum())
     if bad and not drop_invalid:
         first = int(np.flatnonzero(~valid)[0])
         raise InputError(
             f"{source}: {bad} row(s) have a missing, non-numeric or non-finite value in "
             f"{', '.join(columns)} (first at data row {first + 1}); fix them or pass "
-            f"--drop-invalid")
+            f"--drop-invalid"
+        )
     return NumericColumns(values=data[valid], kept=valid, dropped=bad)
 
 
@@ -146,8 +166,16 @@ class MappedColumns:
     dropped: int
 
 
-def csv_to_memmap(path, columns=None, extra_columns=(), *, drop_invalid: bool = False,
-                  scale: float = 1.0, chunk_rows: int = 250_000, directory=None) -> MappedColumns:
+def csv_to_memmap(
+    path,
+    columns=None,
+    extra_columns=(),
+    *,
+    drop_invalid: bool = False,
+    scale: float = 1.0,
+    chunk_rows: int = 250_000,
+    directory=None,
+) -> MappedColumns:
     """Stream the field columns (and `extra_columns`) of a CSV into a memory-mapped array.
 
     Memory stays O(chunk_rows) whatever the size of the log; the pandas C engine reads the chunks
@@ -162,8 +190,9 @@ def csv_to_memmap(path, columns=None, extra_columns=(), *, drop_invalid: bool = 
     store = tempfile.TemporaryFile(dir=directory)
     rows = dropped = 0
     try:
-        reader = pd.read_csv(path, usecols=lambda c: str(c).strip() in wanted,
-                             chunksize=chunk_rows, engine="c")
+        reader = pd.read_csv(
+            path, usecols=lambda c: str(c).strip() in wanted, chunksize=chunk_rows, engine="c"
+        )
         for chunk in reader:
             chunk.columns = [str(c).strip() for c in chunk.columns]
             numeric = numeric_columns(chunk, wanted, drop_invalid=drop_invalid, source=str(path))

@@ -131,21 +131,27 @@ class TemperatureModel:
 
     def __post_init__(self):
         if self.kind not in TEMPERATURE_MODELS:
-            raise ValueError(f"unknown temperature model {self.kind!r}; expected one of "
-                             f"{', '.join(TEMPERATURE_MODELS)}")
+            raise ValueError(
+                f"unknown temperature model {self.kind!r}; expected one of "
+                f"{', '.join(TEMPERATURE_MODELS)}"
+            )
 
     @classmethod
     def from_drift(cls, a: float, b: float, base_temperature: float) -> TemperatureModel:
         """The common model of Eq. 9 in [1] from the line of Eq. 1."""
-        return cls("common", float(base_temperature),
-                   k_slope_per_degC=float(a / modulus_line(base_temperature, a, b)))
+        return cls(
+            "common",
+            float(base_temperature),
+            k_slope_per_degC=float(a / modulus_line(base_temperature, a, b)),
+        )
 
     def k(self, temperature) -> np.ndarray:
         """k(t) = 1 + c (t - t0) of the common model, Eq. 9 in [1]. [1]"""
         if self.kind != "common":
             raise ValueError("k(t) is defined for the common model only")
-        return 1.0 + self.k_slope_per_degC * (np.asarray(temperature, dtype=float)
-                                              - self.base_temperature_degC)
+        return 1.0 + self.k_slope_per_degC * (
+            np.asarray(temperature, dtype=float) - self.base_temperature_degC
+        )
 
     def gains_offsets(self, params: Zhou2010Parameters, temperature):
         """Axis gains (N, 3) [1] and offsets (N, 3) [field unit] at the temperatures t [degC]."""
@@ -182,8 +188,9 @@ class TemperatureModel:
         return cls(kind, t0, scale_slope_per_degC=sigma, offset_slope_per_degC=zeta)
 
 
-def forward(field_sensor_ideal, temperature, params: Zhou2010Parameters,
-            model: TemperatureModel) -> np.ndarray:
+def forward(
+    field_sensor_ideal, temperature, params: Zhou2010Parameters, model: TemperatureModel
+) -> np.ndarray:
     """Sensor output B_m at temperature t for the true field A B in the ideal sensor frame.
 
     Eq. 2 in [1] written with the nine parameters: B_m = k (diag(1 + s) T (A B) + Z_p) for the
@@ -200,8 +207,9 @@ def forward(field_sensor_ideal, temperature, params: Zhou2010Parameters,
     return (field @ axis_matrix(params).T) * gains + offsets
 
 
-def correct(samples, temperature, params: Zhou2010Parameters,
-            model: TemperatureModel) -> np.ndarray:
+def correct(
+    samples, temperature, params: Zhou2010Parameters, model: TemperatureModel
+) -> np.ndarray:
     """Corrected field at temperature t: Eq. 9 in [1], then Eq. 4 of Zhou et al. (2010).
 
     Common model: B1 = O_p S_p (B_m / k(t) - Z_p). Per-axis model:

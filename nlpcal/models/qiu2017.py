@@ -45,9 +45,10 @@ def rotation_x(angle) -> np.ndarray:
     a = _as_angle_array(angle)
     c, s = np.cos(a), np.sin(a)
     one, zero = np.ones_like(a), np.zeros_like(a)
-    return np.stack([np.stack([one, zero, zero], -1),
-                     np.stack([zero, c, s], -1),
-                     np.stack([zero, -s, c], -1)], -2)
+    return np.stack(
+        [np.stack([one, zero, zero], -1), np.stack([zero, c, s], -1), np.stack([zero, -s, c], -1)],
+        -2,
+    )
 
 
 def rotation_y(angle) -> np.ndarray:
@@ -55,9 +56,10 @@ def rotation_y(angle) -> np.ndarray:
     a = _as_angle_array(angle)
     c, s = np.cos(a), np.sin(a)
     one, zero = np.ones_like(a), np.zeros_like(a)
-    return np.stack([np.stack([c, zero, -s], -1),
-                     np.stack([zero, one, zero], -1),
-                     np.stack([s, zero, c], -1)], -2)
+    return np.stack(
+        [np.stack([c, zero, -s], -1), np.stack([zero, one, zero], -1), np.stack([s, zero, c], -1)],
+        -2,
+    )
 
 
 def rotation_z(angle) -> np.ndarray:
@@ -65,9 +67,10 @@ def rotation_z(angle) -> np.ndarray:
     a = _as_angle_array(angle)
     c, s = np.cos(a), np.sin(a)
     one, zero = np.ones_like(a), np.zeros_like(a)
-    return np.stack([np.stack([c, s, zero], -1),
-                     np.stack([-s, c, zero], -1),
-                     np.stack([zero, zero, one], -1)], -2)
+    return np.stack(
+        [np.stack([c, s, zero], -1), np.stack([-s, c, zero], -1), np.stack([zero, zero, one], -1)],
+        -2,
+    )
 
 
 def attitude_matrix(roll, pitch, heading) -> np.ndarray:

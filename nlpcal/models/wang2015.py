@@ -65,16 +65,18 @@ def direction(theta_deg, phi_deg) -> np.ndarray:
     theta_deg : azimuth in the ideal frame, in [0, 360). [deg]
     phi_deg : elevation above the x-y plane, in [-90, 90]. [deg]
     """
-    theta, phi = np.broadcast_arrays(np.radians(np.asarray(theta_deg, dtype=float)),
-                                     np.radians(np.asarray(phi_deg, dtype=float)))
-    return np.stack([np.cos(phi) * np.cos(theta), np.cos(phi) * np.sin(theta), np.sin(phi)],
-                    axis=-1)
+    theta, phi = np.broadcast_arrays(
+        np.radians(np.asarray(theta_deg, dtype=float)), np.radians(np.asarray(phi_deg, dtype=float))
+    )
+    return np.stack(
+        [np.cos(phi) * np.cos(theta), np.cos(phi) * np.sin(theta), np.sin(phi)], axis=-1
+    )
 
 
 def axis_matrix_deg(angles_deg) -> np.ndarray:
     """T of Eq. 2 in [1] in the angle convention of [2] (unit scale, zero offset). [1]"""
     angles = np.radians(np.asarray(angles_deg, dtype=float))
-    return np.array(axis_matrix_entries(*angles), dtype=float)                # Eq. 2
+    return np.array(axis_matrix_entries(*angles), dtype=float)  # Eq. 2
 
 
 def total_field_error(angles_deg, field_nT, theta_deg, phi_deg) -> np.ndarray:
@@ -85,7 +87,7 @@ def total_field_error(angles_deg, field_nT, theta_deg, phi_deg) -> np.ndarray:
     t = axis_matrix_deg(angles_deg)
     b = float(field_nT)
     u = direction(theta_deg, phi_deg)
-    return b * (np.linalg.norm(u @ t.T, axis=-1) - 1.0)                    # Eq. 8
+    return b * (np.linalg.norm(u @ t.T, axis=-1) - 1.0)  # Eq. 8
 
 
 def small_angle_form(angles_deg) -> np.ndarray:
@@ -99,8 +101,11 @@ def small_angle_form(angles_deg) -> np.ndarray:
 
 def small_angle_worst_case(angles_deg, field_nT) -> float:
     """max |dB| to first order in the angles: (B / 2) max |eig(G)|. [nT]"""
-    return 0.5 * float(field_nT) * float(np.max(np.abs(
-        np.linalg.eigvalsh(small_angle_form(angles_deg)))))
+    return (
+        0.5
+        * float(field_nT)
+        * float(np.max(np.abs(np.linalg.eigvalsh(small_angle_form(angles_deg)))))
+    )
 
 
 def exact_bracket(angles_deg, field_nT) -> tuple:
@@ -131,12 +136,13 @@ def error_map(angles_deg, field_nT, step_deg: float = 1.0):
 
 def corrected_magnitude(samples, angles_deg) -> np.ndarray:
     """|T^-1 B'_i| for probe output B' (N, 3) [nT] and angles (alpha, beta, gamma) [deg]. [nT]"""
-    t_inv = np.array(correction_matrix_entries(*np.radians(np.asarray(angles_deg, dtype=float)),
-                                               0.0, 0.0, 0.0), dtype=float)
+    alpha, beta, gamma = np.radians(np.asarray(angles_deg, dtype=float))
+    t_inv = np.array(correction_matrix_entries(alpha, beta, gamma, 0.0, 0.0, 0.0), dtype=float)
     return np.linalg.norm(np.asarray(samples, dtype=float) @ t_inv.T, axis=1)
 
 
 # --- probe output for directions spread over the sphere (section 2 of [1]) ------------------
+
 
 def fibonacci_directions(n: int) -> np.ndarray:
     """n unit vectors spread evenly over the sphere (a Fibonacci lattice), shape (n, 3). [1]"""
@@ -146,12 +152,13 @@ def fibonacci_directions(n: int) -> np.ndarray:
     k = np.arange(n) + 0.5
     z = 1.0 - 2.0 * k / n
     azimuth = math.pi * (1.0 + math.sqrt(5.0)) * k
-    r = np.sqrt(1.0 - z ** 2)
+    r = np.sqrt(1.0 - z**2)
     return np.stack([r * np.cos(azimuth), r * np.sin(azimuth), z], axis=1)
 
 
-def synthetic_rotation(angles_deg, field_nT=PAPER_FIELD_NT, n: int = 500, noise_nT: float = 0.0,
-                       seed: int = 0) -> np.ndarray:
+def synthetic_rotation(
+    angles_deg, field_nT=PAPER_FIELD_NT, n: int = 500, noise_nT: float = 0.0, seed: int = 0
+) -> np.ndarray:
     """Probe output B' = T B + noise for n directions spread over the sphere. [nT]
 
     angles_deg : (alpha, beta, gamma). [deg]; field_nT : |B|. [nT]; noise_nT : standard deviation
@@ -159,7 +166,7 @@ def synthetic_rotation(angles_deg, field_nT=PAPER_FIELD_NT, n: int = 500, noise_
     """
     b = float(field_nT)
     t = axis_matrix_deg(angles_deg)
-    probe = b * fibonacci_directions(n) @ t.T                                   # Eq. 1
+    probe = b * fibonacci_directions(n) @ t.T  # Eq. 1
     if noise_nT:
         probe = probe + np.random.default_rng(seed).normal(0.0, float(noise_nT), probe.shape)
     return probe

@@ -118,6 +118,7 @@ class Zhou2010Parameters:
 # The helpers below take plain numbers or CasADi symbols: `cos`, `sin` and `matrix` are passed in
 # so that the same lines serve the numeric model and the symbolic NLPs.
 
+
 def axis_matrix_entries(alpha, beta, gamma, cos=np.cos, sin=np.sin):
     """Entries of T = O_p^-1 (Eq. 4 in [1]); rows are the sensor axes in the ideal frame."""
     return [

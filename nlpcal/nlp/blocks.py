@@ -53,8 +53,8 @@ GAUGE = {
     "name": "mean_scale_zero",
     "constraint": "s_x + s_y + s_z = 0",
     "reason": "Eq. 8 is not invariant to a common factor on (1 + s): without a reference field "
-              "the absolute scale is not identifiable; the scale ratios (1 + s_i)/(1 + s_j), "
-              "offsets and angles are.",
+    "the absolute scale is not identifiable; the scale ratios (1 + s_i)/(1 + s_j), "
+    "offsets and angles are.",
 }
 
 
@@ -83,8 +83,9 @@ class Symbols:
     @property
     def data(self):
         """The parameter vector, in the order `pack` fills it."""
-        return ca.vertcat(self.theta_ref, self.var_scale, ca.vec(self.gram), self.centre,
-                          self.length, self.f_ref)
+        return ca.vertcat(
+            self.theta_ref, self.var_scale, ca.vec(self.gram), self.centre, self.length, self.f_ref
+        )
 
 
 def _symbols(reference: str) -> Symbols:
@@ -101,15 +102,19 @@ def _symbols(reference: str) -> Symbols:
 
 def moment_parameters(moments: mom.Moments) -> np.ndarray:
     """The data part of every moment problem's parameters: vec(G), the frame centre and L."""
-    return np.concatenate([moments.gram.ravel(order="F"), moments.frame.centre,
-                           [moments.length]])
+    return np.concatenate([moments.gram.ravel(order="F"), moments.frame.centre, [moments.length]])
 
 
 def pack(moments: mom.Moments, theta_ref, var_scale, f_ref: float) -> np.ndarray:
     """Numeric parameter vector for the problems (same order as Symbols.data)."""
-    return np.concatenate([np.asarray(theta_ref, dtype=float),
-                           np.asarray(var_scale, dtype=float), moment_parameters(moments),
-                           [f_ref]])
+    return np.concatenate(
+        [
+            np.asarray(theta_ref, dtype=float),
+            np.asarray(var_scale, dtype=float),
+            moment_parameters(moments),
+            [f_ref],
+        ]
+    )
 
 
 @problem("zhou2010.objective", examples=[("none",), ("constant",), ("series",)])
@@ -122,8 +127,9 @@ def objective_function(reference: str) -> ca.Function:
     theta = ca.MX.sym("theta", 9)
     f = objective_expression(theta, s.gram, s.centre, s.length, reference)
     hess, grad = ca.hessian(f, theta)
-    return ca.Function(f"f_{reference}", [theta, s.data], [f, grad, hess], ["theta", "p"],
-                       ["f", "grad", "hess"])
+    return ca.Function(
+        f"f_{reference}", [theta, s.data], [f, grad, hess], ["theta", "p"], ["f", "grad", "hess"]
+    )
 
 
 @dataclass(frozen=True)
@@ -149,8 +155,9 @@ class BlockProblem:
         return upper + np.triu(upper, 1).T
 
 
-@problem("zhou2010.block", examples=[(b, r) for b in BLOCKS for r in ("none", "constant",
-                                                                      "series")])
+@problem(
+    "zhou2010.block", examples=[(b, r) for b in BLOCKS for r in ("none", "constant", "series")]
+)
 def block_problem(block: str, reference: str, options: IpoptOptions = IpoptOptions()):
     """The problem of one block (stage or joint) for one kind of reference.
 
@@ -190,8 +197,9 @@ class Step:
         return self.outcome.status
 
 
-def block_step(moments: mom.Moments, block: str, theta,
-               options: IpoptOptions = IpoptOptions()) -> Step:
+def block_step(
+    moments: mom.Moments, block: str, theta, options: IpoptOptions = IpoptOptions()
+) -> Step:
     """Minimise over one block of theta from `theta`, the other blocks held fixed.
 
     Raises SolveError when IPOPT fails; a solve that ends above its start (it should not) keeps
@@ -205,22 +213,26 @@ def block_step(moments: mom.Moments, block: str, theta,
     f_start = problem.objective(np.zeros(len(free)), p)
     if f_start <= PRECISION_FLOOR * moments.length**2:
         # Noise-free data at their optimum: nothing left that float64 moments can resolve.
-        outcome = SolveOutcome(x=np.zeros(len(free)), f=1.0, status="At_Precision_Floor",
-                               success=True, iterations=0)
+        outcome = SolveOutcome(
+            x=np.zeros(len(free)), f=1.0, status="At_Precision_Floor", success=True, iterations=0
+        )
         return Step(theta, outcome, f_start, f_start, 1.0, problem, p, outcome.x)  # p: f_ref = 1
     f_ref = max(f_start, SCALE_FLOOR * moments.length**2)
     p[-1] = f_ref
     bounds = {"lbg": 0.0, "ubg": 0.0} if problem.has_gauge else {}
     outcome = solve(problem.solver, x0=np.zeros(len(free)), p=p, **bounds)
     # A step below machine precision means the block is solved to the resolution of the data.
-    stalled = (outcome.status == "Search_Direction_Becomes_Too_Small"
-               and outcome.f * f_ref <= f_start)
+    stalled = (
+        outcome.status == "Search_Direction_Becomes_Too_Small" and outcome.f * f_ref <= f_start
+    )
     if not (outcome.success or stalled):
-        raise SolveError(f"IPOPT did not solve the {block} problem", outcome.status,
-                         result=theta)  # the start, where the data's null directions show
+        raise SolveError(
+            f"IPOPT did not solve the {block} problem", outcome.status, result=theta
+        )  # the start, where the data's null directions show
     if outcome.f * f_ref > f_start + 1e-12 * f_ref:
         return Step(theta, outcome, f_start, f_start, f_ref, problem, p, np.zeros(len(free)))
     step = np.zeros(9)
     step[free] = outcome.x
-    return Step(theta + var_scale * step, outcome, f_start, outcome.f * f_ref, f_ref, problem, p,
-                outcome.x)
+    return Step(
+        theta + var_scale * step, outcome, f_start, outcome.f * f_ref, f_ref, problem, p, outcome.x
+    )

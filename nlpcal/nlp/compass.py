@@ -34,7 +34,7 @@ def compensation_nlp():
 
 def axis_ellipsoid_theta(x):
     a, o = x[0:3], x[3:6]
-    return ca.vertcat(a, -2 * a * o, ca.sum1(a * o ** 2) - 1)
+    return ca.vertcat(a, -2 * a * o, ca.sum1(a * o**2) - 1)
 
 
 @problem("qiu2017.axis_ellipsoid")
@@ -56,14 +56,16 @@ def general_theta(x):
     A = _symmetric(x[0:6])
     o = x[6:9]
     Ao = ca.mtimes(A, o)
-    return ca.vertcat(x[0], x[1], x[2], 2 * x[3], 2 * x[4], 2 * x[5], -2 * Ao,
-                      ca.mtimes(o.T, Ao) - 1)
+    return ca.vertcat(
+        x[0], x[1], x[2], 2 * x[3], 2 * x[4], 2 * x[5], -2 * Ao, ca.mtimes(o.T, Ao) - 1
+    )
 
 
 def _symmetric(values):
     a11, a22, a33, a12, a13, a23 = (values[i] for i in range(6))
-    return ca.vertcat(ca.horzcat(a11, a12, a13), ca.horzcat(a12, a22, a23),
-                      ca.horzcat(a13, a23, a33))
+    return ca.vertcat(
+        ca.horzcat(a11, a12, a13), ca.horzcat(a12, a22, a23), ca.horzcat(a13, a23, a33)
+    )
 
 
 @problem("qiu2017.general_ellipsoid")
@@ -79,14 +81,20 @@ def general_ellipsoid_nlp():
     theta = general_theta(x)
     A = _symmetric(x[0:6])
     minors = ca.vertcat(A[0, 0], A[0, 0] * A[1, 1] - A[0, 1] ** 2, ca.det(A))
-    return build_nlpsol("qiu2017_general_ellipsoid", x,
-                        ca.mtimes([theta.T, ca.reshape(p, 10, 10), theta]), p, g=minors)
+    return build_nlpsol(
+        "qiu2017_general_ellipsoid",
+        x,
+        ca.mtimes([theta.T, ca.reshape(p, 10, 10), theta]),
+        p,
+        g=minors,
+    )
 
 
 def _gibbs_rotation(r):
     """Rotation matrix of the Gibbs vector r (angle 2 atan|r| about r), smooth everywhere."""
-    rx = ca.vertcat(ca.horzcat(0, -r[2], r[1]), ca.horzcat(r[2], 0, -r[0]),
-                    ca.horzcat(-r[1], r[0], 0))
+    rx = ca.vertcat(
+        ca.horzcat(0, -r[2], r[1]), ca.horzcat(r[2], 0, -r[0]), ca.horzcat(-r[1], r[0], 0)
+    )
     return ca.SX.eye(3) + 2 / (1 + ca.dot(r, r)) * (rx + ca.mtimes(rx, rx))
 
 
@@ -103,5 +111,6 @@ def dip_alignment_nlp():
     p = ca.SX.sym("Psi", 100)
     R = _gibbs_rotation(x[0:3])
     theta = ca.vertcat(ca.reshape(R.T, 9, 1), -x[3])  # row-major vec(R)
-    return build_nlpsol("qiu2017_dip_alignment", x,
-                        ca.mtimes([theta.T, ca.reshape(p, 10, 10), theta]), p)
+    return build_nlpsol(
+        "qiu2017_dip_alignment", x, ca.mtimes([theta.T, ca.reshape(p, 10, 10), theta]), p
+    )

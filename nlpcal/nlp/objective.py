@@ -42,8 +42,9 @@ def correction_matrix_sx(theta):
 
     theta : z [field unit], s [1], angles [rad].
     """
-    entries = correction_matrix_entries(theta[6], theta[7], theta[8], theta[3], theta[4], theta[5],
-                                        cos=ca.cos, sin=ca.sin)
+    entries = correction_matrix_entries(
+        theta[6], theta[7], theta[8], theta[3], theta[4], theta[5], cos=ca.cos, sin=ca.sin
+    )
     return ca.blockcat([[ca.SX(v) if isinstance(v, float) else v for v in row] for row in entries])
 
 
@@ -57,9 +58,16 @@ def u_coefficients(theta, centre, length):
     A = M.T @ M
     zt = (theta[0:3] - centre) / length
     Az = A @ zt
-    return ca.vertcat(A[0, 0] - 1, A[1, 1] - 1, A[2, 2] - 1,
-                      2 * A[0, 1], 2 * A[0, 2], 2 * A[1, 2],
-                      -2 * Az, ca.dot(zt, Az))
+    return ca.vertcat(
+        A[0, 0] - 1,
+        A[1, 1] - 1,
+        A[2, 2] - 1,
+        2 * A[0, 1],
+        2 * A[0, 2],
+        2 * A[1, 2],
+        -2 * Az,
+        ca.dot(zt, Az),
+    )
 
 
 def feature_coefficients(e, layout: mom.Layout):
@@ -115,7 +123,7 @@ def spread_objective(m, length):
     c = SQRT_SERIES
     one = 1 + mu
     S = c[2] * k2 / one**2 + c[3] * k3 / one**3 + c[4] * k4 / one**4
-    return -length**2 * one * (2 * S + S**2)
+    return -(length**2) * one * (2 * S + S**2)
 
 
 def objective_expression(theta, gram, centre, length, reference: str):

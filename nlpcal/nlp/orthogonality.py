@@ -37,12 +37,17 @@ def worst_case_solver(verbose: bool = False):
     theta, phi = x[0], x[1]
     alpha, beta, gamma, sign, kappa = (p[i] for i in range(5))
     u = ca.vertcat(ca.cos(phi) * ca.cos(theta), ca.cos(phi) * ca.sin(theta), ca.sin(phi))  # Eq. 5
-    t = ca.vertcat(*[ca.horzcat(*row) for row in
-                     axis_matrix_entries(alpha, beta, gamma, cos=ca.cos, sin=ca.sin)])  # Eq. 2
-    relative_error = ca.sqrt(ca.sumsqr(ca.mtimes(t, u))) - 1.0                        # Eq. 8 / B
-    objective = -sign * relative_error / kappa                                        # Eq. 9
-    options = IpoptOptions(tol=1e-10, acceptable_tol=1e-8, max_iter=100,
-                           print_level=5 if verbose else 0)
+    t = ca.vertcat(
+        *[
+            ca.horzcat(*row)
+            for row in axis_matrix_entries(alpha, beta, gamma, cos=ca.cos, sin=ca.sin)
+        ]
+    )  # Eq. 2
+    relative_error = ca.sqrt(ca.sumsqr(ca.mtimes(t, u))) - 1.0  # Eq. 8 / B
+    objective = -sign * relative_error / kappa  # Eq. 9
+    options = IpoptOptions(
+        tol=1e-10, acceptable_tol=1e-8, max_iter=100, print_level=5 if verbose else 0
+    )
     return build_nlpsol("nlpcal_orthogonality_worst_case", x, objective, p, options=options)
 
 
@@ -66,11 +71,16 @@ def inversion_solver(reference: str, verbose: bool = False):
     p = ca.vertcat(ca.vec(gram), centre, length, scale)
     # the adaptive barrier update halves the iterations here: the objective is flat at roundoff
     # level near the optimum, where the monotone update stalls in the line search
-    options = IpoptOptions(tol=1e-10, acceptable_tol=1e-8, max_iter=200,
-                           print_level=5 if verbose else 0,
-                           extra=(("mu_strategy", "adaptive"),))
-    return build_nlpsol(f"nlpcal_orthogonality_inversion_{reference}", x,
-                        scale * f / length**2, p, options=options)
+    options = IpoptOptions(
+        tol=1e-10,
+        acceptable_tol=1e-8,
+        max_iter=200,
+        print_level=5 if verbose else 0,
+        extra=(("mu_strategy", "adaptive"),),
+    )
+    return build_nlpsol(
+        f"nlpcal_orthogonality_inversion_{reference}", x, scale * f / length**2, p, options=options
+    )
 
 
 @problem("wang2015.inversion_objective", examples=[("none",), ("constant",)])
@@ -83,5 +93,8 @@ def inversion_objective(reference: str) -> ca.Function:
     theta = ca.vertcat(ca.MX.zeros(6), x * (math.pi / 180.0))
     f = objective_expression(theta, gram, centre, length, reference)
     hess, _ = ca.hessian(f, x)
-    return ca.Function(f"nlpcal_orthogonality_objective_{reference}",
-                       [x, ca.vertcat(ca.vec(gram), centre, length)], [f, hess])
+    return ca.Function(
+        f"nlpcal_orthogonality_objective_{reference}",
+        [x, ca.vertcat(ca.vec(gram), centre, length)],
+        [f, hess],
+    )

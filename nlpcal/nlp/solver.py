@@ -61,10 +61,12 @@ def problem(name: str, examples=((),)):
 
     examples : argument tuples with which the registry test builds the problem.
     """
+
     def register(builder):
         cached = lru_cache(maxsize=None)(builder)
         PROBLEMS[name] = (cached, tuple(examples))
         return cached
+
     return register
 
 

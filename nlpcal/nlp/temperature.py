@@ -26,14 +26,23 @@ References
 
 from __future__ import annotations
 
-import casadi as ca
+from dataclasses import dataclass
 
+import casadi as ca
+import numpy as np
+
+from ..errors import SolveError
 from ..models.liu2022 import TEMPERATURE_MODELS
 from ..models.zhou2010 import correction_matrix_entries
-from .solver import IpoptOptions, build_nlpsol, problem
+from .solver import IpoptOptions, build_nlpsol, problem, solve
 
 #: Samples per chunk of the residual function (the last chunk is padded with zero weights).
 CHUNK = 2048
+#: Levenberg-Marquardt: most steps, first damping, and the relative decrease the model must
+#: still promise for another step. [1]
+MAX_STEPS = 200
+FIRST_DAMPING = 1e-3
+STEP_RTOL = 1e-13
 
 
 def n_coefficients(kind: str) -> int:
@@ -48,10 +57,10 @@ def magnitude_expression(theta, samples, dt, kind: str):
         zeta [field/degC] (per-axis). samples : 3 x W raw output; dt : 1 x W values t_i - t0.
     """
     width = samples.shape[1]
-    entries = correction_matrix_entries(theta[6], theta[7], theta[8], 0.0, 0.0, 0.0,
-                                        cos=ca.cos, sin=ca.sin)  # T^-1 of Eq. 4 in [2]
-    t_inv = ca.blockcat([[ca.MX(v) if isinstance(v, float) else v for v in row]
-                         for row in entries])
+    entries = correction_matrix_entries(
+        theta[6], theta[7], theta[8], 0.0, 0.0, 0.0, cos=ca.cos, sin=ca.sin
+    )  # T^-1 of Eq. 4 in [2]
+    t_inv = ca.blockcat([[ca.MX(v) if isinstance(v, float) else v for v in row] for row in entries])
     z, s = theta[0:3], theta[3:6]
     if kind == "common":
         k = 1 + theta[9] * dt  # Eq. 9: k(t) = 1 + c (t - t0)
@@ -73,9 +82,13 @@ def residual_function(kind: str) -> ca.Function:
     dt = ca.MX.sym("dt", 1, CHUNK)
     reference = ca.MX.sym("F", 1, CHUNK)
     r = (magnitude_expression(theta, samples, dt, kind) - reference).T  # Eq. 10 residuals
-    return ca.Function(f"nlpcal_temperature_residuals_{kind.replace('-', '_')}",
-                       [theta, samples, dt, reference], [r, ca.jacobian(r, theta)],
-                       ["theta", "B", "dt", "F"], ["r", "J"])
+    return ca.Function(
+        f"nlpcal_temperature_residuals_{kind.replace('-', '_')}",
+        [theta, samples, dt, reference],
+        [r, ca.jacobian(r, theta)],
+        ["theta", "B", "dt", "F"],
+        ["r", "J"],
+    )
 
 
 @problem("liu2022.step", examples=[(kind,) for kind in TEMPERATURE_MODELS])
@@ -92,5 +105,82 @@ def step_solver(kind: str, options: IpoptOptions = IpoptOptions()):
     damping = ca.SX.sym("lambda")
     model = c + 2 * ca.dot(b, d) + ca.dot(d, ca.mtimes(a, d)) + damping * ca.dot(d, d)
     p = ca.vertcat(ca.vec(a), b, c, damping)
-    return build_nlpsol(f"nlpcal_temperature_step_{kind.replace('-', '_')}", d, model / c, p,
-                        options=options)
+    return build_nlpsol(
+        f"nlpcal_temperature_step_{kind.replace('-', '_')}", d, model / c, p, options=options
+    )
+
+
+@dataclass
+class Sums:
+    """Gauss-Newton sums of one pass: A = Js^T Js / N, b = Js^T r / N, c = r^T r / N (Js the
+    Jacobian in the scaled variables), and the residuals."""
+
+    a: np.ndarray
+    b: np.ndarray
+    c: float
+    residuals: np.ndarray
+
+
+def gauss_newton_pass(kind: str, theta, scale, samples, dt, reference) -> Sums:
+    """One chunked pass over the data with the built residual function (fixed chunk width)."""
+    function = residual_function(kind)
+    n, nx = samples.shape[0], theta.size
+    a, b = np.zeros((nx, nx)), np.zeros(nx)
+    residuals = np.empty(n)
+    for start in range(0, n, CHUNK):
+        stop = min(start + CHUNK, n)
+        rows = stop - start
+        block = np.zeros((3, CHUNK))
+        block[:] = samples[start][:, None]  # padding: a copy of a real sample, weight 0
+        block[:, :rows] = samples[start:stop].T
+        pad_dt = np.full(CHUNK, dt[start])
+        pad_dt[:rows] = dt[start:stop]
+        pad_f = np.full(CHUNK, reference[start])
+        pad_f[:rows] = reference[start:stop]
+        r, jac = function(theta, block, pad_dt[None, :], pad_f[None, :])
+        r = np.asarray(r, dtype=float).ravel()[:rows]
+        js = np.asarray(jac, dtype=float)[:rows] * scale[None, :]
+        residuals[start:stop] = r
+        a += js.T @ js
+        b += js.T @ r
+    return Sums(a / n, b / n, float(residuals @ residuals) / n, residuals)
+
+
+def minimise(kind, theta, scale, data):
+    """Levenberg-Marquardt from `theta`: each step an IPOPT solve of the Gauss-Newton model.
+
+    Returns (theta, sums at theta, steps taken, IPOPT iterations, last IPOPT status).
+    """
+    sums = gauss_newton_pass(kind, theta, scale, *data)
+    damping = FIRST_DAMPING * float(np.mean(np.diag(sums.a)))
+    solver = step_solver(kind)
+    steps = iterations = 0
+    status = "Solve_Succeeded"
+    for _ in range(MAX_STEPS):
+        if sums.c == 0.0:
+            break
+        p = np.concatenate([sums.a.ravel(order="F"), sums.b, [sums.c, damping]])
+        outcome = solve(solver, x0=np.zeros(theta.size), p=p)
+        iterations += outcome.iterations
+        status = outcome.status
+        if not outcome.success:
+            raise SolveError(
+                f"IPOPT did not solve a step of the joint temperature calibration ({kind})",
+                outcome.status,
+            )
+        promised = sums.c * (1.0 - outcome.f)  # f is the model over c
+        if promised <= STEP_RTOL * sums.c:
+            break
+        trial = theta + scale * outcome.x
+        new = gauss_newton_pass(kind, trial, scale, *data)
+        if new.c < sums.c:
+            theta, sums, steps = trial, new, steps + 1
+            damping = max(damping / 10.0, 1e-15 * float(np.mean(np.diag(sums.a))))
+        else:
+            damping *= 10.0
+    else:
+        raise SolveError(
+            f"the joint temperature calibration ({kind}) did not converge in {MAX_STEPS} steps",
+            "Maximum_Iterations_Exceeded",
+        )
+    return theta, sums, steps, iterations, status

@@ -70,8 +70,9 @@ class Inversion(Document):
         document = {
             "schema": "nlpcal.orthogonality.inversion/1",
             "angles_deg": [float(a) for a in self.angles_deg],
-            "angles_std_deg": (None if self.angles_std_deg is None
-                               else [float(a) for a in self.angles_std_deg]),
+            "angles_std_deg": (
+                None if self.angles_std_deg is None else [float(a) for a in self.angles_std_deg]
+            ),
             "angle_convention": "zhou2010",
             "variant": self.variant,
             "field_nT": self.field_nT,
@@ -97,25 +98,37 @@ class Inversion(Document):
     @classmethod
     def from_body(cls, reader: DocumentReader) -> Inversion:
         std = reader.array("angles_std_deg", (3,), None)
-        return cls(angles_deg=reader.array("angles_deg", (3,)), angles_std_deg=std,
-                   variant=reader.string("variant", options=("spread", "reference")),
-                   field_nT=reader.number("field_nT", None, positive=True),
-                   n_samples=reader.integer("n_samples"),
-                   objective_nT2=reader.number("objective_nT2", minimum=0.0),
-                   rms_before_nT=reader.number("rms_before_nT", minimum=0.0),
-                   rms_after_nT=reader.number("rms_after_nT", minimum=0.0),
-                   corrected_mean_nT=reader.number("corrected_mean_nT"),
-                   bound_deg=reader.array("bound_deg", (3,)),
-                   bound_active=reader.items("bound_active"), status=reader.string("status"),
-                   success=bool(reader.raw("success", True)),
-                   iterations=reader.integer("iterations", 0),
-                   warnings=reader.strings("warnings", []), source=reader.string("log", None),
-                   not_identifiable=reader.strings("not_identifiable", []))
+        return cls(
+            angles_deg=reader.array("angles_deg", (3,)),
+            angles_std_deg=std,
+            variant=reader.string("variant", options=("spread", "reference")),
+            field_nT=reader.number("field_nT", None, positive=True),
+            n_samples=reader.integer("n_samples"),
+            objective_nT2=reader.number("objective_nT2", minimum=0.0),
+            rms_before_nT=reader.number("rms_before_nT", minimum=0.0),
+            rms_after_nT=reader.number("rms_after_nT", minimum=0.0),
+            corrected_mean_nT=reader.number("corrected_mean_nT"),
+            bound_deg=reader.array("bound_deg", (3,)),
+            bound_active=reader.items("bound_active"),
+            status=reader.string("status"),
+            success=bool(reader.raw("success", True)),
+            iterations=reader.integer("iterations", 0),
+            warnings=reader.strings("warnings", []),
+            source=reader.string("log", None),
+            not_identifiable=reader.strings("not_identifiable", []),
+        )
 
 
-def invert(samples, *, field_nT=None, bound_deg=DEFAULT_BOUND_DEG, start_deg=(0.0, 0.0, 0.0),
-           source: str | None = None, verbose: bool = False,
-           require_identifiable: bool = True) -> Inversion:
+def invert(
+    samples,
+    *,
+    field_nT=None,
+    bound_deg=DEFAULT_BOUND_DEG,
+    start_deg=(0.0, 0.0, 0.0),
+    source: str | None = None,
+    verbose: bool = False,
+    require_identifiable: bool = True,
+) -> Inversion:
     """The three non-orthogonality angles from a rotation log, as a bounded IPOPT problem.
 
     samples : (N, 3) probe output B' from attitudes spread over the sphere in a constant field;
@@ -131,13 +144,16 @@ def invert(samples, *, field_nT=None, bound_deg=DEFAULT_BOUND_DEG, start_deg=(0.
     A solution on a bound gets a warning: the true angle may lie outside the bounds.
     Raises InputError for unusable samples or options, SolveError when IPOPT fails.
     """
-    samples = validation.samples(samples, minimum=MIN_INVERSION_SAMPLES,
-                                 purpose="attitudes to invert three angles")
+    samples = validation.samples(
+        samples, minimum=MIN_INVERSION_SAMPLES, purpose="attitudes to invert three angles"
+    )
     bounds = validation.bounds(bound_deg)
     start = validation.angles(start_deg, what="start angles")
     if (np.abs(start) > bounds).any():
-        raise InputError(f"the start {validation.fmt_list(start)} deg lies outside the bounds "
-                         f"+-{validation.fmt_list(bounds)} deg")
+        raise InputError(
+            f"the start {validation.fmt_list(start)} deg lies outside the bounds "
+            f"+-{validation.fmt_list(bounds)} deg"
+        )
     reference = None if field_nT is None else validation.field(field_nT, what="reference field")
     magnitude = np.linalg.norm(samples, axis=1)
     nominal = float(np.mean(magnitude))
@@ -153,34 +169,54 @@ def invert(samples, *, field_nT=None, bound_deg=DEFAULT_BOUND_DEG, start_deg=(0.
     outcome = solve(inversion_solver(kind, bool(verbose)), x0=start, p=p, lbx=-bounds, ubx=bounds)
     where = f"{source}: " if source else ""
     if not outcome.success:
-        raise SolveError(f"{where}IPOPT did not converge on the angles", status=outcome.status,
-                         result=outcome)
+        raise SolveError(
+            f"{where}IPOPT did not converge on the angles", status=outcome.status, result=outcome
+        )
     angles = np.clip(outcome.x, -bounds, bounds)
     theta = np.concatenate([np.zeros(6), np.radians(angles)])
     after = field_statistics(samples, theta, reference)
-    active = [bool(bounds[i] - abs(angles[i]) <= BOUND_ACTIVE_REL_TOL * bounds[i])
-              for i in range(3)]
-    warnings = [f"{where}{name} = {value:+.6g} deg lies on its bound +-{bound:g} deg: the true "
-                f"angle may lie outside the bounds; widen the bound and invert again"
-                for name, is_active, value, bound in zip(ANGLE_NAMES, active, angles, bounds)
-                if is_active]
+    active = [
+        bool(bounds[i] - abs(angles[i]) <= BOUND_ACTIVE_REL_TOL * bounds[i]) for i in range(3)
+    ]
+    warnings = [
+        f"{where}{name} = {value:+.6g} deg lies on its bound +-{bound:g} deg: the true "
+        f"angle may lie outside the bounds; widen the bound and invert again"
+        for name, is_active, value, bound in zip(ANGLE_NAMES, active, angles, bounds)
+        if is_active
+    ]
     uncertainty = _uncertainty(moments, angles, after, spread=reference is None)
     weak = [ANGLE_NAMES[i] for i in uncertainty.weak]
     if weak:
-        warnings.append(f"{where}the attitudes do not determine {', '.join(weak)}; rotate the "
-                        f"probe through directions spread over the whole sphere")
+        warnings.append(
+            f"{where}the attitudes do not determine {', '.join(weak)}; rotate the "
+            f"probe through directions spread over the whole sphere"
+        )
     result = Inversion(
-        angles_deg=angles, angles_std_deg=uncertainty.standard_errors,
-        variant="spread" if reference is None else "reference", field_nT=reference,
-        n_samples=n, objective_nT2=after["objective"],
-        rms_before_nT=math.sqrt(before["objective"]), rms_after_nT=math.sqrt(after["objective"]),
-        corrected_mean_nT=after["mean"], bound_deg=bounds, bound_active=active,
-        status=outcome.status, success=outcome.success, iterations=outcome.iterations,
-        warnings=warnings, source=source, not_identifiable=weak)
+        angles_deg=angles,
+        angles_std_deg=uncertainty.standard_errors,
+        variant="spread" if reference is None else "reference",
+        field_nT=reference,
+        n_samples=n,
+        objective_nT2=after["objective"],
+        rms_before_nT=math.sqrt(before["objective"]),
+        rms_after_nT=math.sqrt(after["objective"]),
+        corrected_mean_nT=after["mean"],
+        bound_deg=bounds,
+        bound_active=active,
+        status=outcome.status,
+        success=outcome.success,
+        iterations=outcome.iterations,
+        warnings=warnings,
+        source=source,
+        not_identifiable=weak,
+    )
     if weak and require_identifiable:
-        raise QualityError(f"{where}the attitudes do not determine {', '.join(weak)}; rotate the "
-                           f"probe through directions spread over the whole sphere",
-                           "Not_Identifiable", result=result)
+        raise QualityError(
+            f"{where}the attitudes do not determine {', '.join(weak)}; rotate the "
+            f"probe through directions spread over the whole sphere",
+            "Not_Identifiable",
+            result=result,
+        )
     return result
 
 
@@ -190,12 +226,16 @@ def _uncertainty(moments, angles_deg, after: dict, spread: bool) -> inference.Un
     mean is a fourth, implicit parameter; 3 otherwise) and widened for autocorrelation."""
     n = moments.n
     dof = n - (4 if spread else 3)
-    hessian = np.asarray(inversion_objective(moments.reference)(angles_deg,
-                                                                 moment_parameters(moments))[1],
-                         dtype=float)
-    return inference.estimate(inference.information_from_hessian(hessian, n),
-                              residual_variance=n * after["objective"] / max(dof, 1),
-                              autocorrelation=after["residual_lag1_autocorrelation"], dof=dof)
+    hessian = np.asarray(
+        inversion_objective(moments.reference)(angles_deg, moment_parameters(moments))[1],
+        dtype=float,
+    )
+    return inference.estimate(
+        inference.information_from_hessian(hessian, n),
+        residual_variance=n * after["objective"] / max(dof, 1),
+        autocorrelation=after["residual_lag1_autocorrelation"],
+        dof=dof,
+    )
 
 
 @dataclass
@@ -241,13 +281,16 @@ class Repeatability(Document):
     def from_body(cls, reader: DocumentReader) -> Repeatability:
         runs = [Inversion.from_dict(run, reader.source) for run in reader.items("runs")]
         count = len(runs)
-        return cls(runs=runs, mean_angles_deg=reader.array("mean_angles_deg", (3,)),
-                   deviations_deg=reader.array("deviations_deg", (count, 3)),
-                   max_deviation_deg=reader.array("max_deviation_deg", (3,)),
-                   max_abs_deviation_deg=reader.number("max_abs_deviation_deg", minimum=0.0),
-                   field_nT=reader.number("field_nT", positive=True),
-                   field_source=reader.string("field_source"),
-                   implied_worst_case_nT=reader.number("implied_worst_case_nT", minimum=0.0))
+        return cls(
+            runs=runs,
+            mean_angles_deg=reader.array("mean_angles_deg", (3,)),
+            deviations_deg=reader.array("deviations_deg", (count, 3)),
+            max_deviation_deg=reader.array("max_deviation_deg", (3,)),
+            max_abs_deviation_deg=reader.number("max_abs_deviation_deg", minimum=0.0),
+            field_nT=reader.number("field_nT", positive=True),
+            field_source=reader.string("field_source"),
+            implied_worst_case_nT=reader.number("implied_worst_case_nT", minimum=0.0),
+        )
 
 
 def repeatability(runs, field_nT=None) -> Repeatability:
@@ -271,6 +314,12 @@ def repeatability(runs, field_nT=None) -> Repeatability:
         b, source = validation.field(field_nT), "reference"
     largest = float(max_deviation.max())
     return Repeatability(
-        runs=runs, mean_angles_deg=mean, deviations_deg=deviations,
-        max_deviation_deg=max_deviation, max_abs_deviation_deg=largest, field_nT=b,
-        field_source=source, implied_worst_case_nT=implied_worst_case(largest, b))
+        runs=runs,
+        mean_angles_deg=mean,
+        deviations_deg=deviations,
+        max_deviation_deg=max_deviation,
+        max_abs_deviation_deg=largest,
+        field_nT=b,
+        field_source=source,
+        implied_worst_case_nT=implied_worst_case(largest, b),
+    )

@@ -27,8 +27,9 @@ from ..results import Document, DocumentReader
 
 # Deterministic multistart directions for the worst case (theta, phi) [deg]: four azimuths at three
 # latitudes, away from the poles where the (theta, phi) chart is singular.
-_FIXED_STARTS_DEG = tuple((theta, phi) for phi in (-45.0, 0.0, 45.0)
-                          for theta in (45.0, 135.0, 225.0, 315.0))
+_FIXED_STARTS_DEG = tuple(
+    (theta, phi) for phi in (-45.0, 0.0, 45.0) for theta in (45.0, 135.0, 225.0, 315.0)
+)
 
 
 @dataclass(frozen=True)
@@ -42,9 +43,13 @@ class Extremum:
     iterations: int  #: IPOPT iterations of the best start.
 
     def to_dict(self) -> dict:
-        return {"delta_B_nT": self.delta_B_nT, "theta_deg": self.theta_deg,
-                "phi_deg": self.phi_deg, "ipopt_status": self.status,
-                "iterations": self.iterations}
+        return {
+            "delta_B_nT": self.delta_B_nT,
+            "theta_deg": self.theta_deg,
+            "phi_deg": self.phi_deg,
+            "ipopt_status": self.status,
+            "iterations": self.iterations,
+        }
 
 
 @dataclass(frozen=True)
@@ -100,19 +105,25 @@ class WorstCase(Document):
     def from_body(cls, reader: DocumentReader) -> WorstCase:
         def extremum(key):
             part = reader.reader(key)
-            return Extremum(part.number("delta_B_nT"), part.number("theta_deg"),
-                            part.number("phi_deg"), part.string("ipopt_status", ""),
-                            part.integer("iterations", 0))
+            return Extremum(
+                part.number("delta_B_nT"),
+                part.number("theta_deg"),
+                part.number("phi_deg"),
+                part.string("ipopt_status", ""),
+                part.integer("iterations", 0),
+            )
 
         analytic = reader.reader("analytic")
-        return cls(angles_deg=tuple(reader.array("angles_deg", (3,))),
-                   field_nT=reader.number("field_nT", positive=True),
-                   largest_positive=extremum("largest_positive"),
-                   most_negative=extremum("most_negative"),
-                   exact_min_nT=analytic.number("exact_min_nT"),
-                   exact_max_nT=analytic.number("exact_max_nT"),
-                   small_angle_nT=analytic.number("small_angle_max_abs_nT"),
-                   starts=reader.integer("starts_per_sign", 0))
+        return cls(
+            angles_deg=tuple(reader.array("angles_deg", (3,))),
+            field_nT=reader.number("field_nT", positive=True),
+            largest_positive=extremum("largest_positive"),
+            most_negative=extremum("most_negative"),
+            exact_min_nT=analytic.number("exact_min_nT"),
+            exact_max_nT=analytic.number("exact_max_nT"),
+            small_angle_nT=analytic.number("small_angle_max_abs_nT"),
+            starts=reader.integer("starts_per_sign", 0),
+        )
 
 
 def _start_directions(vector) -> list:
@@ -150,27 +161,37 @@ def worst_case(angles_deg, field_nT, *, verbose: bool = False) -> WorstCase:
         kappa = 1.0
     solver = worst_case_solver(bool(verbose))
     extremes = {}
-    for sign, exact, vector in ((1.0, sigma_max - 1.0, eigenvectors[:, -1]),
-                                (-1.0, sigma_min - 1.0, eigenvectors[:, 0])):
+    for sign, exact, vector in (
+        (1.0, sigma_max - 1.0, eigenvectors[:, -1]),
+        (-1.0, sigma_min - 1.0, eigenvectors[:, 0]),
+    ):
         starts = _start_directions(vector)
         best: SolveOutcome | None = None
         statuses = set()
         for theta0, phi0 in starts:
-            outcome = solve(solver, x0=[theta0, phi0],
-                            p=[*np.radians(angles), sign, kappa],
-                            lbx=[-np.inf, -math.pi / 2], ubx=[np.inf, math.pi / 2])
+            outcome = solve(
+                solver,
+                x0=[theta0, phi0],
+                p=[*np.radians(angles), sign, kappa],
+                lbx=[-np.inf, -math.pi / 2],
+                ubx=[np.inf, math.pi / 2],
+            )
             statuses.add(outcome.status)
             if outcome.success and (best is None or outcome.f < best.f):
                 best = outcome
         what = "largest positive" if sign > 0 else "most negative"
         if best is None:
-            raise SolveError(f"no IPOPT start converged for the {what} total-field error",
-                             status=", ".join(sorted(statuses)))
+            raise SolveError(
+                f"no IPOPT start converged for the {what} total-field error",
+                status=", ".join(sorted(statuses)),
+            )
         relative = -sign * best.f * kappa  # back to dB / B
         if abs(relative - exact) > 1e-9 * kappa + 1e-13:
             raise SolveError(
                 f"the {what} total-field error found by IPOPT ({b * relative:.6g} nT) misses the "
-                f"analytic value ({b * exact:.6g} nT)", status=best.status)
+                f"analytic value ({b * exact:.6g} nT)",
+                status=best.status,
+            )
         theta_deg = math.degrees(best.x[0]) % 360.0
         phi_deg = float(np.clip(math.degrees(best.x[1]), -90.0, 90.0))
         if phi_deg < 0.0:  # dB is even in B: of the two antipodes, report the one with phi >= 0
@@ -179,10 +200,15 @@ def worst_case(angles_deg, field_nT, *, verbose: bool = False) -> WorstCase:
             theta_deg = 0.0
         extremes[sign] = Extremum(b * relative, theta_deg, phi_deg, best.status, best.iterations)
     return WorstCase(
-        angles_deg=tuple(float(a) for a in angles), field_nT=b,
-        largest_positive=extremes[1.0], most_negative=extremes[-1.0],
-        exact_min_nT=b * (sigma_min - 1.0), exact_max_nT=b * (sigma_max - 1.0),
-        small_angle_nT=small_angle_worst_case(angles, b), starts=len(starts))
+        angles_deg=tuple(float(a) for a in angles),
+        field_nT=b,
+        largest_positive=extremes[1.0],
+        most_negative=extremes[-1.0],
+        exact_min_nT=b * (sigma_min - 1.0),
+        exact_max_nT=b * (sigma_max - 1.0),
+        small_angle_nT=small_angle_worst_case(angles, b),
+        starts=len(starts),
+    )
 
 
 def implied_worst_case(deviation_deg, field_nT) -> float:

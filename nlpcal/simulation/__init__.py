@@ -44,9 +44,15 @@ __all__ = [
 
 #: Final parameters and mean field of the laboratory application in [1] (section 6, Table 1).
 ZHOU2010_PARAMETERS = Zhou2010Parameters(
-    z_x=-71.55, z_y=188.13, z_z=116.29,
-    s_x=0.0072, s_y=-0.0024, s_z=-0.0049,
-    alpha_deg=-2.34, beta_deg=1.29, gamma_deg=-0.27,
+    z_x=-71.55,
+    z_y=188.13,
+    z_z=116.29,
+    s_x=0.0072,
+    s_y=-0.0024,
+    s_z=-0.0049,
+    alpha_deg=-2.34,
+    beta_deg=1.29,
+    gamma_deg=-0.27,
 )
 ZHOU2010_FIELD_NT = 49462.0
 
@@ -59,8 +65,11 @@ class Preset:
 
 
 PRESETS = {
-    "zhou2010": Preset(ZHOU2010_PARAMETERS, ZHOU2010_FIELD_NT,
-                       "final parameters and field (49 462 nT) of Zhou et al. 2010, Table 1"),
+    "zhou2010": Preset(
+        ZHOU2010_PARAMETERS,
+        ZHOU2010_FIELD_NT,
+        "final parameters and field (49 462 nT) of Zhou et al. 2010, Table 1",
+    ),
 }
 
 #: Presets that write a folder of logs rather than one log: name -> writer, called as
@@ -71,9 +80,16 @@ DIRECTORY_PRESETS = {
 }
 
 
-def simulate(n: int = 2000, *, parameters: Zhou2010Parameters = ZHOU2010_PARAMETERS,
-             field: float = ZHOU2010_FIELD_NT, noise: float = 1.0, seed: int = 0,
-             attitudes: str = "uniform", inclination_deg: float = 60.0) -> pd.DataFrame:
+def simulate(
+    n: int = 2000,
+    *,
+    parameters: Zhou2010Parameters = ZHOU2010_PARAMETERS,
+    field: float = ZHOU2010_FIELD_NT,
+    noise: float = 1.0,
+    seed: int = 0,
+    attitudes: str = "uniform",
+    inclination_deg: float = 60.0,
+) -> pd.DataFrame:
     """A log of n samples with columns bx, by, bz. [nT]
 
     parameters : the truth of Eq. 4 in [1].
@@ -108,8 +124,13 @@ def parameters_from_json(document, source: str = "the parameters JSON"):
     """
     reader = DocumentReader(document, source)
     if not reader.has("parameters"):
-        reader = DocumentReader({"parameters": document, **{
-            k: v for k, v in document.items() if k in ("field_nT", "field")}}, source)
+        reader = DocumentReader(
+            {
+                "parameters": document,
+                **{k: v for k, v in document.items() if k in ("field_nT", "field")},
+            },
+            source,
+        )
     params = read_parameters(reader)
     key = "field_nT" if reader.has("field_nT") else "field"
     return params, reader.number(key, None, positive=True)

@@ -13,11 +13,14 @@ def random_rotations(n: int, rng: np.random.Generator) -> np.ndarray:
     q = rng.normal(size=(n, 4))
     q /= np.linalg.norm(q, axis=1, keepdims=True)
     w, x, y, z = q.T
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
-    ], axis=1)
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
+        ],
+        axis=1,
+    )
 
 
 def uniform_attitudes(n: int, rng: np.random.Generator) -> np.ndarray:
@@ -37,8 +40,10 @@ def _axis_rotations(axes, angles) -> np.ndarray:
     unit = np.divide(axes, length, out=np.zeros_like(axes), where=length > 0)
     x, y, z = unit.T
     zero = np.zeros_like(x)
-    k = np.stack([np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1),
-                  np.stack([-y, x, zero], -1)], axis=1)
+    k = np.stack(
+        [np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)],
+        axis=1,
+    )
     c, s = np.cos(angles)[:, None, None], np.sin(angles)[:, None, None]
     return np.eye(3) + s * k + (1.0 - c) * (k @ k)
 
@@ -54,8 +59,9 @@ TURNTABLE_MOUNTINGS = (
 )
 
 
-def turntable_attitudes(n: int, rng: np.random.Generator, *, mountings=TURNTABLE_MOUNTINGS,
-                        wobble_deg: float = 0.2) -> np.ndarray:
+def turntable_attitudes(
+    n: int, rng: np.random.Generator, *, mountings=TURNTABLE_MOUNTINGS, wobble_deg: float = 0.2
+) -> np.ndarray:
     """Full turns about the vertical of a turntable, with the sensor in a few fixed mountings.
 
     Like the laboratory data of [1]: the log is one turn per mounting, one after the other (about
@@ -77,8 +83,9 @@ def turntable_attitudes(n: int, rng: np.random.Generator, *, mountings=TURNTABLE
     return mount @ wobble @ heading
 
 
-def tilt_band_attitudes(n: int, rng: np.random.Generator, *,
-                        max_tilt_deg: float = 30.0) -> np.ndarray:
+def tilt_band_attitudes(
+    n: int, rng: np.random.Generator, *, max_tilt_deg: float = 30.0
+) -> np.ndarray:
     """Any heading, but roll and pitch limited to +-max_tilt_deg (a vehicle, a hand-held swing).
 
     Heading uniform in [0, 360) deg about the vertical; roll and pitch uniform in
@@ -95,8 +102,9 @@ def tilt_band_attitudes(n: int, rng: np.random.Generator, *,
     return roll @ pitch @ heading
 
 
-def clustered_attitudes(n: int, rng: np.random.Generator, *, clusters: int = 6,
-                        spread_deg: float = 12.0) -> np.ndarray:
+def clustered_attitudes(
+    n: int, rng: np.random.Generator, *, clusters: int = 6, spread_deg: float = 12.0
+) -> np.ndarray:
     """A few clusters of attitudes: the sensor set down in `clusters` random orientations and
     jiggled around each by a rotation of about `spread_deg` (uneven, patchy coverage). The log
     visits the clusters one after the other; their sizes are random.

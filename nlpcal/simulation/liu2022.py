@@ -24,9 +24,15 @@ from .attitudes import random_rotations
 #: was an image and is lost; these are chosen so that the replica's raw RMSE is close to the
 #: paper's (about 890 nT on the drift log, about 1100 nT on the field log; paper 891.43, 1064.70).
 REPLICA_PARAMETERS = Zhou2010Parameters(
-    z_x=-236.0, z_y=128.0, z_z=72.0,
-    s_x=0.0212, s_y=0.0179, s_z=0.0226,
-    alpha_deg=0.42, beta_deg=-0.31, gamma_deg=0.18,
+    z_x=-236.0,
+    z_y=128.0,
+    z_z=72.0,
+    s_x=0.0212,
+    s_y=0.0179,
+    s_z=0.0226,
+    alpha_deg=0.42,
+    beta_deg=-0.31,
+    gamma_deg=0.18,
 )
 #: Inclination of the replica's field. [deg]
 REPLICA_INCLINATION_DEG = 60.0
@@ -44,10 +50,13 @@ REPLICA_FIELD_ATTITUDES = 80
 REPLICA_SWEEP_RANGE_DEGC = (4.0, 14.0)
 
 
-def replica_field(params: Zhou2010Parameters = REPLICA_PARAMETERS,
-                  a: float = liu2022.PAPER_A_NT_PER_DEGC, b: float = liu2022.PAPER_B_NT,
-                  t0: float = liu2022.PAPER_BASE_TEMPERATURE_DEGC,
-                  inclination_deg: float = REPLICA_INCLINATION_DEG):
+def replica_field(
+    params: Zhou2010Parameters = REPLICA_PARAMETERS,
+    a: float = liu2022.PAPER_A_NT_PER_DEGC,
+    b: float = liu2022.PAPER_B_NT,
+    t0: float = liu2022.PAPER_BASE_TEMPERATURE_DEGC,
+    inclination_deg: float = REPLICA_INCLINATION_DEG,
+):
     """The field F0 [nT] and static direction (ideal sensor frame) that make Eq. 1 exact.
 
     The static sensor of the drift log is level with x north, so it sees the field along
@@ -73,8 +82,9 @@ def _smooth_noise(n: int, rng: np.random.Generator, width: int, peak: float) -> 
     return peak * series / (np.max(np.abs(series)) or 1.0)
 
 
-def write_replica(out_dir, *, seed: int = 0, noise: float | None = None,
-                          n: int | None = None) -> list:
+def write_replica(
+    out_dir, *, seed: int = 0, noise: float | None = None, n: int | None = None
+) -> list:
     """Write a replica of the experiment of [1] to `out_dir`; returns the paths written.
 
     Files (columns time_s, bx, by, bz [nT], temp_c [degC], proton_nT [nT]):
@@ -113,9 +123,16 @@ def write_replica(out_dir, *, seed: int = 0, noise: float | None = None,
         raw = liu2022.forward(field, temperature, params, model)  # Eq. 2
         raw = raw + noise * rng.normal(size=raw.shape)
         proton = proton_true + REPLICA_PROTON_NOISE_NT * rng.normal(size=count)
-        return pd.DataFrame({"time_s": np.arange(count) * period_s, "bx": raw[:, 0],
-                             "by": raw[:, 1], "bz": raw[:, 2], "temp_c": np.round(temperature, 3),
-                             "proton_nT": proton})
+        return pd.DataFrame(
+            {
+                "time_s": np.arange(count) * period_s,
+                "bx": raw[:, 0],
+                "by": raw[:, 1],
+                "bz": raw[:, 2],
+                "temp_c": np.round(temperature, 3),
+                "proton_nT": proton,
+            }
+        )
 
     # base calibration log at t0
     rot = random_rotations(attitudes, rng)
@@ -136,8 +153,11 @@ def write_replica(out_dir, *, seed: int = 0, noise: float | None = None,
     which = np.sort(np.arange(count) * REPLICA_FIELD_ATTITUDES // count)
     rot = random_rotations(REPLICA_FIELD_ATTITUDES, rng)[which]
     t_field = liu2022.PAPER_FIELD_TEMPERATURE_DEGC + 0.02 * rng.normal(size=count)
-    f_field = f0 + 40.0 * np.sin(np.linspace(0.0, 2.5 * np.pi, count)) + \
-        _smooth_noise(count, rng, 5, 10.0)
+    f_field = (
+        f0
+        + 40.0 * np.sin(np.linspace(0.0, 2.5 * np.pi, count))
+        + _smooth_noise(count, rng, 5, 10.0)
+    )
     field_log = log(rot @ world, t_field, f_field, 2.0)
 
     # temperature sweep with many attitudes (beyond the paper)
@@ -147,14 +167,18 @@ def write_replica(out_dir, *, seed: int = 0, noise: float | None = None,
     sweep = log(rot @ world, t_sweep, f_sweep, 2.0)
 
     written = []
-    for name, frame in (("base.csv", base), ("drift.csv", drift), ("field.csv", field_log),
-                        ("sweep.csv", sweep)):
+    for name, frame in (
+        ("base.csv", base),
+        ("drift.csv", drift),
+        ("field.csv", field_log),
+        ("sweep.csv", sweep),
+    ):
         path = out_dir / name
         write_csv_atomic(path, frame)
         written.append(path)
     truth = {
         "description": "replica of Liu et al. (2022): nine parameters at t0 (Eq. 4 of Zhou et al."
-                       " 2010) and the temperature factor k(t) of Eq. 9",
+        " 2010) and the temperature factor k(t) of Eq. 9",
         "parameters": params.to_dict(),
         "a_nT_per_degC": a,
         "b_nT": b,
@@ -165,12 +189,14 @@ def write_replica(out_dir, *, seed: int = 0, noise: float | None = None,
         "noise_nT": noise,
         "proton_noise_nT": REPLICA_PROTON_NOISE_NT,
         "seed": seed,
-        "files": {"base.csv": f"calibration log, {attitudes} attitudes at {t0} degC",
-                  "drift.csv": "static sensor, temperature 6.8 -> 5.1 degC, 1800 points at 0.5 Hz",
-                  "field.csv": "200 points over 80 attitudes at 12.8 degC",
-                  "sweep.csv": f"{attitudes} attitudes, temperature "
-                               f"{REPLICA_SWEEP_RANGE_DEGC[0]} -> {REPLICA_SWEEP_RANGE_DEGC[1]} "
-                               f"degC"},
+        "files": {
+            "base.csv": f"calibration log, {attitudes} attitudes at {t0} degC",
+            "drift.csv": "static sensor, temperature 6.8 -> 5.1 degC, 1800 points at 0.5 Hz",
+            "field.csv": "200 points over 80 attitudes at 12.8 degC",
+            "sweep.csv": f"{attitudes} attitudes, temperature "
+            f"{REPLICA_SWEEP_RANGE_DEGC[0]} -> {REPLICA_SWEEP_RANGE_DEGC[1]} "
+            f"degC",
+        },
     }
     path = out_dir / "truth.json"
     write_json_atomic(path, truth)

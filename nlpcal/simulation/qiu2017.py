@@ -50,28 +50,40 @@ def replica(*, seed: int = 0, noise: float | None = None, n: int | None = None) 
         raise InputError(f"n must be a positive number of test attitudes, got {n}")
     field_total, dip_deg = 54000.0, 58.5
     truth = {
-        "magnetometer": {"mounting_deg": rng.uniform(-1.5, 1.5, 6), "sensitivity":
-                         rng.uniform(-0.03, 0.03, 3), "bias": rng.uniform(-2000, 2000, 3)},
-        "accelerometer": {"mounting_deg": rng.uniform(-1.5, 1.5, 6), "sensitivity":
-                          rng.uniform(-0.03, 0.03, 3), "bias": rng.uniform(-0.03, 0.03, 3)},
+        "magnetometer": {
+            "mounting_deg": rng.uniform(-1.5, 1.5, 6),
+            "sensitivity": rng.uniform(-0.03, 0.03, 3),
+            "bias": rng.uniform(-2000, 2000, 3),
+        },
+        "accelerometer": {
+            "mounting_deg": rng.uniform(-1.5, 1.5, 6),
+            "sensitivity": rng.uniform(-0.03, 0.03, 3),
+            "bias": rng.uniform(-0.03, 0.03, 3),
+        },
     }
     B = model.field_ned(field_total, np.radians(dip_deg))
 
     def readings(C, noise_rng):
         f_body, b_body = model.body_vectors(C, B)
         out = {}
-        for name, v, sd in (("magnetometer", b_body, mag_noise),
-                            ("accelerometer", f_body, acc_noise)):
+        for name, v, sd in (
+            ("magnetometer", b_body, mag_noise),
+            ("accelerometer", f_body, acc_noise),
+        ):
             t = truth[name]
-            out[name] = model.sensor_reading(v, np.radians(t["mounting_deg"]), t["sensitivity"],
-                                             t["bias"]) + noise_rng.normal(0, sd, v.shape)
+            out[name] = model.sensor_reading(
+                v, np.radians(t["mounting_deg"]), t["sensitivity"], t["bias"]
+            ) + noise_rng.normal(0, sd, v.shape)
         return out
 
     steps = np.radians(np.arange(0, 360, 30))
     C0 = model.attitude_matrix(0.0, 0.0, np.radians(30.0))
-    turn_C = {"x": model.rotation_x(steps) @ C0, "y": model.rotation_y(steps) @ C0,
-              "z": model.rotation_z(steps) @ C0,
-              "z2": model.rotation_z(steps) @ model.rotation_x(np.pi / 2) @ C0}
+    turn_C = {
+        "x": model.rotation_x(steps) @ C0,
+        "y": model.rotation_y(steps) @ C0,
+        "z": model.rotation_z(steps) @ C0,
+        "z2": model.rotation_z(steps) @ model.rotation_x(np.pi / 2) @ C0,
+    }
     C_turns = np.concatenate(list(turn_C.values()))
     labels = np.repeat(list(turn_C), len(steps))
     roll = rng.uniform(-180, 180, n)
@@ -93,26 +105,33 @@ def replica(*, seed: int = 0, noise: float | None = None, n: int | None = None) 
     turns = frame(r_turn, C_turns, {"turn": labels, "step_deg": np.tile(np.degrees(steps), 4)})
     test = frame(r_test, C_test, {})
     doc = {
-        "preset": "qiu2017", "seed": int(seed),
+        "preset": "qiu2017",
+        "seed": int(seed),
         "field": {"total_nT": field_total, "dip_deg": dip_deg},
         "noise": {"magnetometer_nT": mag_noise, "accelerometer_g": acc_noise},
-        "conventions":
-        "NED world, housing x forward y right z down, C = R_x(roll) R_y(pitch) R_z(heading); "
+        "conventions": "NED world, housing x forward y right z down, "
+        "C = R_x(roll) R_y(pitch) R_z(heading); "
         "reading = diag(1 + s) E v_body + bias, E from the six angles (Eq. 3)",
-        "files": {"turns.csv": "the four turns, 12 samples each, turn label in column 'turn'",
-                  "test.csv": f"{n} random attitudes, |pitch| <= 85 deg, true_* columns"},
-        "truth": {name: {"mounting_deg": dict(zip(model.ANGLE_NAMES,
-                                                  map(float, t["mounting_deg"]))),
-                         "sensitivity": [float(v) for v in t["sensitivity"]],
-                         "bias": [float(v) for v in t["bias"]],
-                         "unit": "nT" if name == "magnetometer" else "g"}
-                  for name, t in truth.items()},
+        "files": {
+            "turns.csv": "the four turns, 12 samples each, turn label in column 'turn'",
+            "test.csv": f"{n} random attitudes, |pitch| <= 85 deg, true_* columns",
+        },
+        "truth": {
+            name: {
+                "mounting_deg": dict(zip(model.ANGLE_NAMES, map(float, t["mounting_deg"]))),
+                "sensitivity": [float(v) for v in t["sensitivity"]],
+                "bias": [float(v) for v in t["bias"]],
+                "unit": "nT" if name == "magnetometer" else "g",
+            }
+            for name, t in truth.items()
+        },
     }
     return {"turns": turns, "test": test, "truth": doc}
 
 
-def write_replica(out_dir, *, seed: int = 0, noise: float | None = None,
-                          n: int | None = None) -> list:
+def write_replica(
+    out_dir, *, seed: int = 0, noise: float | None = None, n: int | None = None
+) -> list:
     """Write turns.csv, test.csv and truth.json of `replica` into out_dir (atomically).
 
     Returns the paths written. Suggested use:
