@@ -1,6 +1,7 @@
 """Regenerate the figures and tables of docs/comparison.md (issue 3) with one command:
 
-    python docs/comparison.py
+    python docs/comparison.py            # rewrite the figures and the generated blocks
+    python docs/comparison.py --check    # compare the tables (wall times aside); exit 1 on drift
 
 For each attitude set of `nlpcal.simulation.ATTITUDES`, a log of the `zhou2010` preset (the final
 parameters and field of Zhou et al. 2010) is simulated with a fixed seed and compared by
@@ -13,6 +14,7 @@ Needs matplotlib (pip install 'nlpcal[plot]').
 
 from __future__ import annotations
 
+import argparse
 import sys
 import time
 from dataclasses import replace
@@ -166,7 +168,35 @@ def paper_table() -> str:
     return "\n".join(lines)
 
 
-def main() -> int:
+#: Column of the per-method tables that holds wall times, which no two runs share.
+WALL_COLUMN = HEADER.split("\n")[0].split(" | ").index("wall [s]")
+
+
+def without_wall_times(page: str) -> str:
+    """The page with the wall-time cells of the per-method tables blanked, for --check."""
+    lines, inside = [], False
+    for line in page.split("\n"):
+        if line.startswith("<!-- BEGIN generated:table-"):
+            inside = True
+        elif line.startswith("<!-- END generated:table-"):
+            inside = False
+        elif inside and line.startswith("| ") and not line.startswith("| row "):
+            cells = line.split(" | ")
+            cells[WALL_COLUMN] = "-"
+            line = " | ".join(cells)
+        lines.append(line)
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "--check",
+        action="store_true",
+        help="compare the page's tables (all but wall times) without writing anything; exit 1 "
+        "when they are out of date",
+    )
+    args = parser.parse_args(argv)
     FIGURES.mkdir(exist_ok=True)
     preset = PRESETS["zhou2010"]
     results, blocks = {}, {}
@@ -188,7 +218,8 @@ def main() -> int:
         )
         if len(png) > MAX_PNG_BYTES:
             raise SystemExit(f"compare_{name}.png is {len(png)} bytes, above {MAX_PNG_BYTES}")
-        (FIGURES / f"compare_{name}.png").write_bytes(png)
+        if not args.check:
+            (FIGURES / f"compare_{name}.png").write_bytes(png)
         blocks[f"table-{name}"] = table_for(result)
         print(
             f"{name}: {time.perf_counter() - started:.1f} s, {len(png) // 1024} kB", file=sys.stderr
@@ -198,9 +229,16 @@ def main() -> int:
     blocks["summary"] = summary_table(results)
     blocks["coupling"] = coupling_table(results)
     blocks["paper-table1"] = paper_table()
-    text = PAGE.read_text()
+    page = PAGE.read_text()
+    text = page
     for name, body in blocks.items():
         text = replace_block(text, name, body, str(PAGE))
+    if args.check:
+        if without_wall_times(text) != without_wall_times(page):
+            print(f"{PAGE.name} is out of date; run python docs/comparison.py", file=sys.stderr)
+            return 1
+        print(f"{PAGE.name} is up to date (wall times aside)", file=sys.stderr)
+        return 0
     update_page(PAGE, text, check=False, script="docs/comparison.py")
     print(f"wrote {len(results)} figures in {FIGURES}", file=sys.stderr)
     return 0

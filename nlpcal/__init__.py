@@ -36,7 +36,7 @@ _EXPORTS = {
     "repeatability": "orthogonality",
     "Repeatability": "orthogonality",
     "error_map": "orthogonality",
-    "implied_worst_case": "orthogonality",
+    "implied_worst_case": "orthogonality", "synthetic_rotation": "orthogonality",
     "fit_drift": "drift",
     "DriftFit": "drift",
     "calibrate_temperature": "drift",
@@ -60,16 +60,25 @@ _EXPORTS = {
 }
 
 
+#: Subpackages and modules reachable as attributes (nlpcal.orthogonality, ...).
+_SUBMODULES = ("calibration", "comparison", "compass", "correction", "drift", "inference",
+               "io", "models", "nlp", "orthogonality", "plots", "results", "simulation",
+               "statistics", "units", "validation")
+
+
 def __getattr__(name: str):
     if name in _EXPORTS:
         value = getattr(importlib.import_module(f".{_EXPORTS[name]}", __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module 'nlpcal' has no attribute {name!r}")
+    elif name in _SUBMODULES:
+        value = importlib.import_module(f".{name}", __name__)
+    else:
+        raise AttributeError(f"module 'nlpcal' has no attribute {name!r}")
+    globals()[name] = value
+    return value
 
 
 def __dir__():
-    return sorted(list(globals()) + list(_EXPORTS))
+    return sorted([*globals(), *_EXPORTS, *_SUBMODULES])
 
 
 __all__ = ["__version__", *_EXPORTS]

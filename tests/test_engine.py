@@ -1,0 +1,142 @@
+"""The shape of the package: one build-once idiom, arrows that run one way, units in the library,
+and every feature's verbs importable from `nlpcal`."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import nlpcal
+from nlpcal.nlp.solver import PROBLEMS, builds
+from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log
+
+PACKAGE = Path(nlpcal.__file__).resolve().parent
+
+#: Layers from the bottom up; a module may import its own layer and the ones below.
+LAYERS = {
+    "models": 0,
+    "errors": 1, "version": 1, "units": 1, "validation": 1, "inference": 1, "results": 1,
+    "io": 1, "statistics": 1, "chunks": 1, "moments": 1, "plots": 1, "nlp": 1,
+    "calibration": 2, "comparison": 2, "compass": 2, "drift": 2, "orthogonality": 2,
+    "simulation": 2, "correction": 2,
+    "cli": 3, "__main__": 3, "__init__": 3,
+}
+
+
+def _modules():
+    for path in sorted(PACKAGE.rglob("*.py")):
+        parts = path.relative_to(PACKAGE).with_suffix("").parts
+        yield path, parts
+
+
+def _imports(path, parts):
+    """(imported nlpcal top-level name, inside a function?) for every import of a module."""
+    tree = ast.parse(path.read_text())
+    package = parts[:-1] if parts[-1] != "__init__" else parts[:-1]
+    inside = set()
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            inside.update(id(n) for n in ast.walk(node) if n is not node)
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = list(package[: len(package) - (node.level - 1)])
+                target = base + (node.module.split(".") if node.module else [])
+                names = [target + [alias.name] for alias in node.names] if not target else [target]
+            elif node.module and node.module.startswith("nlpcal"):
+                names = [node.module.split(".")[1:] or ["__init__"]]
+            else:
+                continue
+            for name in names:
+                yield (name[0] if name else "__init__"), id(node) in inside
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name.startswith("nlpcal."):
+                    yield alias.name.split(".")[1], id(node) in inside
+
+
+def test_imports_run_one_way_cli_features_shared_models():
+    problems = []
+    for path, parts in _modules():
+        layer = LAYERS[parts[0]]
+        for target, in_function in _imports(path, parts):
+            if LAYERS.get(target, 3) > layer:
+                problems.append(f"{'/'.join(parts)} imports {target} (a higher layer)")
+            if in_function and parts[0] != "cli":
+                problems.append(f"{'/'.join(parts)} imports {target} inside a function")
+    assert not problems, "\n".join(problems)
+
+
+def test_every_problem_is_built_once_and_does_not_grow_with_the_log():
+    # Every registered builder gives the same object for the same arguments.
+    for name, (builder, examples) in PROBLEMS.items():
+        for args in examples:
+            assert builder(*args) is builder(*args), name
+    assert {name.split(".")[0] for name in PROBLEMS} == {"zhou2010", "wang2015", "liu2022",
+                                                          "qiu2017"}
+
+    def run_every_feature(n, seed):
+        samples, _ = make_log(n=n, noise=1.0, seed=seed)
+        for method in ("staged", "joint"):
+            nlpcal.calibrate(samples, method=method, cycles=5)
+            nlpcal.calibrate(samples, method=method, cycles=5, reference_field=PAPER_FIELD)
+        probe = nlpcal.orthogonality.synthetic_rotation((0.07, 0.04, 0.1), n=n, seed=seed)
+        nlpcal.invert(probe)
+        nlpcal.invert(probe, field_nT=55_000.0)
+        temperature = np.linspace(0.0, 10.0, n)
+        nlpcal.calibrate_temperature(samples * (1 + 1e-4 * temperature[:, None]), temperature,
+                                     np.full(n, PAPER_FIELD))
+
+    run_every_feature(300, 1)
+    built = builds()
+    run_every_feature(1700, 2)  # other lengths, other data: nothing is built again
+    assert builds() == built
+
+
+def test_the_library_takes_units():
+    samples, _ = make_log(n=1500, noise=1.0, seed=5)
+    in_nT = nlpcal.calibrate(samples, method="joint", reference_field=PAPER_FIELD)
+    in_uT = nlpcal.calibrate(samples / 1000.0, unit="uT", reference_field=PAPER_FIELD / 1000.0,
+                             method="joint")
+    mixed = nlpcal.calibrate(samples / 1000.0, unit="uT", reference_field=PAPER_FIELD,
+                             reference_unit="nT", method="joint")
+    for result in (in_uT, mixed):
+        assert result.unit == "nT"
+        for name, value in in_nT.parameters.items():
+            assert result.parameters[name] == pytest.approx(value, rel=1e-9, abs=1e-9)
+    assert in_uT.parameters["z_x"] == pytest.approx(PAPER_TRUTH["z_x"], abs=0.5)
+    corrected = in_uT.apply(samples / 1000.0, unit="uT")
+    np.testing.assert_allclose(corrected * 1000.0, in_nT.apply(samples), rtol=1e-12)
+    with pytest.raises(nlpcal.InputError, match="raw"):
+        nlpcal.calibrate(samples, unit="raw", reference_field=PAPER_FIELD, reference_unit="nT")
+
+
+def test_every_verb_and_result_type_is_importable_from_nlpcal():
+    for name in nlpcal.__all__:
+        assert getattr(nlpcal, name) is not None, name
+    for verb in ("calibrate", "compare", "worst_case", "invert", "repeatability", "fit_drift",
+                 "calibrate_temperature", "calibrate_turns", "calibrate_free", "attitude",
+                 "evaluate", "simulate", "read_log"):
+        assert callable(getattr(nlpcal, verb)), verb
+    with pytest.raises(AttributeError):
+        nlpcal.not_a_verb  # noqa: B018
+
+
+def test_every_result_type_shares_the_document_base():
+    from nlpcal.results import Document
+
+    kinds = [nlpcal.CalibrationResult, nlpcal.TemperatureCalibrationResult, nlpcal.DriftFit,
+             nlpcal.CompassCalibration, nlpcal.Comparison, nlpcal.WorstCase, nlpcal.Inversion,
+             nlpcal.Repeatability]
+    formats = set()
+    for kind in kinds:
+        assert issubclass(kind, Document)
+        assert kind.FORMAT.startswith("nlpcal-") and kind.FORMAT not in formats
+        formats.add(kind.FORMAT)
+    result = nlpcal.worst_case((0.1, 0.1, 0.1), 55_000.0)
+    again = nlpcal.WorstCase.from_json(result.to_json())
+    assert again.max_abs_error_nT == pytest.approx(result.max_abs_error_nT, rel=1e-15)
+    assert again.to_dict() == result.to_dict()
