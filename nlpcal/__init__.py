@@ -36,7 +36,8 @@ _EXPORTS = {
     "repeatability": "orthogonality",
     "Repeatability": "orthogonality",
     "error_map": "orthogonality",
-    "implied_worst_case": "orthogonality", "synthetic_rotation": "orthogonality",
+    "implied_worst_case": "orthogonality",
+    "synthetic_rotation": "orthogonality",
     "fit_drift": "drift",
     "DriftFit": "drift",
     "calibrate_temperature": "drift",
@@ -61,9 +62,24 @@ _EXPORTS = {
 
 
 #: Subpackages and modules reachable as attributes (nlpcal.orthogonality, ...).
-_SUBMODULES = ("calibration", "comparison", "compass", "correction", "drift", "inference",
-               "io", "models", "nlp", "orthogonality", "plots", "results", "simulation",
-               "statistics", "units", "validation")
+_SUBMODULES = (
+    "calibration",
+    "comparison",
+    "compass",
+    "correction",
+    "drift",
+    "inference",
+    "io",
+    "models",
+    "nlp",
+    "orthogonality",
+    "plots",
+    "results",
+    "simulation",
+    "statistics",
+    "units",
+    "validation",
+)
 
 
 def __getattr__(name: str):

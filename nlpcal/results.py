@@ -17,12 +17,12 @@ Documents written by nlpcal 0.1.0 had no "format" key; `load_any` recognises the
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
 
+from . import validation
 from .errors import InputError
 from .io.files import json_text, read_json, write_json_atomic
 from .version import __version__
@@ -64,16 +64,9 @@ class DocumentReader:
             return default
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise InputError(f"{self._where(key)} must be a number, got {value!r:.40}")
-        value = float(value)
-        if not math.isfinite(value):
-            raise InputError(f"{self._where(key)} must be finite, got {value}")
-        if positive and not value > 0:
-            raise InputError(f"{self._where(key)} must be positive, got {value:g}")
-        if minimum is not None and value < minimum:
-            raise InputError(f"{self._where(key)} must be at least {minimum:g}, got {value:g}")
-        if maximum is not None and value > maximum:
-            raise InputError(f"{self._where(key)} must be at most {maximum:g}, got {value:g}")
-        return value
+        return validation.number(
+            value, self._where(key), positive=positive, minimum=minimum, maximum=maximum
+        )
 
     def integer(self, key, default=_MISSING, *, minimum: int = 0):
         value = self.raw(key, default)

@@ -8,21 +8,38 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log
 
 import nlpcal
 from nlpcal.nlp.solver import PROBLEMS, builds
-from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log
 
 PACKAGE = Path(nlpcal.__file__).resolve().parent
 
 #: Layers from the bottom up; a module may import its own layer and the ones below.
 LAYERS = {
     "models": 0,
-    "errors": 1, "version": 1, "units": 1, "validation": 1, "inference": 1, "results": 1,
-    "io": 1, "statistics": 1, "chunks": 1, "moments": 1, "plots": 1, "nlp": 1,
-    "calibration": 2, "comparison": 2, "compass": 2, "drift": 2, "orthogonality": 2,
-    "simulation": 2, "correction": 2,
-    "cli": 3, "__main__": 3, "__init__": 3,
+    "errors": 1,
+    "version": 1,
+    "units": 1,
+    "validation": 1,
+    "inference": 1,
+    "results": 1,
+    "io": 1,
+    "statistics": 1,
+    "chunks": 1,
+    "moments": 1,
+    "plots": 1,
+    "nlp": 1,
+    "calibration": 2,
+    "comparison": 2,
+    "compass": 2,
+    "drift": 2,
+    "orthogonality": 2,
+    "simulation": 2,
+    "correction": 2,
+    "cli": 3,
+    "__main__": 3,
+    "__init__": 3,
 }
 
 
@@ -35,7 +52,7 @@ def _modules():
 def _imports(path, parts):
     """(imported nlpcal top-level name, inside a function?) for every import of a module."""
     tree = ast.parse(path.read_text())
-    package = parts[:-1] if parts[-1] != "__init__" else parts[:-1]
+    package = parts[:-1]  # the folder of the module (of its __init__ too)
     inside = set()
     for node in ast.walk(tree):
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
@@ -75,8 +92,12 @@ def test_every_problem_is_built_once_and_does_not_grow_with_the_log():
     for name, (builder, examples) in PROBLEMS.items():
         for args in examples:
             assert builder(*args) is builder(*args), name
-    assert {name.split(".")[0] for name in PROBLEMS} == {"zhou2010", "wang2015", "liu2022",
-                                                          "qiu2017"}
+    assert {name.split(".")[0] for name in PROBLEMS} == {
+        "zhou2010",
+        "wang2015",
+        "liu2022",
+        "qiu2017",
+    }
 
     def run_every_feature(n, seed):
         samples, _ = make_log(n=n, noise=1.0, seed=seed)
@@ -87,8 +108,9 @@ def test_every_problem_is_built_once_and_does_not_grow_with_the_log():
         nlpcal.invert(probe)
         nlpcal.invert(probe, field_nT=55_000.0)
         temperature = np.linspace(0.0, 10.0, n)
-        nlpcal.calibrate_temperature(samples * (1 + 1e-4 * temperature[:, None]), temperature,
-                                     np.full(n, PAPER_FIELD))
+        nlpcal.calibrate_temperature(
+            samples * (1 + 1e-4 * temperature[:, None]), temperature, np.full(n, PAPER_FIELD)
+        )
 
     run_every_feature(300, 1)
     built = builds()
@@ -99,10 +121,16 @@ def test_every_problem_is_built_once_and_does_not_grow_with_the_log():
 def test_the_library_takes_units():
     samples, _ = make_log(n=1500, noise=1.0, seed=5)
     in_nT = nlpcal.calibrate(samples, method="joint", reference_field=PAPER_FIELD)
-    in_uT = nlpcal.calibrate(samples / 1000.0, unit="uT", reference_field=PAPER_FIELD / 1000.0,
-                             method="joint")
-    mixed = nlpcal.calibrate(samples / 1000.0, unit="uT", reference_field=PAPER_FIELD,
-                             reference_unit="nT", method="joint")
+    in_uT = nlpcal.calibrate(
+        samples / 1000.0, unit="uT", reference_field=PAPER_FIELD / 1000.0, method="joint"
+    )
+    mixed = nlpcal.calibrate(
+        samples / 1000.0,
+        unit="uT",
+        reference_field=PAPER_FIELD,
+        reference_unit="nT",
+        method="joint",
+    )
     for result in (in_uT, mixed):
         assert result.unit == "nT"
         for name, value in in_nT.parameters.items():
@@ -117,9 +145,21 @@ def test_the_library_takes_units():
 def test_every_verb_and_result_type_is_importable_from_nlpcal():
     for name in nlpcal.__all__:
         assert getattr(nlpcal, name) is not None, name
-    for verb in ("calibrate", "compare", "worst_case", "invert", "repeatability", "fit_drift",
-                 "calibrate_temperature", "calibrate_turns", "calibrate_free", "attitude",
-                 "evaluate", "simulate", "read_log"):
+    for verb in (
+        "calibrate",
+        "compare",
+        "worst_case",
+        "invert",
+        "repeatability",
+        "fit_drift",
+        "calibrate_temperature",
+        "calibrate_turns",
+        "calibrate_free",
+        "attitude",
+        "evaluate",
+        "simulate",
+        "read_log",
+    ):
         assert callable(getattr(nlpcal, verb)), verb
     with pytest.raises(AttributeError):
         nlpcal.not_a_verb  # noqa: B018
@@ -128,9 +168,16 @@ def test_every_verb_and_result_type_is_importable_from_nlpcal():
 def test_every_result_type_shares_the_document_base():
     from nlpcal.results import Document
 
-    kinds = [nlpcal.CalibrationResult, nlpcal.TemperatureCalibrationResult, nlpcal.DriftFit,
-             nlpcal.CompassCalibration, nlpcal.Comparison, nlpcal.WorstCase, nlpcal.Inversion,
-             nlpcal.Repeatability]
+    kinds = [
+        nlpcal.CalibrationResult,
+        nlpcal.TemperatureCalibrationResult,
+        nlpcal.DriftFit,
+        nlpcal.CompassCalibration,
+        nlpcal.Comparison,
+        nlpcal.WorstCase,
+        nlpcal.Inversion,
+        nlpcal.Repeatability,
+    ]
     formats = set()
     for kind in kinds:
         assert issubclass(kind, Document)

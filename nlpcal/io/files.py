@@ -97,13 +97,19 @@ def write_csv_atomic(path, frame, float_format: str | None = None) -> None:
     _atomic_write(path, lambda handle: frame.to_csv(handle, index=False, float_format=float_format))
 
 
-def read_json(path, what: str = "JSON file"):
-    """The parsed JSON of a file, or InputError naming the file and what is wrong with it."""
+def existing_file(path, what: str = "a CSV file") -> Path:
+    """`path` as a Path, or InputError when it does not exist or is a folder."""
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: no such file")
     if path.is_dir():
-        raise InputError(f"{path}: is a directory, expected a {what}")
+        raise InputError(f"{path}: is a directory, expected {what}")
+    return path
+
+
+def read_json(path, what: str = "JSON file"):
+    """The parsed JSON of a file, or InputError naming the file and what is wrong with it."""
+    path = existing_file(path, f"a {what}")
     try:
         return json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:

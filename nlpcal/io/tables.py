@@ -15,6 +15,7 @@ import pandas as pd
 
 from .. import units
 from ..errors import InputError
+from .files import existing_file
 
 #: What each sensor's axis columns may be called, for `resolve_columns`:
 #: name -> (prefixes, unit suffixes, examples for messages, flag for messages).
@@ -45,11 +46,7 @@ def csv_engine() -> str:
 
 def read_table(path) -> pd.DataFrame:
     """Read a CSV log with the fastest available pandas engine."""
-    path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: no such file")
-    if path.is_dir():
-        raise InputError(f"{path}: is a directory, expected a CSV file")
+    path = existing_file(path)
     engine = csv_engine()
     try:
         frame = pd.read_csv(path, engine=engine)
@@ -217,11 +214,7 @@ def csv_to_memmap(
 
 def read_table_header(path) -> pd.DataFrame:
     """The column names of a CSV (an empty frame), with the checks of `read_table`."""
-    path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: no such file")
-    if path.is_dir():
-        raise InputError(f"{path}: is a directory, expected a CSV file")
+    path = existing_file(path)
     try:
         frame = pd.read_csv(path, nrows=0)
     except pd.errors.EmptyDataError:
