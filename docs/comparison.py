@@ -26,7 +26,6 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))  # run from a checkout without installing
 
 from generated import replace_block, update_page  # noqa: E402
-
 from nlpcal.calibration.joint import joint_start  # noqa: E402
 from nlpcal.calibration.problem import Problem  # noqa: E402
 from nlpcal.comparison import CompareSettings, compare  # noqa: E402

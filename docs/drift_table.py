@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from generated import replace_block, update_page
 
+from generated import replace_block, update_page
 from nlpcal.cli import main as nlpcal
 from nlpcal.drift import DriftFit, TemperatureCalibrationResult, rmse_rows
 from nlpcal.models import liu2022

@@ -16,8 +16,8 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from generated import replace_block, update_page
 
+from generated import replace_block, update_page
 from nlpcal import orthogonality as ortho
 
 HERE = Path(__file__).resolve().parent

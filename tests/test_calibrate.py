@@ -3,11 +3,11 @@
 import numpy as np
 import pandas as pd
 import pytest
-from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log, planar_directions
 
 import nlpcal
 from nlpcal import CalibrationResult, calibrate
 from nlpcal.errors import InputError, QualityError, SolveError
+from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log, planar_directions
 
 OFFSETS = ("z_x", "z_y", "z_z")
 SCALES = ("s_x", "s_y", "s_z")

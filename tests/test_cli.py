@@ -5,10 +5,10 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
-from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log
 
 from nlpcal.cli import main
 from nlpcal.models.zhou2010 import Zhou2010Parameters, correct
+from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log
 
 
 @pytest.fixture(scope="module")

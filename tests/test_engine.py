@@ -8,10 +8,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log
 
 import nlpcal
 from nlpcal.nlp.solver import PROBLEMS, builds
+from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log
 
 PACKAGE = Path(nlpcal.__file__).resolve().parent
 

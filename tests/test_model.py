@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-from synthetic import PAPER_TRUTH, make_log, sensor_axes, sensor_output
 
 from nlpcal.models.zhou2010 import (
     PARAMETER_NAMES,
@@ -12,6 +11,7 @@ from nlpcal.models.zhou2010 import (
     correction_matrix,
     forward,
 )
+from synthetic import PAPER_TRUTH, make_log, sensor_axes, sensor_output
 
 TRUTH = Zhou2010Parameters.from_dict(PAPER_TRUTH)
 

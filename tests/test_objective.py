@@ -2,11 +2,11 @@
 
 import numpy as np
 import pytest
-from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log
 
 from nlpcal import moments as mom
 from nlpcal.nlp import blocks as problems
 from nlpcal.statistics import direct_objective
+from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log
 
 THETA_TRUE = np.array(
     [PAPER_TRUTH[k] for k in ("z_x", "z_y", "z_z", "s_x", "s_y", "s_z")]

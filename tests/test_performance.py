@@ -5,12 +5,12 @@ import tracemalloc
 import numpy as np
 import pandas as pd
 import pytest
-from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log
 
 from nlpcal import calibrate
 from nlpcal.errors import InputError
 from nlpcal.io import csv_to_memmap
 from nlpcal.moments import CHUNK_ROWS, accumulate
+from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log
 
 
 def test_memory_stays_o_chunk_on_a_memory_mapped_log(tmp_path):
