@@ -142,7 +142,8 @@ def exact_optimum_shift(problem: Problem, theta, hs: np.ndarray, errors) -> floa
 
 
 def explain_failure(problem: Problem, failure: SolveError) -> SolveError:
-    """Say which parameters the data determine least, when IPOPT fails.
+    """Say which parameters the data do not determine, when IPOPT fails; blame the attitude
+    coverage only when it is to blame.
 
     The Hessian is taken where the failing solve started (failure.result).
     """
@@ -154,17 +155,12 @@ def explain_failure(problem: Problem, failure: SolveError) -> SolveError:
     _, identifiability = uncertainty(problem, objective, hs)
     weak = identifiability["not_identifiable"]
     if weak:
-        reason = f"the data do not determine {', '.join(weak)}"
+        advice = (f"the data do not determine {', '.join(weak)}; rotate the sensor through more "
+                  f"attitudes")
     else:
-        reason = (
-            f"the least determined combination involves "
-            f"{', '.join(identifiability['weakest_combination'])}"
-        )
-    return SolveError(
-        f"{failure}: {reason}; rotate the sensor through more attitudes",
-        failure.status,
-        result=theta,
-    )
+        advice = ("the attitudes determine every parameter, so the coverage is not the cause; "
+                  "try the other method (--method joint or staged)")
+    return SolveError(f"{failure}: {advice}", failure.status, result=theta)
 
 
 def warnings_for(problem: Problem, theta, hs, errors, identifiability: dict, final: dict) -> list:
