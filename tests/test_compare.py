@@ -359,7 +359,14 @@ def test_with_a_reference_the_staged_objective_never_increases():
     from nlpcal.calibration import calibrate
 
     samples = simulate(1500, attitudes="turntable", noise=1.0, seed=4).to_numpy()
-    result = calibrate(samples, method="staged", reference_field=49462.0, cycles=12, rtol=0.0)
+    result = calibrate(
+        samples,
+        method="staged",
+        reference_field=49462.0,
+        cycles=12,
+        rtol=0.0,
+        allow_unconverged=True,
+    )
     objectives = [row["objective"] for row in result.statistics]
     for before, after in zip(objectives, objectives[1:]):
         assert after <= before * (1 + 1e-9), objectives

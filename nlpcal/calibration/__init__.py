@@ -13,9 +13,12 @@ from ..io.logs import Log
 from ..models.zhou2010 import Zhou2010Parameters
 from ..moments import accumulate
 from ..nlp.blocks import GAUGE
+from ..robust import TUNING, Loss
 from .diagnostics import (
     direction_coverage,
     explain_failure,
+    joint_gap,
+    residual_spread,
     scaled_hessian,
     uncertainty,
     warnings_for,
@@ -30,6 +33,13 @@ METHODS = ("staged", "joint")
 CYCLES_DEFAULT = 50
 #: Default relative improvement below which the staged cycle stops. [1]
 RTOL_DEFAULT = 1e-9
+#: A staged result further than this many standard errors from the joint optimum of the same
+#: objective is not reported as an optimum (a bias of 0.2 standard errors adds 4 % to the
+#: mean squared error). [1]
+STAGED_GAP_LIMIT = 0.2
+#: Least squares warns when the standard deviation of the residuals exceeds their robust one
+#: (1.4826 MAD) by this factor: Gaussian residuals give 1. [1]
+HEAVY_TAIL_RATIO = 1.5
 
 
 def calibrate(
@@ -43,7 +53,10 @@ def calibrate(
     target_std: float | None = None,
     target_range: float | None = None,
     rtol: float = RTOL_DEFAULT,
+    loss: str = "l2",
+    loss_scale: float | None = None,
     require_identifiable: bool = True,
+    allow_unconverged: bool = False,
 ) -> CalibrationResult:
     """Estimate the nine parameters of Eq. 4 in [1] from a log of many attitudes.
 
@@ -57,8 +70,15 @@ def calibrate(
     reference_unit : the unit of the reference (default: `unit`).
     cycles : the most staged cycles. target_std, target_range : stop the cycle when |B1| meets
         them [unit]. rtol : stop when a cycle lowers the objective by less than this fraction.
+    loss : "l2" (least squares, the paper's), "huber" or "cauchy" (`nlpcal.robust`): robust to
+        spikes and other outliers, by iteratively reweighted moments.
+    loss_scale : the residual beyond which a sample is down-weighted; default 1.345 (Huber) or
+        2.385 (Cauchy) times 1.4826 MAD of the residuals. [unit]
     require_identifiable : raise QualityError (holding the result) when the attitude coverage
         leaves parameters undetermined; False returns the result with its warnings.
+    allow_unconverged : return a staged result that stopped at its cycle limit, or away from the
+        joint optimum of the same objective, with a warning and without standard errors, instead
+        of raising QualityError.
 
     Returns a CalibrationResult. Raises InputError for unusable input, SolveError when IPOPT
     fails and QualityError as above.
@@ -69,12 +89,23 @@ def calibrate(
     target_range = validation.optional_number(target_range, "target_range", positive=True)
     rtol = validation.number(rtol, "rtol", minimum=0.0)
     units.check_compatible(unit, reference_unit or unit)
+    chosen_loss = Loss(
+        loss,
+        units.to_base(
+            validation.optional_number(loss_scale, "the loss scale", positive=True), unit
+        ),
+    )
     samples = validation.samples(samples)
     reference = validation.reference(reference_field, samples.shape[0])
     samples = units.to_base(samples, unit)  # in base units a memory map stays mapped
     reference = units.to_base(reference, reference_unit or unit)
     target_std, target_range = units.to_base(target_std, unit), units.to_base(target_range, unit)
-    problem = Problem(samples=samples, reference=reference, moments=accumulate(samples, reference))
+    problem = Problem(
+        samples=samples,
+        reference=reference,
+        moments=accumulate(samples, reference),
+        loss=chosen_loss,
+    )
     try:
         if method == "staged":
             rule = StopRule(
@@ -90,15 +121,47 @@ def calibrate(
         raise explain_failure(problem, failure) from None
     final = rows[-1]
     errors, identifiability = uncertainty(
-        problem, final["objective"], hs, final["residual_lag1_autocorrelation"]
+        problem, final["objective"], hs, final["residual_lag1_autocorrelation"], theta
     )
     identifiability["coverage"] = direction_coverage(samples, theta)
     warnings = warnings_for(problem, theta, hs, errors, identifiability, final)
-    if method == "staged" and stop_reason == "max_cycles" and len(rows) > 2:
-        warnings.append(
-            f"the staged cycle stopped at the maximum of {cycles} cycles before "
-            f"converging (rtol {rtol:g}); results may improve with more cycles"
+    spread = residual_spread(problem, theta)
+    robust = {**problem.loss.to_dict(), **spread}
+    if problem.loss.robust:
+        robust.update(
+            scale_source="given"
+            if problem.scale_given
+            else f"1.4826 MAD x {TUNING[problem.loss.kind]:g}",
+            reweightings=problem.reweights,
+            downweighted=final["downweighted"],
+            downweighted_fraction=final["downweighted"] / len(samples),
+            centre=problem.centre,
         )
+    elif spread["residual_std"] > HEAVY_TAIL_RATIO * spread["residual_robust_std"]:
+        warnings.append(
+            f"the residuals are heavy-tailed (std {spread['residual_std']:.3g}, robust std "
+            f"{spread['residual_robust_std']:.3g}): spikes or disturbances may pull the least-"
+            f"squares estimate; a robust loss (--loss huber) down-weights them"
+        )
+    unconverged = None
+    if method == "staged":
+        gap = joint_gap(problem, theta, errors)
+        identifiability["joint_gap"] = gap
+        distance = gap["max_gap_in_standard_errors"]
+        if distance is not None and distance > STAGED_GAP_LIMIT:
+            message = staged_message(stop_reason, cycles, gap)
+            warnings.append(message)
+            identifiability["standard_errors_at_joint_optimum"] = errors
+            errors = None  # they describe an optimum, which this point is not
+            if stop_reason in ("max_cycles", "rtol"):  # a target stop is the user's request
+                stop_reason = stop_reason if stop_reason == "max_cycles" else "above_joint_optimum"
+                unconverged = message
+        elif stop_reason == "max_cycles" and len(rows) > 2:
+            warnings.append(
+                f"the staged cycle stopped at the maximum of {cycles} cycles before its rtol "
+                f"rule ({rtol:g}) held; its parameters agree with the joint optimum of the same "
+                f"data within {STAGED_GAP_LIMIT:g} standard errors"
+            )
     mode = problem.moments.reference
     result = CalibrationResult(
         parameters=Zhou2010Parameters.from_theta(theta).to_dict(),
@@ -120,6 +183,7 @@ def calibrate(
         warnings=warnings,
         n_samples=int(samples.shape[0]),
         input={"log_unit": unit},
+        robust=robust,
     )
     if require_identifiable and identifiability["not_identifiable"]:
         raise QualityError(
@@ -130,15 +194,48 @@ def calibrate(
             "Not_Identifiable",
             result=result,
         )
+    if unconverged and not allow_unconverged:
+        raise QualityError(
+            f"{unconverged} (allow_unconverged=True returns it anyway)",
+            "Staged_Unconverged",
+            result=result,
+        )
     return result
 
 
+def staged_message(stop_reason: str, cycles: int, gap: dict) -> str:
+    """Why a staged result is not at the optimum, with both objectives and what to do."""
+    why = (
+        f"the staged cycle stopped at its limit of {cycles} cycles"
+        if stop_reason == "max_cycles"
+        else f"the staged cycle stopped on its {stop_reason} rule"
+    )
+    distance = gap.get("max_gap_in_standard_errors")
+    if "objective_joint" not in gap:
+        return f"{why}; the joint optimum of the same data could not be found ({gap['status']})"
+    where = (
+        ""
+        if distance is None
+        else f"; its parameters lie up to {distance:.3g} standard errors from that optimum"
+    )
+    return (
+        f"{why} with objective {gap['objective_staged']:.6g}, above the joint optimum "
+        f"{gap['objective_joint']:.6g} of the same data{where}; use --method joint, or more "
+        f"--cycles"
+    )
+
+
 def calibrate_log(
-    log: Log, *, target_std: float | None = None, target_range: float | None = None, **options
+    log: Log,
+    *,
+    target_std: float | None = None,
+    target_range: float | None = None,
+    loss_scale: float | None = None,
+    **options,
 ) -> CalibrationResult:
     """`calibrate` on a log read by `nlpcal.io.read_log` (its reference included).
 
-    target_std, target_range : in the unit of the log's field columns.
+    target_std, target_range, loss_scale : in the unit of the log's field columns.
     The result records the log (file, columns, unit) under `input`.
     """
     result = calibrate(
@@ -147,6 +244,7 @@ def calibrate_log(
         reference_field=log.reference,
         target_std=units.to_base(target_std, log.unit),
         target_range=units.to_base(target_range, log.unit),
+        loss_scale=units.to_base(loss_scale, log.unit),
         **options,
     )
     result.input = log.metadata()

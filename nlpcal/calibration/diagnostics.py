@@ -14,7 +14,8 @@ from .. import inference
 from ..errors import SolveError
 from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters, correct
 from ..moments import Moments
-from ..nlp.blocks import SCALE_INDICES, objective_function, pack, variable_scale
+from ..nlp.blocks import SCALE_INDICES, block_step, objective_function, pack, variable_scale
+from ..robust import robust_std
 from ..statistics import field_statistics
 from .problem import Problem
 
@@ -69,22 +70,32 @@ def _names(indices) -> list:
     return [PARAMETER_NAMES[i] for i in sorted(indices)]
 
 
-def uncertainty(problem: Problem, objective: float, hs: np.ndarray, autocorrelation: float = 0.0):
+def uncertainty(
+    problem: Problem, objective: float, hs: np.ndarray, autocorrelation: float = 0.0, theta=None
+):
     """Standard errors [parameter units] and the identifiability block of a result.
 
     For f = (1/N) sum r_i^2 the Gauss-Newton information is N H / 2 (`nlpcal.inference`), here
     in the scaled variables of the problems; without a reference it is taken on the gauge's null
-    space.
+    space. With a robust loss (and `theta`), the covariance is the sandwich A^-1 B A^-1 of an
+    M-estimate, A = sum psi'(r) J J^T and B = sum psi(r)^2 J J^T (`sandwich`).
     """
     moments = problem.moments
     n = problem.samples.shape[0]
-    result = inference.estimate(
-        inference.information_from_hessian(hs, n),
-        residual_variance=n * objective / max(n - 9, 1),
-        basis=gauge_basis(moments),
-        autocorrelation=autocorrelation,
-        dof=n - 9,
-    )
+    options: dict = {
+        "basis": gauge_basis(moments),
+        "autocorrelation": autocorrelation,
+        "dof": n - 9,
+    }
+    if problem.loss.robust and theta is not None:
+        information, meat = sandwich(problem, theta)
+        result = inference.estimate(information, meat=meat, **options)
+    else:
+        result = inference.estimate(
+            inference.information_from_hessian(hs, n),
+            residual_variance=n * objective / max(n - 9, 1),
+            **options,
+        )
     errors = None
     if result.covariance is not None:
         sd = result.standard_errors * variable_scale(moments.frame.radius)
@@ -101,10 +112,59 @@ def uncertainty(problem: Problem, objective: float, hs: np.ndarray, autocorrelat
         "poorly_determined": poorly,
         "weakest_combination": _names(result.weakest),
         "hessian_eigenvalues_scaled": [float(v) for v in result.eigenvalues * 2.0 / n],
+        "covariance_form": "sandwich" if problem.loss.robust else "gauss-newton",
         "residual_lag1_autocorrelation": float(autocorrelation),
         "standard_error_inflation": result.inflation,
         "poorly_determined_limits": {n_: float(v) for n_, v in zip(PARAMETER_NAMES, limits)},
     }
+
+
+def sandwich(problem: Problem, theta) -> tuple:
+    """(A, B) of the sandwich covariance of an M-estimate, in the scaled variables.
+
+    A = sum psi'(r_i) J_i J_i^T and B = sum psi(r_i)^2 J_i J_i^T, each from the Hessian of the
+    moment objective with the samples weighted by psi'(r) and by psi(r)^2: for a weighted mean of
+    squares with weights g, sum(g) H_g / 2 = sum g J J^T up to terms in the curvature of r.
+    """
+    loss = problem.loss
+    parts = []
+    for weight in (loss.slope, lambda r: (loss.weight(r) * r) ** 2):
+        moments = problem.weighted_moments(theta, weight)
+        parts.append(0.5 * moments.weight_sum * scaled_hessian(moments, theta))
+    return parts[0], parts[1]
+
+
+def joint_gap(problem: Problem, theta, errors) -> dict:
+    """How far the joint optimum of the same objective (the same moments, the same weights) lies
+    from a staged estimate: the joint problem solved from `theta`.
+
+    Returns the two objectives [field^2], the largest distance of a parameter from its joint
+    value in standard errors (None without standard errors), the joint parameters and IPOPT's
+    status of the joint solve.
+    """
+    try:
+        step = block_step(problem.moments, "joint", theta)
+    except SolveError as failure:
+        return {"status": failure.status, "max_gap_in_standard_errors": None}
+    staged = Zhou2010Parameters.from_theta(theta).as_vector()
+    joint = Zhou2010Parameters.from_theta(step.theta).as_vector()
+    gap = None
+    if errors is not None:
+        sd = np.array([errors[name] for name in PARAMETER_NAMES])
+        gap = float(np.max(np.abs(staged - joint) / np.where(sd > 0, sd, np.inf)))
+    return {
+        "objective_staged": step.f_start,
+        "objective_joint": step.f_end,
+        "max_gap_in_standard_errors": gap,
+        "joint_parameters": Zhou2010Parameters.from_theta(step.theta).to_dict(),
+        "status": step.status,
+    }
+
+
+def residual_spread(problem: Problem, theta) -> dict:
+    """The standard deviation of the residuals and their robust one (1.4826 MAD). [field unit]"""
+    residuals = problem.residuals(theta, problem.centre)
+    return {"residual_std": float(np.std(residuals)), "residual_robust_std": robust_std(residuals)}
 
 
 def direction_coverage(samples, theta, max_points: int = 20000) -> dict:
@@ -155,11 +215,14 @@ def explain_failure(problem: Problem, failure: SolveError) -> SolveError:
     _, identifiability = uncertainty(problem, objective, hs)
     weak = identifiability["not_identifiable"]
     if weak:
-        advice = (f"the data do not determine {', '.join(weak)}; rotate the sensor through more "
-                  f"attitudes")
+        advice = (
+            f"the data do not determine {', '.join(weak)}; rotate the sensor through more attitudes"
+        )
     else:
-        advice = ("the attitudes determine every parameter, so the coverage is not the cause; "
-                  "try the other method (--method joint or staged)")
+        advice = (
+            "the attitudes determine every parameter, so the coverage is not the cause; "
+            "try the other method (--method joint or staged)"
+        )
     return SolveError(f"{failure}: {advice}", failure.status, result=theta)
 
 

@@ -53,6 +53,8 @@ class CalibrationResult(Document):
     standard_errors : per parameter, in its unit; None when the data leave a direction free.
     identifiability : what the attitude coverage determines (`nlpcal.calibration.diagnostics`).
     input : where the samples came from (file, columns, the unit of the file).
+    robust : the loss and its scale, the samples it down-weighted, and the spread of the
+        residuals (their standard deviation and robust standard deviation). [unit]
     """
 
     FORMAT = "nlpcal-calibration"
@@ -79,6 +81,7 @@ class CalibrationResult(Document):
     n_samples: int = 0
     version: str = __version__
     input: dict = field(default_factory=dict)
+    robust: dict = field(default_factory=dict)
 
     @property
     def model(self) -> Zhou2010Parameters:
@@ -123,6 +126,8 @@ class CalibrationResult(Document):
         }
         if self.input:
             document["input"] = dict(self.input)
+        if self.robust:
+            document["robust"] = dict(self.robust)
         return document
 
     @classmethod
@@ -149,6 +154,7 @@ class CalibrationResult(Document):
             "n_samples": reader.integer("n_samples", 0),
             "version": reader.string("nlpcal_version", "unknown"),
             "input": reader.mapping("input", {}),
+            "robust": reader.mapping("robust", {}),
         }
 
     @classmethod

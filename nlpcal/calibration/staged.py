@@ -43,18 +43,23 @@ class StopRule:
 def run_staged(problem, rule: StopRule):
     """Cycle the three stages until a stop rule holds.
 
-    problem : a `nlpcal.calibration.problem.Problem` (samples, moments, reference).
+    problem : a `nlpcal.calibration.problem.Problem` (samples, moments, reference, loss).
+    With a robust loss the first cycle is least squares, and every later cycle starts by
+    reweighting the samples at the latest parameters (iteratively reweighted least squares, one
+    reweighting per cycle); the objective of the rtol rule is then the mean loss.
     Returns (theta, rows, stages, stop_reason): the last parameters, one Table 1 row per cycle
     (after the measured row), the record of every stage solve and why the cycle stopped.
     """
     theta = np.zeros(9)  # Fig. 1: the first pass starts with every other block at zero
     rows = [problem.measured_row()]
     stages = []
-    previous = rows[0]["objective"]
+    key = "robust_objective" if problem.loss.robust else "objective"
+    previous = rows[0]["objective"] if not problem.loss.robust else None
     stop_reason = "max_cycles"
     for cycle in range(1, rule.max_cycles + 1):
         started = time.perf_counter()
         iterations = 0
+        changed = cycle > 1 and problem.loss.robust and problem.reweight(theta)
         for stage in STAGE_ORDER:
             step = block_step(problem.moments, stage, theta)
             theta = step.theta
@@ -82,8 +87,9 @@ def run_staged(problem, rule: StopRule):
         if rule.target_range is not None and row["range"] <= rule.target_range:
             stop_reason = "target_range"
             break
-        if previous - row["objective"] <= rule.rtol * previous:
+        current = row.get(key)
+        if previous is not None and not changed and previous - current <= rule.rtol * previous:
             stop_reason = "rtol"
             break
-        previous = row["objective"]
+        previous = current
     return theta, rows, stages, stop_reason

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING
 
 from .common import (
     add_log_arguments,
+    add_loss_arguments,
     add_reference_arguments,
     emit_csv,
     emit_json,
@@ -35,6 +36,7 @@ if TYPE_CHECKING:
     from ..drift.temperature import TemperatureCalibrationResult
 
 TOTAL_COLUMN = "b_total"
+OUTLIER_COLUMN = "outlier"
 TEMPERATURE_MODELS = ("common", "per-axis")
 #: Defaults of the staged cycle (the library's `nlpcal.calibration.CYCLES_DEFAULT`, ...).
 CYCLES_DEFAULT = 50
@@ -112,6 +114,14 @@ def _register_calibrate(sub):
         help="temperature at which the nine parameters are reported [degC] "
         "(default: the log's mean)",
     )
+    add_loss_arguments(parser)
+    parser.add_argument(
+        "--allow-unconverged",
+        action="store_true",
+        help="write a staged result that stopped at its cycle limit or away from the joint "
+        "optimum of the same data (with a warning and without standard errors) instead of "
+        "failing the quality check",
+    )
     parser.add_argument(
         "--low-memory",
         action="store_true",
@@ -176,12 +186,21 @@ def run_calibrate(args) -> int:
             rtol=args.rtol,
             target_std=args.target_std,
             target_range=args.target_range,
+            loss=args.loss,
+            loss_scale=args.loss_scale,
+            allow_unconverged=args.allow_unconverged,
         )
     warn(
         f"read {log.n} rows in {read_s:.2f} s (pandas {log.engine} engine); calibrated in "
         f"{time.perf_counter() - started:.2f} s"
     )
     print(result.table(), file=sys.stderr)
+    robust = getattr(result, "robust", {})
+    if robust.get("loss", "l2") != "l2":
+        warn(
+            f"{robust['loss']} loss, scale {robust['scale']:.4g} {result.unit}: "
+            f"{robust['downweighted']} of {log.n} samples down-weighted"
+        )
     tell(result.warnings)
     emit_json(result.to_dict(), args.output)
     return 0
@@ -217,6 +236,12 @@ def _register_apply(sub):
     add_log_arguments(parser, "the column names, else the unit of the calibrated log")
     _add_temperature_arguments(parser)
     parser.add_argument(
+        "--flag-outliers",
+        action="store_true",
+        help=f"add a boolean column '{OUTLIER_COLUMN}': |B1| further from its centre than 4 "
+        "robust standard deviations (1.4826 MAD) of the calibration's residuals",
+    )
+    parser.add_argument(
         "-o", "--output", metavar="CORRECTED.csv", help="corrected log (stdout when absent)"
     )
     parser.set_defaults(func=run_apply)
@@ -242,7 +267,7 @@ def _correction(args, require_temperature: bool):
 
 
 def run_apply(args) -> int:
-    from ..correction import read_log_for
+    from ..correction import outliers, read_log_for
     from ..io import check_output_path
 
     check_output_path(args.output)
@@ -251,7 +276,11 @@ def run_apply(args) -> int:
     tell(log.notes)
     corrected = correction.apply(log)
     tell(correction.notes)
-    frame = log.written_back(corrected, TOTAL_COLUMN)
+    extra = {}
+    if args.flag_outliers:
+        extra[OUTLIER_COLUMN] = flags = outliers(correction, corrected)
+        warn(f"{int(flags.sum())} of {len(flags)} rows flagged as outliers")
+    frame = log.written_back(corrected, TOTAL_COLUMN, extra)
     emit_csv(frame, args.output)  # exact values: the other columns pass through unchanged
     if args.output:
         warn(f"wrote {len(frame)} corrected rows to {args.output}")

@@ -63,6 +63,25 @@ def add_reference_arguments(parser) -> None:
     )
 
 
+def add_loss_arguments(parser) -> None:
+    """--loss l2|huber|cauchy and --loss-scale F."""
+    parser.add_argument(
+        "--loss",
+        choices=("l2", "huber", "cauchy"),
+        default="l2",
+        help="l2: least squares (default, the paper's); huber or cauchy: robust to spikes and "
+        "other outliers, which they down-weight",
+    )
+    parser.add_argument(
+        "--loss-scale",
+        type=float,
+        metavar="F",
+        help="residual of |B1| beyond which a sample is down-weighted [unit] (default: 1.345 "
+        "(huber) or 2.385 (cauchy) times the robust standard deviation, 1.4826 MAD, of the "
+        "residuals)",
+    )
+
+
 def log_options(args) -> dict:
     """The keyword arguments of `nlpcal.io.read_log` that the common arguments give."""
     return {

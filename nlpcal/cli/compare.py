@@ -15,7 +15,14 @@ from __future__ import annotations
 
 import sys
 
-from .common import add_log_arguments, add_reference_arguments, emit_json, log_options, tell
+from .common import (
+    add_log_arguments,
+    add_loss_arguments,
+    add_reference_arguments,
+    emit_json,
+    log_options,
+    tell,
+)
 
 
 def register(sub):
@@ -67,6 +74,7 @@ def register(sub):
         help="CG stop |grad f| <= R |grad f at the start| (default 1e-6)",
     )
     add_reference_arguments(parser)
+    add_loss_arguments(parser)
     parser.add_argument(
         "-o", "--output", metavar="COMPARE.json", help="write the JSON here (stdout when absent)"
     )
@@ -97,7 +105,7 @@ def run(args) -> int:
         require_matplotlib()
     log = read_log(args.log, **log_options(args))
     tell(log.notes)
-    result = compare_log(log, settings=settings)
+    result = compare_log(log, settings=settings, loss=args.loss, loss_scale=args.loss_scale)
     png = comparison_png(result, title=str(args.log)) if args.plot else None
     print(result.table(), file=sys.stderr)
     for message in result.warnings:

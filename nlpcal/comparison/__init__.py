@@ -35,6 +35,7 @@ from ..models.zhou2010 import Zhou2010Parameters, correct
 from ..moments import accumulate
 from ..nlp.blocks import objective_function, pack
 from ..results import Document, DocumentReader
+from ..robust import Loss
 from ..statistics import STD_DDOF, format_table
 from ..version import __version__
 from .conjugate_gradient import CGOptions, run_cg_joint, run_cg_staged
@@ -348,6 +349,8 @@ def compare(
     settings: CompareSettings = CompareSettings(),
     unit: str = "nT",
     reference_unit: str | None = None,
+    loss: str = "l2",
+    loss_scale: float | None = None,
 ) -> Comparison:
     """Run the staged cycle, the joint solve and the paper's CG (joint and staged) on one log.
 
@@ -355,6 +358,9 @@ def compare(
     reference_field : None (Eq. 8), a number F or N values F_i. [reference_unit, default unit]
     settings : cycles, rtol and the CG settings.
     unit : the unit of the samples; the comparison is in nT (or raw for counts).
+    loss, loss_scale : a robust loss (`nlpcal.calibration.calibrate`); its weights are fixed at
+        the reweighted joint solution, and every method then minimises that weighted objective.
+        [loss_scale: unit]
 
     Returns a Comparison. Raises InputError for unusable input and SolveError when IPOPT fails.
     """
@@ -363,7 +369,13 @@ def compare(
     reference = validation.reference(reference_field, samples.shape[0])
     samples = units.to_base(samples, unit)
     reference = units.to_base(reference, reference_unit or unit)
-    problem = Problem(samples=samples, reference=reference, moments=accumulate(samples, reference))
+    chosen = Loss(loss, units.to_base(loss_scale, unit))
+    problem = Problem(
+        samples=samples, reference=reference, moments=accumulate(samples, reference), loss=chosen
+    )
+    if chosen.robust:  # the weights of the robust optimum, then the same objective for all
+        run_joint(problem)
+        problem.frozen = True
     moments = problem.moments
 
     rule = StopRule(max_cycles=int(settings.cycles), rtol=settings.rtol)
@@ -414,6 +426,7 @@ def compare(
     if bad:
         warnings.append(f"conjugate gradient stages that did not converge in: {', '.join(bad)}")
 
+    summary["loss"] = problem.loss.to_dict()
     return Comparison(
         samples=samples,
         staged=staged,
@@ -430,11 +443,22 @@ def compare(
     )
 
 
-def compare_log(log: Log, *, settings: CompareSettings = CompareSettings()) -> Comparison:
+def compare_log(
+    log: Log,
+    *,
+    settings: CompareSettings = CompareSettings(),
+    loss: str = "l2",
+    loss_scale: float | None = None,
+) -> Comparison:
     """`compare` on a log read by `nlpcal.io.read_log` (its reference included); the comparison
-    records the log under `input`."""
+    records the log under `input`. loss_scale : in the unit of the log's field columns."""
     result = compare(
-        log.samples, reference_field=log.reference, settings=settings, unit=log.base_unit
+        log.samples,
+        reference_field=log.reference,
+        settings=settings,
+        unit=log.base_unit,
+        loss=loss,
+        loss_scale=units.to_base(loss_scale, log.unit),
     )
     result.input = log.metadata(unit_factor_nT=units.field_factor(log.unit))
     if log.reference_column:

@@ -143,6 +143,14 @@ class TemperatureCalibrationResult(Document):
     def input(self) -> dict:
         return self.calibration.input
 
+    @property
+    def reference(self) -> dict:
+        return self.calibration.reference
+
+    @property
+    def robust(self) -> dict:
+        return self.calibration.robust
+
     def apply(self, samples, temperature, unit: str | None = None) -> np.ndarray:
         """Corrected field at the temperatures t (Eq. 9 in [1], Eq. 4 in [2]).
 

@@ -78,10 +78,11 @@ class Log:
             **more,
         }
 
-    def written_back(self, corrected, total_column: str) -> pd.DataFrame:
+    def written_back(self, corrected, total_column: str, extra=None) -> pd.DataFrame:
         """The log's table on the rows of `samples`, its field columns replaced by `corrected`
-        [base unit] converted back to the log's unit, and their magnitude in `total_column`.
-        Every other column passes through unchanged."""
+        [base unit] converted back to the log's unit, their magnitude in `total_column`, and the
+        `extra` columns (name -> values on the rows of `samples`). Every other column passes
+        through unchanged."""
         if self.frame is None:
             raise InputError(
                 f"{self.path}: a log streamed into a memory map cannot be written "
@@ -92,6 +93,8 @@ class Log:
         for k, column in enumerate(self.columns):
             frame[column] = values[:, k]
         frame[total_column] = np.linalg.norm(values, axis=1)
+        for name, column in (extra or {}).items():
+            frame[name] = column
         return frame
 
     def values(self, column: str) -> np.ndarray:
