@@ -100,10 +100,12 @@ def calibrate(
     samples = units.to_base(samples, unit)  # in base units a memory map stays mapped
     reference = units.to_base(reference, reference_unit or unit)
     target_std, target_range = units.to_base(target_std, unit), units.to_base(target_range, unit)
+    validation.reference_scale(reference, validation.mean_magnitude(samples))
+    moments = accumulate(samples, reference)
     problem = Problem(
         samples=samples,
         reference=reference,
-        moments=accumulate(samples, reference),
+        moments=moments,
         loss=chosen_loss,
     )
     try:

@@ -42,6 +42,17 @@ def read_parameters(reader: DocumentReader, key: str = "parameters") -> Zhou2010
     )
 
 
+def read_robust(reader: DocumentReader) -> dict:
+    """The "robust" block: the loss, its scale and the residuals' spread, checked."""
+    block = reader.reader("robust", None)
+    if block is None:
+        return {}
+    block.string("loss", "l2", options=("l2", "huber", "cauchy"))
+    for name in ("scale", "residual_std", "residual_robust_std"):
+        block.number(name, None, minimum=0.0)
+    return dict(block.document)
+
+
 @dataclass
 class CalibrationResult(Document):
     """A calibration: the nine parameters of Eq. 4 in [1], Table 1 rows and how they were found.
@@ -153,8 +164,12 @@ class CalibrationResult(Document):
             "warnings": reader.strings("warnings", []),
             "n_samples": reader.integer("n_samples", 0),
             "version": reader.string("nlpcal_version", "unknown"),
-            "input": reader.mapping("input", {}),
-            "robust": reader.mapping("robust", {}),
+            "input": reader.provenance(
+                strings=("log", "temperature_column"),
+                lists=("columns",),
+                units=(("log_unit", units.FIELD_UNITS_NT),),
+            ),
+            "robust": read_robust(reader),
         }
 
     @classmethod

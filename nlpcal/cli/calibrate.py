@@ -143,7 +143,7 @@ def run_calibrate(args) -> int:
     from ..errors import InputError
     from ..io import check_output_path, read_log
 
-    check_output_path(args.output)
+    check_output_path(args.output, args.log)
     temperature = args.temperature_column or args.temperature_model
     if args.temperature_model and not args.temperature_column:
         raise InputError("--temperature-model needs --temperature-column COL")
@@ -270,7 +270,7 @@ def run_apply(args) -> int:
     from ..correction import outliers, read_log_for
     from ..io import check_output_path
 
-    check_output_path(args.output)
+    check_output_path(args.output, args.log, args.params, args.drift)
     correction = _correction(args, require_temperature=True)
     log = read_log_for(args.log, correction, **log_options(args))
     tell(log.notes)

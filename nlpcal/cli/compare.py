@@ -99,8 +99,8 @@ def run(args) -> int:
             step_factor=args.cg_step_factor, rel_eps=args.cg_rel_eps, max_iter=args.cg_max_iter
         ),
     )
-    check_output_path(args.output)
-    check_output_path(args.plot)
+    check_output_path(args.output, args.log)
+    check_output_path(args.plot, args.log)
     if args.plot:
         require_matplotlib()
     log = read_log(args.log, **log_options(args))

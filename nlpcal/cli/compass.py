@@ -178,7 +178,7 @@ def run_calibrate(args) -> int:
     from ..compass import calibrate_sensor_log
     from ..io import check_output_path, read_sensor_log
 
-    check_output_path(args.output)
+    check_output_path(args.output, args.log)
     log = read_sensor_log(args.log, **_sensor_options(args))
     tell(log.notes)
     if not args.turn_column:
@@ -209,7 +209,7 @@ def run_attitude(args) -> int:
     from ..compass import CompassCalibration, attitude
     from ..io import check_output_path, read_sensor_log
 
-    check_output_path(args.output)
+    check_output_path(args.output, args.log, args.calibration)
     calibration = CompassCalibration.load(args.calibration)
     recorded = calibration.input
     options = _sensor_options(args)
@@ -237,7 +237,7 @@ def run_evaluate(args) -> int:
     from ..compass import evaluate, format_evaluation
     from ..io import check_output_path, read_columns
 
-    check_output_path(args.output)
+    check_output_path(args.output, args.attitude)
     truth = read_columns(args.attitude, args.truth_columns)
     estimate = read_columns(args.attitude, args.estimate_columns)
     stats = evaluate(

@@ -63,7 +63,7 @@ def run_fit(args) -> int:
     from ..drift.fit import fit_drift_log
     from ..io import check_output_path, read_log
 
-    check_output_path(args.output)
+    check_output_path(args.output, args.log)
     log = read_log(args.log, **log_options(args), extra_columns=[args.temperature_column])
     tell(log.notes)
     fit = fit_drift_log(log, args.temperature_column, base_temperature=args.base_temperature)

@@ -191,7 +191,7 @@ def _run_invert(args) -> int:
     from ..io import check_output_path, read_log
     from ..orthogonality import invert_logs
 
-    check_output_path(args.output)
+    check_output_path(args.output, *args.logs)
     if args.columns is not None and len(args.columns) != 3:
         raise InputError(f"got {len(args.columns)} field columns, expected 3; pass --columns X Y Z")
     logs = [

@@ -62,6 +62,7 @@ def register(sub):
 def run(args) -> int:
     from .. import simulation as sim
     from ..errors import InputError
+    from ..io import check_output_path
     from ..results import read_json_document
 
     if args.preset in sim.DIRECTORY_PRESETS:
@@ -76,6 +77,7 @@ def run(args) -> int:
     if args.preset not in sim.PRESETS:
         known = sorted(set(sim.PRESETS) | set(sim.DIRECTORY_PRESETS))
         raise InputError(f"unknown preset {args.preset!r}; expected one of {', '.join(known)}")
+    check_output_path(args.output, args.params)
     preset = sim.PRESETS[args.preset]
     parameters, field = preset.parameters, preset.field
     if args.params:

@@ -27,9 +27,11 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from .. import units, validation
+from ..calibration.diagnostics import explain_failure, scaled_hessian, uncertainty
 from ..calibration.joint import joint_start, run_joint
 from ..calibration.problem import Problem
 from ..calibration.staged import StopRule, run_staged
+from ..errors import QualityError, SolveError
 from ..io.logs import Log
 from ..models.zhou2010 import Zhou2010Parameters, correct
 from ..moments import accumulate
@@ -351,6 +353,7 @@ def compare(
     reference_unit: str | None = None,
     loss: str = "l2",
     loss_scale: float | None = None,
+    require_identifiable: bool = True,
 ) -> Comparison:
     """Run the staged cycle, the joint solve and the paper's CG (joint and staged) on one log.
 
@@ -361,6 +364,7 @@ def compare(
     loss, loss_scale : a robust loss (`nlpcal.calibration.calibrate`); its weights are fixed at
         the reweighted joint solution, and every method then minimises that weighted objective.
         [loss_scale: unit]
+    require_identifiable : raise QualityError when the attitudes leave parameters undetermined.
 
     Returns a Comparison. Raises InputError for unusable input and SolveError when IPOPT fails.
     """
@@ -370,23 +374,34 @@ def compare(
     samples = units.to_base(samples, unit)
     reference = units.to_base(reference, reference_unit or unit)
     chosen = Loss(loss, units.to_base(loss_scale, unit))
-    problem = Problem(
-        samples=samples, reference=reference, moments=accumulate(samples, reference), loss=chosen
-    )
+    validation.reference_scale(reference, validation.mean_magnitude(samples))
+    moments = accumulate(samples, reference)
+    problem = Problem(samples=samples, reference=reference, moments=moments, loss=chosen)
     if chosen.robust:  # the weights of the robust optimum, then the same objective for all
         run_joint(problem)
         problem.frozen = True
     moments = problem.moments
 
     rule = StopRule(max_cycles=int(settings.cycles), rtol=settings.rtol)
-    _, staged, stages, stop_reason = run_staged(problem, rule)
-
-    start = joint_start(moments)
-    joint_step, joint_rows, joint_stages = run_joint(problem)
+    try:
+        _, staged, stages, stop_reason = run_staged(problem, rule)
+        start = joint_start(moments)
+        joint_step, joint_rows, joint_stages = run_joint(problem)
+    except SolveError as failure:
+        raise explain_failure(problem, failure) from None
     joint_theta = joint_step.theta
     joint = joint_rows[-1]
     joint["status"] = joint_stages[-1]["status"]
     joint_path = _joint_trajectory(joint_step, joint["iterations"], joint["objective"])
+    hs = scaled_hessian(moments, joint_theta, joint_step)
+    weak = uncertainty(problem, joint["objective"], hs)[1]["not_identifiable"]
+    if weak and require_identifiable:
+        raise QualityError(
+            f"the data do not determine {', '.join(weak)}, so no method has an optimum to reach; "
+            f"rotate the sensor through more attitudes (require_identifiable=False compares "
+            f"anyway)",
+            "Not_Identifiable",
+        )
 
     cg_joint, cg_joint_paths = [], {}
     for scaled in (False, True):

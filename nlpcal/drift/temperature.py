@@ -243,6 +243,7 @@ def calibrate_temperature(
     units.check_compatible(unit, reference_unit or unit)
     samples = units.to_base(samples, unit)
     reference = np.broadcast_to(units.to_base(reference, reference_unit or unit), (n,)).copy()
+    validation.reference_scale(reference, validation.mean_magnitude(samples))
     nx = 9 + n_coefficients(model)
     if n <= nx:
         raise InputError(f"got {n} samples, need more than {nx} for the {model} model")

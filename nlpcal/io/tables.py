@@ -35,6 +35,11 @@ SENSORS = {
 }
 
 
+def _one_line(error: Exception) -> str:
+    """An exception's message on one line (pandas' tokenizer messages end in a newline)."""
+    return " ".join(str(error).split())
+
+
 def csv_engine() -> str:
     """The fastest pandas CSV engine available here: "pyarrow" when installed, else "c"."""
     try:
@@ -57,9 +62,9 @@ def read_table(path) -> pd.DataFrame:
             try:
                 frame = pd.read_csv(path, engine="c")
             except Exception:
-                raise InputError(f"{path}: cannot be read as CSV ({exc})") from None
+                raise InputError(f"{path}: cannot be read as CSV ({_one_line(exc)})") from None
         else:
-            raise InputError(f"{path}: cannot be read as CSV ({exc})") from None
+            raise InputError(f"{path}: cannot be read as CSV ({_one_line(exc)})") from None
     frame.columns = [str(c).strip() for c in frame.columns]
     return frame
 
@@ -188,7 +193,9 @@ def csv_to_memmap(
     rows = dropped = 0
     try:
         reader = pd.read_csv(
-            path, usecols=lambda c: str(c).strip() in wanted, chunksize=chunk_rows, engine="c"
+            path,
+            chunksize=chunk_rows,
+            engine="c",  # every column: ragged rows are errors
         )
         for chunk in reader:
             chunk.columns = [str(c).strip() for c in chunk.columns]
@@ -203,7 +210,7 @@ def csv_to_memmap(
         raise
     except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
         store.close()
-        raise InputError(f"{path}: cannot be read as CSV ({exc})") from None
+        raise InputError(f"{path}: cannot be read as CSV ({_one_line(exc)})") from None
     store.flush()
     if rows == 0:
         store.close()
@@ -220,6 +227,6 @@ def read_table_header(path) -> pd.DataFrame:
     except pd.errors.EmptyDataError:
         raise InputError(f"{path}: the file is empty") from None
     except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
-        raise InputError(f"{path}: cannot be read as CSV ({exc})") from None
+        raise InputError(f"{path}: cannot be read as CSV ({_one_line(exc)})") from None
     frame.columns = [str(c).strip() for c in frame.columns]
     return frame
