@@ -113,12 +113,9 @@ def samples(
     """Field samples from many attitudes, (N, 3) float64: finite, not all equal, and no axis
     constant."""
     array = vectors(values, "samples", minimum=minimum, purpose=purpose)
-    low, high = np.full(3, np.inf), np.full(3, -np.inf)
-    for start in range(0, array.shape[0], CHECK_CHUNK_ROWS):  # O(chunk) memory: memmaps too
-        chunk = array[start : start + CHECK_CHUNK_ROWS]
-        if not np.isfinite(chunk).all():
-            raise InputError("samples contain NaN or infinite values; drop or fix those rows")
-        low, high = np.minimum(low, chunk.min(axis=0)), np.maximum(high, chunk.max(axis=0))
+    low, high = axis_ranges(array)
+    if not (np.isfinite(low).all() and np.isfinite(high).all()):
+        raise InputError("samples contain NaN or infinite values; drop or fix those rows")
     largest = float(np.max(np.maximum(np.abs(low), np.abs(high))))
     if largest > MAX_SAMPLE_VALUE:
         raise InputError(
@@ -139,6 +136,20 @@ def samples(
             f"calibration needs attitudes that turn every axis"
         )
     return array
+
+
+def axis_ranges(array) -> tuple:
+    """Per-column minimum and maximum of an (N, 3) array, NaN where a column has a NaN, in
+    chunks (a memory map stays mapped). One column at a time: a strided 1-d reduction is an
+    order of magnitude faster than numpy's reduction along the first axis of an (N, 3) array."""
+    low, high = np.full(3, np.inf), np.full(3, -np.inf)
+    for start in range(0, array.shape[0], CHECK_CHUNK_ROWS):
+        chunk = array[start : start + CHECK_CHUNK_ROWS]
+        for k in range(3):  # NaN propagates through min and max
+            column = chunk[:, k]
+            low[k] = np.minimum(low[k], column.min())
+            high[k] = np.maximum(high[k], column.max())
+    return low, high
 
 
 def reference(value, n: int, what: str = "the reference field"):
