@@ -89,7 +89,7 @@ def calibrate(
     except SolveError as failure:
         raise explain_failure(problem, failure) from None
     final = rows[-1]
-    errors, identifiability = uncertainty(
+    errors, identifiability, covariance = uncertainty(
         problem, final["objective"], hs, final["residual_lag1_autocorrelation"]
     )
     identifiability["coverage"] = direction_coverage(samples, theta)
@@ -116,6 +116,7 @@ def calibrate(
         },
         unit=units.base_unit(unit),
         standard_errors=errors,
+        covariance=covariance,
         identifiability=identifiability,
         warnings=warnings,
         n_samples=int(samples.shape[0]),
@@ -152,6 +153,8 @@ def calibrate_log(
     result.input = log.metadata()
     if log.reference_column:
         result.reference["column"] = log.reference_column
+    if log.reference_source:
+        result.reference["model"] = dict(log.reference_source)
     return result
 
 
