@@ -44,6 +44,7 @@ def calibrate(
     target_range: float | None = None,
     rtol: float = RTOL_DEFAULT,
     require_identifiable: bool = True,
+    progress=None,
 ) -> CalibrationResult:
     """Estimate the nine parameters of Eq. 4 in [1] from a log of many attitudes.
 
@@ -57,6 +58,7 @@ def calibrate(
     reference_unit : the unit of the reference (default: `unit`).
     cycles : the most staged cycles. target_std, target_range : stop the cycle when |B1| meets
         them [unit]. rtol : stop when a cycle lowers the objective by less than this fraction.
+    progress : None, or called with (cycle, Table 1 row) after every staged cycle.
     require_identifiable : raise QualityError (holding the result) when the attitude coverage
         leaves parameters undetermined; False returns the result with its warnings.
 
@@ -80,7 +82,7 @@ def calibrate(
             rule = StopRule(
                 max_cycles=cycles, target_std=target_std, target_range=target_range, rtol=rtol
             )
-            theta, rows, stages, stop_reason = run_staged(problem, rule)
+            theta, rows, stages, stop_reason = run_staged(problem, rule, progress)
             hs = scaled_hessian(problem.moments, theta)
         else:
             step, rows, stages = run_joint(problem)

@@ -40,10 +40,11 @@ class StopRule:
     rtol: float = 1e-9
 
 
-def run_staged(problem, rule: StopRule):
+def run_staged(problem, rule: StopRule, progress=None):
     """Cycle the three stages until a stop rule holds.
 
     problem : a `nlpcal.calibration.problem.Problem` (samples, moments, reference).
+    progress : None, or called with (cycle, its Table 1 row) after every cycle.
     Returns (theta, rows, stages, stop_reason): the last parameters, one Table 1 row per cycle
     (after the measured row), the record of every stage solve and why the cycle stopped.
     """
@@ -76,6 +77,8 @@ def run_staged(problem, rule: StopRule):
             wall_s=time.perf_counter() - started,
         )
         rows.append(row)
+        if progress is not None:
+            progress(cycle, row)
         if rule.target_std is not None and row["std"] <= rule.target_std:
             stop_reason = "target_std"
             break

@@ -40,7 +40,7 @@ def _check(fmt: str, unit, instance) -> None:
 
 
 def export(
-    result: CalibrationResult,
+    result,
     fmt: str,
     *,
     unit: str | None = None,
@@ -49,6 +49,7 @@ def export(
 ) -> Export:
     """A calibration in one of `FORMATS`, as text with notes for the user.
 
+    result : a CalibrationResult, or a temperature calibration (its parameters at t0).
     unit : the unit of the offsets and field in matlab, matrix and c-header (default: the unit
         of the log the calibration was estimated from); the autopilots' units are fixed.
     instance : the compass instance (ardupilot 1-3, default 1) or slot (px4 0-3, default 0).
@@ -56,6 +57,8 @@ def export(
         autopilot formats (default `nlpcal.formats.autopilot.MAX_ROTATION_DEG`). [deg]
     """
     _check(fmt, unit, instance)
+    if not isinstance(result, CalibrationResult):
+        result = result.calibration  # a temperature calibration: the nine parameters at t0
     correction = AffineCorrection.from_result(result, unit)
     if fmt in AUTOPILOTS:
         module = FORMATS[fmt]

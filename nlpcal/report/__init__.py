@@ -4,6 +4,7 @@ self-contained HTML report (`nlpcal report`)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from ..calibration.result import CalibrationResult
 from ..errors import InputError
@@ -23,6 +24,12 @@ def _calibration(parameters) -> CalibrationResult | None:
     return getattr(parameters, "calibration", None)
 
 
+def _same_log(calibration: CalibrationResult | None, log: Log) -> bool:
+    """Whether the calibration was estimated from this log (so that its cycles describe it)."""
+    recorded = (calibration.input or {}).get("log") if calibration is not None else None
+    return bool(recorded) and Path(str(recorded)).resolve() == Path(log.path).resolve()
+
+
 def figure_png(log: Log, parameters, corrected=None, *, title: str = "", dpi: int = 150) -> bytes:
     """The calibration figure (`nlpcal.plots.calibration_png`) of a log and its correction.
 
@@ -32,7 +39,10 @@ def figure_png(log: Log, parameters, corrected=None, *, title: str = "", dpi: in
     calibration = _calibration(parameters)
     if corrected is None:
         corrected = correct(log.samples, calibration.model)  # type: ignore[union-attr]
-    return calibration_png(CalibrationView.build(log, corrected, calibration, title), dpi=dpi)
+    view = CalibrationView.build(log, corrected, calibration, title)
+    if not _same_log(calibration, log):
+        view.cycles = []  # the cycles of another log's calibration do not describe this one
+    return calibration_png(view, dpi=dpi)
 
 
 @dataclass
