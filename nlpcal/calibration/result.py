@@ -163,7 +163,7 @@ class CalibrationResult(Document):
     @classmethod
     def fields_from(cls, reader: DocumentReader) -> dict:
         """The constructor arguments stored in a document (shared with the temperature kind)."""
-        errors = reader.reader("standard_errors", None)
+        errors = reader.reader("standard_errors") if reader.has("standard_errors") else None
         return {
             "parameters": read_parameters(reader).to_dict(),
             "statistics": reader.items("statistics", []),

@@ -110,7 +110,11 @@ def import_file(
         else:
             correction.field = field
     result = correction.to_result(
-        imported_from=str(path), format=fmt, sha256=sha256_file(path), field_scale=scaled
+        log_unit=None if fmt in AUTOPILOTS else correction.unit,
+        imported_from=str(path),
+        format=fmt,
+        sha256=sha256_file(path),
+        field_scale=scaled,
     )
     angle = result.input["rotation_not_carried"]["angle_deg"]
     if angle > ROTATION_NOTE_DEG:

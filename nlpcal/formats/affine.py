@@ -138,9 +138,10 @@ class AffineCorrection(Document):
             factor,
         )
 
-    def to_result(self, **input_block) -> CalibrationResult:
+    def to_result(self, log_unit: str | None = None, **input_block) -> CalibrationResult:
         """A CalibrationResult holding the nine parameters of this correction (Cholesky route).
 
+        log_unit : the unit of the logs it applies to (default: the base unit, nT or raw).
         The rotation Q that the nine parameters do not carry (A = Q O_p S_p) is recorded under
         input.rotation_not_carried; |B1| is the same with or without it.
         """
@@ -162,7 +163,7 @@ class AffineCorrection(Document):
             unit=base,
             input={
                 **input_block,
-                "log_unit": self.unit,
+                "log_unit": log_unit or base,
                 "rotation_not_carried": {"angle_deg": angle, "matrix": rotation.tolist()},
             },
         )

@@ -59,7 +59,7 @@ def write(correction: AffineCorrection, instance: int = 1, max_rotation_deg=None
     dia = np.diag(p)
     odi = np.array([p[0, 1], p[0, 2], p[1, 2]])  # D = [[X, oX, oY], [oX, Y, oZ], [oY, oZ, Z]]
     for name, value in zip(keys["DIA"], dia):
-        check_range(name, value, *DIAGONAL_RANGE, "ArduPilot", "CompassCalibrator accepts")
+        check_range(name, value, *DIAGONAL_RANGE, "ArduPilot", "what its CompassCalibrator accepts")
     for name, value in zip(keys["ODI"], odi):
         check_range(
             name,
