@@ -43,8 +43,9 @@ _MODELS = {
 GEOMAG_HINT = "pip install 'nlpcal[geomag]'"
 #: Distinct positions evaluated per call of the IGRF package (bounds its memory).
 CHUNK_POSITIONS = 20000
-#: Heights accepted: WMM is defined from 1 km below the ellipsoid to 850 km above it. [m]
-ALTITUDE_RANGE_M = (-1000.0, 850_000.0)
+#: Heights accepted: WMM is defined from 1 km below the ellipsoid to 850 km above it; IGRF, a
+#: potential field of internal sources, holds out to several Earth radii (6 000 km here). [m]
+ALTITUDE_RANGE_M = {"igrf": (-1000.0, 6_000_000.0), "wmm": (-1000.0, 850_000.0)}
 
 
 @dataclass
@@ -126,12 +127,12 @@ def parse_times(values) -> np.ndarray:
     return parsed.dt.tz_localize(None).to_numpy(dtype="datetime64[ns]")
 
 
-def _check_place(lat, lon, alt_m) -> tuple:
+def _check_place(model: str, lat, lon, alt_m) -> tuple:
     lat, lon, alt = (np.asarray(v, dtype=float) for v in (lat, lon, alt_m))
     for values, what, low, high in (
         (lat, "latitude", -90.0, 90.0),
         (lon, "longitude", -360.0, 360.0),
-        (alt, "height above the ellipsoid [m]", *ALTITUDE_RANGE_M),
+        (alt, "height above the ellipsoid [m]", *ALTITUDE_RANGE_M[model]),
     ):
         if not np.isfinite(values).all():
             raise InputError(f"the {what} contains non-finite values")
@@ -209,7 +210,7 @@ def evaluate(model: str, lat_deg, lon_deg, alt_m=0.0, when=None) -> ModelField:
     if when is None:
         raise InputError("the geomagnetic model needs a date (--date YYYY-MM-DD or --time-column)")
     times = np.asarray(when) if np.ndim(when) else parse_date(when)
-    lat, lon, alt, times = np.broadcast_arrays(*_check_place(lat_deg, lon_deg, alt_m), times)
+    lat, lon, alt, times = np.broadcast_arrays(*_check_place(model, lat_deg, lon_deg, alt_m), times)
     shape = lat.shape
     years = decimal_year(times.ravel())
     _check_years(model, years)
