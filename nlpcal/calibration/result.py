@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import units, validation
+from .. import inference, units, validation
 from ..errors import InputError
 from ..models.zhou2010 import PARAMETER_NAMES, PARAMETER_UNITS, Zhou2010Parameters, correct
 from ..results import Document, DocumentReader
@@ -125,11 +125,7 @@ class CalibrationResult(Document):
 
     def correlation(self) -> np.ndarray | None:
         """(9, 9) correlation matrix of the parameters, or None without a covariance. [1]"""
-        if self.covariance is None:
-            return None
-        sd = np.sqrt(np.clip(np.diag(self.covariance), 0, None))
-        scale = np.where(sd > 0, sd, 1.0)
-        return self.covariance / np.outer(scale, scale)
+        return inference.correlation(self.covariance)
 
     def table(self) -> str:
         return format_table(self.statistics, self.unit, extra=("iterations",))

@@ -27,28 +27,12 @@ def register(sub):
         description=__doc__.split("\n\n")[2],
     )
     parser.add_argument("params", metavar="PARAMS.json")
-    parser.add_argument(
-        "--format",
-        required=True,
-        choices=FORMATS,
-        dest="fmt",
-        metavar="FMT",
-        help=f"one of {', '.join(FORMATS)}",
+    add_format_arguments(
+        parser,
+        "unit of the offsets and field in matlab, matrix and c-header (default: the unit of the "
+        "calibrated log); ardupilot is in mG and px4 in G",
     )
     parser.add_argument("-o", "--output", metavar="FILE", help="write here (stdout when absent)")
-    parser.add_argument(
-        "--unit",
-        choices=[u for u in FIELD_UNITS],
-        help="unit of the offsets and field in matlab, matrix and c-header (default: the unit "
-        "of the calibrated log); ardupilot is in mG and px4 in G",
-    )
-    parser.add_argument(
-        "--instance",
-        type=int,
-        metavar="N",
-        help="compass instance: ardupilot 1, 2 or 3 (default 1, COMPASS_OFS2_* for 2); px4 "
-        "calibration slot 0-3 (default 0)",
-    )
     parser.add_argument(
         "--max-rotation-deg",
         type=float,
@@ -57,6 +41,26 @@ def register(sub):
         "(default 5 deg)",
     )
     parser.set_defaults(func=run)
+
+
+def add_format_arguments(parser, unit_help: str) -> None:
+    """--format, --unit and --instance, shared by export and import."""
+    parser.add_argument(
+        "--format",
+        required=True,
+        choices=FORMATS,
+        dest="fmt",
+        metavar="FMT",
+        help=f"one of {', '.join(FORMATS)}",
+    )
+    parser.add_argument("--unit", choices=FIELD_UNITS, help=unit_help)
+    parser.add_argument(
+        "--instance",
+        type=int,
+        metavar="N",
+        help="compass instance: ardupilot 1, 2 or 3 (default 1; 2 is COMPASS_OFS2_* ...), px4 "
+        "calibration slot 0-3 (default 0)",
+    )
 
 
 def run(args) -> int:

@@ -11,8 +11,8 @@ is reported (the magnitude |B1| is the same). The result is a parameters file th
 
 from __future__ import annotations
 
-from .common import FIELD_UNITS, emit_json, say, tell
-from .export import FORMATS
+from .common import emit_json, say, tell
+from .export import add_format_arguments
 
 
 def register(sub):
@@ -23,14 +23,6 @@ def register(sub):
     )
     parser.add_argument("file", metavar="FILE")
     parser.add_argument(
-        "--format",
-        required=True,
-        choices=FORMATS,
-        dest="fmt",
-        metavar="FMT",
-        help=f"one of {', '.join(FORMATS)}",
-    )
-    parser.add_argument(
         "--field",
         type=float,
         metavar="F",
@@ -38,17 +30,10 @@ def register(sub):
         "expected field (magcal's expmfs, the matrix 'field') has A rescaled to it; otherwise it "
         "is recorded as the reference field",
     )
-    parser.add_argument(
-        "--unit",
-        choices=[u for u in FIELD_UNITS],
-        help="unit of the offsets and field of a matlab, matrix or c-header file (default: "
-        "what the file says, else nT)",
-    )
-    parser.add_argument(
-        "--instance",
-        type=int,
-        metavar="N",
-        help="compass instance: ardupilot 1-3 (default 1), px4 slot 0-3 (default 0)",
+    add_format_arguments(
+        parser,
+        "unit of the offsets and field of a matlab, matrix or c-header file (default: what the "
+        "file says, else nT)",
     )
     parser.add_argument(
         "-o", "--output", metavar="PARAMS.json", help="write here (stdout when absent)"
