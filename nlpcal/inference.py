@@ -79,11 +79,17 @@ class Uncertainty:
 
     def correlation(self) -> np.ndarray | None:
         """Correlation matrix of the parameters, or None without a covariance. [1]"""
-        if self.covariance is None:
-            return None
-        sd = np.sqrt(np.clip(np.diag(self.covariance), 0, None))
-        scale = np.where(sd > 0, sd, 1.0)
-        return self.covariance / np.outer(scale, scale)
+        return correlation(self.covariance)
+
+
+def correlation(covariance) -> np.ndarray | None:
+    """The correlation matrix of a covariance (None gives None). [1]"""
+    if covariance is None:
+        return None
+    covariance = np.asarray(covariance, dtype=float)
+    sd = np.sqrt(np.clip(np.diag(covariance), 0, None))
+    scale = np.where(sd > 0, sd, 1.0)
+    return covariance / np.outer(scale, scale)
 
 
 def estimate(

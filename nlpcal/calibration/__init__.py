@@ -57,6 +57,7 @@ def calibrate(
     loss_scale: float | None = None,
     require_identifiable: bool = True,
     allow_unconverged: bool = False,
+    progress=None,
 ) -> CalibrationResult:
     """Estimate the nine parameters of Eq. 4 in [1] from a log of many attitudes.
 
@@ -74,6 +75,7 @@ def calibrate(
         spikes and other outliers, by iteratively reweighted moments.
     loss_scale : the residual beyond which a sample is down-weighted; default 1.345 (Huber) or
         2.385 (Cauchy) times 1.4826 MAD of the residuals. [unit]
+    progress : None, or called with (cycle, Table 1 row) after every staged cycle.
     require_identifiable : raise QualityError (holding the result) when the attitude coverage
         leaves parameters undetermined; False returns the result with its warnings.
     allow_unconverged : return a staged result that stopped at its cycle limit, or away from the
@@ -113,7 +115,7 @@ def calibrate(
             rule = StopRule(
                 max_cycles=cycles, target_std=target_std, target_range=target_range, rtol=rtol
             )
-            theta, rows, stages, stop_reason = run_staged(problem, rule)
+            theta, rows, stages, stop_reason = run_staged(problem, rule, progress)
             hs = scaled_hessian(problem.moments, theta)
         else:
             step, rows, stages = run_joint(problem)
@@ -122,7 +124,7 @@ def calibrate(
     except SolveError as failure:
         raise explain_failure(problem, failure) from None
     final = rows[-1]
-    errors, identifiability = uncertainty(
+    errors, identifiability, covariance = uncertainty(
         problem, final["objective"], hs, final["residual_lag1_autocorrelation"], theta
     )
     identifiability["coverage"] = direction_coverage(samples, theta)
@@ -154,7 +156,7 @@ def calibrate(
             message = staged_message(stop_reason, cycles, gap)
             warnings.append(message)
             identifiability["standard_errors_at_joint_optimum"] = errors
-            errors = None  # they describe an optimum, which this point is not
+            errors = covariance = None  # they describe an optimum, which this point is not
             if stop_reason in ("max_cycles", "rtol"):  # a target stop is the user's request
                 stop_reason = stop_reason if stop_reason == "max_cycles" else "above_joint_optimum"
                 unconverged = message
@@ -181,6 +183,7 @@ def calibrate(
         },
         unit=units.base_unit(unit),
         standard_errors=errors,
+        covariance=covariance,
         identifiability=identifiability,
         warnings=warnings,
         n_samples=int(samples.shape[0]),
@@ -252,6 +255,8 @@ def calibrate_log(
     result.input = log.metadata()
     if log.reference_column:
         result.reference["column"] = log.reference_column
+    if log.reference_source:
+        result.reference["model"] = dict(log.reference_source)
     return result
 
 

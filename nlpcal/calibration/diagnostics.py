@@ -73,7 +73,8 @@ def _names(indices) -> list:
 def uncertainty(
     problem: Problem, objective: float, hs: np.ndarray, autocorrelation: float = 0.0, theta=None
 ):
-    """Standard errors [parameter units] and the identifiability block of a result.
+    """Standard errors [parameter units], the identifiability block of a result and the
+    covariance of the nine parameters in their units (angles in deg), or None.
 
     For f = (1/N) sum r_i^2 the Gauss-Newton information is N H / 2 (`nlpcal.inference`), here
     in the scaled variables of the problems; without a reference it is taken on the gauge's null
@@ -96,27 +97,32 @@ def uncertainty(
             residual_variance=n * objective / max(n - 9, 1),
             **options,
         )
-    errors = None
+    errors = covariance = None
     if result.covariance is not None:
-        sd = result.standard_errors * variable_scale(moments.frame.radius)
-        sd[6:9] = np.degrees(sd[6:9])
-        errors = {name: float(v) for name, v in zip(PARAMETER_NAMES, sd)}
+        to_units = variable_scale(moments.frame.radius).copy()  # scaled -> parameter units
+        to_units[6:9] = np.degrees(to_units[6:9])
+        covariance = to_units[:, None] * result.covariance * to_units[None, :]
+        errors = {name: float(v) for name, v in zip(PARAMETER_NAMES, np.sqrt(np.diag(covariance)))}
     limits = np.concatenate([POORLY_DETERMINED[:3] * moments.frame.radius, POORLY_DETERMINED[3:]])
     poorly = [
         name
         for name, limit in zip(PARAMETER_NAMES, limits)
         if errors is not None and errors[name] > limit
     ]
-    return errors, {
-        "not_identifiable": _names(result.weak),
-        "poorly_determined": poorly,
-        "weakest_combination": _names(result.weakest),
-        "hessian_eigenvalues_scaled": [float(v) for v in result.eigenvalues * 2.0 / n],
-        "covariance_form": "sandwich" if problem.loss.robust else "gauss-newton",
-        "residual_lag1_autocorrelation": float(autocorrelation),
-        "standard_error_inflation": result.inflation,
-        "poorly_determined_limits": {n_: float(v) for n_, v in zip(PARAMETER_NAMES, limits)},
-    }
+    return (
+        errors,
+        {
+            "not_identifiable": _names(result.weak),
+            "poorly_determined": poorly,
+            "weakest_combination": _names(result.weakest),
+            "hessian_eigenvalues_scaled": [float(v) for v in result.eigenvalues * 2.0 / n],
+            "covariance_form": "sandwich" if problem.loss.robust else "gauss-newton",
+            "residual_lag1_autocorrelation": float(autocorrelation),
+            "standard_error_inflation": result.inflation,
+            "poorly_determined_limits": {n_: float(v) for n_, v in zip(PARAMETER_NAMES, limits)},
+        },
+        covariance,
+    )
 
 
 def sandwich(problem: Problem, theta) -> tuple:
@@ -212,7 +218,7 @@ def explain_failure(problem: Problem, failure: SolveError) -> SolveError:
         return failure
     hs = scaled_hessian(problem.moments, theta)
     objective = field_statistics(problem.samples, theta, problem.reference)["objective"]
-    _, identifiability = uncertainty(problem, objective, hs)
+    _, identifiability, _ = uncertainty(problem, objective, hs)
     weak = identifiability["not_identifiable"]
     if weak:
         advice = (

@@ -11,8 +11,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import units, validation
-from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters, correct
+from .. import inference, units, validation
+from ..errors import InputError
+from ..models.zhou2010 import PARAMETER_NAMES, PARAMETER_UNITS, Zhou2010Parameters, correct
 from ..results import Document, DocumentReader
 from ..statistics import STD_DDOF, format_table
 from ..version import __version__
@@ -53,6 +54,23 @@ def read_robust(reader: DocumentReader) -> dict:
     return dict(block.document)
 
 
+def read_covariance(reader: DocumentReader) -> np.ndarray | None:
+    """The optional "covariance" block: 9 x 9, symmetric, finite, non-negative diagonal."""
+    if not reader.has("covariance"):
+        return None
+    block = reader.reader("covariance")
+    if block.strings("parameters") != list(PARAMETER_NAMES):
+        raise InputError(
+            f"{reader.source}: covariance.parameters must be {', '.join(PARAMETER_NAMES)}"
+        )
+    matrix = block.array("matrix", (9, 9))
+    if not np.allclose(matrix, matrix.T, rtol=1e-9, atol=0.0) or (np.diag(matrix) < 0).any():
+        raise InputError(
+            f"{reader.source}: covariance.matrix must be symmetric with a non-negative diagonal"
+        )
+    return matrix
+
+
 @dataclass
 class CalibrationResult(Document):
     """A calibration: the nine parameters of Eq. 4 in [1], Table 1 rows and how they were found.
@@ -62,6 +80,8 @@ class CalibrationResult(Document):
         iterations, wall_s [s]); the first is the measured |B_M|.
     unit : the unit of offsets and rows: "nT", or "raw" for counts.
     standard_errors : per parameter, in its unit; None when the data leave a direction free.
+    covariance : (9, 9) covariance of the parameters in PARAMETER_NAMES order, in their units
+        (offsets [unit], scale errors [1], angles [deg]); None without standard errors.
     identifiability : what the attitude coverage determines (`nlpcal.calibration.diagnostics`).
     input : where the samples came from (file, columns, the unit of the file).
     robust : the loss and its scale, the samples it down-weighted, and the spread of the
@@ -87,6 +107,7 @@ class CalibrationResult(Document):
     solver: dict = field(default_factory=dict)
     unit: str = "nT"
     standard_errors: dict | None = None
+    covariance: np.ndarray | None = None
     identifiability: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
     n_samples: int = 0
@@ -116,6 +137,10 @@ class CalibrationResult(Document):
         corrected = correct(units.to_base(samples, unit), self.model)
         return units.from_base(corrected, unit)
 
+    def correlation(self) -> np.ndarray | None:
+        """(9, 9) correlation matrix of the parameters, or None without a covariance. [1]"""
+        return inference.correlation(self.covariance)
+
     def table(self) -> str:
         return format_table(self.statistics, self.unit, extra=("iterations",))
 
@@ -135,6 +160,12 @@ class CalibrationResult(Document):
             "n_samples": self.n_samples,
             "nlpcal_version": self.version,
         }
+        if self.covariance is not None:
+            document["covariance"] = {
+                "parameters": list(PARAMETER_NAMES),
+                "units": [self.unit if u == "field" else u for u in PARAMETER_UNITS],
+                "matrix": np.asarray(self.covariance).tolist(),
+            }
         if self.input:
             document["input"] = dict(self.input)
         if self.robust:
@@ -144,7 +175,7 @@ class CalibrationResult(Document):
     @classmethod
     def fields_from(cls, reader: DocumentReader) -> dict:
         """The constructor arguments stored in a document (shared with the temperature kind)."""
-        errors = reader.reader("standard_errors", None)
+        errors = reader.reader("standard_errors") if reader.has("standard_errors") else None
         return {
             "parameters": read_parameters(reader).to_dict(),
             "statistics": reader.items("statistics", []),
@@ -160,6 +191,7 @@ class CalibrationResult(Document):
                 for name in PARAMETER_NAMES
                 if errors.has(name)
             },
+            "covariance": read_covariance(reader),
             "identifiability": reader.mapping("identifiability", {}),
             "warnings": reader.strings("warnings", []),
             "n_samples": reader.integer("n_samples", 0),

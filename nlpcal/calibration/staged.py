@@ -40,13 +40,14 @@ class StopRule:
     rtol: float = 1e-9
 
 
-def run_staged(problem, rule: StopRule):
+def run_staged(problem, rule: StopRule, progress=None):
     """Cycle the three stages until a stop rule holds.
 
     problem : a `nlpcal.calibration.problem.Problem` (samples, moments, reference, loss).
     With a robust loss the first cycle is least squares, and every later cycle starts by
     reweighting the samples at the latest parameters (iteratively reweighted least squares, one
     reweighting per cycle); the objective of the rtol rule is then the mean loss.
+    progress : None, or called with (cycle, its Table 1 row) after every cycle.
     Returns (theta, rows, stages, stop_reason): the last parameters, one Table 1 row per cycle
     (after the measured row), the record of every stage solve and why the cycle stopped.
     """
@@ -81,6 +82,8 @@ def run_staged(problem, rule: StopRule):
             wall_s=time.perf_counter() - started,
         )
         rows.append(row)
+        if progress is not None:
+            progress(cycle, row)
         if rule.target_std is not None and row["std"] <= rule.target_std:
             stop_reason = "target_std"
             break

@@ -16,11 +16,22 @@ import sys
 
 from ..errors import InputError, QualityError, SolveError, WriteError
 from ..version import __version__
-from . import calibrate, compare, compass, drift, orthogonality, simulate
-from .common import Parser, UsageError
+from . import (
+    calibrate,
+    common,
+    compare,
+    compass,
+    drift,
+    export,
+    imports,
+    orthogonality,
+    report,
+    simulate,
+)
+from .common import Parser, UsageError, add_quiet_argument
 
 #: The subcommand modules, in the order of the help.
-COMMANDS = (simulate, calibrate, compare, orthogonality, drift, compass)
+COMMANDS = (simulate, calibrate, compare, orthogonality, drift, compass, export, imports, report)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -30,6 +41,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
     for module in COMMANDS:
         module.register(sub)
+    add_quiet_argument(parser)
     return parser
 
 
@@ -51,6 +63,7 @@ def main(argv=None) -> int:
         return 2
     except SystemExit as exc:  # --help and --version
         return int(exc.code or 0)
+    common.QUIET = bool(getattr(args, "quiet", False))
     previous = signal.getsignal(signal.SIGTERM)
     in_main_thread = _set_signal(signal.SIGTERM, _terminate)
     try:

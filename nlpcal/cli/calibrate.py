@@ -16,7 +16,6 @@ by k(t) (Eq. 9) before Eq. 4; `stats --reference-column` adds the RMSE of Eq. 10
 
 from __future__ import annotations
 
-import sys
 import time
 from typing import TYPE_CHECKING
 
@@ -24,9 +23,12 @@ from .common import (
     add_log_arguments,
     add_loss_arguments,
     add_reference_arguments,
+    add_reference_model_arguments,
     emit_csv,
     emit_json,
     log_options,
+    progress,
+    say,
     tell,
     warn,
 )
@@ -134,7 +136,38 @@ def _register_calibrate(sub):
         metavar="PARAMS.json",
         help="write the parameters here (stdout when absent)",
     )
+    _add_plot_argument(parser)
     parser.set_defaults(func=run_calibrate)
+
+
+def _add_plot_argument(parser):
+    parser.add_argument(
+        "--plot",
+        metavar="FIG.png",
+        help="write a figure of the log before and after the correction: |B| against the "
+        "sample, histograms of |B| - F, the covered field directions, the cycles (needs "
+        "matplotlib: pip install 'nlpcal[plot]')",
+    )
+
+
+def _write_plot(args, log, parameters, corrected=None) -> None:
+    """The calibration figure of --plot, written atomically."""
+    from ..io import write_bytes_atomic
+    from ..report import figure_png
+
+    if args.plot:
+        png = figure_png(log, parameters, corrected, title=f"{args.log} ({args.command})")
+        write_bytes_atomic(args.plot, png)
+        warn(f"wrote {args.plot}")
+
+
+def _check_plot(args) -> None:
+    from ..io import check_output_path
+    from ..plots import require_matplotlib
+
+    check_output_path(getattr(args, "plot", None))
+    if getattr(args, "plot", None):
+        require_matplotlib()
 
 
 def run_calibrate(args) -> int:
@@ -144,6 +177,7 @@ def run_calibrate(args) -> int:
     from ..io import check_output_path, read_log
 
     check_output_path(args.output, args.log)
+    _check_plot(args)
     temperature = args.temperature_column or args.temperature_model
     if args.temperature_model and not args.temperature_column:
         raise InputError("--temperature-model needs --temperature-column COL")
@@ -166,7 +200,9 @@ def run_calibrate(args) -> int:
         warn(f"{', '.join(staged_only)} only steer the staged cycle; the joint solve ignores them")
     started = time.perf_counter()
     extra = [args.temperature_column] if args.temperature_column else []
+    progress(f"reading {args.log} ...")
     log = read_log(args.log, **log_options(args), extra_columns=extra, low_memory=args.low_memory)
+    progress("")
     tell(log.notes)
     read_s = time.perf_counter() - started
     started = time.perf_counter()
@@ -189,12 +225,16 @@ def run_calibrate(args) -> int:
             loss=args.loss,
             loss_scale=args.loss_scale,
             allow_unconverged=args.allow_unconverged,
+            progress=lambda cycle, row: progress(
+                f"cycle {cycle}: std of |B1| {row['std']:.6g} {log.base_unit}"
+            ),
         )
+    progress("")
     warn(
         f"read {log.n} rows in {read_s:.2f} s (pandas {log.engine} engine); calibrated in "
         f"{time.perf_counter() - started:.2f} s"
     )
-    print(result.table(), file=sys.stderr)
+    say(result.table())
     robust = getattr(result, "robust", {})
     if robust.get("loss", "l2") != "l2":
         warn(
@@ -202,8 +242,20 @@ def run_calibrate(args) -> int:
             f"{robust['downweighted']} of {log.n} samples down-weighted"
         )
     tell(result.warnings)
+    corrected = None
+    if args.plot and temperature:
+        corrected = _apply_temperature(result, log, args.temperature_column)
     emit_json(result.to_dict(), args.output)
+    _write_plot(args, log, result, corrected)
     return 0
+
+
+def _apply_temperature(result, log, temperature_column):
+    """The log corrected by a temperature calibration (for its figure). [base unit]"""
+    from ..correction import Correction
+
+    correction = Correction.plan(result, None, temperature_column, log_columns=list(log.extras))
+    return correction.apply(log)
 
 
 # --- apply --------------------------------------------------------------------------------------
@@ -244,6 +296,8 @@ def _register_apply(sub):
     parser.add_argument(
         "-o", "--output", metavar="CORRECTED.csv", help="corrected log (stdout when absent)"
     )
+    _add_plot_argument(parser)
+    add_reference_model_arguments(parser)
     parser.set_defaults(func=run_apply)
 
 
@@ -268,10 +322,14 @@ def _correction(args, require_temperature: bool):
 
 def run_apply(args) -> int:
     from ..correction import outliers, read_log_for
+    from ..errors import InputError
     from ..io import check_output_path
 
     check_output_path(args.output, args.log, args.params, args.drift)
+    _check_plot(args)
     correction = _correction(args, require_temperature=True)
+    if args.plot and correction.parameters is None:
+        raise InputError("--plot needs parameters (PARAMS.json), not a drift file alone")
     log = read_log_for(args.log, correction, **log_options(args))
     tell(log.notes)
     corrected = correction.apply(log)
@@ -284,6 +342,7 @@ def run_apply(args) -> int:
     emit_csv(frame, args.output)  # exact values: the other columns pass through unchanged
     if args.output:
         warn(f"wrote {len(frame)} corrected rows to {args.output}")
+    _write_plot(args, log, correction.parameters, corrected)
     return 0
 
 
@@ -308,6 +367,7 @@ def _register_stats(sub):
         "(Liu et al. 2022) to every row",
     )
     parser.add_argument("--json", action="store_true", help="print the rows as JSON")
+    add_reference_model_arguments(parser)
     parser.set_defaults(func=run_stats)
 
 

@@ -20,9 +20,45 @@ class Parser(argparse.ArgumentParser):
         raise UsageError(f"{self.prog}: {message}")
 
 
+#: Set by -q/--quiet: human messages are silenced (errors are not).
+QUIET = False
+
+
 def warn(message: str) -> None:
-    """A human message on stderr."""
-    print(f"nlpcal: {message}", file=sys.stderr)
+    """A human message on stderr (silent with -q)."""
+    if not QUIET:
+        print(f"nlpcal: {message}", file=sys.stderr)
+
+
+def say(text: str) -> None:
+    """Human text (a table, say) on stderr, silent with -q."""
+    if not QUIET:
+        print(text, file=sys.stderr)
+
+
+def progress(message: str, done: bool = False) -> None:
+    """A progress line on stderr, rewritten in place: only when stderr is a terminal and not -q."""
+    if QUIET or not sys.stderr.isatty():
+        return
+    sys.stderr.write(f"\r\033[K{message}" + ("\n" if done else ""))
+    sys.stderr.flush()
+
+
+def add_quiet_argument(parser) -> None:
+    """-q/--quiet on a parser and, recursively, on its subcommands (the value set anywhere on the
+    command line wins)."""
+    default = argparse.SUPPRESS if parser.prog != "nlpcal" else False
+    parser.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        default=default,
+        help="no messages on stderr but errors",
+    )
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for child in dict.fromkeys(action.choices.values()):
+                add_quiet_argument(child)
 
 
 def add_log_arguments(
@@ -50,7 +86,7 @@ def add_log_arguments(
 
 
 def add_reference_arguments(parser) -> None:
-    """--reference-field F | --reference-column COL."""
+    """--reference-field F | --reference-column COL, or --reference-model with a place."""
     ref = parser.add_mutually_exclusive_group()
     ref.add_argument(
         "--reference-field",
@@ -61,6 +97,74 @@ def add_reference_arguments(parser) -> None:
     ref.add_argument(
         "--reference-column", metavar="COL", help="column of per-sample reference magnitudes [unit]"
     )
+    add_reference_model_arguments(parser)
+
+
+MODELS = ("igrf", "wmm")  # the library's nlpcal.geomagnetic.MODELS
+
+
+def add_place_arguments(parser, columns: bool = True) -> None:
+    """--lat, --lon, --alt-m, --date, and with `columns` their per-sample column forms."""
+    parser.add_argument("--lat", type=float, metavar="DEG", help="geodetic latitude [deg], north +")
+    parser.add_argument("--lon", type=float, metavar="DEG", help="longitude [deg], east +")
+    parser.add_argument(
+        "--alt-m",
+        type=float,
+        metavar="M",
+        help="height above the WGS 84 ellipsoid [m] (default 0)",
+    )
+    parser.add_argument("--date", metavar="YYYY-MM-DD", help="date (UTC) of the measurement")
+    if columns:
+        parser.add_argument("--lat-column", metavar="COL", help="column of latitudes [deg]")
+        parser.add_argument("--lon-column", metavar="COL", help="column of longitudes [deg]")
+        parser.add_argument("--alt-column", metavar="COL", help="column of heights [m]")
+        parser.add_argument(
+            "--time-column",
+            metavar="COL",
+            help="column of UTC times: ISO 8601 text, or Unix seconds",
+        )
+
+
+def add_reference_model_arguments(parser) -> None:
+    """--reference-model igrf|wmm with the place and date, constant or per sample."""
+    group = parser.add_argument_group(
+        "reference field from a geomagnetic model (pip install 'nlpcal[geomag]')"
+    )
+    group.add_argument(
+        "--reference-model",
+        choices=MODELS,
+        help="the model's total field at the place and date becomes the reference: igrf "
+        "(IGRF-14, 1900-2030) or wmm (WMM2025, 2025-2030); per sample with the column options",
+    )
+    add_place_arguments(group)
+
+
+def reference_model(args):
+    """The `nlpcal.geomagnetic.ReferenceModel` the arguments ask for, or None."""
+    from ..errors import InputError
+    from ..geomagnetic import ReferenceModel
+
+    names = ("lat", "lon", "alt_m", "date", "lat_column", "lon_column", "alt_column", "time_column")
+    given = {name: getattr(args, name, None) for name in names}
+    model = getattr(args, "reference_model", None)
+    if model is None:
+        used = [f"--{name.replace('_', '-')}" for name, value in given.items() if value is not None]
+        if used:
+            raise InputError(f"{', '.join(used)} need --reference-model igrf|wmm")
+        return None
+    spec = ReferenceModel(
+        model=model,
+        lat_deg=given["lat"],
+        lon_deg=given["lon"],
+        alt_m=given["alt_m"],
+        date=given["date"],
+        lat_column=given["lat_column"],
+        lon_column=given["lon_column"],
+        alt_column=given["alt_column"],
+        time_column=given["time_column"],
+    )
+    spec.check()
+    return spec
 
 
 def add_loss_arguments(parser) -> None:
@@ -90,6 +194,7 @@ def log_options(args) -> dict:
         "drop_invalid": args.drop_invalid,
         "reference_column": getattr(args, "reference_column", None),
         "reference_field": getattr(args, "reference_field", None),
+        "reference_model": reference_model(args),
     }
 
 

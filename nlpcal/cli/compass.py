@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import sys
 
-from .common import emit_csv, emit_json, tell, warn
+from .common import MODELS, add_place_arguments, emit_csv, emit_json, tell, warn
 
 ATTITUDE_COLUMNS = ("roll_deg", "pitch_deg", "heading_deg")
 FIELD_UNITS = ("nT", "uT", "mT", "mG", "G", "T")
@@ -83,10 +83,16 @@ def register(sub):
     att.add_argument(
         "--declination-deg",
         type=float,
-        default=0.0,
         metavar="DEG",
-        help="magnetic declination [deg], east positive, added to give true heading",
+        help="magnetic declination [deg], east positive, added to give true heading (default 0)",
     )
+    att.add_argument(
+        "--declination-model",
+        choices=MODELS,
+        help="take the declination from IGRF-14 or WMM2025 at --lat, --lon, --date (needs "
+        "pip install 'nlpcal[geomag]')",
+    )
+    add_place_arguments(att, columns=False)
     att.add_argument(
         "-o", "--output", metavar="ATTITUDE.csv", help="output CSV (stdout when absent)"
     )
@@ -222,7 +228,7 @@ def run_attitude(args) -> int:
         acc_fallback=recorded.get("acc_unit", "g"),
     )
     tell(log.notes)
-    result = attitude(calibration, log.mag, log.acc, declination_deg=args.declination_deg)
+    result = attitude(calibration, log.mag, log.acc, declination_deg=_declination(args))
     tell(result.warnings)
     frame, replaced = log.with_columns(
         dict(zip(ATTITUDE_COLUMNS, (result.roll_deg, result.pitch_deg, result.heading_deg)))
@@ -231,6 +237,30 @@ def run_attitude(args) -> int:
         warn(f"the log already has {', '.join(replaced)}; replaced them")
     emit_csv(frame, args.output)  # exact values: the log's own columns pass through unchanged
     return 0
+
+
+def _declination(args) -> float:
+    """--declination-deg, or the declination of --declination-model at the place and date."""
+    from ..errors import InputError
+    from ..geomagnetic import declination
+
+    place = [args.lat, args.lon, args.alt_m, args.date]
+    if args.declination_model is None:
+        if any(v is not None for v in place):
+            raise InputError("--lat, --lon, --alt-m and --date need --declination-model igrf|wmm")
+        return args.declination_deg or 0.0
+    if args.declination_deg is not None:
+        raise InputError("give --declination-deg or --declination-model, not both")
+    if args.lat is None or args.lon is None or args.date is None:
+        raise InputError("--declination-model needs --lat DEG --lon DEG --date YYYY-MM-DD")
+    value, block = declination(
+        args.declination_model, args.lat, args.lon, args.alt_m or 0.0, args.date
+    )
+    warn(
+        f"declination {value:+.3f} deg east from {block['name']} ({block['package']} "
+        f"{block['package_version']}) at {args.lat:g}, {args.lon:g}, {args.date}"
+    )
+    return value
 
 
 def run_evaluate(args) -> int:

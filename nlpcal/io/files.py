@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import hashlib
 import json
 import math
 import os
@@ -182,3 +183,12 @@ def read_json(path, what: str = "JSON file"):
         return json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: not a valid {what} ({exc})") from None
+
+
+def sha256_file(path, chunk_bytes: int = 1 << 20) -> str:
+    """The SHA-256 of a file's bytes, as hex: what a result records of its input."""
+    digest = hashlib.sha256()
+    with open(existing_file(path, "a file"), "rb") as handle:
+        for block in iter(lambda: handle.read(chunk_bytes), b""):
+            digest.update(block)
+    return digest.hexdigest()

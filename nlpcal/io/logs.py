@@ -16,6 +16,7 @@ import pandas as pd
 
 from .. import units, validation
 from ..errors import InputError
+from ..geomagnetic import ReferenceModel, parse_times
 from .tables import (
     column_name,
     csv_engine,
@@ -51,6 +52,7 @@ class Log:
     unit: str
     reference: object = None
     reference_column: str | None = None
+    reference_source: dict | None = None
     extras: dict = field(default_factory=dict)
     frame: pd.DataFrame | None = None
     kept: np.ndarray | None = None
@@ -134,6 +136,7 @@ def read_log(
     reference_column: str | None = None,
     reference_field=None,
     reference_field_unit: str | None = None,
+    reference_model: ReferenceModel | None = None,
     extra_columns=(),
     drop_invalid: bool = False,
     low_memory: bool = False,
@@ -146,13 +149,23 @@ def read_log(
     reference_column : a column of reference magnitudes, or reference_field : one number (in
         `reference_field_unit`, default the log's unit). The reference is converted to the base
         unit with the samples.
+    reference_model : or the total field of a geomagnetic model at the log's place and date,
+        constant or per sample from position and time columns (`nlpcal.geomagnetic`). [nT]
     extra_columns : further numeric columns to read and validate (temperatures, say).
     low_memory : stream the columns into a memory-mapped temporary file, O(chunk) memory.
     """
-    if reference_column is not None and reference_field is not None:
-        raise InputError("give a reference column or a reference field, not both")
+    given = [reference_column, reference_field, reference_model]
+    if sum(value is not None for value in given) > 1:
+        raise InputError("give one reference: a column, a field or a geomagnetic model")
     notes: list = []
-    extra = [c for c in dict.fromkeys([reference_column, *extra_columns]) if c]
+    model_columns = reference_model.numeric_columns() if reference_model else []
+    time_column = reference_model.time_column if reference_model else None
+    extra = [c for c in dict.fromkeys([reference_column, *model_columns, *extra_columns]) if c]
+    requested = list(extra)
+    if low_memory and (model_columns or time_column):
+        raise InputError(
+            "a reference from position or time columns needs the log in memory; drop --low-memory"
+        )
     if low_memory:
         header = read_table_header(path)
         chosen = resolve_columns(header, columns)
@@ -168,8 +181,15 @@ def read_log(
         frame = read_table(path)
         chosen = resolve_columns(frame, columns)
         extra = [column_name(frame, c) for c in extra]
+        checked, time_name = frame, None
+        if time_column:  # times enter the row checks as Unix seconds
+            time_name = column_name(frame, time_column)
+            checked = frame.assign(**{time_name: _unix_seconds(frame[time_name])})
         numeric = numeric_columns(
-            frame, chosen + extra, drop_invalid=drop_invalid, source=str(path)
+            checked,
+            chosen + extra + ([time_name] if time_name else []),
+            drop_invalid=drop_invalid,
+            source=str(path),
         )
         if not numeric.kept.any():
             raise InputError(f"{path}: no data rows")
@@ -177,10 +197,11 @@ def read_log(
         values, kept, dropped, engine = numeric.values, numeric.kept, numeric.dropped, csv_engine()
         samples = values[:, :3] * units.field_factor(unit)
     _check_distinct(chosen, extra)
+    resolved = dict(zip(requested, extra))  # the names asked for -> the log's own names
     if dropped:
         notes.append(f"dropped {dropped} row(s) with missing or non-numeric values")
     extras = {name: np.asarray(values[:, 3 + k]) for k, name in enumerate(extra)}
-    reference, name = None, None
+    reference, name, source = None, None, None
     if reference_column is not None:
         name = extra[0]
         ref_unit = reference_unit(name, unit, notes)
@@ -189,6 +210,22 @@ def read_log(
             validation.reference(extras[name], len(extras[name]), f"the reference column {name!r}"),
             ref_unit,
         )
+    elif reference_model is not None:
+        if unit == "raw":
+            raise InputError(
+                "a geomagnetic model gives the field in nT, and raw counts cannot be compared "
+                "with it; give the log's unit (--unit)"
+            )
+        found = {c: extras[resolved[c]] for c in model_columns}
+        times = None
+        if time_column:
+            times = (values[:, -1] * 1e9).astype("int64").astype("datetime64[ns]")
+        reference, source = reference_model.field(found, times)
+        if np.ndim(reference) == 0:
+            notes.append(
+                f"reference field {source['total_nT']:.1f} nT from {source['name']} "
+                f"({source['package']} {source['package_version']})"
+            )
     elif reference_field is not None:
         ref_unit = reference_field_unit or unit
         units.check_compatible(unit, ref_unit)
@@ -202,6 +239,7 @@ def read_log(
         unit=unit,
         reference=reference,
         reference_column=name,
+        reference_source=source,
         extras=extras,
         frame=frame,
         kept=kept,
@@ -209,6 +247,13 @@ def read_log(
         engine=engine,
         notes=notes,
     )
+
+
+def _unix_seconds(column) -> np.ndarray:
+    """A time column as Unix seconds (NaN where a cell is not a time). [s]"""
+    times = parse_times(column)
+    seconds = times.astype("int64") / 1e9
+    return np.where(np.isnat(times), np.nan, seconds)
 
 
 def _check_distinct(field_columns, extra_columns) -> None:
