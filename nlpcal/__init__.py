@@ -10,6 +10,7 @@ Every verb and result type of the four papers is importable from here:
     fit_drift, DriftFit, calibrate_temperature, ...          Liu et al. (2022)
     calibrate_turns, calibrate_free, attitude, evaluate ...  Qiu et al. (2017)
     simulate, read_log, load                                 synthetic logs, reading files
+    calibrate_many, apply_many                               fleets of logs, on Dask or not
     export, import_file, ReferenceModel                      other formats, IGRF/WMM references
 
 The names are resolved on first use, so `import nlpcal` (and the command line's --help) stays
@@ -57,6 +58,9 @@ _EXPORTS = {
     "ReferenceModel": "geomagnetic",
     "Correction": "correction",
     "load_parameters": "correction",
+    "calibrate_many": "batch",
+    "apply_many": "batch",
+    "BatchReport": "batch",
     "read_log": "io",
     "Log": "io",
     "Zhou2010Parameters": "models.zhou2010",
@@ -68,7 +72,9 @@ _EXPORTS = {
 
 #: Subpackages and modules reachable as attributes (nlpcal.orthogonality, ...).
 _SUBMODULES = (
+    "batch",
     "calibration",
+    "cluster",
     "comparison",
     "compass",
     "correction",
@@ -80,6 +86,7 @@ _SUBMODULES = (
     "models",
     "nlp",
     "orthogonality",
+    "passes",
     "plots",
     "report",
     "results",

@@ -25,6 +25,9 @@ from .results import load_any
 from .robust import robust_std
 from .statistics import field_statistics
 
+#: The columns `nlpcal apply` adds to a corrected log: |B1|, and the outlier flags.
+TOTAL_COLUMN = "b_total"
+OUTLIER_COLUMN = "outlier"
 #: Note when a log's temperatures lie further than this outside the fitted range. [degC]
 EXTRAPOLATION_NOTE_DEGC = 1.0
 #: Without a robust loss scale, a corrected sample is an outlier beyond this many robust standard

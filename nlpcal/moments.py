@@ -35,14 +35,15 @@ References
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
 from itertools import combinations_with_replacement
 
 import numpy as np
 
-from .chunks import map_shares
-from .statistics import MagnitudeStats, reference_chunk
+from .passes import LazySamples, as_rows, reduce, reference_chunk
+from .statistics import MagnitudeStats
 
 #: Rows per chunk of the data pass: large enough for BLAS, small enough for the cache.
 CHUNK_ROWS = 8192
@@ -232,58 +233,51 @@ def _features(d, a, gamma, lay: Layout, out) -> None:
         out[rows] = block
 
 
-def accumulate(
-    samples: np.ndarray,
-    reference=None,
-    frame: Frame | None = None,
-    chunk_rows: int = CHUNK_ROWS,
-    weight=None,
-) -> Moments:
-    """One pass over the samples that builds the Gram matrix of the features, chunk by chunk.
+@dataclass(frozen=True)
+class GramBlock:
+    """The work of the data pass on one block of rows: its partial Gram matrix (a sum, not yet
+    a mean), the Table 1 sums of its raw |B_M| and the sum of its weights.
 
-    samples : (N, 3) raw sensor output B_M. [field unit]
-    reference : None (Eq. 8), a float F or an (N,) series F_i. [field unit]
-    weight : None, or a function (raw chunk, start, stop) -> the chunk's weights omega_i >= 0,
-        so that the objectives become weighted means, sum omega_i r_i^2 / sum omega_i (the
-        reweighting passes of a robust loss). [1]
+    centre, length : the frame of d = (b - centre) / length. [field unit]
+    lay : the feature layout. shift : the shift of the `MagnitudeStats` sums. [field unit]
+    weight : None, or a function (raw chunk, its reference) -> the chunk's weights. [1]
     """
-    samples = np.asarray(samples, dtype=float)
-    n = samples.shape[0]
-    frame = frame or sphere_frame(samples)
-    if reference is None:
-        kind, field, length = "none", None, frame.radius
-    elif np.ndim(reference) == 0:
-        kind, field, length = "constant", None, float(reference)
-    else:
-        kind, field = "series", np.asarray(reference, dtype=float)
-        length = float(np.sqrt(np.mean(field**2)))
-    lay = layout(kind == "series")
-    first = samples[: min(1024, n)]
-    shift = float(np.sqrt(np.einsum("ij,ij->i", first, first)).mean())
 
-    def share(begin, end):
-        gram = np.zeros((lay.size, lay.size))
-        buffer = np.empty((lay.size, min(chunk_rows, end - begin)))
-        measured = MagnitudeStats(shift)
+    centre: np.ndarray
+    length: float
+    lay: Layout
+    shift: float
+    chunk_rows: int = CHUNK_ROWS
+    weight: Callable | None = None
+
+    def __call__(self, samples, reference) -> tuple:
+        """(gram, measured, weight total) of the rows `samples` and their `reference` (None, a
+        number or an array of the same rows). [field unit]"""
+        samples = np.asarray(samples, dtype=float)
+        rows = samples.shape[0]
+        size = self.lay.size
+        gram = np.zeros((size, size))
+        buffer = np.empty((size, max(1, min(self.chunk_rows, rows))))
+        measured = MagnitudeStats(self.shift)
         total = 0.0
-        for start in range(begin, end, chunk_rows):
-            stop = min(start + chunk_rows, end)
+        series = reference is not None and np.ndim(reference) > 0
+        for start in range(0, rows, self.chunk_rows):
+            stop = min(start + self.chunk_rows, rows)
             raw = samples[start:stop]
-            measured.add(
-                np.sqrt(np.einsum("ij,ij->i", raw, raw)), reference_chunk(reference, start, stop)
-            )
-            d = (raw - frame.centre).T / length  # 3 x rows
+            ref = reference_chunk(reference, start, stop)
+            measured.add(np.sqrt(np.einsum("ij,ij->i", raw, raw)), ref)
+            d = (raw - self.centre).T / self.length  # 3 x rows
             radius_sq = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
-            if field is None:
+            if not series:
                 gamma, a = None, radius_sq - 1.0
             else:
-                gamma = (length / field[start:stop]) ** 2
+                gamma = (self.length / ref) ** 2
                 a = gamma * radius_sq - 1.0
             chunk = buffer[:, : stop - start]
-            _features(d, a, gamma, lay, chunk)
-            root = None if field is None else field[start:stop] / length  # sqrt of w_i
-            if weight is not None:
-                omega = np.asarray(weight(raw, start, stop), dtype=float)
+            _features(d, a, gamma, self.lay, chunk)
+            root = ref / self.length if series else None  # sqrt of w_i
+            if self.weight is not None:
+                omega = np.asarray(self.weight(raw, ref), dtype=float)
                 total += float(omega.sum())
                 root = np.sqrt(omega) if root is None else root * np.sqrt(omega)
             if root is not None:
@@ -291,12 +285,43 @@ def accumulate(
             gram += chunk @ chunk.T
         return gram, measured, total
 
-    parts = map_shares(share, n, chunk_rows)
-    gram, measured, total = parts[0]
-    for part_gram, part_measured, part_total in parts[1:]:
-        gram += part_gram
-        measured.merge(part_measured)
-        total += part_total
+
+def merge_gram(first: tuple, second: tuple) -> tuple:
+    """The partial results of `GramBlock` of two neighbouring blocks, `second` after `first`."""
+    return first[0] + second[0], first[1].merge(second[1]), first[2] + second[2]
+
+
+def accumulate(
+    samples,
+    reference=None,
+    frame: Frame | None = None,
+    chunk_rows: int = CHUNK_ROWS,
+    weight=None,
+) -> Moments:
+    """One pass over the samples that builds the Gram matrix of the features, chunk by chunk.
+
+    samples : (N, 3) raw sensor output B_M, in memory or a Dask log (`nlpcal.passes`). [field
+        unit]
+    reference : None (Eq. 8), a float F or an (N,) series F_i. [field unit]
+    weight : None, or a function (raw chunk, its reference) -> the chunk's weights omega_i >= 0,
+        so that the objectives become weighted means, sum omega_i r_i^2 / sum omega_i (the
+        reweighting passes of a robust loss). [1]
+    """
+    samples = as_rows(samples)
+    n = samples.shape[0]
+    frame = frame or sphere_frame(samples)
+    if reference is None:
+        kind, length = "none", frame.radius
+    elif np.ndim(reference) == 0:
+        kind, length = "constant", float(reference)
+    else:
+        kind = "series"
+        reference = as_rows(reference)
+        length = float(np.sqrt(_mean_square(reference)))
+    first = samples[: min(1024, n)]
+    shift = float(np.sqrt(np.einsum("ij,ij->i", first, first)).mean())
+    work = GramBlock(frame.centre, length, layout(kind == "series"), shift, chunk_rows, weight)
+    gram, measured, total = reduce(samples, reference, work, merge_gram, chunk_rows)
     if weight is not None and not total > 0:
         raise ValueError("every sample has weight zero")
     total = total if weight is not None else float(n)
@@ -310,3 +335,10 @@ def accumulate(
         measured=measured.result(),
         weight_sum=total,
     )
+
+
+def _mean_square(values) -> float:
+    """The mean of the squares of a reference series (of a Dask one: from its survey). [unit^2]"""
+    if isinstance(values, LazySamples):
+        return float(values.survey().squares[0]) / values.n
+    return float(np.mean(np.asarray(values) ** 2))

@@ -12,10 +12,13 @@ References
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
 import numpy as np
 
-from .chunks import map_shares
 from .models.zhou2010 import Zhou2010Parameters, correct, correction_matrix_entries
+from .passes import as_rows, reduce, reference_chunk
 
 #: Delta degrees of freedom of the reported std.
 STD_DDOF = 0
@@ -127,13 +130,6 @@ class MagnitudeStats:
         }
 
 
-def reference_chunk(reference, start: int, stop: int):
-    """The part of a reference (None, a float or an (N,) array) for rows start:stop."""
-    if reference is None or np.ndim(reference) == 0:
-        return reference
-    return reference[start:stop]
-
-
 def correction(theta):
     """(offset, M) of Eq. 4 for internal parameters theta (None: no correction)."""
     if theta is None:
@@ -153,12 +149,51 @@ def corrected_magnitude(chunk, offset, matrix) -> np.ndarray:
     return np.sqrt(b1x * b1x + b1y * b1y + b1z * b1z)
 
 
+@dataclass(frozen=True)
+class StatisticsBlock:
+    """The work of a Table 1 pass on one block of rows: the `MagnitudeStats` of its |B1| and,
+    with a robust loss, the sums of rho, of the samples beyond its scale, of the weights w and
+    of w |B1|.
+
+    offset, matrix : the correction of Eq. 4 (`correction`). shift : the shift of the sums.
+    loss, centre : a robust `nlpcal.robust.Loss` with its scale, and the centre of |B1| the
+        residuals are taken from without a reference. [field unit]
+    """
+
+    offset: np.ndarray
+    matrix: np.ndarray
+    shift: float
+    chunk_rows: int = 16384
+    loss: Any = None
+    centre: float | None = None
+
+    def __call__(self, samples, reference) -> tuple:
+        samples = np.asarray(samples, dtype=float)
+        stats = MagnitudeStats(self.shift)
+        sums = np.zeros(4)  # rho, outliers, w, w |B1|
+        for start in range(0, samples.shape[0], self.chunk_rows):
+            stop = min(start + self.chunk_rows, samples.shape[0])
+            values = corrected_magnitude(samples[start:stop], self.offset, self.matrix)
+            ref = reference_chunk(reference, start, stop)
+            stats.add(values, ref)
+            if self.loss is not None:
+                loss = self.loss
+                r = values - (ref if ref is not None else self.centre)
+                w = loss.weight(r)
+                sums += (loss.rho(r).sum(), loss.outliers(r).sum(), w.sum(), w @ values)
+        return stats, sums
+
+
+def _merge_statistics(first: tuple, second: tuple) -> tuple:
+    return first[0].merge(second[0]), first[1] + second[1]
+
+
 def field_statistics(
     samples, theta=None, reference=None, chunk_rows: int = 16384, loss=None, centre=None
 ) -> dict:
     """One chunked pass: Table 1 statistics of |B1| and the exact objective (`MagnitudeStats`).
 
-    samples : (N, 3) raw output B_M. [field unit]
+    samples : (N, 3) raw output B_M, in memory or a Dask log (`nlpcal.passes`). [field unit]
     theta : internal parameters (z [field], s [1], angles [rad]); None gives the measured row |B_M|.
     reference : None, a float or an (N,) series F_i. [field unit]
     loss, centre : with a robust `nlpcal.robust.Loss` (its scale set), the pass also sums the
@@ -166,32 +201,13 @@ def field_statistics(
         "robust_objective" (mean rho [field^2]), "downweighted" (samples beyond the loss scale) and
         "weighted_centre" (sum w |B1| / sum w with the IRLS weights w [field unit]).
     """
-    samples = np.asarray(samples, dtype=float)
+    samples = as_rows(samples)
     offset, matrix = correction(theta)
-
-    def magnitude(start, stop):
-        return corrected_magnitude(samples[start:stop], offset, matrix)
-
-    shift = float(magnitude(0, min(1024, samples.shape[0])).mean())
-
-    def share(first, last):
-        stats = MagnitudeStats(shift)
-        sums = np.zeros(4)  # rho, outliers, w, w |B1|
-        for start in range(first, last, chunk_rows):
-            stop = min(start + chunk_rows, last)
-            values, ref = magnitude(start, stop), reference_chunk(reference, start, stop)
-            stats.add(values, ref)
-            if loss is not None:
-                r = values - (ref if ref is not None else centre)
-                w = loss.weight(r)
-                sums += (loss.rho(r).sum(), loss.outliers(r).sum(), w.sum(), w @ values)
-        return stats, sums
-
-    parts = map_shares(share, samples.shape[0], chunk_rows)
-    total, sums = parts[0]
-    for part, part_sums in parts[1:]:
-        total.merge(part)
-        sums = sums + part_sums
+    shift = float(
+        corrected_magnitude(samples[: min(1024, samples.shape[0])], offset, matrix).mean()
+    )
+    work = StatisticsBlock(offset, matrix, shift, chunk_rows, loss, centre)
+    total, sums = reduce(samples, reference, work, _merge_statistics, chunk_rows)
     result = total.result()
     if loss is not None:
         result.update(

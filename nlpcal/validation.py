@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 
+from . import passes
 from .errors import InputError
 
 #: Fewest samples accepted for the nine parameters: nine plus the mean field of Eq. 8.
@@ -83,9 +84,10 @@ def choice(value, what: str, options) -> str:
 
 
 def vectors(values, what: str = "samples", *, minimum: int = 1, purpose: str = "") -> np.ndarray:
-    """An (N, 3) float64 array with at least `minimum` rows (finite values not checked here)."""
+    """An (N, 3) float64 array with at least `minimum` rows (finite values not checked here); a
+    Dask array stays where it is, as `nlpcal.passes.LazySamples`."""
     try:
-        array = np.asarray(values, dtype=float)
+        array = passes.as_rows(values)
     except (TypeError, ValueError):
         raise InputError(f"{what} must be numeric, an (N, 3) array-like") from None
     if array.ndim != 2 or array.shape[1] != 3:
@@ -140,15 +142,14 @@ def samples(
 
 def axis_ranges(array) -> tuple:
     """Per-column minimum and maximum of an (N, 3) array, NaN where a column has a NaN, in
-    chunks (a memory map stays mapped). One column at a time: a strided 1-d reduction is an
-    order of magnitude faster than numpy's reduction along the first axis of an (N, 3) array."""
+    chunks (a memory map stays mapped; a Dask log gives those of its survey)."""
+    if isinstance(array, passes.LazySamples):
+        survey = array.survey()
+        return survey.low, survey.high
     low, high = np.full(3, np.inf), np.full(3, -np.inf)
     for start in range(0, array.shape[0], CHECK_CHUNK_ROWS):
-        chunk = array[start : start + CHECK_CHUNK_ROWS]
-        for k in range(3):  # NaN propagates through min and max
-            column = chunk[:, k]
-            low[k] = np.minimum(low[k], column.min())
-            high[k] = np.maximum(high[k], column.max())
+        chunk_low, chunk_high = passes.column_ranges(array[start : start + CHECK_CHUNK_ROWS])
+        low, high = np.minimum(low, chunk_low), np.maximum(high, chunk_high)
     return low, high
 
 
@@ -156,6 +157,8 @@ def reference(value, n: int, what: str = "the reference field"):
     """None, a positive number, or N positive values (a series sampled with the log)."""
     if value is None:
         return None
+    if passes.is_dask(value) or isinstance(value, passes.LazySamples):
+        return _lazy_reference(passes.as_rows(value), n, what)
     try:
         array = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
@@ -175,6 +178,21 @@ def reference(value, n: int, what: str = "the reference field"):
     return array
 
 
+def _lazy_reference(values, n: int, what: str):
+    """`reference` for a Dask series, from its survey."""
+    if values.ndim != 1 or values.shape[0] != n:
+        raise InputError(f"{what} has shape {values.shape} for {n} samples")
+    survey = values.survey()
+    if not (np.isfinite(survey.low).all() and np.isfinite(survey.high).all()):
+        raise InputError(f"{what} contains NaN or infinite values")
+    if survey.nonpositive.sum():
+        raise InputError(
+            f"{what} has {int(survey.nonpositive.sum())} non-positive value(s); a field "
+            f"magnitude must be positive"
+        )
+    return values
+
+
 def mean_magnitude(samples, most: int = 100_000) -> float:
     """The mean |sample| over an even stride of at most `most` samples. [sample unit]"""
     step = max(1, samples.shape[0] // most)
@@ -185,6 +203,8 @@ def reference_scale(reference, magnitude: float, what: str = "the reference fiel
     """A reference field within REFERENCE_RATIO of the samples' mean magnitude `magnitude`."""
     if reference is None or not magnitude > 0:
         return
+    if isinstance(reference, passes.LazySamples):  # the median of an even stride of 100 000
+        reference = reference[:: max(1, reference.n // 100_000)]
     values = np.atleast_1d(np.asarray(reference, dtype=float))
     ratio = float(np.median(values)) / magnitude
     if not 1.0 / REFERENCE_RATIO < ratio < REFERENCE_RATIO:

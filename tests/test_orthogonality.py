@@ -590,8 +590,9 @@ def test_cli_invert_bad_input_exits_2(case, tmp_path, capsys):
     argv = ["orthogonality", "invert", str(log)]
     if case == "missing":
         argv[2] = str(tmp_path / "nope.csv")
-    elif case == "directory":
-        argv[2] = str(tmp_path)
+    elif case == "directory":  # a folder is a log of many files: this one has none
+        (tmp_path / "no_logs").mkdir()
+        argv[2] = str(tmp_path / "no_logs")
     elif case == "empty":
         (tmp_path / "empty.csv").write_text("")
         argv[2] = str(tmp_path / "empty.csv")

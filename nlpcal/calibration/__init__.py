@@ -7,8 +7,9 @@ References
 
 from __future__ import annotations
 
-from .. import units, validation
+from .. import passes, units, validation
 from ..errors import QualityError, SolveError
+from ..io.lazy import field_samples
 from ..io.logs import Log
 from ..models.zhou2010 import Zhou2010Parameters
 from ..moments import accumulate
@@ -97,6 +98,8 @@ def calibrate(
             validation.optional_number(loss_scale, "the loss scale", positive=True), unit
         ),
     )
+    # A Dask array or DataFrame stays on its cluster: one survey pass checks it (nlpcal.passes).
+    samples, reference_field = passes.surveyed(field_samples(samples), reference_field)
     samples = validation.samples(samples)
     reference = validation.reference(reference_field, samples.shape[0])
     samples = units.to_base(samples, unit)  # in base units a memory map stays mapped

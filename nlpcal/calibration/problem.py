@@ -8,13 +8,17 @@ References
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
+from typing import Any
 
 import numpy as np
 
 from ..models.zhou2010 import Zhou2010Parameters
 from ..moments import Moments, accumulate
 from ..nlp.blocks import objective_function, pack
+from ..passes import reduce
 from ..robust import MAD_SAMPLES, Loss
 from ..statistics import corrected_magnitude, correction, field_statistics, reference_chunk
 
@@ -78,11 +82,10 @@ class Problem:
         """The "reference" block of a result: the mode and the field (or its mean)."""
         mode = self.moments.reference
         document: dict = {"mode": mode}
-        values = np.asarray(self.reference, dtype=float)
         if mode == "constant":
-            document["field"] = float(values)
+            document["field"] = float(self.reference)  # type: ignore[arg-type]
         elif mode == "series":
-            document["field_mean"] = float(values.mean())
+            document["field_mean"] = float(self.reference.mean())  # type: ignore[union-attr]
         return document
 
     # --- robust losses: iteratively reweighted moments ----------------------------------------
@@ -96,18 +99,14 @@ class Problem:
             return magnitude - (np.median(magnitude) if centre is None else centre)
         if np.ndim(self.reference) == 0:
             return magnitude - float(self.reference)
-        return magnitude - np.asarray(self.reference)[::step]
+        series: Any = self.reference  # an array in memory or LazySamples
+        return magnitude - series[::step]
 
     def weight_function(self, theta, weight):
-        """(raw chunk, start, stop) -> weight(r) of the chunk's residuals at theta."""
-        offset, matrix = correction(theta)
-
-        def chunk_weights(raw, start, stop):
-            reference = reference_chunk(self.reference, start, stop)
-            centre = reference if reference is not None else self.centre
-            return weight(corrected_magnitude(raw, offset, matrix) - centre)
-
-        return chunk_weights
+        """(raw chunk, its reference) -> weight(r) of the chunk's residuals at theta."""
+        return partial(
+            residual_weights, correction=correction(theta), centre=self.centre, weight=weight
+        )
 
     def weighted_moments(self, theta, weight) -> Moments:
         """The moments with per-sample weights weight(r_i) at theta, in the frame of the first
@@ -147,16 +146,44 @@ class Problem:
         weights of the latest reweighting (r about F_i, or about the weighted mean of |B1|)."""
         if self.weighted_at is None:
             return field_statistics(self.samples, theta, self.reference)["objective"]
-        weights = self.weight_function(self.weighted_at, self.loss.weight)
-        offset, matrix = correction(theta)
-        sums = np.zeros(4)  # w, w r, w r^2 (r about F_i, or about the centre)
-        for start in range(0, self.samples.shape[0], chunk_rows):
-            stop = min(start + chunk_rows, self.samples.shape[0])
-            w = weights(self.samples[start:stop], start, stop)
-            r = corrected_magnitude(self.samples[start:stop], offset, matrix)
-            reference = reference_chunk(self.reference, start, stop)
-            r = r - (reference if reference is not None else self.centre)  # no cancellation
-            sums += (w.sum(), w @ r, w @ (r * r), 0.0)
+        work = WeightedSums(
+            self.weight_function(self.weighted_at, self.loss.weight),
+            correction(theta),
+            self.centre,
+            chunk_rows,
+        )
+        sums = reduce(self.samples, self.reference, work, np.add, chunk_rows)
         if self.reference is None:  # the weighted variance of |B1|
             return float(sums[2] / sums[0] - (sums[1] / sums[0]) ** 2)
         return float(sums[2] / sums[0])
+
+
+def residual_weights(raw, reference, *, correction, centre, weight) -> np.ndarray:
+    """weight(r) of the residuals r = |B1| - F (or - centre) of a chunk of raw samples at the
+    correction (offset, M) of Eq. 4. [1]"""
+    return weight(
+        corrected_magnitude(raw, *correction) - (reference if reference is not None else centre)
+    )
+
+
+@dataclass(frozen=True)
+class WeightedSums:
+    """The work of one block of `Problem._weighted_objective`: the sums of w, w r and w r^2 with
+    r = |B1| - F at a correction (offset, M) (or - centre) and the weights of `weights`."""
+
+    weights: Callable
+    correction: tuple
+    centre: float | None
+    chunk_rows: int
+
+    def __call__(self, samples, reference) -> np.ndarray:
+        samples = np.asarray(samples, dtype=float)
+        sums = np.zeros(3)
+        for start in range(0, samples.shape[0], self.chunk_rows):
+            stop = min(start + self.chunk_rows, samples.shape[0])
+            raw, ref = samples[start:stop], reference_chunk(reference, start, stop)
+            w = self.weights(raw, ref)
+            r = corrected_magnitude(raw, *self.correction)
+            r = r - (ref if ref is not None else self.centre)  # no cancellation
+            sums += (w.sum(), w @ r, w @ (r * r))
+        return sums

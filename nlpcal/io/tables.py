@@ -15,6 +15,7 @@ import pandas as pd
 
 from .. import units
 from ..errors import InputError
+from . import sources
 from .files import existing_file
 
 #: What each sensor's axis columns may be called, for `resolve_columns`:
@@ -50,7 +51,14 @@ def csv_engine() -> str:
 
 
 def read_table(path) -> pd.DataFrame:
-    """Read a CSV log with the fastest available pandas engine."""
+    """Read a CSV log with the fastest available pandas engine (a Parquet file, or the files of
+    a glob pattern or a folder, through `nlpcal.io.sources`)."""
+    # Hook: Parquet, patterns and folders are read by nlpcal.io.sources.
+    if sources.is_pattern(path):
+        paths = sources.log_paths(path)
+        return sources.concatenated(paths, [read_table(p) for p in paths])
+    if sources.is_parquet(path):
+        return sources.read_parquet(path)
     path = existing_file(path)
     engine = csv_engine()
     try:
@@ -61,8 +69,8 @@ def read_table(path) -> pd.DataFrame:
         if engine != "c":  # pyarrow is stricter; let the C engine have a go before giving up
             try:
                 frame = pd.read_csv(path, engine="c")
-            except Exception:
-                raise InputError(f"{path}: cannot be read as CSV ({_one_line(exc)})") from None
+            except Exception as c_exc:  # the C engine says where, with the line number
+                raise InputError(f"{path}: cannot be read as CSV ({_one_line(c_exc)})") from None
         else:
             raise InputError(f"{path}: cannot be read as CSV ({_one_line(exc)})") from None
     frame.columns = [str(c).strip() for c in frame.columns]
@@ -192,12 +200,8 @@ def csv_to_memmap(
     store = tempfile.TemporaryFile(dir=directory)
     rows = dropped = 0
     try:
-        reader = pd.read_csv(
-            path,
-            chunksize=chunk_rows,
-            engine="c",  # every column: ragged rows are errors
-        )
-        for chunk in reader:
+        # Hook: the chunks of CSV or Parquet files, one file or many (nlpcal.io.sources).
+        for chunk in sources.chunks(path, chunk_rows):
             chunk.columns = [str(c).strip() for c in chunk.columns]
             numeric = numeric_columns(chunk, wanted, drop_invalid=drop_invalid, source=str(path))
             dropped += numeric.dropped
@@ -221,6 +225,13 @@ def csv_to_memmap(
 
 def read_table_header(path) -> pd.DataFrame:
     """The column names of a CSV (an empty frame), with the checks of `read_table`."""
+    # Hook: Parquet, patterns and folders through nlpcal.io.sources.
+    if sources.is_pattern(path):
+        paths = sources.log_paths(path)
+        sources.same_columns(paths, lambda p: list(read_table_header(p).columns))
+        return read_table_header(paths[0])
+    if sources.is_parquet(path):
+        return pd.DataFrame(columns=sources.parquet_columns(path))
     path = existing_file(path)
     try:
         frame = pd.read_csv(path, nrows=0)

@@ -1,0 +1,427 @@
+"""Fleets: calibrate or correct many logs, one output file per log and one summary table.
+
+    report = nlpcal.calibrate_many("fleet/*.csv", "out", options={"method": "joint"},
+                                   scheduler="local")
+
+Each log is one task (`nlpcal.cluster.run_tasks`): it is read, calibrated and its parameters
+written to `<name>.params.json` in the output folder (`apply_many`: corrected and written to
+`<name>.corrected.csv`, or `.parquet` for a Parquet log), where <name> is the log's file name
+without its suffix (with the folders under the logs' common folder, joined by "__", when logs in
+different folders share a name). A log that cannot be read, calibrated or written becomes a row
+of the summary with its status and the reason, and never stops the others. `summary.csv` in the
+output folder has one row per log, in the order of the logs, written when the run ends (also when
+it is interrupted, with the logs done so far).
+
+A log whose output file is newer than the log (and than its parameters, for `apply_many`) is not
+done again unless `force`: its row is rebuilt from that output file. On a cluster each worker
+process imports nlpcal once and builds each CasADi problem once (`nlpcal.nlp.solver`), so the
+cost of a small log is its reading, its solves and its writing.
+
+Statuses and the exit status `nlpcal calibrate` or `nlpcal apply` would have given the log:
+
+    ok 0, quality-failed 1 (the result fails a quality check; nothing written), solve-failed 1,
+    bad-input 2 (the log or the options are unusable), error 1 (an output could not be written,
+    the worker died, or a defect of nlpcal)
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from . import cluster
+from .calibration import CalibrationResult, calibrate_log
+from .correction import (
+    OUTLIER_COLUMN,
+    TOTAL_COLUMN,
+    Correction,
+    load_parameters,
+    outliers,
+    read_log_for,
+)
+from .drift.fit import DriftFit
+from .errors import InputError, QualityError, SolveError, WriteError
+from .io import read_log, read_table_header, write_bytes_atomic, write_csv_atomic
+from .io.sources import COMPRESSED_SUFFIXES, is_parquet, log_paths, write_parquet
+from .models.zhou2010 import PARAMETER_NAMES
+from .statistics import field_statistics
+
+#: Status of a log -> the exit status of the single command.
+STATUSES = {"ok": 0, "quality-failed": 1, "solve-failed": 1, "bad-input": 2, "error": 1}
+SUMMARY = "summary.csv"
+PARAMS_SUFFIX = ".params.json"
+CORRECTED_TAG = ".corrected"
+#: Columns of the summary of `calibrate_many`: the nine parameters each followed by its standard
+#: error (_se, empty when the data leave a direction free), the std of |B| measured and
+#: corrected (the first and last Table 1 rows) and the fraction of the 26 direction bins the
+#: corrected field visits.
+CALIBRATION_COLUMNS = (
+    "log",
+    "status",
+    "exit_status",
+    *[f"{name}{tail}" for name in PARAMETER_NAMES for tail in ("", "_se")],
+    "std_measured",
+    "std_corrected",
+    "coverage_fraction",
+    "warnings",
+    "message",
+    "unit",
+    "n_samples",
+    "output",
+    "action",
+    "seconds",
+)
+APPLY_COLUMNS = (
+    "log",
+    "status",
+    "exit_status",
+    "params",
+    "output",
+    "n_samples",
+    "std_measured",
+    "std_corrected",
+    "outliers",
+    "warnings",
+    "message",
+    "unit",
+    "action",
+    "seconds",
+)
+#: Joins the warnings of a log in one cell.
+WARNING_SEPARATOR = " | "
+
+
+@dataclass
+class BatchReport:
+    """What a batch did: one row per log (dicts with the summary's columns), in the order of the
+    logs, and where the summary was written."""
+
+    rows: list
+    summary: Path
+    columns: tuple = CALIBRATION_COLUMNS
+    interrupted: bool = False
+    total: int = 0
+
+    def counts(self) -> dict:
+        """How many logs ended in each status."""
+        found: dict = {}
+        for row in self.rows:
+            found[row["status"]] = found.get(row["status"], 0) + 1
+        return found
+
+    @property
+    def exit_status(self) -> int:
+        """The largest exit status of a log (0 when every log is ok)."""
+        return max((int(row["exit_status"]) for row in self.rows), default=0)
+
+    def table(self) -> pd.DataFrame:
+        return pd.DataFrame(self.rows, columns=list(self.columns))
+
+
+def output_names(paths) -> dict:
+    """A file name stem for each log, unique: the file name without its suffixes, with the
+    folders under the common folder (joined by "__") when logs in different folders share a
+    name, and the suffix kept when two logs differ by it alone."""
+    paths = [Path(p) for p in paths]
+
+    def stem(path: Path) -> str:
+        name = path.name
+        if path.suffix.lower() in COMPRESSED_SUFFIXES:
+            name = name[: -len(path.suffix)]
+        return name.rsplit(".", 1)[0] if "." in name.lstrip(".") else name
+
+    names = {path: stem(path) for path in paths}
+    if len(set(names.values())) < len(paths) and len({p.parent for p in paths}) > 1:
+        root = Path(*_common_parts([p.resolve().parent.parts for p in paths]))
+        names = {
+            p: "__".join([*p.resolve().parent.relative_to(root).parts, stem(p)]) for p in paths
+        }
+    taken: dict = {}
+    for path, name in names.items():
+        taken.setdefault(name, []).append(path)
+    for name, owners in taken.items():
+        if len(owners) > 1:
+            for path in owners:
+                names[path] = name + "".join(path.suffixes).replace(".", "-")
+    return names
+
+
+def _common_parts(parts_list) -> tuple:
+    common = parts_list[0]
+    for parts in parts_list[1:]:
+        k = 0
+        while k < min(len(common), len(parts)) and common[k] == parts[k]:
+            k += 1
+        common = common[:k]
+    return tuple(common)
+
+
+def failure(exc: BaseException) -> tuple:
+    """(status, message) of a log whose task raised `exc`."""
+    message = " ".join(str(exc).split()) or type(exc).__name__
+    if isinstance(exc, QualityError):
+        return "quality-failed", message
+    if isinstance(exc, SolveError):
+        status = f" (IPOPT status: {exc.status})" if exc.status else ""
+        return "solve-failed", message + status
+    if isinstance(exc, WriteError):
+        return "error", message
+    if isinstance(exc, InputError):
+        return "bad-input", message
+    if isinstance(exc, OSError):
+        where = f"{exc.filename}: " if exc.filename else ""
+        return "bad-input", f"{where}{exc.strerror or message}"
+    if isinstance(exc, (MemoryError, RecursionError)):
+        return "bad-input", f"the input is too large to process ({type(exc).__name__})"
+    return "error", f"{type(exc).__name__}: {message} (a defect of nlpcal, or the worker died)"
+
+
+def _status(row: dict, status: str, message: str = "") -> dict:
+    row.update(status=status, exit_status=STATUSES[status], message=message)
+    return row
+
+
+def calibration_row(result: CalibrationResult) -> dict:
+    """The summary columns a calibration result fills."""
+    errors = result.standard_errors or {}
+    row: dict = {}
+    for name in PARAMETER_NAMES:
+        row[name] = result.parameters[name]
+        row[f"{name}_se"] = errors.get(name)
+    coverage = result.identifiability.get("coverage", {})
+    row.update(
+        std_measured=result.statistics[0]["std"] if result.statistics else None,
+        std_corrected=result.statistics[-1]["std"] if result.statistics else None,
+        coverage_fraction=coverage.get("fraction"),
+        warnings=WARNING_SEPARATOR.join(result.warnings),
+        unit=result.unit,
+        n_samples=result.n_samples,
+    )
+    return row
+
+
+@dataclass(frozen=True)
+class CalibrateTask:
+    """Calibrate one log and write its parameters: what a worker runs for each log.
+
+    read_options : keyword arguments of `nlpcal.io.read_log`.
+    options : keyword arguments of `nlpcal.calibration.calibrate_log`.
+    """
+
+    read_options: dict = field(default_factory=dict)
+    options: dict = field(default_factory=dict)
+
+    def __call__(self, job: tuple) -> dict:
+        log_path, output = job
+        started = time.perf_counter()
+        row: dict = {"log": str(log_path), "action": "calibrated"}
+        try:
+            log = read_log(log_path, **self.read_options)
+            result = calibrate_log(log, **self.options)
+            row.update(calibration_row(result))
+            row["warnings"] = WARNING_SEPARATOR.join(
+                [*getattr(log, "warnings", []), *result.warnings]
+            )
+            result.save(output)
+            row["output"] = str(output)
+            _status(row, "ok")
+        except Exception as exc:
+            if isinstance(exc, QualityError) and isinstance(exc.result, CalibrationResult):
+                row.update(calibration_row(exc.result))
+            _status(row, *failure(exc))
+        row["seconds"] = time.perf_counter() - started
+        return row
+
+
+@dataclass(frozen=True)
+class ApplyTask:
+    """Correct one log and write it: what a worker runs for each log of `apply_many`."""
+
+    read_options: dict = field(default_factory=dict)
+    flag_outliers: bool = False
+    drift: str | None = None
+    temperature_column: str | None = None
+
+    def __call__(self, job: tuple) -> dict:
+        log_path, params_path, output = job
+        started = time.perf_counter()
+        row: dict = {"log": str(log_path), "params": str(params_path or ""), "action": "corrected"}
+        try:
+            parameters = load_parameters(params_path) if params_path else None
+            correction = Correction.plan(
+                parameters,
+                DriftFit.load(self.drift) if self.drift else None,
+                self.temperature_column,
+                log_columns=list(read_table_header(log_path).columns),
+            )
+            log = read_log_for(log_path, correction, **self.read_options)
+            corrected = correction.apply(log)
+            extra = {}
+            if self.flag_outliers:
+                extra[OUTLIER_COLUMN] = flags = outliers(correction, corrected)
+                row["outliers"] = int(flags.sum())
+            frame = log.written_back(corrected, TOTAL_COLUMN, extra)
+            if is_parquet(log_path):
+                write_bytes_atomic(output, write_parquet(frame))
+            else:
+                write_csv_atomic(output, frame)
+            row.update(
+                output=str(output),
+                n_samples=log.n,
+                std_measured=field_statistics(log.samples)["std"],
+                std_corrected=float(np.std(np.linalg.norm(corrected, axis=1))),
+                warnings=WARNING_SEPARATOR.join([*log.notes, *correction.notes]),
+                unit=log.base_unit,
+            )
+            _status(row, "ok")
+        except Exception as exc:
+            _status(row, *failure(exc))
+        row["seconds"] = time.perf_counter() - started
+        return row
+
+
+def _newer(output: Path, *inputs) -> bool:
+    """Whether `output` exists and is newer than every input file."""
+    try:
+        written = output.stat().st_mtime
+        return all(written > Path(p).stat().st_mtime for p in inputs if p)
+    except OSError:
+        return False
+
+
+def _out_dir(out_dir) -> Path:
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError(f"{out_dir}: exists and is not a folder")
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"{out_dir}: cannot make the output folder ({exc.strerror})") from None
+    return out_dir
+
+
+def _run(jobs, task, reused, out_dir: Path, columns, scheduler, workers, progress) -> BatchReport:
+    """Run `task` on every job not in `reused` (log -> its row), write the summary."""
+    rows = dict(reused)
+    todo = [job for job in jobs if str(job[0]) not in rows]
+    report = BatchReport([], out_dir / SUMMARY, columns, total=len(jobs))
+
+    def finished(job, row):
+        if isinstance(row, BaseException):
+            row = _status({"log": str(job[0]), "action": "failed"}, *failure(row))
+        rows[str(job[0])] = row
+        if progress is not None:
+            progress(len(rows), len(jobs), row)
+
+    try:
+        with cluster.scheduler(scheduler, workers) as client:
+            cluster.run_tasks(task, todo, finished, client)
+    except KeyboardInterrupt:
+        report.interrupted = True
+        raise
+    finally:
+        report.rows = [rows[str(job[0])] for job in jobs if str(job[0]) in rows]
+        write_csv_atomic(report.summary, report.table())
+    return report
+
+
+def calibrate_many(
+    source,
+    out_dir,
+    *,
+    read_options: dict | None = None,
+    options: dict | None = None,
+    force: bool = False,
+    scheduler=None,
+    workers: int | None = None,
+    progress=None,
+) -> BatchReport:
+    """Calibrate every log of `source` (a glob pattern, a folder, a file or a list of files).
+
+    read_options : keyword arguments of `nlpcal.io.read_log` (columns, unit, reference ...).
+    options : keyword arguments of `nlpcal.calibration.calibrate_log` (method, loss ...).
+    force : calibrate logs whose parameters file is newer than the log too.
+    scheduler : None (one log after another in this process), "threads", "processes", "local",
+        the address of a running Dask scheduler, or a dask.distributed Client (`nlpcal.cluster`).
+    progress : None, or called with (logs done, logs in all, the row of the latest) as each
+        log finishes.
+    """
+    out_dir = _out_dir(out_dir)
+    paths = _paths(source, out_dir)
+    names = output_names(paths)
+    jobs = [(path, out_dir / f"{names[path]}{PARAMS_SUFFIX}") for path in paths]
+    reused = {}
+    for path, output in jobs:
+        if not force and _newer(output, path):
+            try:
+                result = CalibrationResult.load(output)
+            except InputError:
+                continue  # an unreadable output is made again
+            row = {"log": str(path), **calibration_row(result), "output": str(output)}
+            reused[str(path)] = _status({**row, "action": "skipped", "seconds": 0.0}, "ok")
+    task = CalibrateTask(dict(read_options or {}), dict(options or {}))
+    return _run(jobs, task, reused, out_dir, CALIBRATION_COLUMNS, scheduler, workers, progress)
+
+
+def apply_many(
+    parameters,
+    source,
+    out_dir,
+    *,
+    read_options: dict | None = None,
+    flag_outliers: bool = False,
+    drift=None,
+    temperature_column: str | None = None,
+    force: bool = False,
+    scheduler=None,
+    workers: int | None = None,
+    progress=None,
+) -> BatchReport:
+    """Correct every log of `source` with Eq. 4 and write `<name>.corrected.csv` (or .parquet).
+
+    parameters : a parameters file applied to every log, or a folder of `<name>.params.json`
+        (the output folder of `calibrate_many`), one per log; or None with `drift` alone.
+    The other arguments as in `calibrate_many` and `nlpcal apply`.
+    """
+    out_dir = _out_dir(out_dir)
+    paths = _paths(source, out_dir)
+    names = output_names(paths)
+    folder = parameters is not None and Path(parameters).is_dir()
+    if parameters is not None and not folder:
+        load_parameters(parameters)  # a bad parameters file fails the whole run, once
+    jobs = []
+    for path in paths:
+        params = parameters
+        if folder:
+            params = Path(parameters) / f"{names[path]}{PARAMS_SUFFIX}"
+        suffix = ".parquet" if is_parquet(path) else ".csv"
+        jobs.append((path, params, out_dir / f"{names[path]}{CORRECTED_TAG}{suffix}"))
+    reused = {}
+    for path, params, output in jobs:
+        if not force and _newer(output, path, params, drift):
+            row = {"log": str(path), "params": str(params or ""), "output": str(output)}
+            reused[str(path)] = _status({**row, "action": "skipped", "seconds": 0.0}, "ok")
+    task = ApplyTask(dict(read_options or {}), flag_outliers, drift, temperature_column)
+    return _run(jobs, task, reused, out_dir, APPLY_COLUMNS, scheduler, workers, progress)
+
+
+def _paths(source, out_dir: Path) -> list:
+    """The logs of `source`, less the files a batch writes into `out_dir` (a folder or pattern
+    that holds the outputs of an earlier run)."""
+    paths = [Path(p) for p in source] if isinstance(source, (list, tuple)) else log_paths(source)
+    out = out_dir.resolve()
+    paths = [
+        p
+        for p in paths
+        if not (
+            p.resolve().parent == out
+            and (p.name == SUMMARY or CORRECTED_TAG in p.name or p.name.endswith(PARAMS_SUFFIX))
+        )
+    ]
+    if not paths:
+        raise InputError(f"no logs in {source}")
+    return paths

@@ -1,0 +1,148 @@
+"""Where Dask work runs: the schedulers of `--scheduler`, and many tasks run on one of them.
+
+    threads, processes   Dask's own schedulers in this process: a pool of threads, or of
+                         processes (one per core)
+    local                a dask.distributed LocalCluster of this machine: one single-threaded
+                         worker process per core (or `workers`)
+    ADDRESS              the scheduler of a running cluster: tcp://host:8786, or the path of the
+                         JSON file a scheduler wrote with --scheduler-file
+    a Client             a dask.distributed Client the caller made
+
+Without a scheduler nothing here imports Dask: the in-process path stays the default. Dask and
+dask.distributed are the `dask` extra (pip install 'nlpcal[dask]').
+"""
+
+from __future__ import annotations
+
+import contextlib
+from pathlib import Path
+
+from .errors import InputError
+
+#: Scheduler names of `--scheduler`; anything else is the address of a running scheduler.
+SCHEDULERS = ("threads", "processes", "local")
+INSTALL_DASK = "pip install 'nlpcal[dask]'"
+#: Seconds to wait for a running scheduler to answer. [s]
+CONNECT_TIMEOUT_S = 30
+
+
+def _require(module: str, what: str):
+    try:
+        return __import__(module, fromlist=["_"])
+    except ImportError:
+        raise InputError(f"{what} needs {module.split('.')[0]}: {INSTALL_DASK}") from None
+
+
+def is_client(value) -> bool:
+    """Whether `value` is a dask.distributed Client."""
+    return type(value).__name__ == "Client" and type(value).__module__.startswith("distributed")
+
+
+def describe(spec) -> str:
+    """A scheduler for a message: its name, or what it is."""
+    if spec is None:
+        return "this process"
+    if is_client(spec):
+        return f"the Dask cluster at {spec.scheduler.address}"
+    if spec in ("threads", "processes"):
+        return f"Dask's {spec} scheduler"
+    if spec == "local":
+        return "a local Dask cluster"
+    return f"the Dask cluster at {spec}"
+
+
+@contextlib.contextmanager
+def scheduler(spec=None, workers: int | None = None):
+    """Run the Dask work inside on `spec` (see the module's doc); yields None (no scheduler: the
+    in-process path), the name of a local scheduler, or a distributed Client.
+
+    workers : worker processes of a "local" cluster (default: one per core).
+    """
+    if spec is None:
+        yield None
+        return
+    dask = _require("dask", f"--scheduler {spec}")
+    if is_client(spec):
+        with dask.config.set(scheduler=spec):
+            yield spec
+        return
+    if spec in ("threads", "processes"):
+        with dask.config.set(scheduler=spec):
+            yield spec
+        return
+    distributed = _require("distributed", f"--scheduler {spec}")
+    with contextlib.ExitStack() as stack:
+        if spec == "local":
+            cluster = stack.enter_context(
+                distributed.LocalCluster(
+                    n_workers=workers,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=None,
+                )
+            )
+            client = stack.enter_context(distributed.Client(cluster))
+        else:
+            client = stack.enter_context(_connect(distributed, str(spec)))
+        yield client
+
+
+def _connect(distributed, address: str):
+    """A Client of a running scheduler, or InputError saying why there is none."""
+    is_file = address.endswith(".json") or Path(address).is_file()
+    try:
+        if is_file:
+            return distributed.Client(scheduler_file=address, timeout=CONNECT_TIMEOUT_S)
+        return distributed.Client(address, timeout=CONNECT_TIMEOUT_S)
+    except (OSError, TimeoutError, ValueError) as exc:
+        choices = ", ".join(SCHEDULERS)
+        raise InputError(
+            f"no Dask scheduler answers at {address!r} ({' '.join(str(exc).split())}); give "
+            f"its address (tcp://host:8786), its scheduler file, or one of {choices}"
+        ) from None
+
+
+def run_tasks(function, items, on_result, client=None) -> None:
+    """function(item) for every item, on_result(item, result) as each one finishes (in this
+    process, in the order they finish).
+
+    client : None (one after another in this process), "threads" or "processes" (Dask's own
+    schedulers) or a dask.distributed Client. A task that raises (its worker died, say) gives
+    on_result(item, the exception).
+    """
+    items = list(items)
+    if client is None:
+        for item in items:
+            on_result(item, function(item))
+        return
+    if is_client(client):
+        _run_distributed(function, items, on_result, client)
+        return
+    dask = _require("dask", "a Dask scheduler")
+    from dask.callbacks import Callback
+
+    keys = {f"nlpcal-task-{k}": item for k, item in enumerate(items)}
+
+    def finished(key, result, dsk, state, worker_id):
+        if key in keys:
+            on_result(keys[key], result)
+
+    tasks = [
+        dask.delayed(function, pure=False)(item, dask_key_name=key) for key, item in keys.items()
+    ]
+    with Callback(posttask=finished):
+        dask.compute(*tasks, scheduler=client)
+
+
+def _run_distributed(function, items, on_result, client) -> None:
+    from distributed import as_completed
+
+    futures = client.map(function, items, pure=False)
+    item_of = {future.key: item for future, item in zip(futures, items)}
+    for future in as_completed(futures):
+        try:
+            result = future.result()
+        except Exception as exc:  # the task's worker died, or it could not be sent
+            result = exc
+        on_result(item_of[future.key], result)
+        future.release()

@@ -1,0 +1,189 @@
+"""Where a log's rows come from: one CSV or Parquet file, or many of them.
+
+A log may be one file, a glob pattern (`logs/*.parquet`, `logs/**/*.csv`) or a folder; the
+files of a pattern or folder are one log, their rows in the order of the sorted file names, and
+must have the same columns. Parquet (pyarrow, the `dask` or `parquet` extra) is recognised by its
+suffix (.parquet, .parq, .pq) or its leading bytes, and read with the same column detection,
+units and validation as CSV (`nlpcal.io.tables` reads the columns it gets from here).
+"""
+
+from __future__ import annotations
+
+import glob
+import io
+from pathlib import Path
+
+import pandas as pd
+
+from ..errors import InputError
+from .files import existing_file
+
+PARQUET_SUFFIXES = (".parquet", ".parq", ".pq")
+#: Files of a folder taken as a log's files: CSV and other delimited text, compressed or not,
+#: and Parquet.
+TEXT_SUFFIXES = (".csv", ".txt", ".tsv", ".dat")
+COMPRESSED_SUFFIXES = (".gz", ".bz2", ".xz", ".zip", ".zst")
+#: The leading (and trailing) bytes of every Parquet file.
+PARQUET_MAGIC = b"PAR1"
+INSTALL_PARQUET = "reading Parquet needs pyarrow: pip install 'nlpcal[parquet]' (or 'nlpcal[dask]')"
+
+
+def is_pattern(source) -> bool:
+    """Whether `source` names several files: a glob pattern or a folder."""
+    text = str(source)
+    if Path(text).is_file():  # a file whose name has brackets is that file
+        return False
+    return any(ch in text for ch in "*?[") or Path(text).is_dir()
+
+
+def is_log_file(path: Path) -> bool:
+    """Whether a file in a folder looks like a log (by its suffixes)."""
+    suffixes = [s.lower() for s in path.suffixes]
+    if suffixes and suffixes[-1] in COMPRESSED_SUFFIXES:
+        suffixes = suffixes[:-1]
+    return bool(suffixes) and suffixes[-1] in TEXT_SUFFIXES + PARQUET_SUFFIXES
+
+
+def log_paths(source) -> list:
+    """The files of a log: [source] for one file; the sorted matches of a glob pattern; the
+    sorted log files (`is_log_file`) of a folder. InputError when nothing matches."""
+    text = str(source)
+    if Path(text).is_dir():
+        found = sorted(p for p in Path(text).iterdir() if p.is_file() and is_log_file(p))
+        if not found:
+            raise InputError(
+                f"{text}: the folder has no CSV or Parquet files "
+                f"({', '.join(TEXT_SUFFIXES + PARQUET_SUFFIXES)})"
+            )
+        return found
+    if is_pattern(text):
+        found = sorted(Path(p) for p in glob.glob(text, recursive=True) if Path(p).is_file())
+        if not found:
+            raise InputError(f"{text}: no file matches the pattern")
+        return found
+    return [existing_file(text)]
+
+
+def is_parquet(path) -> bool:
+    """Whether a file is Parquet: by its suffix, else by its leading bytes."""
+    path = Path(path)
+    if path.suffix.lower() in PARQUET_SUFFIXES:
+        return True
+    try:
+        with open(path, "rb") as handle:
+            return handle.read(4) == PARQUET_MAGIC
+    except OSError:
+        return False
+
+
+def _parquet():
+    try:
+        import pyarrow.parquet
+    except ImportError:
+        raise InputError(INSTALL_PARQUET) from None
+    return pyarrow.parquet
+
+
+def _parquet_file(path):
+    """A pyarrow ParquetFile, or InputError saying why the file cannot be read as Parquet."""
+    parquet = _parquet()
+    path = existing_file(path, "a Parquet file")
+    try:
+        return parquet.ParquetFile(path)
+    except Exception as exc:  # pyarrow's ArrowInvalid, OSError ...
+        raise InputError(f"{path}: cannot be read as Parquet ({_first_line(exc)})") from None
+
+
+def _first_line(exc: Exception) -> str:
+    text = " ".join(str(exc).split())
+    return text[:200] or type(exc).__name__
+
+
+def parquet_columns(path) -> list:
+    """The column names of a Parquet file, from its footer (no data read)."""
+    return [str(name) for name in _parquet_file(path).schema_arrow.names]
+
+
+def parquet_row_groups(path) -> list:
+    """The number of rows of every row group of a Parquet file (its footer)."""
+    metadata = _parquet_file(path).metadata
+    return [metadata.row_group(i).num_rows for i in range(metadata.num_row_groups)]
+
+
+def _frame(table) -> pd.DataFrame:
+    frame = table.to_pandas()
+    frame.columns = [str(c).strip() for c in frame.columns]
+    return frame
+
+
+def read_parquet(path, columns=None) -> pd.DataFrame:
+    """A Parquet file (the `columns` only, when given) as a DataFrame."""
+    handle = _parquet_file(path)
+    try:
+        return _frame(handle.read(columns=columns))
+    except Exception as exc:
+        raise InputError(f"{path}: cannot be read as Parquet ({_first_line(exc)})") from None
+
+
+def read_parquet_row_group(path, index: int, columns=None) -> pd.DataFrame:
+    """One row group of a Parquet file as a DataFrame (what one block of a Dask log reads)."""
+    handle = _parquet_file(path)
+    try:
+        return _frame(handle.read_row_group(index, columns=columns))
+    except Exception as exc:
+        raise InputError(
+            f"{path}: row group {index} cannot be read as Parquet ({_first_line(exc)})"
+        ) from None
+
+
+def parquet_chunks(path, chunk_rows: int, columns=None):
+    """The rows of a Parquet file as DataFrames of at most `chunk_rows` rows, O(chunk) memory."""
+    handle = _parquet_file(path)
+    try:
+        for batch in handle.iter_batches(batch_size=chunk_rows, columns=columns):
+            yield _frame(batch)
+    except InputError:
+        raise
+    except Exception as exc:
+        raise InputError(f"{path}: cannot be read as Parquet ({_first_line(exc)})") from None
+
+
+def same_columns(paths, columns_of) -> list:
+    """The column names shared by every file of a log, or InputError naming the first file that
+    differs from the first."""
+    first = columns_of(paths[0])
+    for path in paths[1:]:
+        columns = columns_of(path)
+        if columns != first:
+            raise InputError(
+                f"{path}: its columns ({', '.join(map(str, columns))}) differ from those of "
+                f"{paths[0]} ({', '.join(map(str, first))}); the files of one log must have "
+                f"the same columns"
+            )
+    return first
+
+
+def concatenated(paths, frames) -> pd.DataFrame:
+    """The tables of a log's files, one after another; they must have the same columns."""
+    columns = {path: [str(c) for c in frame.columns] for path, frame in zip(paths, frames)}
+    same_columns(list(paths), columns.__getitem__)
+    return frames[0] if len(frames) == 1 else pd.concat(frames, ignore_index=True)
+
+
+def chunks(source, chunk_rows: int):
+    """The rows of a log (a file, a pattern or a folder) as DataFrames of at most `chunk_rows`
+    rows, file after file: O(chunk) memory. CSV is read by the pandas C engine, every column
+    (ragged rows are errors)."""
+    for path in log_paths(source):
+        if is_parquet(path):
+            yield from parquet_chunks(path, chunk_rows)
+        else:
+            yield from pd.read_csv(path, chunksize=chunk_rows, engine="c")
+
+
+def write_parquet(frame: pd.DataFrame) -> bytes:
+    """A table as the bytes of a Parquet file (written by the caller atomically)."""
+    _parquet()
+    buffer = io.BytesIO()
+    frame.to_parquet(buffer, index=False)
+    return buffer.getvalue()

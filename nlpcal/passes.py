@@ -1,0 +1,331 @@
+"""A pass over the samples, block by block, for numpy arrays, memory maps and Dask arrays.
+
+Every statistic nlpcal takes from a log (the Gram matrix of `nlpcal.moments`, the Table 1 rows of
+`nlpcal.statistics`, the weighted sums of a robust loss) is a sum over the samples, so it is
+gathered block by block and the partial results are merged in order. `reduce` is that pass. In
+memory (an array or a memory map) the blocks are contiguous shares of the rows, one per thread
+(`nlpcal.chunks.map_shares`). For a Dask array the blocks are its chunks: one task per chunk on
+the current Dask scheduler, the partial results merged by a tree of tasks in the order of the
+rows, so that one result reaches the caller and memory per worker stays O(block).
+
+The same work function runs on both: it receives a block of raw rows and the block of the
+reference (None, a number or an array of the block's rows) and loops over chunks of its own, so
+a sum over a Dask array differs from the in-memory one only by the order of additions.
+
+A Dask array enters the library as `LazySamples`. One pass (`survey`) gathers what the rest of a
+calibration reads without a pass of its own: the range and the sum of every column, the first
+rows, and the evenly strided subsamples `values[::max(1, N // m)]` for the sizes m of
+`SURVEY_SIZES` (the sphere frame, the attitude coverage, the median absolute deviation of the
+residuals, the mean magnitude). Indexing rows returns numpy arrays, from the survey when it has
+them; turning the whole array into numpy is refused, so that no step loads a log larger than
+memory by accident.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .chunks import map_shares
+
+#: Sizes of the strided subsamples the survey of a Dask log gathers: the sphere frame and the
+#: attitude coverage (20 000), the median absolute deviation of the residuals (50 000), the mean
+#: magnitude (100 000).
+SURVEY_SIZES = (20_000, 50_000, 100_000)
+#: Leading rows the survey keeps (the shift of the sums of `nlpcal.statistics.MagnitudeStats`).
+SURVEY_HEAD = 1024
+
+
+def is_dask(value) -> bool:
+    """Whether `value` is a Dask collection (an array or a DataFrame)."""
+    if "dask" not in sys.modules:  # nothing made with Dask exists before Dask is imported
+        return False
+    import dask
+
+    return bool(dask.is_dask_collection(value))
+
+
+def column_ranges(block) -> tuple:
+    """Per-column minimum and maximum of a block of rows, NaN where a column has a NaN. One
+    column at a time: a strided 1-d reduction is an order of magnitude faster than numpy's
+    reduction along the first axis of an (N, 3) array."""
+    block = np.asarray(block, dtype=float)
+    columns = block.reshape(block.shape[0], -1)
+    low, high = np.full(columns.shape[1], np.inf), np.full(columns.shape[1], -np.inf)
+    if columns.shape[0]:
+        for k in range(columns.shape[1]):  # NaN propagates through min and max
+            low[k], high[k] = columns[:, k].min(), columns[:, k].max()
+    return low, high
+
+
+@dataclass
+class Survey:
+    """What one pass gathers of a Dask log: per column its lowest and highest value, how many
+    values are <= 0, their sum and the sum of their squares.
+
+    rows : step -> the rows values[::step]; head : the first SURVEY_HEAD rows.
+    """
+
+    low: np.ndarray
+    high: np.ndarray
+    nonpositive: np.ndarray
+    total: np.ndarray
+    squares: np.ndarray
+    head: np.ndarray
+    rows: dict = field(default_factory=dict)
+
+    def scaled(self, factor: float) -> Survey:
+        """The survey of the values times a positive factor."""
+        return Survey(
+            self.low * factor,
+            self.high * factor,
+            self.nonpositive,
+            self.total * factor,
+            self.squares * factor**2,
+            self.head * factor,
+            {step: rows * factor for step, rows in self.rows.items()},
+        )
+
+
+def _survey_block(block, start: int, steps: tuple) -> Survey:
+    """The survey of the rows start:start + len(block) of a log."""
+    block = np.asarray(block, dtype=float)
+    low, high = column_ranges(block)
+    flat = block.reshape(block.shape[0], -1)
+    return Survey(
+        low=low,
+        high=high,
+        nonpositive=(flat <= 0).sum(axis=0),
+        total=flat.sum(axis=0),
+        squares=np.einsum("ij,ij->j", flat, flat),
+        head=block[: max(0, SURVEY_HEAD - start)],
+        rows={step: block[(-start) % step :: step] for step in steps},
+    )
+
+
+def _merge_surveys(first: Survey, second: Survey) -> Survey:
+    """Two surveys of neighbouring rows, `second` after `first`."""
+    return Survey(
+        low=np.minimum(first.low, second.low),  # NaN propagates
+        high=np.maximum(first.high, second.high),
+        nonpositive=first.nonpositive + second.nonpositive,
+        total=first.total + second.total,
+        squares=first.squares + second.squares,
+        head=np.concatenate([first.head, second.head])[:SURVEY_HEAD],
+        rows={step: np.concatenate([first.rows[step], second.rows[step]]) for step in first.rows},
+    )
+
+
+class LazySamples:
+    """Rows of a Dask array that stay where they are: samples (N, 3) or a reference series (N,).
+
+    array : the Dask array, in one chunk across its columns.
+    passes : how many passes over the data have run (the survey included).
+    """
+
+    def __init__(self, array, survey: Survey | None = None):
+        if any(np.isnan(size) for size in array.chunks[0]):
+            array = array.compute_chunk_sizes()  # one pass: the rows of every block
+        if array.ndim == 2:
+            array = array.rechunk({1: -1})
+        self.array = array
+        self._survey = survey
+        self._cache: dict = {}
+        self.passes = 0
+
+    @property
+    def shape(self) -> tuple:
+        return tuple(int(s) for s in self.array.shape)
+
+    @property
+    def ndim(self) -> int:
+        return self.array.ndim
+
+    @property
+    def dtype(self):
+        return np.dtype(float)
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __array__(self, dtype=None, copy=None):
+        raise TypeError(
+            "a Dask log is not turned into one numpy array (it may not fit in memory); use "
+            "nlpcal.passes.reduce for a pass over its blocks"
+        )
+
+    def __mul__(self, factor) -> LazySamples:
+        factor = float(factor)
+        if not factor > 0:
+            raise ValueError("LazySamples scale by a positive factor only")
+        survey = self._survey.scaled(factor) if self._survey is not None else None
+        return LazySamples(self.array * factor, survey)
+
+    __rmul__ = __mul__
+
+    @property
+    def n(self) -> int:
+        return self.shape[0]
+
+    def steps(self) -> tuple:
+        """The strides of the survey's subsamples for this many rows."""
+        return tuple(sorted({max(1, self.n // size) for size in SURVEY_SIZES}))
+
+    def survey(self) -> Survey:
+        """What one pass gathers (run now unless already run, or gathered with others by
+        `survey_together`)."""
+        if self._survey is None:
+            survey_together(self)
+        return self._survey  # type: ignore[return-value]
+
+    def __getitem__(self, key) -> np.ndarray:
+        """Rows as a numpy array: a slice of rows (with a stride), from the survey when it has
+        them, else computed (and kept); `values[rows, columns]` takes columns of them."""
+        rows, columns = (key[0], key[1:]) if isinstance(key, tuple) else (key, ())
+        if not isinstance(rows, slice):
+            raise TypeError("LazySamples take a slice of rows")
+        values = self._rows(*rows.indices(self.n))
+        return values[(slice(None), *columns)] if columns else values
+
+    def _rows(self, start: int, stop: int, step: int) -> np.ndarray:
+        survey = self._survey
+        if survey is not None and step > 0:
+            if step == 1 and start == 0 and stop <= survey.head.shape[0]:
+                return survey.head[:stop]
+            if start == 0 and stop == self.n and step in survey.rows:
+                return survey.rows[step]
+        key = (start, stop, step)
+        if key not in self._cache:
+            self._cache[key] = np.asarray(self.array[start:stop:step].compute(), dtype=float)
+        return self._cache[key]
+
+    def mean(self, axis=None):
+        """The mean over the rows (per column for samples). [unit of the values]"""
+        mean = self.survey().total / self.n
+        return float(mean[0]) if self.ndim == 1 and axis is None else mean
+
+    def block_offsets(self) -> list:
+        """(start, stop) of the rows of every block."""
+        bounds = np.concatenate([[0], np.cumsum(self.array.chunks[0])]).astype(int)
+        return list(zip(bounds[:-1].tolist(), bounds[1:].tolist()))
+
+    def blocks(self, chunks=None) -> list:
+        """One Dask delayed object per block of rows (rechunked to `chunks` along the rows when
+        given)."""
+        array = self.array if chunks is None else self.array.rechunk({0: chunks})
+        return list(array.to_delayed().ravel())
+
+
+def survey_together(*values) -> None:
+    """Survey every `LazySamples` among `values` that has no survey yet, in one pass: arrays
+    made from the same files read each block once."""
+    pending = [v for v in values if isinstance(v, LazySamples) and v._survey is None]
+    if not pending:
+        return
+    import dask
+
+    trees = []
+    for value in pending:
+        steps = value.steps()
+        parts = [
+            dask.delayed(_survey_block)(block, start, steps)
+            for block, (start, _) in zip(value.blocks(), value.block_offsets())
+        ]
+        trees.append(_tree(parts, _merge_surveys))
+        value.passes += 1
+    with _single_threaded_blas():
+        surveys = dask.compute(*trees)
+    for value, survey in zip(pending, surveys):
+        value._survey = survey
+
+
+def surveyed(*values) -> tuple:
+    """`values` with every Dask array as `LazySamples`, all of them surveyed in one pass; other
+    values as they are."""
+    values = tuple(LazySamples(v) if is_dask(v) else v for v in values)
+    survey_together(*values)
+    return values
+
+
+def as_rows(values):
+    """In-memory values as a float numpy array (a memory map stays mapped); Dask arrays as
+    `LazySamples`; `LazySamples` as they are."""
+    if isinstance(values, LazySamples):
+        return values
+    if is_dask(values):
+        return LazySamples(values)
+    return np.asarray(values, dtype=float)
+
+
+def reference_chunk(reference, start: int, stop: int):
+    """The part of a reference (None, a float or an (N,) array) for rows start:stop."""
+    if reference is None or np.ndim(reference) == 0:
+        return reference
+    return reference[start:stop]
+
+
+def reduce(samples, reference, work, merge, chunk_rows: int):
+    """One pass over the samples: work(rows, reference rows) per block, merged in row order.
+
+    samples : (N, k) rows, in memory or `LazySamples`. [unit]
+    reference : None, a number, or (N,) values on the same rows (in memory or `LazySamples`).
+    work : (block of rows, its reference) -> a partial result; it must loop over chunks of
+        `chunk_rows` itself, the blocks being shares of the rows in memory and Dask chunks.
+    merge : (earlier partial, later partial) -> the partial of both.
+    """
+    if isinstance(samples, LazySamples) or isinstance(reference, LazySamples):
+        return _reduce_dask(samples, reference, work, merge)
+    parts = map_shares(
+        lambda begin, end: work(samples[begin:end], reference_chunk(reference, begin, end)),
+        samples.shape[0],
+        chunk_rows,
+    )
+    result = parts[0]
+    for part in parts[1:]:
+        result = merge(result, part)
+    return result
+
+
+def _reduce_dask(samples, reference, work, merge):
+    import dask
+    import dask.array as da
+
+    if not isinstance(samples, LazySamples):  # a Dask reference with samples in memory
+        chunks = (reference.array.chunks[0], -1)
+        samples = LazySamples(da.from_array(np.asarray(samples), chunks=chunks))
+    offsets = samples.block_offsets()
+    if isinstance(reference, LazySamples):
+        chunks = samples.array.chunks[0]
+        references = reference.blocks(None if reference.array.chunks[0] == chunks else chunks)
+    else:  # in memory: each task takes its own rows of the reference
+        references = [reference_chunk(reference, start, stop) for start, stop in offsets]
+    parts = [dask.delayed(work)(block, ref) for block, ref in zip(samples.blocks(), references)]
+    samples.passes += 1
+    with _single_threaded_blas():
+        return dask.compute(_tree(parts, merge))[0]
+
+
+def _tree(parts: list, merge):
+    """Merge delayed partial results pairwise, neighbours with neighbours, until one is left."""
+    import dask
+
+    while len(parts) > 1:
+        pairs = [
+            dask.delayed(merge)(parts[i], parts[i + 1]) if i + 1 < len(parts) else parts[i]
+            for i in range(0, len(parts), 2)
+        ]
+        parts = pairs
+    return parts[0]
+
+
+def _single_threaded_blas():
+    """BLAS held to one thread in this process while Dask threads run blocks side by side (the
+    workers of a cluster are started that way by dask.distributed)."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=1, user_api="blas")
