@@ -91,6 +91,7 @@ APPLY_COLUMNS = (
     "action",
     "seconds",
 )
+INTEGER_COLUMNS = {"exit_status", "n_samples", "outliers"}
 #: Joins the warnings of a log in one cell.
 WARNING_SEPARATOR = " | "
 
@@ -119,7 +120,11 @@ class BatchReport:
         return max((int(row["exit_status"]) for row in self.rows), default=0)
 
     def table(self) -> pd.DataFrame:
-        return pd.DataFrame(self.rows, columns=list(self.columns))
+        """The summary: one row per log; counts as integers, empty where unknown."""
+        frame = pd.DataFrame(self.rows, columns=list(self.columns))
+        for name in INTEGER_COLUMNS & set(self.columns):
+            frame[name] = frame[name].astype("Int64")
+        return frame
 
 
 def output_names(paths) -> dict:
@@ -218,7 +223,7 @@ class CalibrateTask:
     def __call__(self, job: tuple) -> dict:
         log_path, output = job
         started = time.perf_counter()
-        row: dict = {"log": str(log_path), "action": "calibrated"}
+        row: dict = {"log": str(log_path), "action": "run"}
         try:
             log = read_log(log_path, **self.read_options)
             result = calibrate_log(log, **self.options)
@@ -249,8 +254,13 @@ class ApplyTask:
     def __call__(self, job: tuple) -> dict:
         log_path, params_path, output = job
         started = time.perf_counter()
-        row: dict = {"log": str(log_path), "params": str(params_path or ""), "action": "corrected"}
+        row: dict = {"log": str(log_path), "params": str(params_path or ""), "action": "run"}
         try:
+            if params_path and not Path(params_path).exists():
+                raise InputError(
+                    f"no parameters for this log: {params_path} does not exist (its "
+                    f"calibration failed, or it was not calibrated)"
+                )
             parameters = load_parameters(params_path) if params_path else None
             correction = Correction.plan(
                 parameters,

@@ -56,7 +56,7 @@ def scheduler(spec=None, workers: int | None = None):
     """Run the Dask work inside on `spec` (see the module's doc); yields None (no scheduler: the
     in-process path), the name of a local scheduler, or a distributed Client.
 
-    workers : worker processes of a "local" cluster (default: one per core).
+    workers : worker processes of "local" or "processes" (default: one per core).
     """
     if spec is None:
         yield None
@@ -66,8 +66,17 @@ def scheduler(spec=None, workers: int | None = None):
         with dask.config.set(scheduler=spec):
             yield spec
         return
-    if spec in ("threads", "processes"):
+    if spec == "threads":
         with dask.config.set(scheduler=spec):
+            yield spec
+        return
+    if spec == "processes":  # one pool for every pass: each process imports nlpcal once
+        from concurrent.futures import ProcessPoolExecutor
+
+        from dask.multiprocessing import get_context
+
+        pool = ProcessPoolExecutor(workers, mp_context=get_context(), initializer=blas_one_thread)
+        with pool, dask.config.set(scheduler=spec, pool=pool):
             yield spec
         return
     distributed = _require("distributed", f"--scheduler {spec}")
@@ -85,6 +94,16 @@ def scheduler(spec=None, workers: int | None = None):
         else:
             client = stack.enter_context(_connect(distributed, str(spec)))
         yield client
+
+
+def blas_one_thread() -> None:
+    """Hold BLAS to one thread in a worker process (the processes share the cores), when
+    threadpoolctl is installed (dask.distributed sets its workers so by itself)."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:
+        return
+    threadpool_limits(limits=1, user_api="blas")
 
 
 def _connect(distributed, address: str):

@@ -17,6 +17,7 @@ import sys
 from ..errors import InputError, QualityError, SolveError, WriteError
 from ..version import __version__
 from . import (
+    batch,
     calibrate,
     common,
     compare,
@@ -31,7 +32,18 @@ from . import (
 from .common import Parser, UsageError, add_quiet_argument
 
 #: The subcommand modules, in the order of the help.
-COMMANDS = (simulate, calibrate, compare, orthogonality, drift, compass, export, imports, report)
+COMMANDS = (
+    simulate,
+    calibrate,
+    batch,
+    compare,
+    orthogonality,
+    drift,
+    compass,
+    export,
+    imports,
+    report,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -24,6 +24,7 @@ from .common import (
     add_loss_arguments,
     add_reference_arguments,
     add_reference_model_arguments,
+    add_scheduler_arguments,
     emit_csv,
     emit_json,
     log_options,
@@ -130,6 +131,7 @@ def _register_calibrate(sub):
         help="stream the log into a memory-mapped temporary file in chunks, so "
         "that logs larger than memory can be calibrated",
     )
+    add_scheduler_arguments(parser)
     parser.add_argument(
         "-o",
         "--output",
@@ -171,10 +173,53 @@ def _check_plot(args) -> None:
 
 
 def run_calibrate(args) -> int:
+    from ..cluster import scheduler
+
+    with scheduler(args.scheduler, args.workers), _dask_progress(args.scheduler):
+        return _run_calibrate(args)
+
+
+def _dask_progress(spec):
+    """Dask's progress bar on stderr for its own schedulers, when stderr is a terminal."""
+    import contextlib
+    import sys
+
+    from . import common
+
+    if spec not in ("threads", "processes") or common.QUIET or not sys.stderr.isatty():
+        return contextlib.nullcontext()
+    from dask.diagnostics import ProgressBar
+
+    return ProgressBar(out=sys.stderr)
+
+
+def _read_for_calibration(args, extra):
+    """The log: in this process (read_log), or left in its files for --scheduler."""
+    from ..cluster import describe
+    from ..errors import InputError
+    from ..io import read_log
+    from ..io.lazy import read_lazy_log
+
+    if not args.scheduler:
+        return read_log(
+            args.log, **log_options(args), extra_columns=extra, low_memory=args.low_memory
+        )
+    if args.low_memory or args.plot:
+        flag = "--low-memory" if args.low_memory else "--plot"
+        raise InputError(
+            f"{flag} and --scheduler exclude each other: with --scheduler the log stays in its "
+            f"files and is read block by block in every pass"
+        )
+    log = read_lazy_log(args.log, **log_options(args), extra_columns=extra)
+    log.notes.append(f"running on {describe(args.scheduler)}")
+    return log
+
+
+def _run_calibrate(args) -> int:
     from ..calibration import calibrate_log
     from ..drift.temperature import calibrate_temperature_log
     from ..errors import InputError
-    from ..io import check_output_path, read_log
+    from ..io import check_output_path
 
     check_output_path(args.output, args.log)
     _check_plot(args)
@@ -201,7 +246,7 @@ def run_calibrate(args) -> int:
     started = time.perf_counter()
     extra = [args.temperature_column] if args.temperature_column else []
     progress(f"reading {args.log} ...")
-    log = read_log(args.log, **log_options(args), extra_columns=extra, low_memory=args.low_memory)
+    log = _read_for_calibration(args, extra)
     progress("")
     tell(log.notes)
     read_s = time.perf_counter() - started

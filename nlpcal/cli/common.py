@@ -186,6 +186,24 @@ def add_loss_arguments(parser) -> None:
     )
 
 
+def add_scheduler_arguments(parser) -> None:
+    """--scheduler and --workers: run on Dask (the `dask` extra) instead of in this process."""
+    parser.add_argument(
+        "--scheduler",
+        metavar="ADDRESS|processes|threads|local",
+        help="run on Dask (pip install 'nlpcal[dask]'): 'threads' or 'processes' (Dask's own "
+        "schedulers in this process), 'local' (a cluster of this machine, one worker process "
+        "per core), or the address of a running scheduler (tcp://host:8786) or its scheduler "
+        "file; without it everything runs in this process",
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        metavar="N",
+        help="worker processes of --scheduler local or processes (default: one per core)",
+    )
+
+
 def log_options(args) -> dict:
     """The keyword arguments of `nlpcal.io.read_log` that the common arguments give."""
     return {

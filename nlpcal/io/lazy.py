@@ -212,7 +212,11 @@ def read_lazy_log(
             validation.number(reference_field, "the reference field", positive=True), ref_unit
         )
     parquet = all(sources.is_parquet(path) for path in sources.log_paths(source))
-    kind = "Parquet row groups" if parquet else "CSV blocks"
+    blocks = len(samples.block_offsets())
+    notes.append(
+        f"the log stays in its files: {blocks} {'Parquet row groups' if parquet else 'CSV blocks'}"
+        f" read in every pass"
+    )
     return Log(
         path=str(source),
         columns=list(chosen),
@@ -222,6 +226,6 @@ def read_lazy_log(
         reference_column=name,
         reference_source=model,
         dropped=dropped,
-        engine=f"dask, {len(samples.block_offsets())} {kind}",
+        engine="pyarrow" if parquet else "c",
         notes=notes,
     )
