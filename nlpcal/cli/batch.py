@@ -111,8 +111,8 @@ def _register_calibrate(actions):
         "quality-failed, bad-input, solve-failed, error), exit_status (that of 'nlpcal "
         "calibrate' on the log), the nine parameters each with its standard error (_se), "
         "std_measured and std_corrected of |B|, coverage_fraction, warnings, message, unit, "
-        "n_samples, output, action (run, or skipped as up to date), seconds. Exit status: the largest "
-        "of the logs'.",
+        "n_samples, output, action (run, or skipped as up to date), seconds. Exit status: the "
+        "largest of the logs'.",
     )
     _add_batch_arguments(parser)
     parser.set_defaults(func=run_batch_calibrate)
