@@ -191,7 +191,9 @@ class LazySamples:
         return values[(slice(None), *columns)] if columns else values
 
     def _rows(self, start: int, stop: int, step: int) -> np.ndarray:
-        survey = self._survey
+        head = start == 0 and step == 1 and stop <= SURVEY_HEAD
+        strided = start == 0 and stop == self.n and step in self.steps()
+        survey = self.survey() if head or strided else self._survey  # the survey has them
         if survey is not None and step > 0:
             if step == 1 and start == 0 and stop <= survey.head.shape[0]:
                 return survey.head[:stop]

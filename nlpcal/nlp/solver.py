@@ -15,6 +15,7 @@ for any log. IPOPT does not raise on failure: `solve` always reads `stats()["suc
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -75,6 +76,11 @@ def builds() -> int:
     return sum(builder.cache_info().misses for builder, _ in PROBLEMS.values())
 
 
+#: One IPOPT solve at a time in a process: IPOPT and its linear solver (MUMPS) are not
+#: thread-safe, and a solver's `stats()` describe its latest call. Threads (a fleet calibrated on
+#: Dask's threads scheduler) still overlap their reading and their data passes.
+SOLVE_LOCK = threading.Lock()
+
 #: IPOPT statuses that count as solved.
 SUCCESS_STATUSES = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 
@@ -115,8 +121,9 @@ def solve(solver, *, x0, p, lbx=-np.inf, ubx=np.inf, lbg=None, ubg=None) -> Solv
     if lbg is not None:
         args["lbg"] = lbg
         args["ubg"] = ubg
-    out = solver(**args)
-    stats = solver.stats()
+    with SOLVE_LOCK:
+        out = solver(**args)
+        stats = solver.stats()
     status = str(stats.get("return_status", "unknown"))
     return SolveOutcome(
         x=np.asarray(out["x"], dtype=float).ravel(),
