@@ -22,6 +22,11 @@ from .errors import InputError
 #: Scheduler names of `--scheduler`; anything else is the address of a running scheduler.
 SCHEDULERS = ("threads", "processes", "local")
 INSTALL_DASK = "pip install 'nlpcal[dask]'"
+#: glibc's allocator settings of the workers of a "local" cluster, set before they start.
+#: dask.distributed sets MALLOC_TRIM_THRESHOLD_ to 64 KiB, which also fixes glibc's mmap
+#: threshold at 128 KiB: every chunk-sized temporary of a pass is then mapped and unmapped, and a
+#: Table 1 pass runs four times slower (docs/scale.md). These keep such temporaries on the heap.
+WORKER_MALLOC = {"MALLOC_TRIM_THRESHOLD_": 32 * 2**20, "MALLOC_MMAP_THRESHOLD_": 16 * 2**20}
 #: Seconds to wait for a running scheduler to answer. [s]
 CONNECT_TIMEOUT_S = 30
 
@@ -82,6 +87,7 @@ def scheduler(spec=None, workers: int | None = None):
     distributed = _require("distributed", f"--scheduler {spec}")
     with contextlib.ExitStack() as stack:
         if spec == "local":
+            stack.enter_context(worker_environment(dask))
             cluster = stack.enter_context(
                 distributed.LocalCluster(
                     n_workers=workers,
@@ -94,6 +100,12 @@ def scheduler(spec=None, workers: int | None = None):
         else:
             client = stack.enter_context(_connect(distributed, str(spec)))
         yield client
+
+
+def worker_environment(dask):
+    """The Dask setting under which new workers start with WORKER_MALLOC."""
+    key = "distributed.nanny.pre-spawn-environ"
+    return dask.config.set({key: {**dask.config.get(key, {}), **WORKER_MALLOC}})
 
 
 def blas_one_thread() -> None:

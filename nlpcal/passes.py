@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import contextlib
 import sys
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -124,6 +125,8 @@ class LazySamples:
 
     array : the Dask array, in one chunk across its columns.
     passes : how many passes over the data have run (the survey included).
+    timings : (what, seconds) of every pass: "survey", or the name of the work of the pass
+        ("GramBlock", "StatisticsBlock" ...). [s]
     """
 
     def __init__(self, array, survey: Survey | None = None):
@@ -135,6 +138,7 @@ class LazySamples:
         self._survey = survey
         self._cache: dict = {}
         self.passes = 0
+        self.timings: list = []
 
     @property
     def shape(self) -> tuple:
@@ -237,11 +241,13 @@ def survey_together(*values) -> None:
             for block, (start, _) in zip(value.blocks(), value.block_offsets())
         ]
         trees.append(_tree(parts, _merge_surveys))
-        value.passes += 1
+    started = time.perf_counter()
     with _single_threaded_blas():
         surveys = dask.compute(*trees)
     for value, survey in zip(pending, surveys):
         value._survey = survey
+        value.passes += 1
+        value.timings.append(("survey", time.perf_counter() - started))
 
 
 def surveyed(*values) -> tuple:
@@ -305,9 +311,12 @@ def _reduce_dask(samples, reference, work, merge):
     else:  # in memory: each task takes its own rows of the reference
         references = [reference_chunk(reference, start, stop) for start, stop in offsets]
     parts = [dask.delayed(work)(block, ref) for block, ref in zip(samples.blocks(), references)]
-    samples.passes += 1
+    started = time.perf_counter()
     with _single_threaded_blas():
-        return dask.compute(_tree(parts, merge))[0]
+        result = dask.compute(_tree(parts, merge))[0]
+    samples.passes += 1
+    samples.timings.append((type(work).__name__, time.perf_counter() - started))
+    return result
 
 
 def _tree(parts: list, merge):

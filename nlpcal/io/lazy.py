@@ -47,12 +47,12 @@ def field_samples(values):
     return picked.astype(float).to_dask_array(lengths=True) if is_dask_frame else picked
 
 
-def _frame_of(spec) -> pd.DataFrame:
-    """The table of one block: ("parquet", path, row group, columns) or ("csv", path, bytes,
-    header line)."""
+def _table_of(spec):
+    """The table of one block: ("parquet", path, row group, columns) gives a pyarrow Table,
+    ("csv", path, bytes, header line) a DataFrame."""
     kind, path, where, extra = spec
     if kind == "parquet":
-        return sources.read_parquet_row_group(path, where, extra)
+        return sources.parquet_row_group(path, where, extra)
     try:
         frame = pd.read_csv(io.BytesIO(extra + where), engine="c")
     except pd.errors.EmptyDataError:
@@ -63,11 +63,44 @@ def _frame_of(spec) -> pd.DataFrame:
     return frame
 
 
+def _column(table, name):
+    """A column of a block as a float numpy array when it holds numbers only, else None."""
+    if isinstance(table, pd.DataFrame):
+        column = table[name]
+        numeric = pd.api.types.is_numeric_dtype(column) and not pd.api.types.is_bool_dtype(column)
+        return column.to_numpy(dtype=float) if numeric and not column.hasnans else None
+    import pyarrow as pa
+
+    column = table.column(name)
+    numeric = pa.types.is_floating(column.type) or pa.types.is_integer(column.type)
+    return np.asarray(column.to_numpy(), dtype=float) if numeric and not column.null_count else None
+
+
+def _finite_block(table, wanted, factors):
+    """The wanted columns times their factors as one (rows, k) array when every value is a
+    finite number (the common case, without copies of the table), else None. Column-major, so
+    that each column is one contiguous run of memory."""
+    rows = table.num_rows if hasattr(table, "num_rows") else len(table)
+    out = np.empty((rows, len(wanted)), order="F")
+    for k, name in enumerate(wanted):
+        column = _column(table, name)
+        if column is None or not np.isfinite(column).all():
+            return None
+        np.multiply(column, factors[k], out=out[:, k])
+    return out
+
+
 def _block(spec, wanted, factors, drop_invalid: bool):
-    """(values in the base unit, rows dropped) of one block."""
+    """(values in the base unit, rows dropped) of one block; a block with a missing, non-numeric
+    or non-finite value goes through `numeric_columns`, which says where or drops the row."""
     kind, path, where, _ = spec
+    table = _table_of(spec)
+    values = _finite_block(table, wanted, factors)
+    if values is not None:
+        return values, 0
+    frame = sources.arrow_frame(table) if kind == "parquet" else table
     source = f"{path} (row group {where})" if kind == "parquet" else f"{path} (a block)"
-    numeric = numeric_columns(_frame_of(spec), wanted, drop_invalid=drop_invalid, source=source)
+    numeric = numeric_columns(frame, wanted, drop_invalid=drop_invalid, source=source)
     return numeric.values * factors, numeric.dropped
 
 

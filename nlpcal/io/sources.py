@@ -125,15 +125,21 @@ def read_parquet(path, columns=None) -> pd.DataFrame:
         raise InputError(f"{path}: cannot be read as Parquet ({_first_line(exc)})") from None
 
 
-def read_parquet_row_group(path, index: int, columns=None) -> pd.DataFrame:
-    """One row group of a Parquet file as a DataFrame (what one block of a Dask log reads)."""
+def parquet_row_group(path, index: int, columns=None):
+    """One row group of a Parquet file as a pyarrow Table (what one block of a Dask log
+    reads)."""
     handle = _parquet_file(path)
     try:
-        return _frame(handle.read_row_group(index, columns=columns))
+        return handle.read_row_group(index, columns=columns)
     except Exception as exc:
         raise InputError(
             f"{path}: row group {index} cannot be read as Parquet ({_first_line(exc)})"
         ) from None
+
+
+def arrow_frame(table) -> pd.DataFrame:
+    """A pyarrow Table as a DataFrame, its column names stripped."""
+    return _frame(table)
 
 
 def parquet_chunks(path, chunk_rows: int, columns=None):

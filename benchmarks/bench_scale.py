@@ -1,0 +1,413 @@
+"""Beyond one process: one large Parquet log on a Dask cluster, and a fleet of small logs.
+
+    python -m pip install '.[dask,bench]'
+    python benchmarks/bench_scale.py big   [--samples 1e8] [--workers 2] [--repeats 3]
+    python benchmarks/bench_scale.py fleet [--logs 1000] [--samples 1e4] [--workers 2]
+
+big: a log of N samples (1 nT noise, uniform attitudes, no reference) in Parquet files of 10^7
+rows each (row groups of 2^20 rows, pyarrow's default). In one run it measures
+
+- read (floor): the time to only read the files, in this process (pyarrow, every column
+  read into numpy) and on the cluster (one task per row group that reads it and sums it);
+- cluster: `nlpcal calibrate 'DIR/*.parquet' --scheduler local` as library calls on a
+  LocalCluster of `--workers` single-threaded worker processes started beforehand: reading
+  (the survey pass) and calibrating, every pass a Dask reduction over the row groups;
+- low-memory: `nlpcal calibrate 'DIR/*.parquet' --low-memory` as library calls in this
+  process: the files streamed into a memory-mapped file, then the passes over it in threads;
+
+for each method, and prints medians over the repeats with their range (min-max), the ratios to
+the floors, the largest gap between the two paths' parameters in standard errors, the passes
+over the data and the peak memory of a worker.
+
+fleet: `--logs` CSV logs of `--samples` samples, two of them broken on purpose (a non-numeric
+cell, no field columns). In one run it measures
+
+- cli loop: `nlpcal calibrate LOG -o LOG.params.json`, one command after another (the shell
+  loop a user writes without `batch`): each log pays the start of Python, the imports and the
+  building of the CasADi problems;
+- python loop: `calibrate_log(read_log(LOG))` and `save`, one log after another in one process;
+- batch: `nlpcal batch calibrate DIR --out-dir OUT --scheduler local` as the library call, the
+  LocalCluster started within the timing (as the command does), with `--force`;
+- batch here: the same batch in this process (no --scheduler);
+
+and the per-log costs: the median time of one log inside a task, the fixed cost of one small
+calibration (a 100-sample log, warm), and what a cold process pays first (imports, builds).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import platform
+import resource
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+import nlpcal
+from nlpcal import cluster
+from nlpcal.batch import calibrate_many
+from nlpcal.calibration import calibrate_log
+from nlpcal.io import read_log
+from nlpcal.io.lazy import read_lazy_log
+from nlpcal.models.zhou2010 import PARAMETER_NAMES
+from nlpcal.simulation import simulate
+
+FILE_ROWS = 10_000_000
+SIMULATE_ROWS = 1_000_000
+
+
+def machine() -> str:
+    import casadi
+    import dask
+    import pyarrow
+
+    return (
+        f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, "
+        f"numpy {np.__version__}, casadi {casadi.__version__}, dask {dask.__version__}, "
+        f"pyarrow {pyarrow.__version__}, nlpcal {nlpcal.__version__}"
+    )
+
+
+def spread(times) -> str:
+    """median [min-max] of a list of seconds."""
+    return f"{statistics.median(times):.2f} s [{min(times):.2f}-{max(times):.2f}]"
+
+
+def load() -> str:
+    return "load average " + " ".join(f"{v:.2f}" for v in os.getloadavg())
+
+
+# --- one big log -----------------------------------------------------------------------------
+
+
+def make_big(folder: Path, n: int) -> list:
+    """Parquet files of FILE_ROWS rows with the log's N samples (made once, then reused)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    marker = folder / f"complete-{n}"
+    if marker.exists():
+        return sorted(folder.glob("*.parquet"))
+    shutil.rmtree(folder, ignore_errors=True)
+    folder.mkdir(parents=True)
+    written, k = 0, 0
+    while written < n:
+        rows = min(FILE_ROWS, n - written)
+        with pq.ParquetWriter(
+            folder / f"log_{k:04d}.parquet",
+            pa.schema([("bx", pa.float64()), ("by", pa.float64()), ("bz", pa.float64())]),
+        ) as writer:
+            for start in range(0, rows, SIMULATE_ROWS):
+                size = min(SIMULATE_ROWS, rows - start)
+                part = simulate(size, noise=1.0, seed=written + start)
+                writer.write_table(pa.Table.from_pandas(part, preserve_index=False))
+        written += rows
+        k += 1
+    marker.write_text("")
+    return sorted(folder.glob("*.parquet"))
+
+
+def read_here(paths) -> float:
+    """Read every column of every file into numpy in this process. [s]"""
+    import pyarrow.parquet as pq
+
+    started = time.perf_counter()
+    total = 0.0
+    for path in paths:
+        table = pq.read_table(path)
+        total += sum(float(table.column(k).to_numpy().sum()) for k in range(table.num_columns))
+    assert np.isfinite(total)
+    return time.perf_counter() - started
+
+
+def _read_row_group(path, index) -> float:
+    import pyarrow.parquet as pq
+
+    table = pq.ParquetFile(path).read_row_group(index)
+    return sum(float(table.column(k).to_numpy().sum()) for k in range(table.num_columns))
+
+
+def read_on_cluster(paths) -> float:
+    """One task per row group that reads it into numpy and sums it, on the current cluster. [s]"""
+    import dask
+    import pyarrow.parquet as pq
+
+    started = time.perf_counter()
+    tasks = [
+        dask.delayed(_read_row_group)(str(path), i)
+        for path in paths
+        for i in range(pq.ParquetFile(path).metadata.num_row_groups)
+    ]
+    assert np.isfinite(sum(dask.compute(*tasks)))
+    return time.perf_counter() - started
+
+
+def _peak_rss_mib() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def bench_big(args) -> None:
+
+    n = int(args.samples)
+    folder = Path(args.data_dir) / f"big-{n:.0e}"
+    started = time.perf_counter()
+    paths = make_big(folder, n)
+    pattern = str(folder / "*.parquet")
+    size = sum(p.stat().st_size for p in paths) / 2**30
+    print(f"# {n:.0e} samples in {len(paths)} Parquet files, {size:.2f} GiB ({load()})")
+    print(f"# data ready in {time.perf_counter() - started:.0f} s", flush=True)
+    started = time.perf_counter()
+    with cluster.scheduler("local", workers=args.workers) as client:  # as --scheduler local
+        print(
+            f"# LocalCluster of {args.workers} workers up in {time.perf_counter() - started:.1f} s",
+            flush=True,
+        )
+        times: dict = {}
+        results: dict = {}
+        splits: dict = {}
+        for repeat in range(args.repeats):
+            times.setdefault("read here", []).append(read_here(paths))
+            times.setdefault("read cluster", []).append(read_on_cluster(paths))
+            for method in args.methods:
+                started = time.perf_counter()
+                log = read_lazy_log(pattern)
+                read_s = time.perf_counter() - started
+                result = calibrate_log(log, method=method)
+                total = time.perf_counter() - started
+                times.setdefault(f"cluster {method}", []).append(total)
+                times.setdefault(f"cluster {method} read", []).append(read_s)
+                results[f"cluster {method}"] = (result, log.samples.passes)
+                splits.setdefault(method, []).append((total, list(log.samples.timings)))
+                started = time.perf_counter()
+                log = read_log(pattern, low_memory=True)
+                read_s = time.perf_counter() - started
+                result = calibrate_log(log, method=method)
+                total = time.perf_counter() - started
+                del log
+                times.setdefault(f"low-memory {method}", []).append(total)
+                times.setdefault(f"low-memory {method} read", []).append(read_s)
+                results[f"low-memory {method}"] = (result, None)
+            print(f"# repeat {repeat + 1} done ({load()})", flush=True)
+        worker_peak = client.run(_peak_rss_mib)
+    floor_here = statistics.median(times["read here"])
+    floor_cluster = statistics.median(times["read cluster"])
+    print(f"\n## {n:.0e} samples, medians over {args.repeats} repeats [min-max]\n")
+    print("| what | time | / read here | / read on cluster | passes | gap to the other path |")
+    print("|---|---|---|---|---|---|")
+    for name in ("read here", "read cluster"):
+        median = statistics.median(times[name])
+        print(
+            f"| {name} | {spread(times[name])} | {median / floor_here:.2f} | "
+            f"{median / floor_cluster:.2f} | 1 | |"
+        )
+    for method in args.methods:
+        for path in ("cluster", "low-memory"):
+            key = f"{path} {method}"
+            other = f"{'low-memory' if path == 'cluster' else 'cluster'} {method}"
+            result, passes = results[key]
+            peer = results[other][0]
+            errors = peer.standard_errors or peer.identifiability.get(
+                "standard_errors_at_joint_optimum"
+            )
+            gap = max(
+                abs(result.parameters[k] - peer.parameters[k]) / errors[k] for k in PARAMETER_NAMES
+            )
+            median = statistics.median(times[key])
+            print(
+                f"| {key} (read {spread(times[key + ' read'])}) | {spread(times[key])} | "
+                f"{median / floor_here:.2f} | {median / floor_cluster:.2f} | "
+                f"{passes if passes is not None else ''} | {gap:.1e} SE |"
+            )
+    for method, runs in splits.items():
+        total, timings = runs[len(runs) // 2]
+        parts: dict = {}
+        for what, seconds in timings:
+            count, spent = parts.get(what, (0, 0.0))
+            parts[what] = (count + 1, spent + seconds)
+        rest = total - sum(spent for _, spent in parts.values())
+        shares = ", ".join(
+            f"{what} x{count} {spent:.2f} s" for what, (count, spent) in parts.items()
+        )
+        print(
+            f"\ncluster {method}, where the time goes: {shares}, solves and the rest {rest:.2f} s"
+        )
+    print(
+        f"\npeak memory of the workers: "
+        f"{', '.join(f'{v:.0f} MiB' for v in worker_peak.values())}; data {size:.2f} GiB"
+    )
+    print(f"staged cycles: {len(results[f'cluster {args.methods[-1]}'][0].statistics) - 1}")
+
+
+# --- a fleet ----------------------------------------------------------------------------------
+
+
+def make_fleet(folder: Path, logs: int, n: int) -> list:
+    """`logs` CSV logs of n samples, the first and the middle one broken (made once)."""
+    marker = folder / f"complete-{logs}-{n}"
+    if not marker.exists():
+        shutil.rmtree(folder, ignore_errors=True)
+        folder.mkdir(parents=True)
+        for k in range(logs):
+            simulate(n, noise=1.0, seed=k).to_csv(folder / f"sensor_{k:05d}.csv", index=False)
+        (folder / "sensor_00000.csv").write_text("bx,by,bz\n1,2,3\n4,five,6\n")
+        (folder / f"sensor_{logs // 2:05d}.csv").write_text("time,temperature\n0,21.5\n")
+        marker.write_text("")
+    return sorted(folder.glob("*.csv"))
+
+
+def python_loop(paths, out: Path) -> tuple:
+    """calibrate_log per log in this process; (total s, per-log seconds)."""
+    each = []
+    started = time.perf_counter()
+    for path in paths:
+        begun = time.perf_counter()
+        with contextlib.suppress(nlpcal.errors.NlpcalError):
+            calibrate_log(read_log(path)).save(out / f"{path.stem}.params.json")
+        each.append(time.perf_counter() - begun)
+    return time.perf_counter() - started, each
+
+
+def cli_loop(paths, out: Path) -> tuple:
+    """`nlpcal calibrate LOG -o ...` per log, one process each; (total s, per-log seconds)."""
+    each = []
+    started = time.perf_counter()
+    for path in paths:
+        begun = time.perf_counter()
+        subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "nlpcal",
+                "calibrate",
+                str(path),
+                "-q",
+                "-o",
+                str(out / f"{path.stem}.params.json"),
+            ],
+            check=False,
+        )
+        each.append(time.perf_counter() - begun)
+    return time.perf_counter() - started, each
+
+
+def cold_costs() -> dict:
+    """What a fresh process pays before its first log: the imports, then the first small
+    calibration (building the CasADi problems), against a warm one. [s]"""
+    code = (
+        "import time; t=time.perf_counter(); import nlpcal.calibration, nlpcal.io; "
+        "t1=time.perf_counter(); import numpy as np; from nlpcal.simulation import simulate; "
+        "x=simulate(100, seed=1).to_numpy(); t2=time.perf_counter(); "
+        "nlpcal.calibration.calibrate(x); t3=time.perf_counter(); "
+        "nlpcal.calibration.calibrate(x); t4=time.perf_counter(); "
+        "print(t1-t, t3-t2, t4-t3)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    imports, first, warm = (float(v) for v in out.stdout.split())
+    return {"imports": imports, "first calibration": first, "warm calibration": warm}
+
+
+def bench_fleet(args) -> None:
+    logs, n = int(args.logs), int(args.samples)
+    folder = Path(args.data_dir) / f"fleet-{logs}x{n:.0e}"
+    paths = make_fleet(folder, logs, n)
+    print(f"# {logs} CSV logs of {n:.0e} samples, 2 broken ({load()})", flush=True)
+    scratch = Path(tempfile.mkdtemp(prefix="nlpcal-fleet-"))
+    times: dict = {}
+    per_log: dict = {}
+    try:
+        for repeat in range(args.repeats):
+            for name in ("batch", "batch here", "python loop"):
+                out = scratch / f"{name.replace(' ', '-')}-{repeat}"
+                out.mkdir()
+                started = time.perf_counter()
+                if name == "python loop":
+                    _, each = python_loop(paths, out)
+                else:
+                    report = calibrate_many(
+                        folder,
+                        out,
+                        force=True,
+                        scheduler="local" if name == "batch" else None,
+                        workers=args.workers,
+                    )
+                    each = [row["seconds"] for row in report.rows]
+                    assert report.counts().get("bad-input") == 2 and len(report.rows) == logs
+                    assert len(list(out.glob("*.params.json"))) == logs - 2
+                times.setdefault(name, []).append(time.perf_counter() - started)
+                per_log.setdefault(name, []).extend(each)
+                print(
+                    f"# {name} repeat {repeat + 1}: {times[name][-1]:.1f} s ({load()})", flush=True
+                )
+        chosen = paths[: args.cli_loop] if args.cli_loop else paths
+        out = scratch / "cli"
+        out.mkdir()
+        total, each = cli_loop(chosen, out)
+        per_log["cli loop"] = each
+        times["cli loop"] = [total * len(paths) / len(chosen)]
+        print(f"# cli loop over {len(chosen)} logs: {total:.1f} s ({load()})", flush=True)
+        costs = cold_costs()
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+    cli = times["cli loop"][0]
+    loop = statistics.median(times["python loop"])
+    scaled = "" if len(chosen) == len(paths) else f" (scaled from {len(chosen)} logs)"
+    print(
+        f"\n## {logs} logs of {n:.0e} samples, {args.workers} workers, medians over "
+        f"{args.repeats} repeats [min-max]\n"
+    )
+    print("| what | total | / cli loop | / python loop | per log, median [p10-p90] |")
+    print("|---|---|---|---|---|")
+    for name in ("cli loop", "python loop", "batch here", "batch"):
+        median = statistics.median(times[name])
+        each = np.array(per_log[name])
+        cell = spread(times[name]) if len(times[name]) > 1 else f"{median:.1f} s{scaled}"
+        print(
+            f"| {name} | {cell} | {median / cli:.3f} | {median / loop:.2f} | "
+            f"{np.median(each) * 1e3:.0f} ms [{np.percentile(each, 10) * 1e3:.0f}-"
+            f"{np.percentile(each, 90) * 1e3:.0f}] |"
+        )
+    print(
+        f"\ncold process: imports {costs['imports']:.2f} s, first calibration (builds the "
+        f"problems) {costs['first calibration']:.2f} s, warm calibration of 100 samples "
+        f"{costs['warm calibration'] * 1e3:.0f} ms"
+    )
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("case", choices=("big", "fleet"))
+    parser.add_argument("--samples", type=float, help="samples of the log (big: 1e8, fleet: 1e4)")
+    parser.add_argument("--logs", type=float, default=1000, help="fleet: logs")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--methods", nargs="+", default=["joint", "staged"])
+    parser.add_argument(
+        "--cli-loop",
+        type=int,
+        default=0,
+        help="fleet: run the command loop on this many logs "
+        "only and scale its total (default: all)",
+    )
+    parser.add_argument(
+        "--data-dir",
+        default=str(Path(tempfile.gettempdir()) / "nlpcal-bench-scale"),
+        help="where the generated logs are kept between runs",
+    )
+    args = parser.parse_args(argv)
+    if args.samples is None:
+        args.samples = 1e8 if args.case == "big" else 1e4
+    print(f"# machine: {machine()}")
+    print(f"# {cluster.describe('local')} of {args.workers} workers")
+    (bench_big if args.case == "big" else bench_fleet)(args)
+
+
+if __name__ == "__main__":
+    main()
