@@ -322,7 +322,7 @@ def _run(jobs, task, reused, out_dir: Path, columns, scheduler, workers, progres
 
     def finished(job, row):
         if isinstance(row, BaseException):
-            row = _status({"log": str(job[0]), "action": "failed"}, *failure(row))
+            row = _status({"log": str(job[0]), "action": "run"}, *failure(row))
         rows[str(job[0])] = row
         if progress is not None:
             progress(len(rows), len(jobs), row)

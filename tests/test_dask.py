@@ -19,6 +19,7 @@ import nlpcal
 from nlpcal import passes
 from nlpcal.cli import main
 from nlpcal.moments import accumulate
+from nlpcal.nlp.solver import builds
 from synthetic import PAPER_FIELD, make_log
 
 dask = pytest.importorskip("dask")
@@ -225,3 +226,10 @@ def test_a_fleet_on_a_cluster_matches_the_fleet_in_this_process(tmp_path, cluste
     assert first["parameters"] == pytest.approx(
         json.loads((tmp_path / "here" / "s0.params.json").read_text())["parameters"], rel=1e-12
     )
+    # Each worker process built its problems once: a second fleet builds nothing more.
+    client = pytest.importorskip("distributed").Client(cluster)
+    built = client.run(builds)
+    argv = ["batch", "calibrate", fleet, "--out-dir", tmp_path / "cluster", "--method", "joint"]
+    run(capsys, *argv, "--force", "--scheduler", cluster.scheduler_address)
+    assert client.run(builds) == built and max(built.values()) <= 4
+    client.close()
