@@ -298,20 +298,37 @@ def cli_loop(paths, out: Path) -> tuple:
     return time.perf_counter() - started, each
 
 
-def cold_costs() -> dict:
-    """What a fresh process pays before its first log: the imports, then the first small
-    calibration (building the CasADi problems), against a warm one. [s]"""
+def cold_costs(path) -> dict:
+    """What a fresh process pays before its first log: the imports, then the first calibration
+    of a fleet log (which builds the CasADi problems), against the same calibration warm. [s]"""
     code = (
-        "import time; t=time.perf_counter(); import nlpcal.calibration, nlpcal.io; "
-        "t1=time.perf_counter(); import numpy as np; from nlpcal.simulation import simulate; "
-        "x=simulate(100, seed=1).to_numpy(); t2=time.perf_counter(); "
-        "nlpcal.calibration.calibrate(x); t3=time.perf_counter(); "
-        "nlpcal.calibration.calibrate(x); t4=time.perf_counter(); "
+        "import sys, time; t=time.perf_counter(); import nlpcal.calibration, nlpcal.io; "
+        "t1=time.perf_counter(); log=nlpcal.io.read_log(sys.argv[1]); t2=time.perf_counter(); "
+        "nlpcal.calibration.calibrate_log(log); t3=time.perf_counter(); "
+        "nlpcal.calibration.calibrate_log(log); t4=time.perf_counter(); "
         "print(t1-t, t3-t2, t4-t3)"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    out = subprocess.run(
+        [sys.executable, "-c", code, str(path)], capture_output=True, text=True, check=True
+    )
     imports, first, warm = (float(v) for v in out.stdout.split())
     return {"imports": imports, "first calibration": first, "warm calibration": warm}
+
+
+def _half_loop(paths, out: str) -> None:
+    python_loop([Path(p) for p in paths], Path(out))
+
+
+def side_by_side(paths, out: Path, workers: int) -> float:
+    """`workers` python loops side by side, each over its share of the logs, in processes of
+    their own: what any scheduler of `workers` processes could do at best. [s]"""
+    from concurrent.futures import ProcessPoolExecutor
+
+    shares = [[str(p) for p in paths[k::workers]] for k in range(workers)]
+    started = time.perf_counter()
+    with ProcessPoolExecutor(workers) as pool:
+        list(pool.map(_half_loop, shares, [str(out)] * workers))
+    return time.perf_counter() - started
 
 
 def bench_fleet(args) -> None:
@@ -324,12 +341,15 @@ def bench_fleet(args) -> None:
     per_log: dict = {}
     try:
         for repeat in range(args.repeats):
-            for name in ("batch", "batch here", "python loop"):
+            for name in ("batch", "batch here", "python loop", "python loops side by side"):
                 out = scratch / f"{name.replace(' ', '-')}-{repeat}"
                 out.mkdir()
                 started = time.perf_counter()
                 if name == "python loop":
                     _, each = python_loop(paths, out)
+                elif name == "python loops side by side":
+                    side_by_side(paths, out, args.workers)
+                    each = []
                 else:
                     report = calibrate_many(
                         folder,
@@ -353,7 +373,7 @@ def bench_fleet(args) -> None:
         per_log["cli loop"] = each
         times["cli loop"] = [total * len(paths) / len(chosen)]
         print(f"# cli loop over {len(chosen)} logs: {total:.1f} s ({load()})", flush=True)
-        costs = cold_costs()
+        costs = cold_costs(paths[1])
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
     cli = times["cli loop"][0]
@@ -365,18 +385,30 @@ def bench_fleet(args) -> None:
     )
     print("| what | total | / cli loop | / python loop | per log, median [p10-p90] |")
     print("|---|---|---|---|---|")
-    for name in ("cli loop", "python loop", "batch here", "batch"):
+    for name in ("cli loop", "python loop", "batch here", "python loops side by side", "batch"):
         median = statistics.median(times[name])
         each = np.array(per_log[name])
-        cell = spread(times[name]) if len(times[name]) > 1 else f"{median:.1f} s{scaled}"
-        print(
-            f"| {name} | {cell} | {median / cli:.3f} | {median / loop:.2f} | "
+        cell = spread(times[name]) if len(times[name]) > 1 else f"{median:.1f} s"
+        cell += scaled if name == "cli loop" else ""
+        within = (
             f"{np.median(each) * 1e3:.0f} ms [{np.percentile(each, 10) * 1e3:.0f}-"
-            f"{np.percentile(each, 90) * 1e3:.0f}] |"
+            f"{np.percentile(each, 90) * 1e3:.0f}]"
+            if len(each)
+            else ""
         )
+        print(f"| {name} | {cell} | {median / cli:.3f} | {median / loop:.2f} | {within} |")
+    batch = statistics.median(times["batch"])
+    in_task = statistics.median(per_log["batch"])
+    command = statistics.median(per_log["cli loop"]) - in_task
+    print(
+        f"\nper-log overhead: the command loop {command:.3f} s per log beyond the calibration; "
+        f"the batch "
+        f"{batch * args.workers / logs - in_task:.4f} s per log (its wall time times the workers "
+        f"per log, less the median time of a log inside its task)"
+    )
     print(
         f"\ncold process: imports {costs['imports']:.2f} s, first calibration (builds the "
-        f"problems) {costs['first calibration']:.2f} s, warm calibration of 100 samples "
+        f"problems) {costs['first calibration']:.2f} s, the same calibration warm "
         f"{costs['warm calibration'] * 1e3:.0f} ms"
     )
 
