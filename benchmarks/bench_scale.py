@@ -29,9 +29,12 @@ cell, no field columns). In one run it measures
 - batch: `nlpcal batch calibrate DIR --out-dir OUT --scheduler local` as the library call, the
   LocalCluster started within the timing (as the command does), with `--force`;
 - batch here: the same batch in this process (no --scheduler);
+- python loops side by side: `--workers` python loops at once, each in a process of its own
+  over its share of the logs: the best any scheduler of that many processes could do;
 
-and the per-log costs: the median time of one log inside a task, the fixed cost of one small
-calibration (a 100-sample log, warm), and what a cold process pays first (imports, builds).
+and the per-log costs: the median time of one log inside a task, the overhead per log beyond
+it, and what a cold process pays first (the imports, the first calibration, which builds the
+problems, against the same calibration warm).
 """
 
 from __future__ import annotations
