@@ -233,3 +233,26 @@ def test_a_fleet_on_a_cluster_matches_the_fleet_in_this_process(tmp_path, cluste
     run(capsys, *argv, "--force", "--scheduler", cluster.scheduler_address)
     assert client.run(builds) == built and max(built.values()) <= 4
     client.close()
+
+
+def test_csv_in_blocks_reads_like_read_log(tmp_path, spiky_log):
+    from nlpcal.io import read_log
+    from nlpcal.io.lazy import read_lazy_log
+
+    frame = pd.DataFrame(spiky_log[:5000] / 1000.0, columns=["mx_uT", "my_uT", "mz_uT"])
+    frame["proton_nT"] = PAPER_FIELD
+    frame.loc[1234, "my_uT"] = np.nan  # dropped with drop_invalid, in one of the blocks
+    for k, rows in enumerate(np.array_split(np.arange(len(frame)), 2)):
+        frame.iloc[rows].to_csv(tmp_path / f"log_{k}.csv", index=False)
+    pattern = tmp_path / "log_*.csv"
+    options = {"reference_column": "proton_nT", "drop_invalid": True}
+    memory = read_log(pattern, **options)
+    with dask.config.set(scheduler="threads"):
+        lazy = read_lazy_log(pattern, block_bytes=20_000, **options)  # about 20 blocks
+        assert len(lazy.samples.block_offsets()) > 10
+        np.testing.assert_array_equal(lazy.samples[::1], memory.samples)
+        np.testing.assert_array_equal(lazy.reference[::1], memory.reference)
+    assert lazy.unit == "uT" and lazy.dropped == memory.dropped == 1
+    assert "dropped 1 row(s)" in " ".join(lazy.notes)
+    with dask.config.set(scheduler="threads"), pytest.raises(nlpcal.InputError, match="my_uT"):
+        read_lazy_log(pattern, block_bytes=20_000, reference_column="proton_nT")
