@@ -13,11 +13,13 @@ from ..io.logs import Log
 from ..models.zhou2010 import Zhou2010Parameters
 from ..moments import accumulate
 from ..nlp.blocks import GAUGE
+from ..nlp.solver import IpoptOptions
 from .diagnostics import (
     direction_coverage,
     explain_failure,
     scaled_hessian,
     uncertainty,
+    undetermined_message,
     warnings_for,
 )
 from .joint import run_joint
@@ -44,6 +46,7 @@ def calibrate(
     target_range: float | None = None,
     rtol: float = RTOL_DEFAULT,
     require_identifiable: bool = True,
+    verbose: bool = False,
 ) -> CalibrationResult:
     """Estimate the nine parameters of Eq. 4 in [1] from a log of many attitudes.
 
@@ -57,8 +60,11 @@ def calibrate(
     reference_unit : the unit of the reference (default: `unit`).
     cycles : the most staged cycles. target_std, target_range : stop the cycle when |B1| meets
         them [unit]. rtol : stop when a cycle lowers the objective by less than this fraction.
-    require_identifiable : raise QualityError (holding the result) when the attitude coverage
-        leaves parameters undetermined; False returns the result with its warnings.
+    require_identifiable : raise QualityError (holding the result) when the data leave parameters
+        undetermined (a direction along which |B1| does not change, or a standard error above
+        `diagnostics.UNDETERMINED`: 10 % of the field, 0.1, 10 deg); False returns the result
+        with its warnings.
+    verbose : print IPOPT's log of every solve (on stdout, as CasADi does).
 
     Returns a CalibrationResult. Raises InputError for unusable input, SolveError when IPOPT
     fails and QualityError as above.
@@ -74,7 +80,12 @@ def calibrate(
     samples = units.to_base(samples, unit)  # in base units a memory map stays mapped
     reference = units.to_base(reference, reference_unit or unit)
     target_std, target_range = units.to_base(target_std, unit), units.to_base(target_range, unit)
-    problem = Problem(samples=samples, reference=reference, moments=accumulate(samples, reference))
+    problem = Problem(
+        samples=samples,
+        reference=reference,
+        moments=accumulate(samples, reference),
+        ipopt=IpoptOptions(print_level=5) if verbose else IpoptOptions(),
+    )
     try:
         if method == "staged":
             rule = StopRule(
@@ -93,7 +104,8 @@ def calibrate(
         problem, final["objective"], hs, final["residual_lag1_autocorrelation"]
     )
     identifiability["coverage"] = direction_coverage(samples, theta)
-    warnings = warnings_for(problem, theta, hs, errors, identifiability, final)
+    base = units.base_unit(unit)
+    warnings = warnings_for(problem, theta, hs, errors, identifiability, final, base)
     if method == "staged" and stop_reason == "max_cycles" and len(rows) > 2:
         warnings.append(
             f"the staged cycle stopped at the maximum of {cycles} cycles before "
@@ -123,10 +135,7 @@ def calibrate(
     )
     if require_identifiable and identifiability["not_identifiable"]:
         raise QualityError(
-            f"the data do not determine "
-            f"{', '.join(identifiability['not_identifiable'])}; rotate the sensor "
-            f"through more attitudes (require_identifiable=False returns the "
-            f"result anyway)",
+            undetermined_message(errors, identifiability, final, problem.moments.reference, base),
             "Not_Identifiable",
             result=result,
         )

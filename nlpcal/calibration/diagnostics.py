@@ -19,8 +19,17 @@ from ..statistics import field_statistics
 from .problem import Problem
 
 #: Standard errors above these are "poorly determined": offsets 1 % of the field, scale errors
-#: 0.01, angles 1 deg.
+#: 0.01, angles 1 deg (a calibration that changes |B| by about 1 % either way).
 POORLY_DETERMINED = np.array([1e-2] * 3 + [1e-2] * 3 + [1.0] * 3)
+#: Standard errors above these mean the data do not determine the parameter at all (offsets 10 %
+#: of the field, scale errors 0.1, angles 10 deg): the linearisation behind a standard error no
+#: longer holds, and the solvers wander along the valley (data on a cap of the sphere).
+UNDETERMINED = 10.0 * POORLY_DETERMINED
+#: Above this relative spread of |B1| after calibration, the field or the sensor is disturbed
+#: beyond what the nine parameters describe (a clean fluxgate reaches 1e-4). [1]
+DISTURBED_SPREAD = 5e-3
+#: Above this widening of the standard errors, neighbouring residuals are worth mentioning. [1]
+CORRELATED_INFLATION = 2.0
 #: The 26 directions of a cube's faces, edges and corners: the bins of `direction_coverage`.
 _BIN_DIRECTIONS = np.array(
     [
@@ -90,20 +99,28 @@ def uncertainty(problem: Problem, objective: float, hs: np.ndarray, autocorrelat
         sd = result.standard_errors * variable_scale(moments.frame.radius)
         sd[6:9] = np.degrees(sd[6:9])
         errors = {name: float(v) for name, v in zip(PARAMETER_NAMES, sd)}
-    limits = np.concatenate([POORLY_DETERMINED[:3] * moments.frame.radius, POORLY_DETERMINED[3:]])
+    radius = moments.frame.radius
+    limits = np.concatenate([POORLY_DETERMINED[:3] * radius, POORLY_DETERMINED[3:]])
+    far = np.concatenate([UNDETERMINED[:3] * radius, UNDETERMINED[3:]])
+    undetermined = [
+        name for name, limit in zip(PARAMETER_NAMES, far) if errors and errors[name] > limit
+    ]
     poorly = [
         name
         for name, limit in zip(PARAMETER_NAMES, limits)
-        if errors is not None and errors[name] > limit
+        if errors and errors[name] > limit and name not in undetermined
     ]
+    weak = _names(result.weak)
     return errors, {
-        "not_identifiable": _names(result.weak),
+        "not_identifiable": [n for n in PARAMETER_NAMES if n in weak or n in undetermined],
+        "undetermined": undetermined,
         "poorly_determined": poorly,
         "weakest_combination": _names(result.weakest),
         "hessian_eigenvalues_scaled": [float(v) for v in result.eigenvalues * 2.0 / n],
         "residual_lag1_autocorrelation": float(autocorrelation),
         "standard_error_inflation": result.inflation,
         "poorly_determined_limits": {n_: float(v) for n_, v in zip(PARAMETER_NAMES, limits)},
+        "undetermined_limits": {n_: float(v) for n_, v in zip(PARAMETER_NAMES, far)},
     }
 
 
@@ -112,8 +129,26 @@ def direction_coverage(samples, theta, max_points: int = 20000) -> dict:
     sub = samples[:: max(1, samples.shape[0] // max_points)]
     b1 = correct(sub, Zhou2010Parameters.from_theta(theta))
     nearest = np.argmax(b1 @ _BIN_DIRECTIONS.T, axis=1)
-    covered = int(np.unique(nearest).size)
-    return {"direction_bins": 26, "covered": covered, "fraction": covered / 26}
+    visited = np.unique(nearest)
+    covered = int(visited.size)
+    missing = [_BIN_NAMES[k] for k in range(26) if k not in set(visited.tolist())]
+    missing.sort(key=len)  # the six axis directions first, then edges and corners
+    return {
+        "direction_bins": 26,
+        "covered": covered,
+        "fraction": covered / 26,
+        "missing": missing,
+    }
+
+
+def _bin_name(direction) -> str:
+    """ "+x", "-x+y", "+x-y-z": the signs of a bin direction's non-zero components."""
+    return "".join(
+        f"{'+' if v > 0 else '-'}{axis}" for v, axis in zip(direction, "xyz") if abs(v) > 1e-9
+    )
+
+
+_BIN_NAMES = [_bin_name(d) for d in _BIN_DIRECTIONS]
 
 
 def exact_optimum_shift(problem: Problem, theta, hs: np.ndarray, errors) -> float | None:
@@ -160,17 +195,102 @@ def explain_failure(problem: Problem, failure: SolveError) -> SolveError:
             f"the least determined combination involves "
             f"{', '.join(identifiability['weakest_combination'])}"
         )
+    identifiability["coverage"] = direction_coverage(problem.samples, theta)
+    final = field_statistics(problem.samples, theta, problem.reference)
+    help_ = what_would_help(identifiability, final, problem.moments.reference)
     return SolveError(
-        f"{failure}: {reason}; rotate the sensor through more attitudes",
+        f"{failure}: {reason}; {help_ or 'rotate the sensor through more attitudes'}",
         failure.status,
         result=theta,
     )
 
 
-def warnings_for(problem: Problem, theta, hs, errors, identifiability: dict, final: dict) -> list:
+def _unit_word(unit: str) -> str:
+    return "counts" if unit == "raw" else unit
+
+
+def _judged(errors: dict, limits: dict, names, unit: str, share: float) -> str:
+    """ "z_x ± 10.4 counts (limit 6.28 = 1 % of the field), s_x ± 0.021 (limit 0.01), ..."."""
+    parts = []
+    for name in names:
+        if name in PARAMETER_NAMES[:3]:
+            what = f" = {share:g} % of the field"
+            sd, limit, word = errors[name], limits[name], f" {_unit_word(unit)}"
+        elif name in PARAMETER_NAMES[3:6]:
+            what, sd, limit, word = "", errors[name], limits[name], ""
+        else:
+            what, sd, limit, word = "", errors[name], limits[name], " deg"
+        parts.append(f"{name} ± {sd:.3g}{word} (limit {limit:.3g}{word}{what})")
+    return ", ".join(parts)
+
+
+def what_would_help(identifiability: dict, final: dict, reference: str) -> str:
+    """What would determine the parameters better, from what limits them here."""
+    advice = []
+    coverage = identifiability.get("coverage", {})
+    missing = coverage.get("missing", [])
+    if missing:
+        more = f" and {len(missing) - 6} more" if len(missing) > 6 else ""
+        shown = ", ".join(missing[:6]) + more
+        advice.append(
+            f"rotate the sensor through more attitudes: the corrected field points into "
+            f"{coverage['covered']} of 26 direction bins, never along {shown} (sensor axes), "
+            f"so turn it until it does, upside down and on its sides too"
+        )
+    mean = final.get("mean") or 0.0
+    spread = final.get("std", 0.0) / mean if mean > 0 else 0.0
+    if spread > DISTURBED_SPREAD:
+        advice.append(
+            f"a steadier field: |B1| still varies by {spread:.1%} of its mean (a clean sensor in "
+            f"a clean place reaches 0.1 %), so the field was disturbed (iron, electronics, "
+            f"motion) or the sensor has errors the nine parameters do not describe"
+        )
+    inflation = identifiability.get("standard_error_inflation", 1.0)
+    if inflation > CORRELATED_INFLATION:
+        advice.append(
+            f"more independent samples: neighbouring residuals are alike (lag-1 correlation "
+            f"{identifiability.get('residual_lag1_autocorrelation', 0.0):.2f}), which widens the "
+            f"standard errors {inflation:.1f}-fold; a longer, slower rotation through more "
+            f"attitudes"
+        )
+    if reference == "none":
+        advice.append(
+            "a reference field (--reference-field F, a proton reading or a geomagnetic model "
+            "value for the place and date), which fixes the overall scale"
+        )
+    return "what would help: " + "; ".join(advice) if advice else ""
+
+
+def undetermined_message(errors, identifiability: dict, final: dict, reference: str, unit):
+    """Why the data do not determine some parameters, and what would: one paragraph."""
+    undetermined = identifiability.get("undetermined", [])
+    weak = [n for n in identifiability["not_identifiable"] if n not in undetermined]
+    parts = []
+    if identifiability.get("undetermined"):
+        judged = _judged(
+            errors,
+            identifiability["undetermined_limits"],
+            identifiability["undetermined"],
+            unit,
+            100 * UNDETERMINED[0],
+        )
+        parts.append(f"the data do not determine {judged}")
+    if weak:
+        parts.append(
+            f"the data leave {', '.join(weak)} free (a direction of the parameters along which "
+            f"|B1| does not change)"
+        )
+    help_ = what_would_help(identifiability, final, reference)
+    return "; ".join(parts) + (f". {help_[0].upper()}{help_[1:]}" if help_ else "")
+
+
+def warnings_for(
+    problem: Problem, theta, hs, errors, identifiability: dict, final: dict, unit: str = "nT"
+) -> list:
     """What the data cannot tell, in words (and the exact-optimum check, into identifiability)."""
     warnings = []
-    if problem.moments.reference == "none":
+    reference = problem.moments.reference
+    if reference == "none":
         warnings.append(
             "absolute scale not identifiable without a reference field: the scales "
             "are fixed by the gauge s_x + s_y + s_z = 0; the scale ratios, offsets "
@@ -178,22 +298,28 @@ def warnings_for(problem: Problem, theta, hs, errors, identifiability: dict, fin
         )
     if identifiability["not_identifiable"]:
         warnings.append(
-            "not identifiable from this attitude coverage: "
-            + ", ".join(identifiability["not_identifiable"])
-            + "; rotate the sensor through more attitudes"
+            "not identifiable: "
+            + undetermined_message(errors, identifiability, final, reference, unit)
         )
     coverage = identifiability["coverage"]
-    if coverage["fraction"] < COVERAGE_WARN:
+    if coverage["fraction"] < COVERAGE_WARN and not identifiability["not_identifiable"]:
         warnings.append(
             f"poor attitude coverage: the corrected field visits "
             f"{coverage['covered']} of 26 direction bins; the result leans on a "
             f"small part of the sphere"
         )
     if identifiability["poorly_determined"]:
+        judged = _judged(
+            errors,
+            identifiability["poorly_determined_limits"],
+            identifiability["poorly_determined"],
+            unit,
+            100 * POORLY_DETERMINED[0],
+        )
+        help_ = what_would_help(identifiability, final, reference)
         warnings.append(
-            "poorly determined (standard error above the limits in "
-            "identifiability.poorly_determined_limits): "
-            + ", ".join(identifiability["poorly_determined"])
+            f"poorly determined (a standard error above 1 % of the field for an offset, 0.01 "
+            f"for a scale error, 1 deg for an angle): {judged}" + (f"; {help_}" if help_ else "")
         )
     if final.get("series_rel_error", 0.0) > SERIES_CHECK:
         shift = exact_optimum_shift(problem, theta, hs, errors)

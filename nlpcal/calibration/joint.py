@@ -38,7 +38,7 @@ def run_joint(problem):
     """
     rows = [problem.measured_row()]
     started = time.perf_counter()
-    step = block_step(problem.moments, "joint", joint_start(problem.moments))
+    step = block_step(problem.moments, "joint", joint_start(problem.moments), problem.ipopt)
     rows.append(
         problem.row(
             "joint",

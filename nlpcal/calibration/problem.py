@@ -14,6 +14,7 @@ import numpy as np
 from ..models.zhou2010 import Zhou2010Parameters
 from ..moments import Moments
 from ..nlp.blocks import objective_function, pack
+from ..nlp.solver import IpoptOptions
 from ..statistics import field_statistics
 
 
@@ -24,11 +25,13 @@ class Problem:
     samples : (N, 3) raw sensor output B_M. [field unit]
     reference : None, a number or (N,) values F_i. [field unit]
     moments : `nlpcal.moments.Moments` of the samples and the reference.
+    ipopt : the IPOPT settings of every solve (print_level > 0 shows IPOPT's log).
     """
 
     samples: np.ndarray
     reference: float | np.ndarray | None
     moments: Moments
+    ipopt: IpoptOptions = IpoptOptions()
 
     def measured_row(self) -> dict:
         """The Table 1 row of the raw |B_M|, gathered with the moments."""

@@ -56,7 +56,7 @@ def run_staged(problem, rule: StopRule):
         started = time.perf_counter()
         iterations = 0
         for stage in STAGE_ORDER:
-            step = block_step(problem.moments, stage, theta)
+            step = block_step(problem.moments, stage, theta, problem.ipopt)
             theta = step.theta
             iterations += step.iterations
             stages.append(
