@@ -167,7 +167,7 @@ def _plausible(value: float, band, factor: float = 1.0) -> bool:
     return low / factor <= value <= high * factor
 
 
-def _number(value: float) -> str:
+def readable(value: float) -> str:
     """A magnitude for a message: three significant digits, thousands grouped."""
     if value == 0 or not np.isfinite(value):
         return f"{value:g}"
@@ -212,15 +212,15 @@ def unit_warning(
         "names": f"as the column names say ({unit})",
         "assumed": f"in {unit}, assumed because the column names carry no unit",
     }[how]
-    converted = "" if unit == base else f" = {_number(typical * table[unit])} {base}"
+    converted = "" if unit == base else f" = {readable(typical * table[unit])} {base}"
     low, high = (f"{v:,g}".replace(",", " ") for v in band)
     read = (
-        f"read {said}, the {sensor} magnitude is about {_number(typical)} {unit}{converted}, "
+        f"read {said}, the {sensor} magnitude is about {readable(typical)} {unit}{converted}, "
         f"far from {what} ({low} to {high} {base})"
     )
     if fits:
         options = ", ".join(
-            f"{_number(typical * table[u])} {base} in {u} ({flag} {u})" for u in fits
+            f"{readable(typical * table[u])} {base} in {u} ({flag} {u})" for u in fits
         )
         advice = f"it would be {options}"
     else:

@@ -7,6 +7,8 @@ References
 
 from __future__ import annotations
 
+import numpy as np
+
 from .. import units, validation
 from ..errors import QualityError, SolveError
 from ..io.logs import Log
@@ -103,13 +105,19 @@ def calibrate(
     errors, identifiability = uncertainty(
         problem, final["objective"], hs, final["residual_lag1_autocorrelation"]
     )
-    identifiability["coverage"] = direction_coverage(samples, theta)
+    if identifiability["not_identifiable"]:  # theta is not to be trusted: the sphere's centre is
+        centred = np.zeros(9)
+        centred[0:3] = problem.moments.frame.centre
+        identifiability["coverage"] = direction_coverage(samples, centred)
+    else:
+        identifiability["coverage"] = direction_coverage(samples, theta)
     base = units.base_unit(unit)
     warnings = warnings_for(problem, theta, hs, errors, identifiability, final, base)
     if method == "staged" and stop_reason == "max_cycles" and len(rows) > 2:
         warnings.append(
             f"the staged cycle stopped at the maximum of {cycles} cycles before "
-            f"converging (rtol {rtol:g}); results may improve with more cycles"
+            f"converging (rtol {rtol:g}); results may improve with more cycles, or with the "
+            f"joint solve of all nine (method='joint', --method joint)"
         )
     mode = problem.moments.reference
     result = CalibrationResult(
@@ -134,8 +142,16 @@ def calibrate(
         input={"log_unit": unit},
     )
     if require_identifiable and identifiability["not_identifiable"]:
+        unconverged = method == "staged" and stop_reason == "max_cycles" and len(rows) > 2
         raise QualityError(
-            undetermined_message(errors, identifiability, final, problem.moments.reference, base),
+            undetermined_message(errors, identifiability, final, problem.moments.reference, base)
+            + (
+                f" The staged cycle also stopped at its maximum of {cycles} cycles before "
+                f"converging, so this may be the cycle's slowness rather than the data: try the "
+                f"joint solve (--method joint, method='joint')."
+                if unconverged
+                else ""
+            ),
             "Not_Identifiable",
             result=result,
         )

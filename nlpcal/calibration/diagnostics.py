@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import inference
+from .. import inference, units
 from ..errors import SolveError
 from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters, correct
 from ..moments import Moments
@@ -132,7 +132,7 @@ def direction_coverage(samples, theta, max_points: int = 20000) -> dict:
     visited = np.unique(nearest)
     covered = int(visited.size)
     missing = [_BIN_NAMES[k] for k in range(26) if k not in set(visited.tolist())]
-    missing.sort(key=len)  # the six axis directions first, then edges and corners
+    missing.sort(key=lambda name: (len(name), _BIN_NAMES.index(name)))  # axes first
     return {
         "direction_bins": 26,
         "covered": covered,
@@ -198,8 +198,9 @@ def explain_failure(problem: Problem, failure: SolveError) -> SolveError:
     identifiability["coverage"] = direction_coverage(problem.samples, theta)
     final = field_statistics(problem.samples, theta, problem.reference)
     help_ = what_would_help(identifiability, final, problem.moments.reference)
+    help_ = help_ or "rotate the sensor through more attitudes"
     return SolveError(
-        f"{failure}: {reason}; {help_ or 'rotate the sensor through more attitudes'}",
+        f"{failure}: {reason}. {help_[:1].upper()}{help_[1:]}",
         failure.status,
         result=theta,
     )
@@ -209,19 +210,30 @@ def _unit_word(unit: str) -> str:
     return "counts" if unit == "raw" else unit
 
 
+#: The three kinds of parameter, their names and how their limits are stated.
+_KINDS = (
+    ("offsets", PARAMETER_NAMES[:3]),
+    ("scale errors", PARAMETER_NAMES[3:6]),
+    ("angles", PARAMETER_NAMES[6:]),
+)
+
+
 def _judged(errors: dict, limits: dict, names, unit: str, share: float) -> str:
-    """ "z_x ± 10.4 counts (limit 6.28 = 1 % of the field), s_x ± 0.021 (limit 0.01), ..."."""
+    """ "offsets z_x ± 10.4, z_y ± 9.6 counts (limit 6.28 counts = 1 % of the field); angles ..."
+    : standard errors by kind, each kind's limit stated once."""
     parts = []
-    for name in names:
-        if name in PARAMETER_NAMES[:3]:
-            what = f" = {share:g} % of the field"
-            sd, limit, word = errors[name], limits[name], f" {_unit_word(unit)}"
-        elif name in PARAMETER_NAMES[3:6]:
-            what, sd, limit, word = "", errors[name], limits[name], ""
+    for kind, members in _KINDS:
+        chosen = [n for n in members if n in names]
+        if not chosen:
+            continue
+        word = {"offsets": f" {_unit_word(unit)}", "scale errors": "", "angles": " deg"}[kind]
+        if kind == "offsets":
+            limit = f"limit {units.readable(limits[chosen[0]])}{word} = {share:g} % of the field"
         else:
-            what, sd, limit, word = "", errors[name], limits[name], " deg"
-        parts.append(f"{name} ± {sd:.3g}{word} (limit {limit:.3g}{word}{what})")
-    return ", ".join(parts)
+            limit = f"limit {limits[chosen[0]]:g}{word}"
+        values = ", ".join(f"{n} ± {units.readable(errors[n])}" for n in chosen)
+        parts.append(f"{kind} {values}{word} ({limit})")
+    return "; ".join(parts)
 
 
 def what_would_help(identifiability: dict, final: dict, reference: str) -> str:
@@ -230,58 +242,52 @@ def what_would_help(identifiability: dict, final: dict, reference: str) -> str:
     coverage = identifiability.get("coverage", {})
     missing = coverage.get("missing", [])
     if missing:
-        more = f" and {len(missing) - 6} more" if len(missing) > 6 else ""
-        shown = ", ".join(missing[:6]) + more
+        more = f" and {len(missing) - 6} other directions" if len(missing) > 6 else ""
         advice.append(
-            f"rotate the sensor through more attitudes: the corrected field points into "
-            f"{coverage['covered']} of 26 direction bins, never along {shown} (sensor axes), "
-            f"so turn it until it does, upside down and on its sides too"
+            f"rotate the sensor through more attitudes: the field never pointed along "
+            f"{', '.join(missing[:6])}{more} (sensor axes; {coverage['covered']} of 26 direction "
+            f"bins visited)"
         )
     mean = final.get("mean") or 0.0
     spread = final.get("std", 0.0) / mean if mean > 0 else 0.0
     if spread > DISTURBED_SPREAD:
         advice.append(
-            f"a steadier field: |B1| still varies by {spread:.1%} of its mean (a clean sensor in "
-            f"a clean place reaches 0.1 %), so the field was disturbed (iron, electronics, "
-            f"motion) or the sensor has errors the nine parameters do not describe"
+            f"a steadier field: |B1| still varies by {spread:.1%} (a clean field gives 0.1 %): "
+            f"iron, electronics or motion nearby, or sensor errors beyond the nine parameters"
         )
     inflation = identifiability.get("standard_error_inflation", 1.0)
     if inflation > CORRELATED_INFLATION:
+        rho = identifiability.get("residual_lag1_autocorrelation", 0.0)
         advice.append(
             f"more independent samples: neighbouring residuals are alike (lag-1 correlation "
-            f"{identifiability.get('residual_lag1_autocorrelation', 0.0):.2f}), which widens the "
-            f"standard errors {inflation:.1f}-fold; a longer, slower rotation through more "
-            f"attitudes"
+            f"{rho:.2f}, standard errors x{inflation:.1f})"
         )
     if reference == "none":
-        advice.append(
-            "a reference field (--reference-field F, a proton reading or a geomagnetic model "
-            "value for the place and date), which fixes the overall scale"
-        )
+        advice.append("a known field magnitude (--reference-field F) to fix the overall scale")
     return "what would help: " + "; ".join(advice) if advice else ""
 
 
 def undetermined_message(errors, identifiability: dict, final: dict, reference: str, unit):
-    """Why the data do not determine some parameters, and what would: one paragraph."""
+    """Why the data do not determine some parameters, and what would: a few sentences."""
     undetermined = identifiability.get("undetermined", [])
     weak = [n for n in identifiability["not_identifiable"] if n not in undetermined]
     parts = []
-    if identifiability.get("undetermined"):
+    if undetermined:
         judged = _judged(
             errors,
             identifiability["undetermined_limits"],
-            identifiability["undetermined"],
+            undetermined,
             unit,
             100 * UNDETERMINED[0],
         )
-        parts.append(f"the data do not determine {judged}")
+        parts.append(f"the data do not determine the {judged}")
     if weak:
         parts.append(
-            f"the data leave {', '.join(weak)} free (a direction of the parameters along which "
-            f"|B1| does not change)"
+            f"the data leave {', '.join(weak)} free (|B1| does not change along a combination "
+            f"of them)"
         )
     help_ = what_would_help(identifiability, final, reference)
-    return "; ".join(parts) + (f". {help_[0].upper()}{help_[1:]}" if help_ else "")
+    return "; ".join(parts) + (f". {help_[0].upper()}{help_[1:]}." if help_ else ".")
 
 
 def warnings_for(
@@ -299,7 +305,7 @@ def warnings_for(
     if identifiability["not_identifiable"]:
         warnings.append(
             "not identifiable: "
-            + undetermined_message(errors, identifiability, final, reference, unit)
+            + undetermined_message(errors, identifiability, final, reference, unit).rstrip(".")
         )
     coverage = identifiability["coverage"]
     if coverage["fraction"] < COVERAGE_WARN and not identifiability["not_identifiable"]:
@@ -318,8 +324,8 @@ def warnings_for(
         )
         help_ = what_would_help(identifiability, final, reference)
         warnings.append(
-            f"poorly determined (a standard error above 1 % of the field for an offset, 0.01 "
-            f"for a scale error, 1 deg for an angle): {judged}" + (f"; {help_}" if help_ else "")
+            f"poorly determined (standard errors above the limits): {judged}"
+            + (f". {help_[0].upper()}{help_[1:]}" if help_ else "")
         )
     if final.get("series_rel_error", 0.0) > SERIES_CHECK:
         shift = exact_optimum_shift(problem, theta, hs, errors)

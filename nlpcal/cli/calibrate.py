@@ -218,7 +218,7 @@ def run_calibrate(args) -> int:
         if failure.result is not None:
             show(failure.result.table())
         raise QualityError(
-            f"{failure}; --allow-unidentifiable writes the result anyway, with this warning",
+            f"{failure} --allow-unidentifiable writes the result anyway, with this warning.",
             failure.status,
             result=failure.result,
         ) from None
