@@ -50,7 +50,7 @@ PLOT_CYCLES = 7
 #: Resolution of the comparison figure. [dpi]
 COMPARISON_DPI = 150
 #: Font sizes of nlpcal's figures, legible at 100 % zoom. [pt]
-STYLE = {
+STYLE: dict = {
     "font.size": 10,
     "axes.titlesize": 11,
     "axes.labelsize": 10,

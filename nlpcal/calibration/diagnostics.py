@@ -132,7 +132,7 @@ def direction_coverage(samples, theta, max_points: int = 20000) -> dict:
     visited = np.unique(nearest)
     covered = int(visited.size)
     missing = [_BIN_NAMES[k] for k in range(26) if k not in set(visited.tolist())]
-    missing.sort(key=lambda name: (len(name), _BIN_NAMES.index(name)))  # axes first
+    missing.sort(key=_bin_order)  # +x, -x, +y, -y, +z, -z, then edges and corners
     return {
         "direction_bins": 26,
         "covered": covered,
@@ -149,6 +149,10 @@ def _bin_name(direction) -> str:
 
 
 _BIN_NAMES = [_bin_name(d) for d in _BIN_DIRECTIONS]
+
+
+def _bin_order(name: str) -> tuple:
+    return (len(name), ["xyz".index(axis) for axis in name[1::2]], name[0::2])
 
 
 def exact_optimum_shift(problem: Problem, theta, hs: np.ndarray, errors) -> float | None:
