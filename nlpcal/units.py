@@ -182,6 +182,7 @@ def unit_warning(
     *,
     sensor: str = "magnetometer",
     flag: str = "--unit",
+    raw_allowed: bool = True,
 ) -> str | None:
     """A warning when the typical magnitude of a sensor's samples does not fit its unit.
 
@@ -191,6 +192,7 @@ def unit_warning(
         names carry it) or "assumed" (a fallback).
     sensor : "magnetometer" (judged against Earth's field, EARTH_FIELD_NT) or "accelerometer"
         (against gravity, GRAVITY_G).
+    raw_allowed : whether the caller takes raw counts (the e-compass does not).
     Returns None when plausible, or for raw counts (they have no physical scale).
     """
     if unit == "raw":
@@ -227,8 +229,8 @@ def unit_warning(
         advice = f"no {sensor} unit nlpcal knows puts it there"
     counts = (
         f"; if the numbers are raw counts, {flag} raw keeps them as counts"
-        if "raw" in table
-        else "; raw counts must be scaled to g first"
+        if "raw" in table and raw_allowed
+        else f"; raw counts must be scaled to {'g' if base == 'g' else 'a field unit'} first"
     )
     kept = "; the unit given is used" if how == "given" else ""
     return f"{read}: {advice}{counts}{kept}"

@@ -75,10 +75,10 @@ the parameters are written as JSON for 'nlpcal apply'. Exit 1 when the data cann
 them (say, the sensor was never turned over); --allow-unidentifiable writes them anyway.""",
         examples=(
             "nlpcal calibrate log.csv -o params.json",
-            "nlpcal calibrate mag.txt --unit raw -o params.json      # counts, no header row",
-            "nlpcal calibrate log.csv --columns 4 5 6 --unit uT      # columns by position",
-            "nlpcal calibrate log.csv --reference-field 48500         # a known |B| in nT",
-            "logger | nlpcal calibrate - --unit G -o params.json      # from stdin",
+            "nlpcal calibrate mag.txt --unit raw -o params.json     # counts, no header row",
+            "nlpcal calibrate log.csv --columns 4 5 6 --unit uT     # columns by position",
+            "nlpcal calibrate log.csv --reference-field 48500       # a known |B| in nT",
+            "logger | nlpcal calibrate - --unit G -o params.json    # from stdin",
         ),
     )
     parser.add_argument("log", metavar="LOG", help=LOG_HELP)

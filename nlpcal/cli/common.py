@@ -180,14 +180,30 @@ def add_log_arguments(
     )
 
 
-def add_reference_arguments(parser, legacy_nt: bool = False) -> None:
-    """--reference-field F | --reference-column COL (legacy_nt: the hidden old --field, in nT)."""
-    ref = parser.add_mutually_exclusive_group()
-    ref.add_argument(
-        "--reference-field",
-        type=float,
-        metavar="F",
-        help="known total field magnitude, in the unit of the field columns (e.g. 48500 for nT, "
+def add_field_argument(
+    parser,
+    help: str,
+    *,
+    legacy: str | None = None,
+    legacy_dest: str = "reference_field",
+    required: bool = False,
+):
+    """--reference-field F, the one name of a known field magnitude in every command, in a
+    mutually exclusive group (returned) with the hidden old name `legacy` (stored in
+    `legacy_dest`: "reference_field" when it meant the same, "reference_field_nt" when it was in
+    nT where the new name takes the field columns' unit)."""
+    group = parser.add_mutually_exclusive_group(required=required)
+    group.add_argument("--reference-field", type=float, metavar="F", help=help)
+    if legacy:
+        group.add_argument(legacy, dest=legacy_dest, type=float, help=argparse.SUPPRESS)
+    return group
+
+
+def add_reference_arguments(parser) -> None:
+    """--reference-field F | --reference-column COL."""
+    ref = add_field_argument(
+        parser,
+        "known total field magnitude, in the unit of the field columns (e.g. 48500 for nT, "
         "or a proton magnetometer reading): fits |B1| to it instead of only flattening it, "
         "which also fixes the absolute scale",
     )
@@ -197,8 +213,6 @@ def add_reference_arguments(parser, legacy_nt: bool = False) -> None:
         help="column of per-sample reference magnitudes (name or 0-based position), in the "
         "unit its name carries (proton_nT) or the field columns' unit",
     )
-    if legacy_nt:
-        ref.add_argument("--field", dest="reference_field_nt", type=float, help=argparse.SUPPRESS)
 
 
 def log_options(args) -> dict:

@@ -7,10 +7,9 @@ attitude columns, overall and per pitch band (the paper's Table 2).
 
 from __future__ import annotations
 
-import argparse
-
 from .common import (
     add_command,
+    add_field_argument,
     add_input_arguments,
     emit_json,
     info,
@@ -76,14 +75,13 @@ checked against Earth's field and gravity.""",
         help="column naming each sample's turn axis: x, y, z, optionally with a "
         "suffix for repeated turns (y2); absent selects free-rotation mode",
     )
-    cal.add_argument(
-        "--reference-field",
-        type=float,
-        metavar="F",
-        help="known total field magnitude, in the magnetometer's unit (e.g. 48.5 for uT); "
-        "default: estimated, with det(correction) = 1",
+    add_field_argument(
+        cal,
+        "known total field magnitude, in the magnetometer's unit (e.g. 48.5 for uT); default: "
+        "estimated, with det(correction) = 1",
+        legacy="--field-nt",
+        legacy_dest="reference_field_nt",
     )
-    cal.add_argument("--field-nt", dest="reference_field_nt", type=float, help=argparse.SUPPRESS)
     cal.add_argument(
         "--ellipsoid-seed",
         choices=("linear", "centroid"),

@@ -17,10 +17,9 @@ The old name --field is still accepted everywhere (in nT).
 
 from __future__ import annotations
 
-import argparse
-
 from .common import (
     add_command,
+    add_field_argument,
     add_log_arguments,
     emit_csv,
     emit_json,
@@ -130,13 +129,12 @@ deviation implies. Give the logs before --bound-deg/--columns (or end those with
         metavar="LOG",
         help="rotation log(s): delimited text, or - for stdin",
     )
-    invert.add_argument(
-        "--reference-field",
-        type=float,
-        metavar="F",
-        help="known total field magnitude, in the unit of the field columns (e.g. 55000 for nT)",
+    add_field_argument(
+        invert,
+        "known total field magnitude, in the unit of the field columns (e.g. 55000 for nT)",
+        legacy="--field",
+        legacy_dest="reference_field_nt",
     )
-    invert.add_argument("--field", dest="reference_field_nt", type=float, help=argparse.SUPPRESS)
     invert.add_argument(
         "--bound-deg",
         type=float,
@@ -163,14 +161,9 @@ def _add_angles_and_field(parser):
         metavar=("ALPHA", "BETA", "GAMMA"),
         help=ANGLES_HELP,
     )
-    field = parser.add_mutually_exclusive_group(required=True)
-    field.add_argument(
-        "--reference-field",
-        type=float,
-        metavar="F",
-        help="total field magnitude [nT], e.g. 55000",
+    add_field_argument(
+        parser, "total field magnitude [nT], e.g. 55000", legacy="--field", required=True
     )
-    field.add_argument("--field", dest="reference_field", type=float, help=argparse.SUPPRESS)
 
 
 def run(args) -> int:

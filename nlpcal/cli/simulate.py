@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import argparse
-
-from .common import add_command, emit_csv, info
+from .common import add_command, add_field_argument, emit_csv, info
 
 #: What --preset accepts (the library's `nlpcal.simulation.PRESETS` and `DIRECTORY_PRESETS`).
 PRESET_NAMES = ("zhou2010", "liu2022", "qiu2017")
@@ -63,15 +61,9 @@ qiu2017 write a folder of logs that replicate those papers' experiments.""",
         help="how the orientations are spread: uniform over the sphere (default), turntable "
         "(turns about a few axes), tilt_band (never far from level), clustered (a few spots)",
     )
-    field = parser.add_mutually_exclusive_group()
-    field.add_argument(
-        "--reference-field",
-        type=float,
-        default=None,
-        metavar="NT",
-        help="field magnitude [nT], e.g. 48000 (default: the preset's)",
+    add_field_argument(
+        parser, "field magnitude [nT], e.g. 48000 (default: the preset's)", legacy="--field"
     )
-    field.add_argument("--field", dest="reference_field", type=float, help=argparse.SUPPRESS)
     parser.add_argument(
         "-o",
         "--output",

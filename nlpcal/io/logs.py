@@ -295,13 +295,15 @@ def read_log(
     )
 
 
-def unit_check(samples, unit: str, how: str, sensor="magnetometer", flag="--unit") -> str | None:
+def unit_check(
+    samples, unit: str, how: str, sensor="magnetometer", flag="--unit", raw_allowed=True
+) -> str | None:
     """`nlpcal.units.unit_warning` for samples in the base unit of `sensor`."""
     if unit == "raw" or samples.shape[0] == 0:
         return None
     factor = units.field_factor(unit) if sensor == "magnetometer" else units.acc_factor(unit)
     in_unit = [m / factor for m in typical_magnitudes(samples)]
-    return units.unit_warning(in_unit, unit, how, sensor=sensor, flag=flag)
+    return units.unit_warning(in_unit, unit, how, sensor=sensor, flag=flag, raw_allowed=raw_allowed)
 
 
 def _check_distinct(field_columns, extra_columns) -> None:
@@ -413,7 +415,7 @@ def read_sensor_log(
     mag = values[:, :3] * units.field_factor(mag_unit)
     acc = values[:, 3:] * units.acc_factor(acc_unit)
     checks = [
-        unit_check(mag, mag_unit, mag_how, "magnetometer", "--mag-unit"),
+        unit_check(mag, mag_unit, mag_how, "magnetometer", "--mag-unit", raw_allowed=False),
         unit_check(acc, acc_unit, acc_how, "accelerometer", "--acc-unit"),
     ]
     reference = None
