@@ -186,10 +186,12 @@ def _screened(table: Table, wanted: list, drop_invalid: bool, notes: list) -> tu
     valid_rows = np.flatnonzero(numeric.kept)
     keep = screen.keep(numeric.values[:, :3], valid_rows + 1)
     notes.extend(screen.notes())
+    if not keep.any():
+        raise InputError(f"{table.source}: no data rows")
+    if keep.all():
+        return numeric.values, numeric.kept, numeric.dropped
     kept = numeric.kept.copy()
     kept[valid_rows[~keep]] = False
-    if not kept.any():
-        raise InputError(f"{table.source}: no data rows")
     return numeric.values[keep], kept, numeric.dropped + int((~keep).sum())
 
 

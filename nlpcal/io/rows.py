@@ -55,16 +55,18 @@ class RowScreen:
         in the file's data, for messages."""
         field = np.asarray(field, dtype=float)
         self.rows += field.shape[0]
-        zero = np.all(field == 0.0, axis=1)
+        x, y, z = field[:, 0], field[:, 1], field[:, 2]  # columns: faster than axis=1 reductions
+        zero = (x == 0.0) & (y == 0.0) & (z == 0.0)
         if zero.any():
             self.zeros += int(zero.sum())
             room = QUOTED_ROWS - len(self.zero_rows)
             self.zero_rows.extend(int(r) for r in data_rows[zero][: max(room, 0)])
-        previous = np.empty_like(field)
+        repeat = np.zeros(field.shape[0], dtype=bool)
         if field.shape[0]:
-            previous[0] = self._previous if self._previous is not None else np.nan
-            previous[1:] = field[:-1]
-        repeat = np.all(field == previous, axis=1) & ~zero
+            repeat[1:] = (x[1:] == x[:-1]) & (y[1:] == y[:-1]) & (z[1:] == z[:-1])
+            if self._previous is not None:
+                repeat[0] = bool(np.all(field[0] == self._previous))
+            repeat &= ~zero
         self.repeats += int(repeat.sum())
         self._count_runs(repeat, data_rows)
         if field.shape[0]:
