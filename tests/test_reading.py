@@ -344,3 +344,14 @@ def test_poorly_determined_states_the_standard_error_and_its_limit(tmp_path):
     assert f"{name} ± " in warning and "limit" in warning
     assert result.standard_errors[name] > limit
     assert "a steadier field" in warning and "--reference-field" in warning
+
+
+def test_small_numbers_keep_their_digits_in_the_table():
+    from nlpcal.statistics import format_table
+
+    rows = [
+        {"label": "measured", "max": 0.73, "min": 0.12, "mean": 0.547, "std": 0.1747, "range": 0.61}
+    ]
+    assert "0.17470" in format_table(rows, "G")
+    rows[0].update(mean=49460.0, std=0.99)
+    assert "       0.99" in format_table(rows, "nT")
