@@ -165,9 +165,11 @@ def add_log_arguments(
         "--unit",
         choices=choices,
         default=None,
-        help=f"unit of the field columns and of --reference-field (default: from "
-        f"{default_from}); 'raw' keeps counts. Magnitudes far from Earth's 22 000-67 000 nT are "
-        "warned about, with the units that would fit; a unit given here is used as given",
+        help=f"unit of the field columns, and of a reference whose name carries none "
+        f"(default: from {default_from})"
+        + ("; 'raw' keeps counts" if "raw" in choices else "")
+        + ". Magnitudes far from Earth's 22 000-67 000 nT are warned about, with the units "
+        "that would fit; a unit given here is used as given",
     )
     add_input_arguments(parser)
     parser.add_argument(
