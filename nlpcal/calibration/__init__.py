@@ -7,7 +7,7 @@ References
 
 from __future__ import annotations
 
-from .. import units, validation
+from .. import chunks, units, validation
 from ..errors import QualityError, SolveError
 from ..io.logs import Log
 from ..models.zhou2010 import Zhou2010Parameters
@@ -42,6 +42,7 @@ STAGED_GAP_LIMIT = 0.2
 HEAVY_TAIL_RATIO = 1.5
 
 
+@chunks.with_threads
 def calibrate(
     samples,
     *,
@@ -76,6 +77,10 @@ def calibrate(
     loss_scale : the residual beyond which a sample is down-weighted; default 1.345 (Huber) or
         2.385 (Cauchy) times 1.4826 MAD of the residuals. [unit]
     progress : None, or called with (cycle, Table 1 row) after every staged cycle.
+    threads : threads of the passes over the data (default: the cores available to the process,
+        its CPU affinity within its cgroup's quota); BLAS is held to one thread meanwhile.
+    threads : threads of the passes over the data (default: the cores available to the process,
+        its CPU affinity within its cgroup's quota); BLAS is held to one thread meanwhile.
     require_identifiable : raise QualityError (holding the result) when the attitude coverage
         leaves parameters undetermined; False returns the result with its warnings.
     allow_unconverged : return a staged result that stopped at its cycle limit, or away from the

@@ -24,6 +24,7 @@ from .common import (
     add_loss_arguments,
     add_reference_arguments,
     add_reference_model_arguments,
+    add_threads_argument,
     emit_csv,
     emit_json,
     log_options,
@@ -117,6 +118,7 @@ def _register_calibrate(sub):
         "(default: the log's mean)",
     )
     add_loss_arguments(parser)
+    add_threads_argument(parser)
     parser.add_argument(
         "--allow-unconverged",
         action="store_true",
@@ -225,6 +227,7 @@ def run_calibrate(args) -> int:
             loss=args.loss,
             loss_scale=args.loss_scale,
             allow_unconverged=args.allow_unconverged,
+            threads=args.threads,
             progress=lambda cycle, row: progress(
                 f"cycle {cycle}: std of |B1| {row['std']:.6g} {log.base_unit}"
             ),

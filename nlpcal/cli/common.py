@@ -167,6 +167,17 @@ def reference_model(args):
     return spec
 
 
+def add_threads_argument(parser) -> None:
+    """--threads N."""
+    parser.add_argument(
+        "--threads",
+        type=int,
+        metavar="N",
+        help="threads of the passes over the data (default: the cores available to the "
+        "process, within its CPU affinity and cgroup quota)",
+    )
+
+
 def add_loss_arguments(parser) -> None:
     """--loss l2|huber|cauchy and --loss-scale F."""
     parser.add_argument(

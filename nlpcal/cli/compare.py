@@ -19,6 +19,7 @@ from .common import (
     add_log_arguments,
     add_loss_arguments,
     add_reference_arguments,
+    add_threads_argument,
     emit_json,
     log_options,
     tell,
@@ -75,6 +76,7 @@ def register(sub):
     )
     add_reference_arguments(parser)
     add_loss_arguments(parser)
+    add_threads_argument(parser)
     parser.add_argument(
         "-o", "--output", metavar="COMPARE.json", help="write the JSON here (stdout when absent)"
     )
@@ -105,7 +107,9 @@ def run(args) -> int:
         require_matplotlib()
     log = read_log(args.log, **log_options(args))
     tell(log.notes)
-    result = compare_log(log, settings=settings, loss=args.loss, loss_scale=args.loss_scale)
+    result = compare_log(
+        log, settings=settings, loss=args.loss, loss_scale=args.loss_scale, threads=args.threads
+    )
     png = comparison_png(result, title=str(args.log)) if args.plot else None
     print(result.table(), file=sys.stderr)
     for message in result.warnings:

@@ -26,7 +26,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from .. import units, validation
+from .. import chunks, units, validation
 from ..calibration.diagnostics import explain_failure, scaled_hessian, uncertainty
 from ..calibration.joint import joint_start, run_joint
 from ..calibration.problem import Problem
@@ -344,6 +344,7 @@ def _summary(staged, stop_reason, joint, cg_joint, cg_staged) -> dict:
     }
 
 
+@chunks.with_threads
 def compare(
     samples,
     *,
@@ -365,6 +366,7 @@ def compare(
         the reweighted joint solution, and every method then minimises that weighted objective.
         [loss_scale: unit]
     require_identifiable : raise QualityError when the attitudes leave parameters undetermined.
+    threads : threads of the passes over the data (default: the cores available).
 
     Returns a Comparison. Raises InputError for unusable input and SolveError when IPOPT fails.
     """
@@ -464,6 +466,7 @@ def compare_log(
     settings: CompareSettings = CompareSettings(),
     loss: str = "l2",
     loss_scale: float | None = None,
+    threads: int | None = None,
 ) -> Comparison:
     """`compare` on a log read by `nlpcal.io.read_log` (its reference included); the comparison
     records the log under `input`. loss_scale : in the unit of the log's field columns."""
@@ -474,6 +477,7 @@ def compare_log(
         unit=log.base_unit,
         loss=loss,
         loss_scale=units.to_base(loss_scale, log.unit),
+        threads=threads,
     )
     result.input = log.metadata(unit_factor_nT=units.field_factor(log.unit))
     if log.reference_column:
