@@ -388,7 +388,7 @@ def compare(
     try:
         _, staged, stages, stop_reason = run_staged(problem, rule)
         start = joint_start(moments)
-        joint_step, joint_rows, joint_stages = run_joint(problem)
+        joint_step, joint_rows, joint_stages = run_joint(problem, start)  # the CG's start
     except SolveError as failure:
         raise explain_failure(problem, failure) from None
     joint_theta = joint_step.theta
