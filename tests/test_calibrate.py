@@ -336,3 +336,25 @@ def test_a_failure_blames_the_coverage_only_when_it_is_to_blame(noisy, monkeypat
         calibrate(noisy, method="joint")
     assert "rotate the sensor" not in str(info.value)
     assert "coverage is not the cause" in str(info.value)
+
+
+@pytest.mark.parametrize("reference", [None, PAPER_FIELD])
+def test_cycle_rows_from_the_moments_agree_with_passes_over_the_data(reference):
+    from nlpcal.calibration.problem import Problem
+    from nlpcal.calibration.staged import StopRule, run_staged
+    from nlpcal.moments import accumulate
+    from nlpcal.simulation import simulate
+
+    samples = simulate(3000, attitudes="turntable", noise=1.0, seed=4).to_numpy()
+    rows = {}
+    for exact in (True, False):
+        problem = Problem(samples, reference, accumulate(samples, reference))
+        rows[exact] = run_staged(problem, StopRule(max_cycles=8, rtol=0, every_row_exact=exact))[1]
+    for exact_row, moment_row in zip(rows[True][2:-1], rows[False][2:-1]):
+        assert moment_row["from_moments"] and moment_row["max"] is None
+        assert moment_row["mean"] == pytest.approx(exact_row["mean"], abs=1e-3)  # nT
+        assert moment_row["std"] == pytest.approx(exact_row["std"], rel=1e-6)
+        assert moment_row["objective"] == pytest.approx(exact_row["objective"], rel=1e-6)
+    for table in rows.values():  # the first and the last cycle are passes over the data
+        assert table[1]["max"] is not None and table[-1]["max"] is not None
+    assert rows[False][-1]["std"] == pytest.approx(rows[True][-1]["std"], rel=1e-9)

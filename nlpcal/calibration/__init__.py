@@ -30,7 +30,7 @@ from .staged import StopRule, run_staged
 
 METHODS = ("staged", "joint")
 #: Default most cycles of the staged method.
-CYCLES_DEFAULT = 50
+CYCLES_DEFAULT = 500
 #: Default relative improvement below which the staged cycle stops. [1]
 RTOL_DEFAULT = 1e-9
 #: A staged result further than this many standard errors from the joint optimum of the same
@@ -118,7 +118,11 @@ def calibrate(
     try:
         if method == "staged":
             rule = StopRule(
-                max_cycles=cycles, target_std=target_std, target_range=target_range, rtol=rtol
+                max_cycles=cycles,
+                target_std=target_std,
+                target_range=target_range,
+                rtol=rtol,
+                every_row_exact=False,
             )
             theta, rows, stages, stop_reason = run_staged(problem, rule, progress)
             hs = scaled_hessian(problem.moments, theta)
@@ -157,12 +161,15 @@ def calibrate(
         gap = joint_gap(problem, theta, errors)
         identifiability["joint_gap"] = gap
         distance = gap["max_gap_in_standard_errors"]
-        if distance is not None and distance > STAGED_GAP_LIMIT:
+        checked = "objective_joint" in gap and distance is not None
+        if not checked or distance > STAGED_GAP_LIMIT:
             message = staged_message(stop_reason, cycles, gap)
             warnings.append(message)
             identifiability["standard_errors_at_joint_optimum"] = errors
-            errors = covariance = None  # they describe an optimum, which this point is not
-            if stop_reason in ("max_cycles", "rtol"):  # a target stop is the user's request
+            errors = covariance = None  # they describe an optimum, not this point
+            # a target stop is the user's request; a cycle that converged by its rtol rule but
+            # cannot be checked (no standard errors, no joint optimum) keeps its warning
+            if stop_reason == "max_cycles" or (stop_reason == "rtol" and checked):
                 stop_reason = stop_reason if stop_reason == "max_cycles" else "above_joint_optimum"
                 unconverged = message
         elif stop_reason == "max_cycles" and len(rows) > 2:
@@ -222,7 +229,16 @@ def staged_message(stop_reason: str, cycles: int, gap: dict) -> str:
     )
     distance = gap.get("max_gap_in_standard_errors")
     if "objective_joint" not in gap:
-        return f"{why}; the joint optimum of the same data could not be found ({gap['status']})"
+        return (
+            f"{why}, and the joint optimum of the same data, to check it against, could not "
+            f"be found ({gap['status']}); rotate the sensor through more attitudes"
+        )
+    if distance is None:
+        return (
+            f"{why}; without standard errors its distance from the joint optimum "
+            f"({gap['objective_joint']:.6g} against {gap['objective_staged']:.6g}) cannot be "
+            f"judged"
+        )
     where = (
         ""
         if distance is None

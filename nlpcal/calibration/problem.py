@@ -14,7 +14,7 @@ import numpy as np
 
 from ..models.zhou2010 import Zhou2010Parameters
 from ..moments import Moments, accumulate
-from ..nlp.blocks import objective_function, pack
+from ..nlp.blocks import objective_function, pack, parameters, summary_function
 from ..robust import MAD_SAMPLES, Loss
 from ..statistics import corrected_magnitude, correction, field_statistics, reference_chunk
 
@@ -73,6 +73,35 @@ class Problem:
         stats["series_rel_error"] = abs(series - exact) / exact if exact > 0 else 0.0
         stats["parameters"] = Zhou2010Parameters.from_theta(theta).to_dict()
         return {"label": label, **stats, "iterations": int(iterations), "wall_s": float(wall_s)}
+
+    def moment_row(self, label, theta, *, iterations, wall_s) -> dict:
+        """A Table 1 row from the moments alone: mean and std of |B1| and the objective, without
+        max, min and range (they need a pass over the data). Without a reference the std is the
+        square root of the Eq. 8 objective; with a constant one, of f - (mean - F)^2."""
+        f, mean = (
+            float(v)
+            for v in summary_function(self.moments.reference)(theta, parameters(self.moments))
+        )
+        variance = f if self.reference is None else f - (mean - float(self.reference)) ** 2
+        return {
+            "label": label,
+            "max": None,
+            "min": None,
+            "mean": mean,
+            "std": float(np.sqrt(max(variance, 0.0))),
+            "range": None,
+            "objective": f,
+            "from_moments": True,
+            "parameters": Zhou2010Parameters.from_theta(theta).to_dict(),
+            "iterations": int(iterations),
+            "wall_s": float(wall_s),
+        }
+
+    @property
+    def rows_from_moments(self) -> bool:
+        """Whether cycle rows can come from the moments: least squares without a reference
+        series (a robust loss and a series weight the samples in ways the mean cannot show)."""
+        return not self.loss.robust and self.moments.reference in ("none", "constant")
 
     def reference_document(self) -> dict:
         """The "reference" block of a result: the mode and the field (or its mean)."""

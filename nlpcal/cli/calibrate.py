@@ -42,7 +42,7 @@ TOTAL_COLUMN = "b_total"
 OUTLIER_COLUMN = "outlier"
 TEMPERATURE_MODELS = ("common", "per-axis")
 #: Defaults of the staged cycle (the library's `nlpcal.calibration.CYCLES_DEFAULT`, ...).
-CYCLES_DEFAULT = 50
+CYCLES_DEFAULT = 500
 RTOL_DEFAULT = 1e-9
 
 

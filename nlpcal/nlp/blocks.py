@@ -35,7 +35,7 @@ import numpy as np
 
 from .. import moments as mom
 from ..errors import SolveError
-from .objective import objective_expression
+from .objective import mean_magnitude_expression, objective_expression
 from .solver import IpoptOptions, SolveOutcome, build_nlpsol, problem, solve
 
 #: Indices of theta freed by each problem, in the paper's stage order.
@@ -129,6 +129,19 @@ def objective_function(reference: str) -> ca.Function:
     hess, grad = ca.hessian(f, theta)
     return ca.Function(
         f"f_{reference}", [theta, s.data], [f, grad, hess], ["theta", "p"], ["f", "grad", "hess"]
+    )
+
+
+@problem("zhou2010.summary", examples=[("none",), ("constant",)])
+def summary_function(reference: str) -> ca.Function:
+    """(theta, p) -> (f [field^2], mean of |B1| [field unit]) from the moments: the Table 1 row
+    of a cycle without a pass over the data."""
+    s = _symbols(reference)
+    theta = ca.MX.sym("theta", 9)
+    f = objective_expression(theta, s.gram, s.centre, s.length, reference)
+    mean = mean_magnitude_expression(theta, s.gram, s.centre, s.length, reference)
+    return ca.Function(
+        f"summary_{reference}", [theta, s.data], [f, mean], ["theta", "p"], ["f", "mean"]
     )
 
 
