@@ -55,7 +55,7 @@ class RealLog:
 
 
 #: Every log of ../shared/data/real that holds magnetometer samples, with the fewest arguments
-#: that calibrate it. --method joint where the staged cycle stops at its 50-cycle cap first.
+#: that calibrate it.
 LOGS = (
     RealLog("bazhin_ellipsoid_fit/mag_out.txt", ("--unit", "raw"), "counts, no header row"),
     RealLog("broad_myon_rotation/imu_derived.csv", (), "uT from the names; 29 % repeated rows"),
@@ -63,22 +63,22 @@ LOGS = (
     RealLog("freeimu_gui_accmag/magn.txt", ("--unit", "raw"), "counts, no header; 86 % repeats"),
     RealLog(
         "rasteiro_robot_multisensor/LSM9DS0_derived.csv",
-        ("--method", "joint"),
+        (),
         "a (0, 0, 0) first row left out",
     ),
     RealLog(
         "rasteiro_robot_multisensor/MPU6050RM3100_derived.csv",
-        ("--method", "joint"),
+        (),
         "a (0, 0, 0) first row left out",
     ),
     RealLog(
         "rasteiro_robot_multisensor/MPU6500RM3100_derived.csv",
-        ("--method", "joint"),
+        (),
         "a (0, 0, 0) first row left out",
     ),
     RealLog(
         "rasteiro_robot_multisensor/MPU9150_derived.csv",
-        ("--method", "joint"),
+        (),
         "mG from the names; a (0, 0, 0) row",
     ),
     RealLog("razor_ahrs_magnetom/magnetom_derived.csv", (), "counts from the names (_counts)"),

@@ -10,6 +10,7 @@ Every verb and result type of the four papers is importable from here:
     fit_drift, DriftFit, calibrate_temperature, ...          Liu et al. (2022)
     calibrate_turns, calibrate_free, attitude, evaluate ...  Qiu et al. (2017)
     simulate, read_log, load                                 synthetic logs, reading files
+    export, import_file, ReferenceModel                      other formats, IGRF/WMM references
 
 The names are resolved on first use, so `import nlpcal` (and the command line's --help) stays
 quick.
@@ -50,6 +51,10 @@ _EXPORTS = {
     "attitude": "compass",
     "evaluate": "compass",
     "simulate": "simulation",
+    "export": "formats",
+    "import_file": "formats",
+    "AffineCorrection": "formats",
+    "ReferenceModel": "geomagnetic",
     "Correction": "correction",
     "load_parameters": "correction",
     "read_log": "io",
@@ -68,12 +73,15 @@ _SUBMODULES = (
     "compass",
     "correction",
     "drift",
+    "formats",
+    "geomagnetic",
     "inference",
     "io",
     "models",
     "nlp",
     "orthogonality",
     "plots",
+    "report",
     "results",
     "simulation",
     "statistics",

@@ -22,10 +22,14 @@ from .io.logs import Log, read_log
 from .models.liu2022 import rmse
 from .models.zhou2010 import correct
 from .results import load_any
+from .robust import robust_std
 from .statistics import field_statistics
 
 #: Note when a log's temperatures lie further than this outside the fitted range. [degC]
 EXTRAPOLATION_NOTE_DEGC = 1.0
+#: Without a robust loss scale, a corrected sample is an outlier beyond this many robust standard
+#: deviations of the residuals (1.4826 MAD; a Gaussian exceeds 4 once in 16 000 samples). [1]
+OUTLIER_ROBUST_STDS = 4.0
 
 
 def load_parameters(path) -> CalibrationResult | TemperatureCalibrationResult:
@@ -140,6 +144,20 @@ class Correction:
             return self.parameters.apply(log.samples, temperature)
         params = None if self.parameters is None else self.parameters.model
         return self.drift.correct(log.samples, temperature, params)  # type: ignore[union-attr]
+
+
+def outliers(correction: Correction, corrected) -> np.ndarray:
+    """Which corrected samples [base unit] are outliers: |(|B1| - centre)| beyond
+    OUTLIER_ROBUST_STDS robust standard deviations (1.4826 MAD) of the calibration's residuals,
+    or of this log's when the calibration does not record them. The centre is the calibration's
+    constant reference field, else the median |B1| of this log."""
+    magnitude = np.linalg.norm(corrected, axis=1)
+    robust = correction.parameters.robust if correction.parameters is not None else {}
+    reference = correction.parameters.reference if correction.parameters is not None else {}
+    centre = reference.get("field") if reference.get("mode") == "constant" else None
+    residual = magnitude - (np.median(magnitude) if centre is None else float(centre))
+    spread = robust.get("residual_robust_std") or robust_std(residual)
+    return np.abs(residual) > OUTLIER_ROBUST_STDS * spread
 
 
 def read_log_for(path, correction: Correction, *, reference_column=None, **kw) -> Log:

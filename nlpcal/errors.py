@@ -25,3 +25,8 @@ class QualityError(SolveError):
     """The solve ended, but the result fails a quality check (parameters the data do not
     determine); `result` holds it for inspection. The command line exits with status 1 and writes
     no output."""
+
+
+class WriteError(NlpcalError, OSError):
+    """An output could not be written (no space left, an I/O error); the command line exits
+    with status 1. Nothing is left behind and an existing output is unchanged."""

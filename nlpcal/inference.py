@@ -79,17 +79,24 @@ class Uncertainty:
 
     def correlation(self) -> np.ndarray | None:
         """Correlation matrix of the parameters, or None without a covariance. [1]"""
-        if self.covariance is None:
-            return None
-        sd = np.sqrt(np.clip(np.diag(self.covariance), 0, None))
-        scale = np.where(sd > 0, sd, 1.0)
-        return self.covariance / np.outer(scale, scale)
+        return correlation(self.covariance)
+
+
+def correlation(covariance) -> np.ndarray | None:
+    """The correlation matrix of a covariance (None gives None). [1]"""
+    if covariance is None:
+        return None
+    covariance = np.asarray(covariance, dtype=float)
+    sd = np.sqrt(np.clip(np.diag(covariance), 0, None))
+    scale = np.where(sd > 0, sd, 1.0)
+    return covariance / np.outer(scale, scale)
 
 
 def estimate(
     information,
     *,
-    residual_variance: float,
+    residual_variance: float = 1.0,
+    meat=None,
     scale=None,
     basis=None,
     autocorrelation: float = 0.0,
@@ -100,6 +107,9 @@ def estimate(
     information : (p, p) J^T J of the residuals in the parameters' own units, or already in the
         scaled variables when `scale` is None.
     residual_variance : s^2 = sum r^2 / (N - p). [residual unit^2]
+    meat : for an M-estimate (a robust loss), B = sum psi(r_i)^2 J_i J_i^T in the same variables
+        as `information`, which is then A = sum psi'(r_i) J_i J_i^T: the covariance is the
+        sandwich A^-1 B A^-1 (residual_variance is not used).
     scale : (p,) typical sizes D of the parameters (x = D y); None when `information` is scaled.
     basis : (p, q) orthonormal columns of the scaled variables left free by a gauge; None: all.
     autocorrelation : lag-1 autocorrelation of the residuals, for the widening. [1]
@@ -124,7 +134,12 @@ def estimate(
     inflation = standard_error_inflation(autocorrelation)
     covariance = errors = None
     if not weak and dof > 0 and np.isfinite(residual_variance):
-        cov_scaled = b @ np.linalg.inv(reduced) @ b.T * (float(residual_variance) * inflation**2)
+        inverse = b @ np.linalg.inv(reduced) @ b.T
+        if meat is None:
+            cov_scaled = inverse * (float(residual_variance) * inflation**2)
+        else:
+            meat_scaled = d[:, None] * np.asarray(meat, dtype=float) * d[None, :]
+            cov_scaled = inverse @ meat_scaled @ inverse * inflation**2
         covariance = d[:, None] * cov_scaled * d[None, :]
         errors = np.sqrt(np.clip(np.diag(covariance), 0, None))
     return Uncertainty(

@@ -35,7 +35,7 @@ References
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cache
 from itertools import combinations_with_replacement
 
@@ -180,6 +180,10 @@ class Moments:
     reference : "none", "constant" or "series".
     measured : Table 1 statistics of the raw |B_M| (`nlpcal.statistics.MagnitudeStats`),
         gathered in the same pass.
+    weight_sum : the sum of the per-sample weights the Gram matrix is normalised by (N without
+        weights).
+    cache : values derived from these moments by the layers that use them (the problems'
+        parameter vector), built once.
     """
 
     gram: np.ndarray
@@ -188,6 +192,8 @@ class Moments:
     n: int
     reference: str
     measured: dict
+    weight_sum: float = 0.0
+    cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def layout(self) -> Layout:
@@ -230,12 +236,19 @@ def _features(d, a, gamma, lay: Layout, out) -> None:
 
 
 def accumulate(
-    samples: np.ndarray, reference=None, frame: Frame | None = None, chunk_rows: int = CHUNK_ROWS
+    samples: np.ndarray,
+    reference=None,
+    frame: Frame | None = None,
+    chunk_rows: int = CHUNK_ROWS,
+    weight=None,
 ) -> Moments:
     """One pass over the samples that builds the Gram matrix of the features, chunk by chunk.
 
     samples : (N, 3) raw sensor output B_M. [field unit]
     reference : None (Eq. 8), a float F or an (N,) series F_i. [field unit]
+    weight : None, or a function (raw chunk, start, stop) -> the chunk's weights omega_i >= 0,
+        so that the objectives become weighted means, sum omega_i r_i^2 / sum omega_i (the
+        reweighting passes of a robust loss). [1]
     """
     samples = np.asarray(samples, dtype=float)
     n = samples.shape[0]
@@ -255,6 +268,7 @@ def accumulate(
         gram = np.zeros((lay.size, lay.size))
         buffer = np.empty((lay.size, min(chunk_rows, end - begin)))
         measured = MagnitudeStats(shift)
+        total = 0.0
         for start in range(begin, end, chunk_rows):
             stop = min(start + chunk_rows, end)
             raw = samples[start:stop]
@@ -270,17 +284,32 @@ def accumulate(
                 a = gamma * radius_sq - 1.0
             chunk = buffer[:, : stop - start]
             _features(d, a, gamma, lay, chunk)
-            if field is not None:
-                chunk *= field[start:stop] / length  # sqrt of the weight w_i
+            root = None if field is None else field[start:stop] / length  # sqrt of w_i
+            if weight is not None:
+                omega = np.asarray(weight(raw, start, stop), dtype=float)
+                total += float(omega.sum())
+                root = np.sqrt(omega) if root is None else root * np.sqrt(omega)
+            if root is not None:
+                chunk *= root
             gram += chunk @ chunk.T
-        return gram, measured
+        return gram, measured, total
 
     parts = map_shares(share, n, chunk_rows)
-    gram, measured = parts[0]
-    for part_gram, part_measured in parts[1:]:
+    gram, measured, total = parts[0]
+    for part_gram, part_measured, part_total in parts[1:]:
         gram += part_gram
         measured.merge(part_measured)
-    gram /= n
+        total += part_total
+    if weight is not None and not total > 0:
+        raise ValueError("every sample has weight zero")
+    total = total if weight is not None else float(n)
+    gram /= total
     return Moments(
-        gram=gram, frame=frame, length=length, n=n, reference=kind, measured=measured.result()
+        gram=gram,
+        frame=frame,
+        length=length,
+        n=n,
+        reference=kind,
+        measured=measured.result(),
+        weight_sum=total,
     )

@@ -37,7 +37,8 @@ def _png(figure, dpi: int) -> bytes:
     figure.savefig(buffer, format="png", dpi=dpi)
     image = Image.open(io.BytesIO(buffer.getvalue())).convert("RGB")
     out = io.BytesIO()
-    image.quantize(colors=256, method=Image.Quantize.MEDIANCUT).save(out, "PNG", optimize=True)
+    palette = image.quantize(colors=256, method=Image.Quantize.MEDIANCUT)
+    palette.save(out, "PNG", optimize=True, dpi=(dpi, dpi))  # the dpi stays in the pHYs chunk
     return out.getvalue()
 
 
@@ -250,4 +251,108 @@ def orthogonality_map_png(
         rf"$|B|$ = {field_nT:g} nT"
     )
     figure.colorbar(mesh, ax=plane, label=r"$\Delta B = |B'| - |B|$ [nT]")
+    return _png(figure, dpi)
+
+
+# --- a calibration at a glance: before and after, residuals, directions, cycles --------------
+
+#: Most points drawn on the direction map (a strided subsample of longer logs).
+MAP_SAMPLES = 20000
+
+
+def calibration_png(view, *, dpi: int = 150) -> bytes:
+    """PNG of a log before and after its correction (a `nlpcal.report.CalibrationView`).
+
+    (a) |B_M| and |B1| against the sample index, with the reference F; (b) the objective and std
+    of |B1| per staged cycle (when the view has cycles); (c) and (d) histograms of |B| - F before
+    and after; (e) the direction of B1 in the sensor frame on an equal-area (Hammer) map,
+    coloured by |B1| - F, which shows the attitudes the log covers.
+    """
+    require_matplotlib()
+    from matplotlib import colormaps
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.colors import Normalize
+    from matplotlib.figure import Figure
+
+    unit, target = view.unit, view.target
+    figure = Figure(figsize=(15.0, 8.6), dpi=dpi, layout="constrained")
+    FigureCanvasAgg(figure)
+    grid = figure.add_gridspec(2, 3)
+    stride = max(1, -(-view.n // PLOT_SAMPLES))
+    index = np.arange(0, view.n, stride)
+    top = (grid[0, :2] if view.cycles else grid[0, :]).subgridspec(2, 1, hspace=0.0)
+    series = figure.add_subplot(top[0])
+    zoom = figure.add_subplot(top[1], sharex=series)
+    for axes, values, colour, label in (
+        (series, view.before, "0.45", "measured |B_M|"),
+        (zoom, view.after, "C0", "corrected |B1|"),
+    ):
+        axes.plot(index, values[::stride], lw=0.7, color=colour, label=label)
+        axes.plot(index, target[::stride], "--", lw=1.0, color="k", label=view.target_label)
+        axes.set_ylabel(f"{label.split()[-1]} [{unit}]")
+        axes.legend(loc="upper right", fontsize=8, ncol=2)
+        axes.grid(alpha=0.3)
+    series.tick_params(labelbottom=False)
+    for axes in (series, zoom):
+        axes.ticklabel_format(axis="y", useOffset=False, style="plain")
+    zoom.set_xlabel("sample index")
+    series.set_title("(a) total field before (top) and after (bottom) the correction")
+
+    if view.cycles:
+        cycles = figure.add_subplot(grid[0, 2])
+        number = np.arange(len(view.cycles))
+        rms = np.sqrt([row["objective"] for row in view.cycles])
+        std = np.array([row["std"] for row in view.cycles], dtype=float)
+        cycles.semilogy(number, std, "o-", color="C0", ms=4, label="std of |B1|")
+        if not np.allclose(rms, std, rtol=1e-6):
+            cycles.semilogy(number, rms, "s--", color="C3", ms=4, label="sqrt(objective)")
+        cycles.set_xlabel("staged cycle (0: measured)")
+        cycles.set_ylabel(f"std of |B1|, sqrt(objective) [{unit}]")
+        objective = cycles.secondary_yaxis("right", functions=(np.square, np.sqrt))
+        objective.set_ylabel(f"objective [{unit}$^2$]")
+        cycles.set_title("(b) convergence of the staged cycle")
+        cycles.legend(loc="upper right", fontsize=8)
+        cycles.grid(alpha=0.3, which="both")
+
+    residual_before, residual_after = view.before - target, view.after - target
+    for column, (label, residual, colour) in enumerate(
+        (("(c) before: |B_M|", residual_before, "0.45"), ("(d) after: |B1|", residual_after, "C0"))
+    ):
+        axes = figure.add_subplot(grid[1, column])
+        axes.hist(residual, bins=60, color=colour, alpha=0.85)
+        axes.set_xlabel(f"|B| − {view.target_label} [{unit}]")
+        axes.set_ylabel("samples")
+        axes.set_title(
+            f"{label} − {view.target_label}: std {np.std(residual):.3g}, "
+            f"mean {np.mean(residual):+.3g} {unit}",
+            fontsize=10,
+        )
+        axes.grid(alpha=0.3)
+
+    sky = figure.add_subplot(grid[1, 2], projection="hammer")
+    step = max(1, -(-view.n // MAP_SAMPLES))
+    d = view.directions[::step]
+    limit = float(np.percentile(np.abs(residual_after), 99)) or 1.0
+    points = sky.scatter(
+        np.arctan2(d[:, 1], d[:, 0]),
+        np.arcsin(np.clip(d[:, 2], -1, 1)),
+        c=residual_after[::step],
+        s=4,
+        cmap=colormaps["RdBu_r"],
+        norm=Normalize(-limit, limit),
+        rasterized=True,
+    )
+    sky.grid(alpha=0.4)
+    sky.set_xticks(np.radians([-120, -60, 0, 60, 120]))
+    sky.set_yticks(np.radians([-60, -30, 0, 30, 60]))
+    sky.tick_params(labelsize=7)
+    covered = view.coverage
+    where = f", {covered['covered']} of 26 bins" if covered else ""
+    sky.set_title(f"(e) direction of B1 in the sensor frame{where}", fontsize=10)
+    sky.set_xlabel("azimuth atan2(y, x), elevation asin(z / |B1|) [deg]", fontsize=8)
+    figure.colorbar(
+        points, ax=sky, shrink=0.7, pad=0.02, label=f"|B1| − {view.target_label} [{unit}]"
+    )
+    if view.title:
+        figure.suptitle(view.title, fontsize=11)
     return _png(figure, dpi)

@@ -97,7 +97,10 @@ class DocumentReader:
             return default
         if not _numeric_nest(value):
             raise InputError(f"{self._where(key)} must be numbers of shape {shape}")
-        array = np.asarray(value, dtype=float)
+        try:
+            array = np.asarray(value, dtype=float)
+        except (ValueError, OverflowError):  # ragged lists, integers beyond a double
+            raise InputError(f"{self._where(key)} must be numbers of shape {shape}") from None
         if array.shape != tuple(shape):
             raise InputError(
                 f"{self._where(key)} must have shape {tuple(shape)}, got {array.shape}"
@@ -130,9 +133,27 @@ class DocumentReader:
             raise InputError(f"{self._where(key)} must be a list of strings")
         return list(value)
 
-    def reader(self, key, default=_MISSING) -> DocumentReader:
-        """A reader of the object at `key` (messages name the path to it)."""
+    def provenance(self, key: str = "input", *, strings=(), lists=(), units=()) -> dict:
+        """The provenance block of a document ("input"): what nlpcal uses of it checked (the
+        `strings` keys strings, the `lists` keys lists of strings, the `units` keys among the
+        units given), the rest kept as it is."""
+        block = self.reader(key, None)
+        if block is None:
+            return {}
+        for name in strings:
+            block.string(name, None)
+        for name in lists:
+            block.strings(name, None)
+        for name, options in units:
+            block.string(name, None, options=list(options))
+        return dict(block.document)
+
+    def reader(self, key, default=_MISSING):
+        """A reader of the object at `key` (messages name the path to it); `default` when the
+        key is missing or null and a default is given."""
         value = self.mapping(key, default)
+        if value is default and default is not _MISSING:
+            return default
         return DocumentReader(value, self.source, f"{self.path}{key}.")
 
 

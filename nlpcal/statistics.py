@@ -134,47 +134,72 @@ def reference_chunk(reference, start: int, stop: int):
     return reference[start:stop]
 
 
-def field_statistics(samples, theta=None, reference=None, chunk_rows: int = 16384) -> dict:
+def correction(theta):
+    """(offset, M) of Eq. 4 for internal parameters theta (None: no correction)."""
+    if theta is None:
+        return np.zeros(3), np.eye(3)
+    theta = np.asarray(theta, dtype=float)
+    matrix = correction_matrix_entries(theta[6], theta[7], theta[8], theta[3], theta[4], theta[5])
+    return theta[0:3], np.array(matrix, dtype=float)
+
+
+def corrected_magnitude(chunk, offset, matrix) -> np.ndarray:
+    """|B1| = |M (B_M - Z_p)| (Eq. 4) of a chunk of raw samples, M upper triangular. [field unit]"""
+    (m00, m01, m02), (_, m11, m12), (_, _, m22) = matrix
+    x, y, z = chunk[:, 0] - offset[0], chunk[:, 1] - offset[1], chunk[:, 2] - offset[2]
+    b1x = m00 * x + m01 * y + m02 * z
+    b1y = m11 * y + m12 * z
+    b1z = m22 * z
+    return np.sqrt(b1x * b1x + b1y * b1y + b1z * b1z)
+
+
+def field_statistics(
+    samples, theta=None, reference=None, chunk_rows: int = 16384, loss=None, centre=None
+) -> dict:
     """One chunked pass: Table 1 statistics of |B1| and the exact objective (`MagnitudeStats`).
 
     samples : (N, 3) raw output B_M. [field unit]
     theta : internal parameters (z [field], s [1], angles [rad]); None gives the measured row |B_M|.
     reference : None, a float or an (N,) series F_i. [field unit]
+    loss, centre : with a robust `nlpcal.robust.Loss` (its scale set), the pass also sums the
+        loss of the residuals r_i = |B1_i| - F_i (or - centre without a reference) [field unit]:
+        "robust_objective" (mean rho [field^2]), "downweighted" (samples beyond the loss scale) and
+        "weighted_centre" (sum w |B1| / sum w with the IRLS weights w [field unit]).
     """
     samples = np.asarray(samples, dtype=float)
-    if theta is None:
-        offset, matrix = np.zeros(3), np.eye(3)
-    else:
-        theta = np.asarray(theta, dtype=float)
-        offset = theta[0:3]
-        matrix = np.array(
-            correction_matrix_entries(theta[6], theta[7], theta[8], theta[3], theta[4], theta[5]),
-            dtype=float,
-        )
-    (m00, m01, m02), (_, m11, m12), (_, _, m22) = matrix  # upper triangular (Eq. 4)
+    offset, matrix = correction(theta)
 
     def magnitude(start, stop):
-        chunk = samples[start:stop]
-        x, y, z = chunk[:, 0] - offset[0], chunk[:, 1] - offset[1], chunk[:, 2] - offset[2]
-        b1x = m00 * x + m01 * y + m02 * z
-        b1y = m11 * y + m12 * z
-        b1z = m22 * z
-        return np.sqrt(b1x * b1x + b1y * b1y + b1z * b1z)
+        return corrected_magnitude(samples[start:stop], offset, matrix)
 
     shift = float(magnitude(0, min(1024, samples.shape[0])).mean())
 
     def share(first, last):
         stats = MagnitudeStats(shift)
+        sums = np.zeros(4)  # rho, outliers, w, w |B1|
         for start in range(first, last, chunk_rows):
             stop = min(start + chunk_rows, last)
-            stats.add(magnitude(start, stop), reference_chunk(reference, start, stop))
-        return stats
+            values, ref = magnitude(start, stop), reference_chunk(reference, start, stop)
+            stats.add(values, ref)
+            if loss is not None:
+                r = values - (ref if ref is not None else centre)
+                w = loss.weight(r)
+                sums += (loss.rho(r).sum(), loss.outliers(r).sum(), w.sum(), w @ values)
+        return stats, sums
 
     parts = map_shares(share, samples.shape[0], chunk_rows)
-    total = parts[0]
-    for part in parts[1:]:
+    total, sums = parts[0]
+    for part, part_sums in parts[1:]:
         total.merge(part)
-    return total.result()
+        sums = sums + part_sums
+    result = total.result()
+    if loss is not None:
+        result.update(
+            robust_objective=float(sums[0] / total.n),
+            downweighted=int(sums[1]),
+            weighted_centre=float(sums[3] / sums[2]) if sums[2] > 0 else result["mean"],
+        )
+    return result
 
 
 def format_table(rows, unit: str = "nT", extra=()) -> str:

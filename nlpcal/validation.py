@@ -19,6 +19,18 @@ MIN_SAMPLES = 10
 CHECK_CHUNK_ROWS = 65536
 #: Largest angle accepted anywhere: at 90 deg axes become parallel and matrices singular. [deg]
 MAX_ANGLE_DEG = 89.0
+#: Largest |value| of a sample in any unit: beyond it squares overflow in the moments (1e12
+#: nT is a thousand tesla). [sample unit]
+MAX_SAMPLE_VALUE = 1e12
+#: The largest sample magnitude must reach this: below it no field unit or count makes sense and
+#: squares underflow. [sample unit]
+MIN_SAMPLE_MAGNITUDE = 1e-9
+#: An axis whose values vary by less than this fraction of the largest magnitude never saw the
+#: field change (the rounding of the values, not the field). [1]
+MIN_AXIS_SPREAD = 1e-12
+#: A reference field must lie within this factor of the mean magnitude of the samples: further
+#: out it is in another unit, or of another sensor (scale errors of 0.9 or 9). [1]
+REFERENCE_RATIO = 10.0
 
 
 def fmt_list(values) -> str:
@@ -101,21 +113,43 @@ def samples(
     """Field samples from many attitudes, (N, 3) float64: finite, not all equal, and no axis
     constant."""
     array = vectors(values, "samples", minimum=minimum, purpose=purpose)
-    low, high = np.full(3, np.inf), np.full(3, -np.inf)
-    for start in range(0, array.shape[0], CHECK_CHUNK_ROWS):  # O(chunk) memory: memmaps too
-        chunk = array[start : start + CHECK_CHUNK_ROWS]
-        if not np.isfinite(chunk).all():
-            raise InputError("samples contain NaN or infinite values; drop or fix those rows")
-        low, high = np.minimum(low, chunk.min(axis=0)), np.maximum(high, chunk.max(axis=0))
+    low, high = axis_ranges(array)
+    if not (np.isfinite(low).all() and np.isfinite(high).all()):
+        raise InputError("samples contain NaN or infinite values; drop or fix those rows")
+    largest = float(np.max(np.maximum(np.abs(low), np.abs(high))))
+    if largest > MAX_SAMPLE_VALUE:
+        raise InputError(
+            f"samples reach {largest:.3g}, beyond {MAX_SAMPLE_VALUE:g} in any unit; "
+            f"check the columns and their unit"
+        )
+    if largest < MIN_SAMPLE_MAGNITUDE:
+        raise InputError(
+            f"the samples are at most {largest:.3g} in size, below "
+            f"{MIN_SAMPLE_MAGNITUDE:g} in any unit; check the columns and their unit"
+        )
     if np.all(low == high):
         raise InputError("all samples are equal; calibration needs many attitudes")
-    if np.any(low == high):
-        axes = ", ".join("xyz"[k] for k in np.flatnonzero(low == high))
+    if np.any(high - low <= MIN_AXIS_SPREAD * largest):
+        axes = ", ".join("xyz"[k] for k in np.flatnonzero(high - low <= MIN_AXIS_SPREAD * largest))
         raise InputError(
             f"the {axes} column is constant: that axis never saw the field change; "
             f"calibration needs attitudes that turn every axis"
         )
     return array
+
+
+def axis_ranges(array) -> tuple:
+    """Per-column minimum and maximum of an (N, 3) array, NaN where a column has a NaN, in
+    chunks (a memory map stays mapped). One column at a time: a strided 1-d reduction is an
+    order of magnitude faster than numpy's reduction along the first axis of an (N, 3) array."""
+    low, high = np.full(3, np.inf), np.full(3, -np.inf)
+    for start in range(0, array.shape[0], CHECK_CHUNK_ROWS):
+        chunk = array[start : start + CHECK_CHUNK_ROWS]
+        for k in range(3):  # NaN propagates through min and max
+            column = chunk[:, k]
+            low[k] = np.minimum(low[k], column.min())
+            high[k] = np.maximum(high[k], column.max())
+    return low, high
 
 
 def reference(value, n: int, what: str = "the reference field"):
@@ -139,6 +173,26 @@ def reference(value, n: int, what: str = "the reference field"):
             f"magnitude must be positive"
         )
     return array
+
+
+def mean_magnitude(samples, most: int = 100_000) -> float:
+    """The mean |sample| over an even stride of at most `most` samples. [sample unit]"""
+    step = max(1, samples.shape[0] // most)
+    return float(np.linalg.norm(samples[::step], axis=1).mean())
+
+
+def reference_scale(reference, magnitude: float, what: str = "the reference field") -> None:
+    """A reference field within REFERENCE_RATIO of the samples' mean magnitude `magnitude`."""
+    if reference is None or not magnitude > 0:
+        return
+    values = np.atleast_1d(np.asarray(reference, dtype=float))
+    ratio = float(np.median(values)) / magnitude
+    if not 1.0 / REFERENCE_RATIO < ratio < REFERENCE_RATIO:
+        raise InputError(
+            f"{what} ({float(np.median(values)):.6g}) is {ratio:.3g} times the mean "
+            f"magnitude of the samples ({magnitude:.6g}); they must be in the same "
+            f"unit and of the same field"
+        )
 
 
 def temperature(values, n: int) -> np.ndarray:

@@ -9,6 +9,8 @@ import pytest
 import nlpcal
 from nlpcal import CalibrationResult, calibrate
 from nlpcal.errors import InputError, QualityError, SolveError
+from nlpcal.nlp import blocks
+from nlpcal.nlp.solver import SolveOutcome
 from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log, planar_directions
 
 OFFSETS = ("z_x", "z_y", "z_z")
@@ -286,3 +288,76 @@ def test_a_constant_axis_is_bad_input():
     samples[:, 2] = 116.29
     with pytest.raises(InputError, match="z column is constant"):
         calibrate(samples)
+
+
+def test_a_stage_that_ends_below_the_precision_floor_is_solved(monkeypatch):
+    # Root cause of a staged noise-free failure seen on some BLAS kernels (OPENBLAS_CORETYPE=
+    # Haswell or Zen): a stage that starts just above PRECISION_FLOOR and ends below it cannot
+    # meet IPOPT's tolerance (the gradient there is rounding noise) and IPOPT may run out of
+    # iterations. Such a stage is solved to the resolution of the data, not failed.
+    from nlpcal.moments import accumulate
+
+    samples, _ = make_log(n=600, noise=0.0, seed=2)
+    moments = accumulate(samples, PAPER_FIELD)
+    floor = blocks.PRECISION_FLOOR * moments.length**2
+    truth = np.concatenate(
+        [
+            [PAPER_TRUTH[f"z_{a}"] for a in "xyz"],
+            [PAPER_TRUTH[f"s_{a}"] for a in "xyz"],
+            np.radians([PAPER_TRUTH[k] for k in ANGLES]),
+        ]
+    )
+    start = truth + np.r_[0, 0, 0, 3e-8, 0, 0, 0, 0, 0]  # a scale error of 3e-8 above the floor
+
+    def run_out_of_iterations(solver, **kwargs):
+        # IPOPT's answer in the failing case: the truth, but Maximum_Iterations_Exceeded
+        return SolveOutcome(
+            x=np.array([-3e-5, 0.0, 0.0]),
+            f=1e-3,
+            status="Maximum_Iterations_Exceeded",
+            success=False,
+            iterations=200,
+        )
+
+    monkeypatch.setattr(blocks, "solve", run_out_of_iterations)
+    step = blocks.block_step(moments, "scale", start)
+    assert step.f_start > floor and step.f_end <= floor
+    assert step.status == "At_Precision_Floor"
+    # Above the floor the same answer is a failure.
+    with pytest.raises(SolveError):
+        blocks.block_step(moments, "scale", truth + np.r_[0, 0, 0, 1e-5, 0, 0, 0, 0, 0])
+
+
+def test_a_failure_blames_the_coverage_only_when_it_is_to_blame(noisy, monkeypatch):
+    def failing(*args, **kwargs):
+        return SolveOutcome(
+            x=np.zeros(9), f=2.0, status="Restoration_Failed", success=False, iterations=3
+        )
+
+    monkeypatch.setattr(blocks, "solve", failing)
+    with pytest.raises(SolveError) as info:
+        calibrate(noisy, method="joint")
+    assert "rotate the sensor" not in str(info.value)
+    assert "coverage is not the cause" in str(info.value)
+
+
+@pytest.mark.parametrize("reference", [None, PAPER_FIELD])
+def test_cycle_rows_from_the_moments_agree_with_passes_over_the_data(reference):
+    from nlpcal.calibration.problem import Problem
+    from nlpcal.calibration.staged import StopRule, run_staged
+    from nlpcal.moments import accumulate
+    from nlpcal.simulation import simulate
+
+    samples = simulate(3000, attitudes="turntable", noise=1.0, seed=4).to_numpy()
+    rows = {}
+    for exact in (True, False):
+        problem = Problem(samples, reference, accumulate(samples, reference))
+        rows[exact] = run_staged(problem, StopRule(max_cycles=8, rtol=0, every_row_exact=exact))[1]
+    for exact_row, moment_row in zip(rows[True][2:-1], rows[False][2:-1]):
+        assert moment_row["from_moments"] and moment_row["max"] is None
+        assert moment_row["mean"] == pytest.approx(exact_row["mean"], abs=1e-3)  # nT
+        assert moment_row["std"] == pytest.approx(exact_row["std"], rel=1e-6)
+        assert moment_row["objective"] == pytest.approx(exact_row["objective"], rel=1e-6)
+    for table in rows.values():  # the first and the last cycle are passes over the data
+        assert table[1]["max"] is not None and table[-1]["max"] is not None
+    assert rows[False][-1]["std"] == pytest.approx(rows[True][-1]["std"], rel=1e-9)

@@ -46,6 +46,7 @@ def test_calibrate_recovers_the_truth(log_csv, tmp_path, capsys, method):
         "Solved_To_Acceptable_Level",
         "At_Precision_Floor",
         "Search_Direction_Becomes_Too_Small",
+        "At_Stationary_Point",
     )
     assert doc["solver"]["iterations"] > 0
     p = doc["parameters"]

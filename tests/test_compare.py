@@ -369,7 +369,7 @@ def test_cli_compare_without_matplotlib_says_how_to_install(log_csv, tmp_path, m
 
 
 def test_cli_compare_solver_failure_exits_1(log_csv, monkeypatch, capsys):
-    def failing(problem):
+    def failing(problem, start=None):
         raise SolveError("IPOPT did not solve the joint problem", "Maximum_Iterations_Exceeded")
 
     monkeypatch.setattr(compare_module, "run_joint", failing)
@@ -394,7 +394,14 @@ def test_with_a_reference_the_staged_objective_never_increases():
     from nlpcal.calibration import calibrate
 
     samples = simulate(1500, attitudes="turntable", noise=1.0, seed=4).to_numpy()
-    result = calibrate(samples, method="staged", reference_field=49462.0, cycles=12, rtol=0.0)
+    result = calibrate(
+        samples,
+        method="staged",
+        reference_field=49462.0,
+        cycles=12,
+        rtol=0.0,
+        allow_unconverged=True,
+    )
     objectives = [row["objective"] for row in result.statistics]
     for before, after in zip(objectives, objectives[1:]):
         assert after <= before * (1 + 1e-9), objectives

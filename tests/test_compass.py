@@ -7,6 +7,7 @@ cancel out.
 
 from __future__ import annotations
 
+import importlib.util
 import json
 
 import numpy as np
@@ -602,6 +603,30 @@ def test_cli_turn_mode_end_to_end(turn_log, capsys):
     )
     shift = compass.wrap_deg(pd.read_csv(d / "att2.csv")["heading_deg"] - att["heading_deg"])
     np.testing.assert_allclose(shift, -6.5, atol=1e-6)
+    # the declination of a geomagnetic model (WMM2025 at Munich, 2026-06-01: 4.32 deg east)
+    if importlib.util.find_spec("pygeomag") is not None:
+        capsys.readouterr()
+        place = ["--lat", "48.1", "--lon", "11.6", "--date", "2026-06-01"]
+        code = main(
+            [
+                "compass",
+                "attitude",
+                str(d / "compass.json"),
+                str(d / "test.csv"),
+                "--declination-model",
+                "wmm",
+                *place,
+                "-o",
+                str(d / "att3.csv"),
+            ]
+        )
+        assert code == 0 and "declination +4.321 deg east from WMM2025" in capsys.readouterr().err
+        shift = compass.wrap_deg(pd.read_csv(d / "att3.csv")["heading_deg"] - att["heading_deg"])
+        np.testing.assert_allclose(shift, 4.3208, atol=1e-3)
+        both = ["--declination-deg", "1", "--declination-model", "wmm", *place]
+        assert (
+            main(["compass", "attitude", str(d / "compass.json"), str(d / "test.csv"), *both]) == 2
+        )
 
 
 def test_cli_free_mode(turn_log, capsys):

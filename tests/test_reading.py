@@ -300,8 +300,10 @@ def test_apply_keeps_whitespace_and_headerless_logs_as_they_were(tmp_path, capsy
 
 def test_quiet_and_verbose(tmp_path, capsys):
     path = write(tmp_path, "g.csv", SAMPLES / 1e5)
+    code, _, err = run(capsys, "stats", path)
+    assert code == 0 and "nlpcal: warning: read in nT" in err
     code, _, err = run(capsys, "stats", path, "-q")
-    assert code == 0 and "warning:" in err and "nlpcal: unit" not in err
+    assert code == 0 and err == ""
     code, _, err = run(capsys, "-q", "calibrate", path, "--unit", "G", "-o", tmp_path / "p.json")
     assert code == 0 and "measured" not in err and "wrote" not in err
     code, _, err = run(capsys, "stats", path, "--unit", "G", "-v")
@@ -322,14 +324,14 @@ def test_allow_unidentifiable_writes_the_result_with_its_warning(tmp_path, capsy
     out = tmp_path / "p.json"
     code, _, err = run(capsys, "calibrate", path, "-o", out)
     assert code == 1 and not out.exists()
-    assert "quality check failed: the data do not determine the offsets z_x ±" in err
-    assert "limit" in err and "10 % of the field" in err
+    assert "quality check failed: the data do not determine" in err and "z_x" in err
     assert "never pointed along +x, -x, +y, -y, +z" in err  # -z is the direction it did see
     assert "--allow-unidentifiable" in err
-    code, _, err = run(capsys, "calibrate", path, "--allow-unidentifiable", "-o", out)
+    allow = ["--allow-unidentifiable", "--allow-unconverged"]  # the cycle wanders, too
+    code, _, err = run(capsys, "calibrate", path, *allow, "-o", out)
     assert code == 0, err
     document = json.loads(out.read_text())
-    assert {"z_x", "z_z"} <= set(document["identifiability"]["undetermined"])
+    assert {"z_x", "z_z"} <= set(document["identifiability"]["not_identifiable"])
     assert any(w.startswith("not identifiable") for w in document["warnings"])
 
 

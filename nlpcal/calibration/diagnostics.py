@@ -14,7 +14,8 @@ from .. import inference, units
 from ..errors import SolveError
 from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters, correct
 from ..moments import Moments
-from ..nlp.blocks import SCALE_INDICES, objective_function, pack, variable_scale
+from ..nlp.blocks import SCALE_INDICES, block_step, objective_function, pack, variable_scale
+from ..robust import robust_std
 from ..statistics import field_statistics
 from .problem import Problem
 
@@ -78,27 +79,39 @@ def _names(indices) -> list:
     return [PARAMETER_NAMES[i] for i in sorted(indices)]
 
 
-def uncertainty(problem: Problem, objective: float, hs: np.ndarray, autocorrelation: float = 0.0):
-    """Standard errors [parameter units] and the identifiability block of a result.
+def uncertainty(
+    problem: Problem, objective: float, hs: np.ndarray, autocorrelation: float = 0.0, theta=None
+):
+    """Standard errors [parameter units], the identifiability block of a result and the
+    covariance of the nine parameters in their units (angles in deg), or None.
 
     For f = (1/N) sum r_i^2 the Gauss-Newton information is N H / 2 (`nlpcal.inference`), here
     in the scaled variables of the problems; without a reference it is taken on the gauge's null
-    space.
+    space. With a robust loss (and `theta`), the covariance is the sandwich A^-1 B A^-1 of an
+    M-estimate, A = sum psi'(r) J J^T and B = sum psi(r)^2 J J^T (`sandwich`).
     """
     moments = problem.moments
     n = problem.samples.shape[0]
-    result = inference.estimate(
-        inference.information_from_hessian(hs, n),
-        residual_variance=n * objective / max(n - 9, 1),
-        basis=gauge_basis(moments),
-        autocorrelation=autocorrelation,
-        dof=n - 9,
-    )
-    errors = None
+    options: dict = {
+        "basis": gauge_basis(moments),
+        "autocorrelation": autocorrelation,
+        "dof": n - 9,
+    }
+    if problem.loss.robust and theta is not None:
+        information, meat = sandwich(problem, theta)
+        result = inference.estimate(information, meat=meat, **options)
+    else:
+        result = inference.estimate(
+            inference.information_from_hessian(hs, n),
+            residual_variance=n * objective / max(n - 9, 1),
+            **options,
+        )
+    errors = covariance = None
     if result.covariance is not None:
-        sd = result.standard_errors * variable_scale(moments.frame.radius)
-        sd[6:9] = np.degrees(sd[6:9])
-        errors = {name: float(v) for name, v in zip(PARAMETER_NAMES, sd)}
+        to_units = variable_scale(moments.frame.radius).copy()  # scaled -> parameter units
+        to_units[6:9] = np.degrees(to_units[6:9])
+        covariance = to_units[:, None] * result.covariance * to_units[None, :]
+        errors = {name: float(v) for name, v in zip(PARAMETER_NAMES, np.sqrt(np.diag(covariance)))}
     radius = moments.frame.radius
     limits = np.concatenate([POORLY_DETERMINED[:3] * radius, POORLY_DETERMINED[3:]])
     far = np.concatenate([UNDETERMINED[:3] * radius, UNDETERMINED[3:]])
@@ -111,17 +124,80 @@ def uncertainty(problem: Problem, objective: float, hs: np.ndarray, autocorrelat
         if errors and errors[name] > limit and name not in undetermined
     ]
     weak = _names(result.weak)
-    return errors, {
-        "not_identifiable": [n for n in PARAMETER_NAMES if n in weak or n in undetermined],
-        "undetermined": undetermined,
-        "poorly_determined": poorly,
-        "weakest_combination": _names(result.weakest),
-        "hessian_eigenvalues_scaled": [float(v) for v in result.eigenvalues * 2.0 / n],
-        "residual_lag1_autocorrelation": float(autocorrelation),
-        "standard_error_inflation": result.inflation,
-        "poorly_determined_limits": {n_: float(v) for n_, v in zip(PARAMETER_NAMES, limits)},
-        "undetermined_limits": {n_: float(v) for n_, v in zip(PARAMETER_NAMES, far)},
+    return (
+        errors,
+        {
+            "not_identifiable": [n for n in PARAMETER_NAMES if n in weak or n in undetermined],
+            "undetermined": undetermined,
+            "poorly_determined": poorly,
+            "weakest_combination": _names(result.weakest),
+            "hessian_eigenvalues_scaled": [float(v) for v in result.eigenvalues * 2.0 / n],
+            "covariance_form": "sandwich" if problem.loss.robust else "gauss-newton",
+            "residual_lag1_autocorrelation": float(autocorrelation),
+            "standard_error_inflation": result.inflation,
+            "poorly_determined_limits": {n_: float(v) for n_, v in zip(PARAMETER_NAMES, limits)},
+            "undetermined_limits": {n_: float(v) for n_, v in zip(PARAMETER_NAMES, far)},
+        },
+        covariance,
+    )
+
+
+def sandwich(problem: Problem, theta) -> tuple:
+    """(A, B) of the sandwich covariance of an M-estimate, in the scaled variables.
+
+    A = sum psi'(r_i) J_i J_i^T and B = sum psi(r_i)^2 J_i J_i^T, each from the Hessian of the
+    moment objective with the samples weighted by psi'(r) and by psi(r)^2: for a weighted mean of
+    squares with weights g, sum(g) H_g / 2 = sum g J J^T up to terms in the curvature of r.
+    """
+    loss = problem.loss
+    parts = []
+    for weight in (loss.slope, lambda r: (loss.weight(r) * r) ** 2):
+        moments = problem.weighted_moments(theta, weight)
+        parts.append(0.5 * moments.weight_sum * scaled_hessian(moments, theta))
+    return parts[0], parts[1]
+
+
+def joint_gap(problem: Problem, theta, errors) -> dict:
+    """How far the joint optimum of the same objective (the same moments, the same weights) lies
+    from a staged estimate: the joint problem solved from `theta`.
+
+    Returns the two objectives [field^2], the largest distance of a parameter from its joint
+    value in standard errors (None without standard errors), the joint parameters and IPOPT's
+    status of the joint solve.
+    """
+    try:
+        step = block_step(problem.moments, "joint", theta)
+    except SolveError as failure:
+        return {"status": failure.status, "max_gap_in_standard_errors": None}
+    staged = Zhou2010Parameters.from_theta(theta).as_vector()
+    joint = Zhou2010Parameters.from_theta(step.theta).as_vector()
+    gap = None
+    if errors is not None:
+        sd = np.array([errors[name] for name in PARAMETER_NAMES])
+        gap = float(np.max(np.abs(staged - joint) / np.where(sd > 0, sd, np.inf)))
+    return {
+        "objective_staged": step.f_start,
+        "objective_joint": step.f_end,
+        "max_gap_in_standard_errors": gap,
+        "joint_parameters": Zhou2010Parameters.from_theta(step.theta).to_dict(),
+        "status": step.status,
     }
+
+
+def residual_spread(problem: Problem, theta) -> dict:
+    """The standard deviation of the residuals and their robust one (1.4826 MAD). [field unit]"""
+    residuals = problem.residuals(theta, problem.centre)
+    return {"residual_std": float(np.std(residuals)), "residual_robust_std": robust_std(residuals)}
+
+
+def coverage_centre(samples, frame, max_points: int = 20000) -> np.ndarray:
+    """Where to judge the field directions of samples whose parameters are not determined: the
+    centre of the sphere fitted to them, unless that sphere is degenerate (a radius over three
+    times their spread: samples in a plane), then their mean. [field unit]"""
+    sub = np.asarray(samples[:: max(1, samples.shape[0] // max_points)], dtype=float)
+    mean = sub.mean(axis=0)
+    spread = float(np.sqrt(np.mean(np.sum((sub - mean) ** 2, axis=1))))
+    return np.asarray(frame.centre) if frame.radius <= 3.0 * spread else mean
 
 
 def direction_coverage(samples, theta, max_points: int = 20000) -> dict:
@@ -181,7 +257,8 @@ def exact_optimum_shift(problem: Problem, theta, hs: np.ndarray, errors) -> floa
 
 
 def explain_failure(problem: Problem, failure: SolveError) -> SolveError:
-    """Say which parameters the data determine least, when IPOPT fails.
+    """Say which parameters the data do not determine, when IPOPT fails; blame the attitude
+    coverage only when it is to blame.
 
     The Hessian is taken where the failing solve started (failure.result).
     """
@@ -190,21 +267,32 @@ def explain_failure(problem: Problem, failure: SolveError) -> SolveError:
         return failure
     hs = scaled_hessian(problem.moments, theta)
     objective = field_statistics(problem.samples, theta, problem.reference)["objective"]
-    _, identifiability = uncertainty(problem, objective, hs)
+    _, identifiability, _ = uncertainty(problem, objective, hs)
     weak = identifiability["not_identifiable"]
-    if weak:
-        reason = f"the data do not determine {', '.join(weak)}"
-    else:
-        reason = (
-            f"the least determined combination involves "
-            f"{', '.join(identifiability['weakest_combination'])}"
-        )
     identifiability["coverage"] = direction_coverage(problem.samples, theta)
+    if not weak and identifiability["coverage"]["fraction"] < COVERAGE_WARN:
+        final = field_statistics(problem.samples, theta, problem.reference)
+        help_ = what_would_help(identifiability, final, problem.moments.reference)
+        covered = identifiability["coverage"]["covered"]
+        return SolveError(
+            f"{failure}: the field directions cover {covered} of 26 direction bins, a cap of the "
+            f"sphere on which a larger, far-away sphere fits nearly as well, so the solver "
+            f"wanders. {help_[:1].upper()}{help_[1:]}",
+            failure.status,
+            result=theta,
+        )
+    if not weak:
+        return SolveError(
+            f"{failure}: the attitudes determine every parameter, so the coverage is not the "
+            f"cause; try the other method (--method joint or staged)",
+            failure.status,
+            result=theta,
+        )
     final = field_statistics(problem.samples, theta, problem.reference)
     help_ = what_would_help(identifiability, final, problem.moments.reference)
     help_ = help_ or "rotate the sensor through more attitudes"
     return SolveError(
-        f"{failure}: {reason}. {help_[:1].upper()}{help_[1:]}",
+        f"{failure}: the data do not determine {', '.join(weak)}. {help_[:1].upper()}{help_[1:]}",
         failure.status,
         result=theta,
     )
@@ -287,8 +375,8 @@ def undetermined_message(errors, identifiability: dict, final: dict, reference: 
         parts.append(f"the data do not determine the {judged}")
     if weak:
         parts.append(
-            f"the data leave {', '.join(weak)} free (|B1| does not change along a combination "
-            f"of them)"
+            f"the data do not determine {', '.join(weak)} (|B1| does not change along a "
+            f"combination of them)"
         )
     help_ = what_would_help(identifiability, final, reference)
     return "; ".join(parts) + (f". {help_[0].upper()}{help_[1:]}." if help_ else ".")

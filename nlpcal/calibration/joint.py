@@ -18,7 +18,61 @@ import time
 
 import numpy as np
 
-from ..nlp.blocks import block_step
+from ..models.zhou2010 import from_correction
+from ..moments import PSI_EXPONENTS
+from ..nlp.blocks import block_step, variable_scale
+
+
+def algebraic_start(moments) -> np.ndarray | None:
+    """The nine parameters of the algebraic ellipsoid fit, from the moments (internal units), or
+    None where it does not give an ellipsoid (or the reference is a series).
+
+    In the frame's coordinates d the fit minimises the mean of (q . psi(d))^2 over the ten
+    quadratic monomials psi, with the quadratic part's trace fixed to one: a linear solve with
+    the 10 x 10 matrix of their products, whose entries are moments of d up to degree four, all
+    in the Gram matrix already. The quadric d^T A d + b.d + c = 0 is an ellipsoid
+    (B - Z)^T Q (B - Z) = 1 with Q = A / (k L^2), and |M (B - Z)| is constant when
+    M^T M = F^2 Q: the nine-parameter form of M (Eq. 4) is the upper-triangular factor of that
+    product, up to a rotation the model does not carry (`models.zhou2010.from_correction`).
+    Without a reference F is free: the common scale is set by the gauge s_x + s_y + s_z = 0.
+    """
+    layout = moments.layout
+    if layout.varying_gamma:
+        return None
+    mean = moments.gram[layout.one] / moments.gram[layout.one, layout.one]
+    column = {key[2]: j for j, key in enumerate(layout.keys) if key[:2] == (0, 0)}
+    products = np.array(
+        [[mean[column[tuple(np.add(e, f))]] for f in PSI_EXPONENTS] for e in PSI_EXPONENTS]
+    )
+    trace = np.r_[1.0, 1.0, 1.0, np.zeros(7)]
+    try:
+        q = np.linalg.solve(products, trace)
+    except np.linalg.LinAlgError:
+        return None
+    q /= trace @ q
+    a = np.array(
+        [[q[0], q[3] / 2, q[4] / 2], [q[3] / 2, q[1], q[5] / 2], [q[4] / 2, q[5] / 2, q[2]]]
+    )
+    if not np.all(np.linalg.eigvalsh(a) > 0):
+        return None
+    d0 = -0.5 * np.linalg.solve(a, q[6:9])
+    k = float(d0 @ a @ d0 - q[9])
+    if not k > 0:
+        return None
+    length = moments.length
+    field = length if moments.reference == "constant" else 1.0
+    q_matrix = a / (k * length**2)  # (B - Z)^T Q (B - Z) = 1, B - Z = L (d - d0)
+    try:
+        params, _ = from_correction(
+            field * np.linalg.cholesky(q_matrix).T, moments.frame.centre + length * d0
+        )
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    theta = params.theta
+    if moments.reference == "none":  # the gauge: scale the field so the gains average one
+        gains = 1.0 + theta[3:6]
+        theta[3:6] = gains / gains.mean() - 1.0
+    return theta
 
 
 def joint_start(moments) -> np.ndarray:
@@ -30,31 +84,58 @@ def joint_start(moments) -> np.ndarray:
     return theta
 
 
-def run_joint(problem):
-    """Solve all nine at once.
+#: Reweighting stops when no parameter moves by more than this many of its typical sizes
+#: (`nlpcal.nlp.blocks.variable_scale`: 1e-9 of the field for offsets) and the scale is settled.
+IRLS_XTOL = 1e-6
+#: The most reweightings of a joint solve with a robust loss.
+MAX_REWEIGHTS = 100
 
-    Returns (step, rows, stages): the `nlpcal.nlp.blocks.Step` of the solve, the measured and the
-    joint Table 1 rows, and the record of the solve.
+
+def run_joint(problem, start=None):
+    """Solve all nine at once; with a robust loss, reweight and re-solve from the least-squares
+    solution until the weights no longer move the parameters (iteratively reweighted least
+    squares, each solve warm-started).
+
+    start : the first solve's start (internal units); default the algebraic ellipsoid fit
+        (`algebraic_start`), else the sphere fit (`joint_start`).
+
+    Returns (step, rows, stages): the `nlpcal.nlp.blocks.Step` of the last solve, the measured
+    and the joint Table 1 rows, and the record of every solve.
     """
     rows = [problem.measured_row()]
     started = time.perf_counter()
-    step = block_step(problem.moments, "joint", joint_start(problem.moments), problem.ipopt)
+    if start is None:
+        start = algebraic_start(problem.moments)
+    if start is None:
+        start = joint_start(problem.moments)
+    step = block_step(problem.moments, "joint", start, problem.ipopt)
+    records = [(step, "joint")]
+    scale = variable_scale(problem.moments.frame.radius)
+    for _ in range(MAX_REWEIGHTS if problem.loss.robust else 0):
+        changed = problem.reweight(step.theta)
+        new = block_step(problem.moments, "joint", step.theta, problem.ipopt)
+        move = float(np.max(np.abs(new.theta - step.theta) / scale))
+        step = new
+        records.append((step, "joint (reweighted)"))
+        if move < IRLS_XTOL and not changed:
+            break
     rows.append(
         problem.row(
             "joint",
             step.theta,
             step.f_end,
-            iterations=step.iterations,
+            iterations=sum(s.iterations for s, _ in records),
             wall_s=time.perf_counter() - started,
         )
     )
     stages = [
         {
-            "cycle": 1,
-            "stage": "joint",
-            "status": step.status,
-            "iterations": step.iterations,
-            "objective": step.f_end,
+            "cycle": k,
+            "stage": stage,
+            "status": s.status,
+            "iterations": s.iterations,
+            "objective": s.f_end,
         }
+        for k, (s, stage) in enumerate(records, start=1)
     ]
     return step, rows, stages

@@ -1,4 +1,5 @@
-"""The data of one nine-parameter calibration, and its Table 1 rows.
+"""The data of one nine-parameter calibration, its Table 1 rows, and the reweighting of a robust
+loss.
 
 References
 ----------
@@ -7,55 +8,187 @@ References
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..models.zhou2010 import Zhou2010Parameters
-from ..moments import Moments
-from ..nlp.blocks import objective_function, pack
+from ..moments import Moments, accumulate
+from ..nlp.blocks import objective_function, pack, parameters, summary_function
 from ..nlp.solver import IpoptOptions
-from ..statistics import field_statistics
+from ..robust import MAD_SAMPLES, Loss
+from ..statistics import corrected_magnitude, correction, field_statistics, reference_chunk
+
+#: A loss scale estimated from the residuals is re-estimated at every reweighting until it
+#: changes by less than this fraction, then kept, so that the last steps minimise one objective.
+SCALE_SETTLED = 1e-3
 
 
 @dataclass
 class Problem:
-    """The data of one calibration: samples, reference and their moments.
+    """The data of one calibration: samples, reference, their moments and the loss.
 
     samples : (N, 3) raw sensor output B_M. [field unit]
     reference : None, a number or (N,) values F_i. [field unit]
-    moments : `nlpcal.moments.Moments` of the samples and the reference.
+    moments : `nlpcal.moments.Moments` of the samples and the reference; with a robust loss,
+        weighted by the loss at the latest estimate (`reweight`).
+    loss : the loss (`nlpcal.robust.Loss`); its scale is set by the first `reweight` when not
+        given.
+    centre : without a reference, the centre of |B1| the residuals are taken from (the weighted
+        mean of the latest pass). [field unit]
     ipopt : the IPOPT settings of every solve (print_level > 0 shows IPOPT's log).
     """
 
     samples: np.ndarray
     reference: float | np.ndarray | None
     moments: Moments
+    loss: Loss = field(default_factory=Loss)
+    centre: float | None = None
+    scale_given: bool = False
+    reweights: int = 0
+    weighted_at: np.ndarray | None = None  # the estimate the current weights were taken at
+    frozen: bool = False  # the weights stay as they are (a comparison of solvers on them)
     ipopt: IpoptOptions = IpoptOptions()
+
+    def __post_init__(self):
+        self.scale_given = self.loss.scale is not None
 
     def measured_row(self) -> dict:
         """The Table 1 row of the raw |B_M|, gathered with the moments."""
         return {"label": "measured", **self.moments.measured, "iterations": 0, "wall_s": 0.0}
 
+    def statistics(self, theta) -> dict:
+        """Table 1 statistics of |B1| at theta, with the loss's sums when it is robust."""
+        if not (self.loss.robust and self.loss.scale is not None):
+            return field_statistics(self.samples, theta, self.reference)
+        return field_statistics(
+            self.samples, theta, self.reference, loss=self.loss, centre=self.centre
+        )
+
     def row(self, label, theta, series: float | None = None, *, iterations, wall_s) -> dict:
         """A Table 1 row of |B1| for `theta`, with the relative gap between the moment objective
         (`series`, evaluated here when not given) and the exact per-sample one."""
-        stats = field_statistics(self.samples, theta, self.reference)
-        if series is None:
+        stats = self.statistics(theta)
+        if series is None or self.loss.robust:
             p = pack(self.moments, theta, np.ones(9), 1.0)
             series = float(objective_function(self.moments.reference)(theta, p)[0])
-        exact = stats["objective"]
+        exact = stats["objective"] if not self.loss.robust else self._weighted_objective(theta)
         stats["series_rel_error"] = abs(series - exact) / exact if exact > 0 else 0.0
         stats["parameters"] = Zhou2010Parameters.from_theta(theta).to_dict()
         return {"label": label, **stats, "iterations": int(iterations), "wall_s": float(wall_s)}
+
+    def moment_row(self, label, theta, *, iterations, wall_s) -> dict:
+        """A Table 1 row from the moments alone: mean and std of |B1| and the objective, without
+        max, min and range (they need a pass over the data). Without a reference the std is the
+        square root of the Eq. 8 objective; with a constant one, of f - (mean - F)^2."""
+        f, mean = (
+            float(v)
+            for v in summary_function(self.moments.reference)(theta, parameters(self.moments))
+        )
+        variance = f if self.reference is None else f - (mean - float(self.reference)) ** 2
+        return {
+            "label": label,
+            "max": None,
+            "min": None,
+            "mean": mean,
+            "std": float(np.sqrt(max(variance, 0.0))),
+            "range": None,
+            "objective": f,
+            "from_moments": True,
+            "parameters": Zhou2010Parameters.from_theta(theta).to_dict(),
+            "iterations": int(iterations),
+            "wall_s": float(wall_s),
+        }
+
+    @property
+    def rows_from_moments(self) -> bool:
+        """Whether cycle rows can come from the moments: least squares without a reference
+        series (a robust loss and a series weight the samples in ways the mean cannot show)."""
+        return not self.loss.robust and self.moments.reference in ("none", "constant")
 
     def reference_document(self) -> dict:
         """The "reference" block of a result: the mode and the field (or its mean)."""
         mode = self.moments.reference
         document: dict = {"mode": mode}
-        field = np.asarray(self.reference, dtype=float)
+        values = np.asarray(self.reference, dtype=float)
         if mode == "constant":
-            document["field"] = float(field)
+            document["field"] = float(values)
         elif mode == "series":
-            document["field_mean"] = float(field.mean())
+            document["field_mean"] = float(values.mean())
         return document
+
+    # --- robust losses: iteratively reweighted moments ----------------------------------------
+
+    def residuals(self, theta, centre: float | None = None) -> np.ndarray:
+        """Residuals |B1_i| - F_i (or - centre) on an even stride of at most MAD_SAMPLES samples.
+        [field unit]"""
+        step = max(1, self.samples.shape[0] // MAD_SAMPLES)
+        magnitude = corrected_magnitude(self.samples[::step], *correction(theta))
+        if self.reference is None:
+            return magnitude - (np.median(magnitude) if centre is None else centre)
+        if np.ndim(self.reference) == 0:
+            return magnitude - float(self.reference)
+        return magnitude - np.asarray(self.reference)[::step]
+
+    def weight_function(self, theta, weight):
+        """(raw chunk, start, stop) -> weight(r) of the chunk's residuals at theta."""
+        offset, matrix = correction(theta)
+
+        def chunk_weights(raw, start, stop):
+            reference = reference_chunk(self.reference, start, stop)
+            centre = reference if reference is not None else self.centre
+            return weight(corrected_magnitude(raw, offset, matrix) - centre)
+
+        return chunk_weights
+
+    def weighted_moments(self, theta, weight) -> Moments:
+        """The moments with per-sample weights weight(r_i) at theta, in the frame of the first
+        pass."""
+        return accumulate(
+            self.samples,
+            self.reference,
+            frame=self.moments.frame,
+            weight=self.weight_function(theta, weight),
+        )
+
+    def reweight(self, theta) -> bool:
+        """IRLS: the scale (unless given or settled), the centre and the weights at theta.
+
+        Returns whether the loss scale changed (the objective being minimised then changed).
+        """
+        if self.frozen:
+            return False
+        if self.centre is None and self.reference is None:
+            self.centre = float(np.median(self.residuals(theta, 0.0)))
+        changed = False
+        if not self.scale_given:
+            previous = self.loss.scale
+            estimated = Loss(self.loss.kind).with_scale_from(self.residuals(theta, self.centre))
+            scale = float(estimated.scale or 0.0)
+            if previous is None or abs(scale / previous - 1.0) > SCALE_SETTLED:
+                self.loss, changed = estimated, True
+        if self.reference is None:
+            self.centre = self.statistics(theta)["weighted_centre"]
+        self.moments = self.weighted_moments(theta, self.loss.weight)
+        self.weighted_at = np.array(theta, dtype=float)
+        self.reweights += 1
+        return changed
+
+    def _weighted_objective(self, theta, chunk_rows: int = 65536) -> float:
+        """The exact objective the weighted moments expand at theta: sum w r^2 / sum w with the
+        weights of the latest reweighting (r about F_i, or about the weighted mean of |B1|)."""
+        if self.weighted_at is None:
+            return field_statistics(self.samples, theta, self.reference)["objective"]
+        weights = self.weight_function(self.weighted_at, self.loss.weight)
+        offset, matrix = correction(theta)
+        sums = np.zeros(4)  # w, w r, w r^2 (r about F_i, or about the centre)
+        for start in range(0, self.samples.shape[0], chunk_rows):
+            stop = min(start + chunk_rows, self.samples.shape[0])
+            w = weights(self.samples[start:stop], start, stop)
+            r = corrected_magnitude(self.samples[start:stop], offset, matrix)
+            reference = reference_chunk(self.reference, start, stop)
+            r = r - (reference if reference is not None else self.centre)  # no cancellation
+            sums += (w.sum(), w @ r, w @ (r * r), 0.0)
+        if self.reference is None:  # the weighted variance of |B1|
+            return float(sums[2] / sums[0] - (sums[1] / sums[0]) ** 2)
+        return float(sums[2] / sums[0])

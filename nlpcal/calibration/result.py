@@ -11,8 +11,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import units, validation
-from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters, correct
+from .. import inference, units, validation
+from ..errors import InputError
+from ..models.zhou2010 import PARAMETER_NAMES, PARAMETER_UNITS, Zhou2010Parameters, correct
 from ..results import Document, DocumentReader
 from ..statistics import STD_DDOF, format_table
 from ..version import __version__
@@ -42,6 +43,34 @@ def read_parameters(reader: DocumentReader, key: str = "parameters") -> Zhou2010
     )
 
 
+def read_robust(reader: DocumentReader) -> dict:
+    """The "robust" block: the loss, its scale and the residuals' spread, checked."""
+    block = reader.reader("robust", None)
+    if block is None:
+        return {}
+    block.string("loss", "l2", options=("l2", "huber", "cauchy"))
+    for name in ("scale", "residual_std", "residual_robust_std"):
+        block.number(name, None, minimum=0.0)
+    return dict(block.document)
+
+
+def read_covariance(reader: DocumentReader) -> np.ndarray | None:
+    """The optional "covariance" block: 9 x 9, symmetric, finite, non-negative diagonal."""
+    if not reader.has("covariance"):
+        return None
+    block = reader.reader("covariance")
+    if block.strings("parameters") != list(PARAMETER_NAMES):
+        raise InputError(
+            f"{reader.source}: covariance.parameters must be {', '.join(PARAMETER_NAMES)}"
+        )
+    matrix = block.array("matrix", (9, 9))
+    if not np.allclose(matrix, matrix.T, rtol=1e-9, atol=0.0) or (np.diag(matrix) < 0).any():
+        raise InputError(
+            f"{reader.source}: covariance.matrix must be symmetric with a non-negative diagonal"
+        )
+    return matrix
+
+
 @dataclass
 class CalibrationResult(Document):
     """A calibration: the nine parameters of Eq. 4 in [1], Table 1 rows and how they were found.
@@ -51,8 +80,12 @@ class CalibrationResult(Document):
         iterations, wall_s [s]); the first is the measured |B_M|.
     unit : the unit of offsets and rows: "nT", or "raw" for counts.
     standard_errors : per parameter, in its unit; None when the data leave a direction free.
+    covariance : (9, 9) covariance of the parameters in PARAMETER_NAMES order, in their units
+        (offsets [unit], scale errors [1], angles [deg]); None without standard errors.
     identifiability : what the attitude coverage determines (`nlpcal.calibration.diagnostics`).
     input : where the samples came from (file, columns, the unit of the file).
+    robust : the loss and its scale, the samples it down-weighted, and the spread of the
+        residuals (their standard deviation and robust standard deviation). [unit]
     """
 
     FORMAT = "nlpcal-calibration"
@@ -74,11 +107,13 @@ class CalibrationResult(Document):
     solver: dict = field(default_factory=dict)
     unit: str = "nT"
     standard_errors: dict | None = None
+    covariance: np.ndarray | None = None
     identifiability: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
     n_samples: int = 0
     version: str = __version__
     input: dict = field(default_factory=dict)
+    robust: dict = field(default_factory=dict)
 
     @property
     def model(self) -> Zhou2010Parameters:
@@ -102,6 +137,10 @@ class CalibrationResult(Document):
         corrected = correct(units.to_base(samples, unit), self.model)
         return units.from_base(corrected, unit)
 
+    def correlation(self) -> np.ndarray | None:
+        """(9, 9) correlation matrix of the parameters, or None without a covariance. [1]"""
+        return inference.correlation(self.covariance)
+
     def table(self) -> str:
         return format_table(self.statistics, self.unit, extra=("iterations",))
 
@@ -121,14 +160,22 @@ class CalibrationResult(Document):
             "n_samples": self.n_samples,
             "nlpcal_version": self.version,
         }
+        if self.covariance is not None:
+            document["covariance"] = {
+                "parameters": list(PARAMETER_NAMES),
+                "units": [self.unit if u == "field" else u for u in PARAMETER_UNITS],
+                "matrix": np.asarray(self.covariance).tolist(),
+            }
         if self.input:
             document["input"] = dict(self.input)
+        if self.robust:
+            document["robust"] = dict(self.robust)
         return document
 
     @classmethod
     def fields_from(cls, reader: DocumentReader) -> dict:
         """The constructor arguments stored in a document (shared with the temperature kind)."""
-        errors = reader.reader("standard_errors", None)
+        errors = reader.reader("standard_errors") if reader.has("standard_errors") else None
         return {
             "parameters": read_parameters(reader).to_dict(),
             "statistics": reader.items("statistics", []),
@@ -144,11 +191,17 @@ class CalibrationResult(Document):
                 for name in PARAMETER_NAMES
                 if errors.has(name)
             },
+            "covariance": read_covariance(reader),
             "identifiability": reader.mapping("identifiability", {}),
             "warnings": reader.strings("warnings", []),
             "n_samples": reader.integer("n_samples", 0),
             "version": reader.string("nlpcal_version", "unknown"),
-            "input": reader.mapping("input", {}),
+            "input": reader.provenance(
+                strings=("log", "temperature_column"),
+                lists=("columns",),
+                units=(("log_unit", units.FIELD_UNITS_NT),),
+            ),
+            "robust": read_robust(reader),
         }
 
     @classmethod

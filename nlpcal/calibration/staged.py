@@ -32,29 +32,38 @@ class StopRule:
     target_std : stop when the std of |B1| is at or below this. [field unit]
     target_range : stop when max - min of |B1| is at or below this. [field unit]
     rtol : stop when a cycle lowers the objective by less than this fraction. [1]
+    every_row_exact : a pass over the data for the Table 1 row of every cycle; False takes the
+        rows between the first and the last cycle from the moments (mean and std of |B1| without
+        max, min and range), which makes a cycle cost a few small solves whatever N.
     """
 
     max_cycles: int = 50
     target_std: float | None = None
     target_range: float | None = None
     rtol: float = 1e-9
+    every_row_exact: bool = True
 
 
-def run_staged(problem, rule: StopRule):
+def run_staged(problem, rule: StopRule, progress=None):
     """Cycle the three stages until a stop rule holds.
 
-    problem : a `nlpcal.calibration.problem.Problem` (samples, moments, reference).
+    problem : a `nlpcal.calibration.problem.Problem` (samples, moments, reference, loss).
+    With a robust loss the first cycle is least squares, and every later cycle starts by
+    reweighting the samples at the latest parameters (iteratively reweighted least squares, one
+    reweighting per cycle); the objective of the rtol rule is then the mean loss.
+    progress : None, or called with (cycle, its Table 1 row) after every cycle.
     Returns (theta, rows, stages, stop_reason): the last parameters, one Table 1 row per cycle
     (after the measured row), the record of every stage solve and why the cycle stopped.
     """
     theta = np.zeros(9)  # Fig. 1: the first pass starts with every other block at zero
     rows = [problem.measured_row()]
     stages = []
-    previous = rows[0]["objective"]
+    previous = rows[0]["objective"] if not problem.loss.robust else None
     stop_reason = "max_cycles"
     for cycle in range(1, rule.max_cycles + 1):
         started = time.perf_counter()
         iterations = 0
+        changed = cycle > 1 and problem.loss.robust and problem.reweight(theta)
         for stage in STAGE_ORDER:
             step = block_step(problem.moments, stage, theta, problem.ipopt)
             theta = step.theta
@@ -68,22 +77,37 @@ def run_staged(problem, rule: StopRule):
                     "objective": step.f_end,
                 }
             )
-        row = problem.row(
-            f"cycle {cycle}",
-            theta,
-            step.f_end,
-            iterations=iterations,
-            wall_s=time.perf_counter() - started,
+        exact = (
+            rule.every_row_exact
+            or cycle == 1
+            or rule.target_range is not None
+            or not problem.rows_from_moments
         )
+        label, wall_s = f"cycle {cycle}", time.perf_counter() - started
+        if exact:
+            row = problem.row(label, theta, step.f_end, iterations=iterations, wall_s=wall_s)
+        else:
+            row = problem.moment_row(label, theta, iterations=iterations, wall_s=wall_s)
         rows.append(row)
+        if progress is not None:
+            progress(cycle, row)
         if rule.target_std is not None and row["std"] <= rule.target_std:
             stop_reason = "target_std"
             break
         if rule.target_range is not None and row["range"] <= rule.target_range:
             stop_reason = "target_range"
             break
-        if previous - row["objective"] <= rule.rtol * previous:
+        if problem.loss.robust:  # the mean loss, from an exact row
+            current = row.get("robust_objective")
+        else:  # the exact objective of the row, or the moments' when rows come from them
+            current = row["objective"] if rule.every_row_exact else step.f_end
+        if previous is not None and not changed and previous - current <= rule.rtol * previous:
             stop_reason = "rtol"
             break
-        previous = row["objective"]
+        previous = current
+    if rows[-1].get("from_moments"):  # the last cycle's row is always a pass over the data
+        last = rows[-1]
+        rows[-1] = problem.row(
+            last["label"], theta, step.f_end, iterations=last["iterations"], wall_s=last["wall_s"]
+        )
     return theta, rows, stages, stop_reason

@@ -10,15 +10,27 @@ when it runs, so `nlpcal --help` and `nlpcal --version` do not pay for numpy, pa
 from __future__ import annotations
 
 import argparse
+import os
+import signal
 import sys
 
-from ..errors import InputError, QualityError, SolveError
+from ..errors import InputError, QualityError, SolveError, WriteError
 from ..version import __version__
-from . import calibrate, compare, compass, drift, orthogonality, simulate
-from .common import HelpFormatter, Parser, UsageError, set_verbosity
+from . import (
+    calibrate,
+    compare,
+    compass,
+    drift,
+    export,
+    imports,
+    orthogonality,
+    report,
+    simulate,
+)
+from .common import HelpFormatter, Parser, UsageError, add_verbosity, set_verbosity
 
 #: The subcommand modules, in the order of the help (calibrate, apply and stats first).
-COMMANDS = (calibrate, compare, orthogonality, drift, compass, simulate)
+COMMANDS = (calibrate, compare, orthogonality, drift, compass, export, imports, report, simulate)
 
 DESCRIPTION = """\
 nlpcal calibrates three-axis magnetometers (fluxgates, MEMS compasses). From a log of readings
@@ -49,22 +61,22 @@ def build_parser() -> argparse.ArgumentParser:
         prog="nlpcal", description=DESCRIPTION, epilog=EPILOG, formatter_class=HelpFormatter
     )
     parser.add_argument("--version", action="version", version=f"nlpcal {__version__}")
-    parser.add_argument(
-        "-v", "--verbose", action="store_true", help="more detail (also after any command)"
-    )
-    parser.add_argument(
-        "-q",
-        "--quiet",
-        action="store_true",
-        help="only warnings and errors (also after any command)",
-    )
     sub = parser.add_subparsers(
         dest="command", metavar="COMMAND", parser_class=Parser, title="commands"
     )
     sub.required = True
     for module in COMMANDS:
         module.register(sub)
+    add_verbosity(parser)
     return parser
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where the program is, so that a write under way cleans up after itself."""
+
+
+def _terminate(signum, frame):
+    raise Terminated
 
 
 def main(argv=None) -> int:
@@ -78,6 +90,8 @@ def main(argv=None) -> int:
     except SystemExit as exc:  # --help and --version
         return int(exc.code or 0)
     set_verbosity(args)
+    previous = signal.getsignal(signal.SIGTERM)
+    in_main_thread = _set_signal(signal.SIGTERM, _terminate)
     try:
         return int(args.func(args) or 0)
     except InputError as exc:
@@ -90,6 +104,42 @@ def main(argv=None) -> int:
         status = f" (IPOPT status: {exc.status})" if exc.status else ""
         print(f"nlpcal {args.command}: solve failed: {exc}{status}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print(f"nlpcal {args.command}: interrupted", file=sys.stderr)
-        return 130
+    except WriteError as exc:
+        print(f"nlpcal {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:  # a file that cannot be read, named by the system's reason
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"nlpcal {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt as exc:
+        what = "terminated" if isinstance(exc, Terminated) else "interrupted"
+        print(f"nlpcal {args.command}: {what}", file=sys.stderr)
+        return 143 if isinstance(exc, Terminated) else 130
+    except (MemoryError, RecursionError) as exc:
+        print(
+            f"nlpcal {args.command}: error: the input is too large or too deeply nested to "
+            f"process ({type(exc).__name__})",
+            file=sys.stderr,
+        )
+        return 2
+    except Exception as exc:  # a defect of nlpcal: one line, the traceback on request
+        if os.environ.get("NLPCAL_DEBUG"):
+            raise
+        print(
+            f"nlpcal {args.command}: internal error: {type(exc).__name__}: {exc} (a defect of "
+            f"nlpcal; please report it with the command; NLPCAL_DEBUG=1 shows the traceback)",
+            file=sys.stderr,
+        )
+        return 1
+    finally:
+        if in_main_thread:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _set_signal(number, handler) -> bool:
+    """Install a handler where Python allows it (the main thread); False elsewhere."""
+    try:
+        signal.signal(number, handler)
+    except ValueError:
+        return False
+    return True

@@ -19,20 +19,25 @@ log's temperature column. `apply --drift` divides the raw vector by k(t) (Eq. 9)
 from __future__ import annotations
 
 import time
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from .common import (
     add_command,
     add_log_arguments,
+    add_loss_arguments,
     add_reference_arguments,
+    add_reference_model_arguments,
+    add_threads_argument,
     emit_json,
-    info,
     log_options,
+    progress,
     report_log,
-    show,
+    say,
     solver_log,
     tell,
     warn,
+    warning,
 )
 
 if TYPE_CHECKING:
@@ -40,9 +45,10 @@ if TYPE_CHECKING:
     from ..drift.temperature import TemperatureCalibrationResult
 
 TOTAL_COLUMN = "b_total"
+OUTLIER_COLUMN = "outlier"
 TEMPERATURE_MODELS = ("common", "per-axis")
 #: Defaults of the staged cycle (the library's `nlpcal.calibration.CYCLES_DEFAULT`, ...).
-CYCLES_DEFAULT = 50
+CYCLES_DEFAULT = 500
 RTOL_DEFAULT = 1e-9
 LOG_HELP = "the log: a delimited text file (comma, semicolon, tab or whitespace), or - for stdin"
 
@@ -145,6 +151,8 @@ them (say, the sensor was never turned over); --allow-unidentifiable writes them
         help="stream the log into a memory-mapped temporary file in chunks, so "
         "that logs larger than memory can be calibrated",
     )
+    add_loss_arguments(parser)
+    add_threads_argument(parser)
     parser.add_argument(
         "--allow-unidentifiable",
         action="store_true",
@@ -152,12 +160,52 @@ them (say, the sensor was never turned over); --allow-unidentifiable writes them
         "with the warning in the output); default: exit 1 and write nothing",
     )
     parser.add_argument(
+        "--allow-unconverged",
+        action="store_true",
+        help="write a staged result that stopped at its cycle limit or away from the joint "
+        "optimum of the same data (with a warning and without standard errors) instead of "
+        "failing the quality check",
+    )
+    parser.add_argument(
         "-o",
         "--output",
         metavar="PARAMS.json",
         help="write the parameters here (stdout when absent)",
     )
+    _add_plot_argument(parser)
     parser.set_defaults(func=run_calibrate)
+
+
+def _add_plot_argument(parser):
+    parser.add_argument(
+        "--plot",
+        metavar="FIG.png",
+        help="write a figure of the log before and after the correction: |B| against the "
+        "sample, histograms of |B| - F, the covered field directions, the cycles (needs "
+        "matplotlib: pip install 'nlpcal[plot]')",
+    )
+
+
+def _write_plot(args, log, parameters, corrected=None) -> None:
+    """The calibration figure of --plot, written atomically."""
+    from ..io import write_bytes_atomic
+    from ..report import figure_png
+
+    if args.plot:
+        png = figure_png(
+            log, parameters, corrected, title=f"{Path(log.path).name} ({args.command})"
+        )
+        write_bytes_atomic(args.plot, png)
+        warn(f"wrote {args.plot}")
+
+
+def _check_plot(args) -> None:
+    from ..io import check_output_path
+    from ..plots import require_matplotlib
+
+    check_output_path(getattr(args, "plot", None))
+    if getattr(args, "plot", None):
+        require_matplotlib()
 
 
 def run_calibrate(args) -> int:
@@ -166,7 +214,8 @@ def run_calibrate(args) -> int:
     from ..errors import InputError, QualityError
     from ..io import check_output_path, read_log
 
-    check_output_path(args.output)
+    check_output_path(args.output, args.log)
+    _check_plot(args)
     temperature = args.temperature_column or args.temperature_model
     if args.temperature_model and not args.temperature_column:
         raise InputError("--temperature-model needs --temperature-column COL")
@@ -186,10 +235,14 @@ def run_calibrate(args) -> int:
         if value
     ]
     if (args.method == "joint" or temperature) and staged_only:
-        warn(f"{', '.join(staged_only)} only steer the staged cycle; the joint solve ignores them")
+        warning(
+            f"{', '.join(staged_only)} only steer the staged cycle; the joint solve ignores them"
+        )
     started = time.perf_counter()
     extra = [args.temperature_column] if args.temperature_column else []
+    progress(f"reading {args.log} ...")
     log = read_log(args.log, **log_options(args), extra_columns=extra, low_memory=args.low_memory)
+    progress("")
     report_log(log)
     read_s = time.perf_counter() - started
     started = time.perf_counter()
@@ -211,28 +264,57 @@ def run_calibrate(args) -> int:
                     rtol=args.rtol,
                     target_std=args.target_std,
                     target_range=args.target_range,
+                    loss=args.loss,
+                    loss_scale=args.loss_scale,
                     require_identifiable=not args.allow_unidentifiable,
+                    allow_unconverged=args.allow_unconverged,
+                    threads=args.threads,
                     verbose=args.verbose,
+                    progress=lambda cycle, row: progress(
+                        f"cycle {cycle}: std of |B1| {row['std']:.6g} {log.base_unit}"
+                    ),
                 )
     except QualityError as failure:
+        progress("")
         if failure.result is not None:
-            show(failure.result.table())
+            say(failure.result.table())
+        if failure.status != "Not_Identifiable":
+            raise
         raise QualityError(
             f"{failure} --allow-unidentifiable writes the result anyway, with this warning.",
             failure.status,
             result=failure.result,
         ) from None
-    info(
+    progress("")
+    warn(
         f"read {log.n} rows in {read_s:.2f} s (pandas {log.engine} engine); calibrated in "
         f"{time.perf_counter() - started:.2f} s"
     )
-    show(result.table())
+    say(result.table())
+    robust = getattr(result, "robust", {})
+    if robust.get("loss", "l2") != "l2":
+        warn(
+            f"{robust['loss']} loss, scale {robust['scale']:.4g} {result.unit}: "
+            f"{robust['downweighted']} of {log.n} samples down-weighted"
+        )
     for message in result.warnings:
-        warn(message)
+        warning(message)
+    corrected = None
+    if args.plot and temperature:
+        corrected = _apply_temperature(result, log, args.temperature_column)
     emit_json(result.to_dict(), args.output)
     if args.output:
-        info(f"wrote {args.output}")
+        warn(f"wrote {args.output}")
+    _write_plot(args, log, result, corrected)
     return 0
+
+
+def _apply_temperature(result, log, temperature_column):
+    """The log corrected by a temperature calibration (for its figure). [base unit]"""
+    from ..correction import Correction
+
+    correction = Correction.plan(result, None, temperature_column, log_columns=list(log.extras))
+    return correction.apply(log)
 
 
 # --- apply --------------------------------------------------------------------------------------
@@ -277,11 +359,19 @@ passes through unchanged, character for character. Rows reading exactly (0, 0, 0
     add_log_arguments(parser, "the column names, else the unit of the calibrated log")
     _add_temperature_arguments(parser)
     parser.add_argument(
+        "--flag-outliers",
+        action="store_true",
+        help=f"add a boolean column '{OUTLIER_COLUMN}': |B1| further from its centre than 4 "
+        "robust standard deviations (1.4826 MAD) of the calibration's residuals",
+    )
+    parser.add_argument(
         "-o",
         "--output",
         metavar="CORRECTED",
         help="write the corrected log here (stdout when absent)",
     )
+    _add_plot_argument(parser)
+    add_reference_model_arguments(parser)
     parser.set_defaults(func=run_apply)
 
 
@@ -303,20 +393,29 @@ def _correction(args, table, require_temperature: bool):
 
 
 def run_apply(args) -> int:
-    from ..correction import read_log_for
+    from ..correction import outliers, read_log_for
+    from ..errors import InputError
     from ..io import check_output_path, read_table, write_table
 
-    check_output_path(args.output)
+    check_output_path(args.output, args.log, args.params, args.drift)
+    _check_plot(args)
     table = read_table(args.log, header=args.header, text=True)
     correction = _correction(args, table, require_temperature=True)
+    if args.plot and correction.parameters is None:
+        raise InputError("--plot needs parameters (PARAMS.json), not a drift file alone")
     log = read_log_for(table, correction, **log_options(args))
     report_log(log)
     corrected = correction.apply(log)
     tell(correction.notes)
-    frame = log.written_back(corrected, TOTAL_COLUMN)
+    extra = {}
+    if args.flag_outliers:
+        extra[OUTLIER_COLUMN] = flags = outliers(correction, corrected)
+        warn(f"{int(flags.sum())} of {len(flags)} rows flagged as outliers")
+    frame = log.written_back(corrected, TOTAL_COLUMN, extra)
     write_table(frame, log.layout, args.output)
     if args.output:
-        info(f"wrote {len(frame)} corrected rows to {args.output} ({log.layout.describe()})")
+        warn(f"wrote {len(frame)} corrected rows to {args.output} ({log.layout.describe()})")
+    _write_plot(args, log, correction.parameters, corrected)
     return 0
 
 
@@ -355,6 +454,7 @@ the reference (Eq. 10 of Liu et al. 2022).""",
         "else the field columns'): add the RMSE of Eq. 10 (Liu et al. 2022) to every row",
     )
     parser.add_argument("--json", action="store_true", help="print the rows as JSON on stdout")
+    add_reference_model_arguments(parser)
     parser.set_defaults(func=run_stats)
 
 

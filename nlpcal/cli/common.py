@@ -1,9 +1,10 @@
 """What every subcommand shares: the parser class, common arguments and output helpers.
 
 Messages go to stderr at three levels, set once per run from -q/--quiet and -v/--verbose (every
-subcommand has both): `warn` always prints (warnings and what went wrong), `tell`/`info` print
-unless -q (what nlpcal decided on the user's behalf, tables, "wrote ..."), `detail` prints only
-with -v (how the log was read, timings); `solver_log` sends IPOPT's own log to stderr with -v.
+command and subcommand has both, before or after its name): with -q nothing but errors; by
+default `warn`/`tell` (what nlpcal did or decided on the user's behalf, "wrote ..."), `warning`
+(what looks wrong: "nlpcal: warning: ...") and `say` (tables); with -v also `detail` (how the log
+was read, timings) and, through `solver_log`, IPOPT's own log.
 """
 
 from __future__ import annotations
@@ -42,39 +43,43 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter):
 
 
 def add_command(sub, name: str, *, help: str, description: str, examples=()):
-    """A subcommand parser with the shared formatting, -v/--verbose and -q/--quiet, and its
-    examples (command lines, each a string) at the end of its help."""
+    """A subcommand parser with the shared formatting and its examples (command lines, each a
+    string) at the end of its help; -v/-q are added to every parser by `add_verbosity`."""
     epilog = None
     if examples:
         epilog = "examples:\n" + "\n".join(f"  {line}" for line in examples)
-    parser = sub.add_parser(
+    return sub.add_parser(
         name,
         help=help,
         description=description,
         epilog=epilog,
         formatter_class=HelpFormatter,
     )
-    add_verbosity(parser)
-    return parser
 
 
 def add_verbosity(parser) -> None:
-    """-v/--verbose and -q/--quiet (defaults left to the top-level parser)."""
+    """-v/--verbose and -q/--quiet on a parser and, recursively, on its subcommands; the value
+    given anywhere on the command line wins (subcommands leave the default to the top)."""
+    top = parser.prog == "nlpcal"
     group = parser.add_mutually_exclusive_group()
     group.add_argument(
         "-v",
         "--verbose",
         action="store_true",
-        default=argparse.SUPPRESS,
+        default=False if top else argparse.SUPPRESS,
         help="also say how the input was read, timings, and show IPOPT's log",
     )
     group.add_argument(
         "-q",
         "--quiet",
         action="store_true",
-        default=argparse.SUPPRESS,
-        help="print only warnings and errors on stderr",
+        default=False if top else argparse.SUPPRESS,
+        help="no messages on stderr but errors",
     )
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for child in dict.fromkeys(action.choices.values()):
+                add_verbosity(child)
 
 
 def set_verbosity(args) -> None:
@@ -83,14 +88,15 @@ def set_verbosity(args) -> None:
 
 
 def warn(message: str) -> None:
-    """A warning on stderr (also with -q)."""
-    print(f"nlpcal: warning: {message}", file=sys.stderr)
-
-
-def info(message: str) -> None:
-    """A human message on stderr (not with -q)."""
+    """A human message on stderr: what nlpcal did or decided (silent with -q)."""
     if VERBOSITY >= 0:
         print(f"nlpcal: {message}", file=sys.stderr)
+
+
+def warning(message: str) -> None:
+    """Something that looks wrong, on stderr (silent with -q)."""
+    if VERBOSITY >= 0:
+        print(f"nlpcal: warning: {message}", file=sys.stderr)
 
 
 def detail(message: str) -> None:
@@ -99,25 +105,33 @@ def detail(message: str) -> None:
         print(f"nlpcal: {message}", file=sys.stderr)
 
 
-def tell(notes) -> None:
-    """What the library decided on the user's behalf, one line each on stderr (not with -q)."""
-    for note in notes:
-        info(note)
-
-
-def show(text: str) -> None:
-    """A table or block of text on stderr (not with -q)."""
+def say(text: str) -> None:
+    """Human text (a table, say) on stderr, silent with -q."""
     if VERBOSITY >= 0:
         print(text, file=sys.stderr)
 
 
+def progress(message: str, done: bool = False) -> None:
+    """A progress line on stderr, rewritten in place: only when stderr is a terminal and not -q."""
+    if VERBOSITY < 0 or not sys.stderr.isatty():
+        return
+    sys.stderr.write(f"\r\033[K{message}" + ("\n" if done else ""))
+    sys.stderr.flush()
+
+
+def tell(notes) -> None:
+    """What the library decided on the user's behalf, one line each on stderr (not with -q)."""
+    for note in notes:
+        warn(note)
+
+
 def report_log(log) -> None:
-    """How a log was read (-v), what the reader decided (not -q) and what looks wrong."""
+    """How a log was read (-v), what the reader decided and what looks wrong (not with -q)."""
     engine = getattr(log, "engine", "c")
     detail(f"read {log.path}: {log.layout.describe()} (pandas {engine} engine)")
     tell(log.notes)
     for message in log.warnings:
-        warn(message)
+        warning(message)
 
 
 def solver_log():
@@ -215,6 +229,104 @@ def add_reference_arguments(parser) -> None:
         help="column of per-sample reference magnitudes (name or 0-based position), in the "
         "unit its name carries (proton_nT) or the field columns' unit",
     )
+    add_reference_model_arguments(parser)
+
+
+MODELS = ("igrf", "wmm")  # the library's nlpcal.geomagnetic.MODELS
+
+
+def add_place_arguments(parser, columns: bool = True) -> None:
+    """--lat, --lon, --alt-m, --date, and with `columns` their per-sample column forms."""
+    parser.add_argument("--lat", type=float, metavar="DEG", help="geodetic latitude [deg], north +")
+    parser.add_argument("--lon", type=float, metavar="DEG", help="longitude [deg], east +")
+    parser.add_argument(
+        "--alt-m",
+        type=float,
+        metavar="M",
+        help="height above the WGS 84 ellipsoid [m] (default 0)",
+    )
+    parser.add_argument("--date", metavar="YYYY-MM-DD", help="date (UTC) of the measurement")
+    if columns:
+        parser.add_argument("--lat-column", metavar="COL", help="column of latitudes [deg]")
+        parser.add_argument("--lon-column", metavar="COL", help="column of longitudes [deg]")
+        parser.add_argument("--alt-column", metavar="COL", help="column of heights [m]")
+        parser.add_argument(
+            "--time-column",
+            metavar="COL",
+            help="column of UTC times: ISO 8601 text, or Unix seconds",
+        )
+
+
+def add_reference_model_arguments(parser) -> None:
+    """--reference-model igrf|wmm with the place and date, constant or per sample."""
+    group = parser.add_argument_group(
+        "reference field from a geomagnetic model (pip install 'nlpcal[geomag]')"
+    )
+    group.add_argument(
+        "--reference-model",
+        choices=MODELS,
+        help="the model's total field at the place and date becomes the reference: igrf "
+        "(IGRF-14, 1900-2030) or wmm (WMM2025, 2025-2030); per sample with the column options",
+    )
+    add_place_arguments(group)
+
+
+def reference_model(args):
+    """The `nlpcal.geomagnetic.ReferenceModel` the arguments ask for, or None."""
+    from ..errors import InputError
+    from ..geomagnetic import ReferenceModel
+
+    names = ("lat", "lon", "alt_m", "date", "lat_column", "lon_column", "alt_column", "time_column")
+    given = {name: getattr(args, name, None) for name in names}
+    model = getattr(args, "reference_model", None)
+    if model is None:
+        used = [f"--{name.replace('_', '-')}" for name, value in given.items() if value is not None]
+        if used:
+            raise InputError(f"{', '.join(used)} need --reference-model igrf|wmm")
+        return None
+    spec = ReferenceModel(
+        model=model,
+        lat_deg=given["lat"],
+        lon_deg=given["lon"],
+        alt_m=given["alt_m"],
+        date=given["date"],
+        lat_column=given["lat_column"],
+        lon_column=given["lon_column"],
+        alt_column=given["alt_column"],
+        time_column=given["time_column"],
+    )
+    spec.check()
+    return spec
+
+
+def add_threads_argument(parser) -> None:
+    """--threads N."""
+    parser.add_argument(
+        "--threads",
+        type=int,
+        metavar="N",
+        help="threads of the passes over the data (default: the cores available to the "
+        "process, within its CPU affinity and cgroup quota)",
+    )
+
+
+def add_loss_arguments(parser) -> None:
+    """--loss l2|huber|cauchy and --loss-scale F."""
+    parser.add_argument(
+        "--loss",
+        choices=("l2", "huber", "cauchy"),
+        default="l2",
+        help="l2: least squares (default, the paper's); huber or cauchy: robust to spikes and "
+        "other outliers, which they down-weight",
+    )
+    parser.add_argument(
+        "--loss-scale",
+        type=float,
+        metavar="F",
+        help="residual of |B1| beyond which a sample is down-weighted [unit] (default: 1.345 "
+        "(huber) or 2.385 (cauchy) times the robust standard deviation, 1.4826 MAD, of the "
+        "residuals)",
+    )
 
 
 def log_options(args) -> dict:
@@ -226,6 +338,7 @@ def log_options(args) -> dict:
         "header": getattr(args, "header", None),
         "reference_column": getattr(args, "reference_column", None),
         "reference_field": getattr(args, "reference_field", None),
+        "reference_model": reference_model(args),
     }
     legacy = getattr(args, "reference_field_nt", None)
     if legacy is not None:

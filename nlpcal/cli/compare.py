@@ -18,14 +18,16 @@ from pathlib import Path
 from .common import (
     add_command,
     add_log_arguments,
+    add_loss_arguments,
     add_reference_arguments,
+    add_threads_argument,
     emit_json,
-    info,
     log_options,
     report_log,
-    show,
+    say,
     solver_log,
     warn,
+    warning,
 )
 
 
@@ -88,6 +90,8 @@ as a warning (exit 0).""",
         help="stop the conjugate gradient when |grad f| <= R |grad f at the start| (default 1e-6)",
     )
     add_reference_arguments(parser)
+    add_loss_arguments(parser)
+    add_threads_argument(parser)
     parser.add_argument(
         "-o", "--output", metavar="COMPARE.json", help="write the JSON here (stdout when absent)"
     )
@@ -113,20 +117,22 @@ def run(args) -> int:
             step_factor=args.cg_step_factor, rel_eps=args.cg_rel_eps, max_iter=args.cg_max_iter
         ),
     )
-    check_output_path(args.output)
-    check_output_path(args.plot)
+    check_output_path(args.output, args.log)
+    check_output_path(args.plot, args.log)
     if args.plot:
         require_matplotlib()
     log = read_log(args.log, **log_options(args))
     report_log(log)
     with solver_log():
-        result = compare_log(log, settings=settings)
+        result = compare_log(
+            log, settings=settings, loss=args.loss, loss_scale=args.loss_scale, threads=args.threads
+        )
     png = comparison_png(result, title=Path(log.path).name) if args.plot else None
-    show(result.table())
+    say(result.table())
     for message in result.warnings:
-        warn(message)
+        warning(message)
     emit_json(result.to_dict(), args.output)
     if png is not None:
         write_bytes_atomic(args.plot, png)
-        info(f"wrote {args.plot}")
+        warn(f"wrote {args.plot}")
     return 0

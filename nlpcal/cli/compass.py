@@ -8,15 +8,17 @@ attitude columns, overall and per pitch band (the paper's Table 2).
 from __future__ import annotations
 
 from .common import (
+    MODELS,
     add_command,
     add_field_argument,
     add_input_arguments,
+    add_place_arguments,
     emit_json,
-    info,
     report_log,
-    show,
+    say,
     solver_log,
     warn,
+    warning,
 )
 
 ATTITUDE_COLUMNS = ("roll_deg", "pitch_deg", "heading_deg")
@@ -121,10 +123,17 @@ Apply a compass calibration and compute roll, pitch and heading [deg] (Eq. 10 of
     att.add_argument(
         "--declination-deg",
         type=float,
-        default=0.0,
         metavar="DEG",
-        help="magnetic declination [deg], east positive, added to give true heading (e.g. 2.5)",
+        help="magnetic declination [deg], east positive, added to give true heading (default 0; "
+        "e.g. 2.5)",
     )
+    att.add_argument(
+        "--declination-model",
+        choices=MODELS,
+        help="take the declination from IGRF-14 or WMM2025 at --lat, --lon, --date (needs "
+        "pip install 'nlpcal[geomag]')",
+    )
+    add_place_arguments(att, columns=False)
     att.add_argument(
         "-o", "--output", metavar="ATTITUDE", help="the log with the angles (stdout when absent)"
     )
@@ -230,7 +239,7 @@ def run_calibrate(args) -> int:
     from ..compass import calibrate_sensor_log
     from ..io import check_output_path, read_sensor_log
 
-    check_output_path(args.output)
+    check_output_path(args.output, args.log)
     legacy = getattr(args, "reference_field_nt", None)
     log = read_sensor_log(
         args.log,
@@ -240,7 +249,7 @@ def run_calibrate(args) -> int:
     )
     report_log(log)
     if not args.turn_column:
-        info(
+        warn(
             "no --turn-column: free-rotation mode (the sensor pair's orientation relative to the "
             "housing cannot be found; attitudes refer to the accelerometer's axes)"
         )
@@ -252,11 +261,11 @@ def run_calibrate(args) -> int:
             rest_tolerance=args.rest_tolerance,
         )
     for message in result.warnings:
-        warn(message)
+        warning(message)
     emit_json(result.to_dict(), args.output)
     for sensor in (result.magnetometer, result.accelerometer):
         angles = sensor.to_dict()["mounting_deg"]
-        info(
+        warn(
             f"{sensor.sensor}: mounting [deg] "
             + ", ".join(f"{k} {v:+.4f}" for k, v in angles.items())
             + f"; |v| residual RMS {sensor.quality['magnitude_residual_rms']:.3g} {sensor.unit}"
@@ -268,7 +277,7 @@ def run_attitude(args) -> int:
     from ..compass import CompassCalibration, attitude
     from ..io import check_output_path, read_sensor_log, read_table, write_table
 
-    check_output_path(args.output)
+    check_output_path(args.output, args.log, args.calibration)
     calibration = CompassCalibration.load(args.calibration)
     recorded = calibration.input
     options = _sensor_options(args)
@@ -282,23 +291,47 @@ def run_attitude(args) -> int:
         acc_fallback=recorded.get("acc_unit", "g"),
     )
     report_log(log)
-    result = attitude(calibration, log.mag, log.acc, declination_deg=args.declination_deg)
+    result = attitude(calibration, log.mag, log.acc, declination_deg=_declination(args))
     for message in result.warnings:
-        warn(message)
+        warning(message)
     frame, replaced = log.with_columns(
         dict(zip(ATTITUDE_COLUMNS, (result.roll_deg, result.pitch_deg, result.heading_deg)))
     )
     if replaced:
-        info(f"the log already has {', '.join(replaced)}; replaced them")
+        warn(f"the log already has {', '.join(replaced)}; replaced them")
     write_table(frame, log.layout, args.output)  # the log's own columns pass through unchanged
     return 0
+
+
+def _declination(args) -> float:
+    """--declination-deg, or the declination of --declination-model at the place and date."""
+    from ..errors import InputError
+    from ..geomagnetic import declination
+
+    place = [args.lat, args.lon, args.alt_m, args.date]
+    if args.declination_model is None:
+        if any(v is not None for v in place):
+            raise InputError("--lat, --lon, --alt-m and --date need --declination-model igrf|wmm")
+        return args.declination_deg or 0.0
+    if args.declination_deg is not None:
+        raise InputError("give --declination-deg or --declination-model, not both")
+    if args.lat is None or args.lon is None or args.date is None:
+        raise InputError("--declination-model needs --lat DEG --lon DEG --date YYYY-MM-DD")
+    value, block = declination(
+        args.declination_model, args.lat, args.lon, args.alt_m or 0.0, args.date
+    )
+    warn(
+        f"declination {value:+.3f} deg east from {block['name']} ({block['package']} "
+        f"{block['package_version']}) at {args.lat:g}, {args.lon:g}, {args.date}"
+    )
+    return value
 
 
 def run_evaluate(args) -> int:
     from ..compass import evaluate, format_evaluation
     from ..io import check_output_path, read_columns, read_table
 
-    check_output_path(args.output)
+    check_output_path(args.output, args.attitude)
     table = read_table(args.attitude, header=args.header)
     truth = read_columns(table, args.truth_columns)
     estimate = read_columns(table, args.estimate_columns)
@@ -314,7 +347,7 @@ def run_evaluate(args) -> int:
         "estimate_columns": list(args.estimate_columns),
     }
     if stats["rows_skipped"]:
-        info(f"skipped {stats['rows_skipped']} row(s) without finite estimated and true angles")
+        warn(f"skipped {stats['rows_skipped']} row(s) without finite estimated and true angles")
     emit_json(stats, args.output)
-    show(format_evaluation(stats))
+    say(format_evaluation(stats))
     return 0

@@ -15,7 +15,15 @@ drift log's mean (6.0 degC) instead of the calibration's 7.3 degC leaves 9.3 nT 
 
 from __future__ import annotations
 
-from .common import add_command, add_log_arguments, emit_json, info, log_options, report_log, warn
+from .common import (
+    add_command,
+    add_log_arguments,
+    emit_json,
+    log_options,
+    report_log,
+    warn,
+    warning,
+)
 
 
 def register(sub):
@@ -86,7 +94,7 @@ def run_fit(args) -> int:
     from ..errors import InputError
     from ..io import check_output_path, read_log
 
-    check_output_path(args.output)
+    check_output_path(args.output, args.log)
     log = read_log(args.log, **log_options(args), extra_columns=[args.temperature_column])
     report_log(log)
     fit = fit_drift_log(log, args.temperature_column, base_temperature=args.base_temperature)
@@ -99,13 +107,13 @@ def run_fit(args) -> int:
             f"would leave an error of about {abs(fit.a):.2g} nT per degC between "
             f"it and the true t0 (on the liu2022 replica 9.3 nT instead of 0.5 nT)"
         )
-    info(
+    warn(
         f"|B_m| = a t + b (Eq. 1): a = {fit.a:.6g} +/- {fit.a_standard_error:.2g} nT/degC, "
         f"b = {fit.b:.8g} +/- {fit.b_standard_error:.2g} nT, fit RMSE {fit.fit_rmse:.4g} nT, "
         f"n = {fit.n}, t = {fit.temperature_range[0]:g} .. {fit.temperature_range[1]:g} degC; "
         f"k(t) = 1 + {fit.k_slope:.6g} (t - {fit.base_temperature:g}) (Eq. 9)"
     )
     for message in fit.warnings:
-        warn(message)
+        warning(message)
     emit_json(fit.to_dict(), args.output)
     return 0

@@ -23,11 +23,11 @@ from .common import (
     add_log_arguments,
     emit_csv,
     emit_json,
-    info,
     log_options,
     report_log,
     solver_log,
     warn,
+    warning,
 )
 
 DEFAULT_BOUND_DEG = 0.5  # the library's nlpcal.orthogonality.DEFAULT_BOUND_DEG [deg]
@@ -180,7 +180,7 @@ def _run_worst_case(args) -> int:
         result = worst_case(args.angles_deg, args.reference_field, verbose=args.verbose)
     emit_json(result.to_dict(), args.output)
     if args.output:
-        info(
+        warn(
             f"max |dB| = {result.max_abs_error_nT:.4f} nT at theta = "
             f"{result.worst.theta_deg:.2f} deg, phi = {result.worst.phi_deg:.2f} deg; "
             f"wrote {args.output}"
@@ -217,12 +217,12 @@ def _run_map(args) -> int:
     # everything is computed: only now touch the outputs
     if png is not None:
         write_bytes_atomic(args.output, png)
-        info(f"wrote {args.output} (grid max |dB| = {abs(error).max():.4f} nT)")
+        warn(f"wrote {args.output} (grid max |dB| = {abs(error).max():.4f} nT)")
     if args.csv:
         table = error_table(theta, phi, error)
         emit_csv(table, None if args.csv == "-" else args.csv, "%.10g")
         if args.csv != "-":
-            info(f"wrote {args.csv} ({len(table)} grid points)")
+            warn(f"wrote {args.csv} ({len(table)} grid points)")
     return 0
 
 
@@ -230,7 +230,7 @@ def _run_invert(args) -> int:
     from ..io import check_output_path, read_log
     from ..orthogonality import invert_logs
 
-    check_output_path(args.output)
+    check_output_path(args.output, *args.logs)
     options = log_options(args)
     logs = [read_log(path, **options) for path in args.logs]
     for log in logs:
@@ -240,7 +240,7 @@ def _run_invert(args) -> int:
             logs, field_nT=logs[0].reference, bound_deg=args.bound_deg, verbose=args.verbose
         )
     for message in result.warnings:
-        warn(message)
+        warning(message)
     document = result.to_dict()
     emit_json(document, args.output)
     if args.output:
@@ -255,5 +255,5 @@ def _run_invert(args) -> int:
                 f"{result.max_abs_deviation_deg:.5f} deg -> at most "
                 f"{result.implied_worst_case_nT:.2f} nT"
             )
-        info(f"{angles} deg{extra}; wrote {args.output}")
+        warn(f"{angles} deg{extra}; wrote {args.output}")
     return 0

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .common import add_command, add_field_argument, emit_csv, info
+from .common import add_command, add_field_argument, emit_csv, warn
 
 #: What --preset accepts (the library's `nlpcal.simulation.PRESETS` and `DIRECTORY_PRESETS`).
 PRESET_NAMES = ("zhou2010", "liu2022", "qiu2017")
@@ -76,6 +76,7 @@ qiu2017 write a folder of logs that replicate those papers' experiments.""",
 def run(args) -> int:
     from .. import simulation as sim
     from ..errors import InputError
+    from ..io import check_output_path
     from ..results import read_json_document
 
     if args.preset in sim.DIRECTORY_PRESETS:
@@ -85,11 +86,12 @@ def run(args) -> int:
             args.preset, args.output, seed=args.seed, noise=args.noise, n=args.n
         )
         for path in written:
-            info(f"wrote {path}")
+            warn(f"wrote {path}")
         return 0
     if args.preset not in sim.PRESETS:
         known = sorted(set(sim.PRESETS) | set(sim.DIRECTORY_PRESETS))
         raise InputError(f"unknown preset {args.preset!r}; expected one of {', '.join(known)}")
+    check_output_path(args.output, args.params)
     preset = sim.PRESETS[args.preset]
     parameters, field = preset.parameters, preset.field
     if args.params:
@@ -109,5 +111,5 @@ def run(args) -> int:
     )
     emit_csv(frame, args.output, "%.10g")  # 10 digits: 1e-5 nT in a 50 000 nT field
     if args.output:
-        info(f"wrote {len(frame)} samples to {args.output}")
+        warn(f"wrote {len(frame)} samples to {args.output}")
     return 0

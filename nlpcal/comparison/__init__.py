@@ -26,15 +26,18 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from .. import units, validation
+from .. import chunks, units, validation
+from ..calibration.diagnostics import explain_failure, scaled_hessian, uncertainty
 from ..calibration.joint import joint_start, run_joint
 from ..calibration.problem import Problem
 from ..calibration.staged import StopRule, run_staged
+from ..errors import QualityError, SolveError
 from ..io.logs import Log
 from ..models.zhou2010 import Zhou2010Parameters, correct
 from ..moments import accumulate
 from ..nlp.blocks import objective_function, pack
 from ..results import Document, DocumentReader
+from ..robust import Loss
 from ..statistics import STD_DDOF, format_table
 from ..version import __version__
 from .conjugate_gradient import CGOptions, run_cg_joint, run_cg_staged
@@ -341,6 +344,7 @@ def _summary(staged, stop_reason, joint, cg_joint, cg_staged) -> dict:
     }
 
 
+@chunks.with_threads
 def compare(
     samples,
     *,
@@ -348,6 +352,9 @@ def compare(
     settings: CompareSettings = CompareSettings(),
     unit: str = "nT",
     reference_unit: str | None = None,
+    loss: str = "l2",
+    loss_scale: float | None = None,
+    require_identifiable: bool = True,
 ) -> Comparison:
     """Run the staged cycle, the joint solve and the paper's CG (joint and staged) on one log.
 
@@ -355,6 +362,11 @@ def compare(
     reference_field : None (Eq. 8), a number F or N values F_i. [reference_unit, default unit]
     settings : cycles, rtol and the CG settings.
     unit : the unit of the samples; the comparison is in nT (or raw for counts).
+    loss, loss_scale : a robust loss (`nlpcal.calibration.calibrate`); its weights are fixed at
+        the reweighted joint solution, and every method then minimises that weighted objective.
+        [loss_scale: unit]
+    require_identifiable : raise QualityError when the attitudes leave parameters undetermined.
+    threads : threads of the passes over the data (default: the cores available).
 
     Returns a Comparison. Raises InputError for unusable input and SolveError when IPOPT fails.
     """
@@ -363,18 +375,35 @@ def compare(
     reference = validation.reference(reference_field, samples.shape[0])
     samples = units.to_base(samples, unit)
     reference = units.to_base(reference, reference_unit or unit)
-    problem = Problem(samples=samples, reference=reference, moments=accumulate(samples, reference))
+    chosen = Loss(loss, units.to_base(loss_scale, unit))
+    validation.reference_scale(reference, validation.mean_magnitude(samples))
+    moments = accumulate(samples, reference)
+    problem = Problem(samples=samples, reference=reference, moments=moments, loss=chosen)
+    if chosen.robust:  # the weights of the robust optimum, then the same objective for all
+        run_joint(problem)
+        problem.frozen = True
     moments = problem.moments
 
     rule = StopRule(max_cycles=int(settings.cycles), rtol=settings.rtol)
-    _, staged, stages, stop_reason = run_staged(problem, rule)
-
-    start = joint_start(moments)
-    joint_step, joint_rows, joint_stages = run_joint(problem)
+    try:
+        _, staged, stages, stop_reason = run_staged(problem, rule)
+        start = joint_start(moments)
+        joint_step, joint_rows, joint_stages = run_joint(problem, start)  # the CG's start
+    except SolveError as failure:
+        raise explain_failure(problem, failure) from None
     joint_theta = joint_step.theta
     joint = joint_rows[-1]
     joint["status"] = joint_stages[-1]["status"]
     joint_path = _joint_trajectory(joint_step, joint["iterations"], joint["objective"])
+    hs = scaled_hessian(moments, joint_theta, joint_step)
+    weak = uncertainty(problem, joint["objective"], hs)[1]["not_identifiable"]
+    if weak and require_identifiable:
+        raise QualityError(
+            f"the data do not determine {', '.join(weak)}, so no method has an optimum to reach; "
+            f"rotate the sensor through more attitudes (require_identifiable=False compares "
+            f"anyway)",
+            "Not_Identifiable",
+        )
 
     cg_joint, cg_joint_paths = [], {}
     for scaled in (False, True):
@@ -414,6 +443,7 @@ def compare(
     if bad:
         warnings.append(f"conjugate gradient stages that did not converge in: {', '.join(bad)}")
 
+    summary["loss"] = problem.loss.to_dict()
     return Comparison(
         samples=samples,
         staged=staged,
@@ -430,11 +460,24 @@ def compare(
     )
 
 
-def compare_log(log: Log, *, settings: CompareSettings = CompareSettings()) -> Comparison:
+def compare_log(
+    log: Log,
+    *,
+    settings: CompareSettings = CompareSettings(),
+    loss: str = "l2",
+    loss_scale: float | None = None,
+    threads: int | None = None,
+) -> Comparison:
     """`compare` on a log read by `nlpcal.io.read_log` (its reference included); the comparison
-    records the log under `input`."""
+    records the log under `input`. loss_scale : in the unit of the log's field columns."""
     result = compare(
-        log.samples, reference_field=log.reference, settings=settings, unit=log.base_unit
+        log.samples,
+        reference_field=log.reference,
+        settings=settings,
+        unit=log.base_unit,
+        loss=loss,
+        loss_scale=units.to_base(loss_scale, log.unit),
+        threads=threads,
     )
     result.input = log.metadata(unit_factor_nT=units.field_factor(log.unit))
     if log.reference_column:

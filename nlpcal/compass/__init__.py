@@ -13,7 +13,7 @@ errors against a reference. The model is `nlpcal.models.qiu2017`; the NLPs are i
 """
 
 from ..errors import InputError
-from ..io.logs import SensorLog
+from ..io.sensors import SensorLog
 from ..io.tables import column_name
 from .ellipsoids import fit_axis_ellipsoid, fit_general_ellipsoid
 from .free import DEFAULT_REST_TOLERANCE, MIN_FREE_SAMPLES, calibrate_free, dip_alignment

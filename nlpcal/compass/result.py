@@ -167,5 +167,12 @@ class CompassCalibration(Document):
             identifiability=reader.string("identifiability", ""),
             alignment=reader.mapping("alignment", None),
             warnings=reader.strings("warnings", []),
-            input=reader.mapping("input", {}),
+            input=reader.provenance(
+                strings=("file", "turn_column"),
+                lists=("mag_columns", "acc_columns"),
+                units=(
+                    ("mag_unit", ("nT", "uT", "mT", "mG", "G", "T")),
+                    ("acc_unit", ("g", "mg", "m/s2")),
+                ),
+            ),
         )

@@ -145,7 +145,9 @@ class DriftFit(Document):
             base_temperature_source=reader.string("base_temperature_source", "argument"),
             unit=reader.string("unit", "nT"),
             warnings=reader.strings("warnings", []),
-            input=reader.mapping("input", {}),
+            input=reader.provenance(
+                strings=("log", "temperature_column", "reference_column"), lists=("columns",)
+            ),
         )
 
 
@@ -224,6 +226,7 @@ def fit_drift(
         raise InputError(f"the base temperature must be a finite number, got {base_temperature}")
 
     modulus = np.linalg.norm(samples, axis=1)
+    validation.reference_scale(reference, float(modulus.mean()), "the reference (proton) field")
     corrected = liu2022.diurnal_correction(modulus, reference)  # section 1: -(F_i - F_1)
     t_mean = float(temperature.mean())
     dt = temperature - t_mean

@@ -143,6 +143,14 @@ class TemperatureCalibrationResult(Document):
     def input(self) -> dict:
         return self.calibration.input
 
+    @property
+    def reference(self) -> dict:
+        return self.calibration.reference
+
+    @property
+    def robust(self) -> dict:
+        return self.calibration.robust
+
     def apply(self, samples, temperature, unit: str | None = None) -> np.ndarray:
         """Corrected field at the temperatures t (Eq. 9 in [1], Eq. 4 in [2]).
 
@@ -235,6 +243,7 @@ def calibrate_temperature(
     units.check_compatible(unit, reference_unit or unit)
     samples = units.to_base(samples, unit)
     reference = np.broadcast_to(units.to_base(reference, reference_unit or unit), (n,)).copy()
+    validation.reference_scale(reference, validation.mean_magnitude(samples))
     nx = 9 + n_coefficients(model)
     if n <= nx:
         raise InputError(f"got {n} samples, need more than {nx} for the {model} model")

@@ -10,13 +10,15 @@ from .files import (
     json_text,
     plain,
     read_json,
+    sha256_file,
     write_bytes_atomic,
     write_csv_atomic,
     write_json_atomic,
     write_text_atomic,
 )
 from .layout import Layout, detect_layout
-from .logs import Log, SensorLog, read_columns, read_log, read_sensor_log
+from .logs import Log, read_columns, read_log
+from .sensors import SensorLog, read_sensor_log
 from .tables import (
     Table,
     column_name,
@@ -48,6 +50,7 @@ __all__ = [
     "read_sensor_log",
     "read_table",
     "resolve_columns",
+    "sha256_file",
     "table_text",
     "write_bytes_atomic",
     "write_csv_atomic",

@@ -8,6 +8,8 @@ never contains NaN or Infinity: non-finite numbers become null.
 from __future__ import annotations
 
 import contextlib
+import errno
+import hashlib
 import json
 import math
 import os
@@ -16,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, WriteError
 
 
 def plain(value):
@@ -43,9 +45,10 @@ def json_text(document) -> str:
     return json.dumps(plain(document), indent=2, allow_nan=False) + "\n"
 
 
-def check_output_path(path) -> None:
-    """Fail before any work when an output's folder does not exist or the path is a folder."""
-    if not path:
+def check_output_path(path, *inputs) -> None:
+    """Fail before any work when an output's folder does not exist, the path is a folder, or it
+    is one of the `inputs` (writing there would replace the data being read)."""
+    if not path or str(path) == "-":
         return
     path = Path(path)
     directory = path.parent if str(path.parent) else Path(".")
@@ -53,6 +56,27 @@ def check_output_path(path) -> None:
         raise InputError(f"{path}: the folder {directory} does not exist")
     if path.is_dir():
         raise InputError(f"{path}: is a directory, expected a file name")
+    for source in inputs:
+        readable = source and str(source) != "-" and path.exists() and Path(source).exists()
+        if readable and os.path.samefile(path, source):
+            raise InputError(
+                f"{path}: is also an input; writing it would replace the data being read, so "
+                f"choose another output name"
+            )
+
+
+#: Error numbers of a write that failed after its path was accepted (exit status 1); any other
+#: OSError of an output is a path that cannot be written (exit status 2).
+WRITE_FAILURES = {errno.ENOSPC, errno.EIO, errno.EDQUOT, errno.EFBIG}
+
+
+def output_error(path, error: OSError) -> Exception:
+    """An OSError of writing `path` as one sentence: WriteError (exit 1) for a failed write,
+    InputError (exit 2) for a path that cannot be written."""
+    reason = error.strerror or str(error)
+    if error.errno in WRITE_FAILURES:
+        return WriteError(f"{path}: could not be written ({reason}); nothing was changed")
+    return InputError(f"{path}: cannot be written ({reason})")
 
 
 def _umask() -> int:
@@ -61,20 +85,65 @@ def _umask() -> int:
     return current
 
 
+def _unnamed_file(directory: Path):
+    """A file descriptor of an unnamed file in `directory` (Linux O_TMPFILE), or None where the
+    system or the file system has none."""
+    flag = getattr(os, "O_TMPFILE", None)
+    if flag is None or not os.path.isdir("/proc/self/fd"):
+        return None
+    try:
+        return os.open(directory, flag | os.O_WRONLY, 0o666 & ~_umask())
+    except OSError:
+        return None
+
+
 def _atomic_write(path, write, binary: bool = False) -> None:
+    """Write through `write(handle)` to a file that appears at `path` whole, or not at all.
+
+    On Linux the data go to an unnamed file (O_TMPFILE), which a killed run leaves nowhere; it is
+    linked beside `path` and renamed over it only once complete. Elsewhere a named temporary
+    file is used and removed on any error or interruption (SIGINT, and SIGTERM through the
+    command line's handler).
+    """
     path = Path(path)
     check_output_path(path)
     directory = path.parent if str(path.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
+    tmp = None
     try:
+        fd = _unnamed_file(directory)
+        if fd is None:
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
+            os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual permissions
         with os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", newline="") as handle:
             write(handle)
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual permissions
+            handle.flush()
+            os.fsync(handle.fileno())
+            if tmp is None:  # name the complete file beside its target, then rename it
+                tmp = str(directory / f".{path.name}.{os.getpid()}.{id(handle):x}.tmp")
+                _link_unnamed(handle.fileno(), tmp)
         os.replace(tmp, path)
+    except OSError as error:
+        _remove(tmp)
+        raise output_error(path, error) from None
     except BaseException:
+        _remove(tmp)
+        raise
+
+
+def _link_unnamed(fd: int, name: str) -> None:
+    """Give the unnamed file behind `fd` a name: linkat(2) with AT_SYMLINK_FOLLOW through
+    /proc/self/fd (os.link takes that route only when given a directory descriptor)."""
+    root = os.open("/", os.O_RDONLY)
+    try:
+        os.link(f"/proc/self/fd/{fd}", name, src_dir_fd=root, follow_symlinks=True)
+    finally:
+        os.close(root)
+
+
+def _remove(tmp) -> None:
+    if tmp is not None:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
-        raise
 
 
 def write_text_atomic(path, text: str) -> None:
@@ -114,3 +183,12 @@ def read_json(path, what: str = "JSON file"):
         return json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: not a valid {what} ({exc})") from None
+
+
+def sha256_file(path, chunk_bytes: int = 1 << 20) -> str:
+    """The SHA-256 of a file's bytes, as hex: what a result records of its input."""
+    digest = hashlib.sha256()
+    with open(existing_file(path, "a file"), "rb") as handle:
+        for block in iter(lambda: handle.read(chunk_bytes), b""):
+            digest.update(block)
+    return digest.hexdigest()

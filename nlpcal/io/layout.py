@@ -17,6 +17,8 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from ..errors import InputError
 from .files import existing_file
 
@@ -168,14 +170,24 @@ def _split(line: str, delimiter: str) -> list:
     return next(csv.reader([line], delimiter=delimiter, skipinitialspace=True), [])
 
 
+#: A delimiter must split at least this share of the first lines into the same number of fields
+#: (the other lines are ragged rows, which the reader then reports by line number). [1]
+CONSISTENT_SHARE = 0.9
+
+
+def _consistent(counts: list, minimum: int) -> bool:
+    """Whether most lines have the same count, and it is at least `minimum`."""
+    values, frequency = np.unique(counts, return_counts=True)
+    k = int(np.argmax(frequency))
+    return values[k] >= minimum and frequency[k] >= CONSISTENT_SHARE * len(counts)
+
+
 def _delimiter(lines: list) -> str | None:
-    """The delimiter that splits every line into the same number (> 1) of fields."""
+    """The delimiter that splits (nearly) every line into the same number (> 1) of fields."""
     for candidate in DELIMITERS:
-        counts = {_QUOTED.sub("", line).count(candidate) for line in lines}
-        if len(counts) == 1 and counts.pop() > 0:
+        if _consistent([_QUOTED.sub("", line).count(candidate) for line in lines], 1):
             return candidate
-    counts = {len(line.split()) for line in lines}
-    if len(counts) == 1 and counts.pop() > 1:
+    if _consistent([len(line.split()) for line in lines], 2):
         return " "
     return None
 

@@ -21,6 +21,7 @@ import pandas as pd
 
 from .. import units, validation
 from ..errors import InputError
+from ..geomagnetic import ReferenceModel, parse_times
 from ..moments import sphere_frame
 from .layout import Layout
 from .rows import RowScreen
@@ -45,6 +46,7 @@ class Log:
     unit : the unit of the field columns in the file.
     reference : None, a number or (N,) values of the reference field magnitude. [base unit]
     reference_column : the column the reference came from, if any.
+    reference_source : what a geomagnetic-model reference came from (model, package), if any.
     extras : the other requested columns on the rows of `samples`, as read (temperature [degC]).
     frame : the whole table (None when streamed with low_memory).
     kept : boolean mask of the table's rows behind `samples` (None when streamed).
@@ -61,6 +63,7 @@ class Log:
     unit: str
     reference: object = None
     reference_column: str | None = None
+    reference_source: dict | None = None
     extras: dict = field(default_factory=dict)
     frame: pd.DataFrame | None = None
     kept: np.ndarray | None = None
@@ -91,10 +94,11 @@ class Log:
             **more,
         }
 
-    def written_back(self, corrected, total_column: str) -> pd.DataFrame:
+    def written_back(self, corrected, total_column: str, extra=None) -> pd.DataFrame:
         """The log's table on the rows of `samples`, its field columns replaced by `corrected`
-        [base unit] converted back to the log's unit, and their magnitude in `total_column`
-        (appended last). Every other column passes through unchanged; write it with
+        [base unit] converted back to the log's unit, their magnitude in `total_column`
+        (appended last), and the `extra` columns (name -> values on the rows of `samples`).
+        Every other column passes through unchanged; write it with
         `nlpcal.io.write_table(frame, log.layout, ...)` to keep the file's layout."""
         if self.frame is None:
             raise InputError(
@@ -108,6 +112,8 @@ class Log:
         if total_column in frame.columns:
             frame = frame.drop(columns=total_column)
         frame[total_column] = np.linalg.norm(values, axis=1)
+        for name, column in (extra or {}).items():
+            frame[name] = column
         return frame
 
     def column(self, name) -> str:
@@ -171,10 +177,11 @@ def reference_unit(column: str, log_unit_: str, notes) -> str:
     return named or log_unit_
 
 
-def _screened(table: Table, wanted: list, drop_invalid: bool, notes: list) -> tuple:
-    """(values, kept mask over the table's rows, rows left out) of the wanted columns."""
+def screened(table: Table, wanted: list, drop_invalid: bool, notes: list, frame=None) -> tuple:
+    """(values, kept mask over the table's rows, rows left out) of the wanted columns (of
+    `frame`, when given: the table's cells with some columns converted)."""
     numeric = numeric_columns(
-        table.frame,
+        table.frame if frame is None else frame,
         wanted,
         drop_invalid=drop_invalid,
         source=table.source,
@@ -203,6 +210,7 @@ def read_log(
     reference_column: str | None = None,
     reference_field=None,
     reference_field_unit: str | None = None,
+    reference_model: ReferenceModel | None = None,
     extra_columns=(),
     drop_invalid: bool = False,
     low_memory: bool = False,
@@ -218,6 +226,8 @@ def read_log(
     reference_column : a column of reference magnitudes, or reference_field : one number (in
         `reference_field_unit`, default the log's unit). The reference is converted to the base
         unit with the samples.
+    reference_model : or the total field of a geomagnetic model at the log's place and date,
+        constant or per sample from position and time columns (`nlpcal.geomagnetic`). [nT]
     extra_columns : further numeric columns to read and validate (temperatures, say).
     drop_invalid : drop rows with missing or non-numeric values, and field vectors repeating the
         row before, instead of failing or keeping them. Exact-zero vectors are always left out.
@@ -225,10 +235,18 @@ def read_log(
     header : force (True) or deny (False) a header row; None detects it.
     text : keep the table's cells as text (for writing the log back unchanged).
     """
-    if reference_column is not None and reference_field is not None:
-        raise InputError("give a reference column or a reference field, not both")
+    given = [reference_column, reference_field, reference_model]
+    if sum(value is not None for value in given) > 1:
+        raise InputError("give one reference: a column, a field or a geomagnetic model")
     notes: list = []
-    extra = [c for c in dict.fromkeys([reference_column, *extra_columns]) if c]
+    model_columns = reference_model.numeric_columns() if reference_model else []
+    time_column = reference_model.time_column if reference_model else None
+    extra = [c for c in dict.fromkeys([reference_column, *model_columns, *extra_columns]) if c]
+    requested = list(extra)
+    if low_memory and (model_columns or time_column):
+        raise InputError(
+            "a reference from position or time columns needs the log in memory; drop --low-memory"
+        )
     if low_memory:
         decided: dict = {}
 
@@ -256,15 +274,23 @@ def read_log(
         )
         extra = [column_name(table.frame, c) for c in extra]
         _check_distinct(chosen, extra)
-        values, kept, dropped = _screened(table, chosen + extra, drop_invalid, notes)
+        checked, times_at = None, []
+        if time_column:  # times enter the row checks as Unix seconds
+            time_name = column_name(table.frame, time_column)
+            checked = table.frame.assign(**{time_name: _unix_seconds(table.frame[time_name])})
+            times_at = [time_name]
+        values, kept, dropped = screened(
+            table, chosen + extra + times_at, drop_invalid, notes, checked
+        )
         unit, how = sensor_unit(chosen, unit, fallback_unit, notes)
         frame, engine, layout, source = table.frame, table.engine, table.layout, table.source
         samples = values[:, :3] * units.field_factor(unit)
     _check_distinct(chosen, extra)
     check = unit_check(samples, unit, how)
     warnings = [check] if check else []
+    resolved = dict(zip(requested, extra))  # the names asked for -> the log's own names
     extras = {name: np.asarray(values[:, 3 + k]) for k, name in enumerate(extra)}
-    reference, name = None, None
+    reference, name, source_of_reference = None, None, None
     if reference_column is not None:
         name = extra[0]
         ref_unit = reference_unit(name, unit, notes)
@@ -273,6 +299,23 @@ def read_log(
             validation.reference(extras[name], len(extras[name]), f"the reference column {name!r}"),
             ref_unit,
         )
+    elif reference_model is not None:
+        if unit == "raw":
+            raise InputError(
+                "a geomagnetic model gives the field in nT, and raw counts cannot be compared "
+                "with it; give the log's unit (--unit)"
+            )
+        found = {c: extras[resolved[c]] for c in model_columns}
+        times = None
+        if time_column:
+            times = (values[:, -1] * 1e9).astype("int64").astype("datetime64[ns]")
+        reference, source_of_reference = reference_model.field(found, times)
+        if np.ndim(reference) == 0:
+            notes.append(
+                f"reference field {source_of_reference['total_nT']:.1f} nT from "
+                f"{source_of_reference['name']} ({source_of_reference['package']} "
+                f"{source_of_reference['package_version']})"
+            )
     elif reference_field is not None:
         ref_unit = reference_field_unit or unit
         units.check_compatible(unit, ref_unit)
@@ -286,6 +329,7 @@ def read_log(
         unit=unit,
         reference=reference,
         reference_column=name,
+        reference_source=source_of_reference,
         extras=extras,
         frame=frame,
         kept=kept,
@@ -295,6 +339,13 @@ def read_log(
         warnings=warnings,
         layout=layout,
     )
+
+
+def _unix_seconds(column) -> np.ndarray:
+    """A time column as Unix seconds (NaN where a cell is not a time). [s]"""
+    times = parse_times(column)
+    seconds = times.astype("int64") / 1e9
+    return np.where(np.isnat(times), np.nan, seconds)
 
 
 def unit_check(
@@ -316,132 +367,6 @@ def _check_distinct(field_columns, extra_columns) -> None:
                 f"({', '.join(field_columns)}); pass the temperature or reference "
                 f"column, or --columns X Y Z"
             )
-
-
-@dataclass
-class SensorLog:
-    """A log of a magnetometer and an accelerometer in one housing (an e-compass).
-
-    mag : (N, 3) field in nT; acc : (N, 3) specific force in g, on the same rows.
-    frame, kept : the table and the rows behind the samples; notes, warnings, layout : as in
-    `Log`. reference_field : a known field magnitude, or None. [nT]
-    """
-
-    path: str
-    frame: pd.DataFrame
-    kept: np.ndarray
-    mag: np.ndarray
-    acc: np.ndarray
-    mag_columns: list
-    acc_columns: list
-    mag_unit: str
-    acc_unit: str
-    dropped: int = 0
-    notes: list = field(default_factory=list)
-    warnings: list = field(default_factory=list)
-    layout: Layout = field(default_factory=Layout)
-    reference_field: float | None = None
-
-    def with_columns(self, columns: dict) -> tuple:
-        """The table with `columns` (name -> values on the rows of the samples) added, NaN on the
-        rows skipped; returns (frame, the names that replaced existing columns)."""
-        out = self.frame.copy()
-        replaced = [name for name in columns if name in out.columns]
-        for name, values in columns.items():
-            column = np.full(len(out), np.nan)
-            column[self.kept] = values
-            out[name] = column
-        return out, replaced
-
-    def metadata(self, **more) -> dict:
-        return {
-            "file": self.path,
-            "mag_columns": list(self.mag_columns),
-            "acc_columns": list(self.acc_columns),
-            "mag_unit": self.mag_unit,
-            "acc_unit": self.acc_unit,
-            "layout": self.layout.to_dict(),
-            "rows_skipped": int(self.dropped),
-            **more,
-        }
-
-
-def read_sensor_log(
-    path,
-    mag_columns=None,
-    acc_columns=None,
-    *,
-    mag_unit: str | None = None,
-    acc_unit: str | None = None,
-    drop_invalid: bool = False,
-    mag_fallback: str = "nT",
-    acc_fallback: str = "g",
-    header: bool | None = None,
-    text: bool = False,
-    reference_field=None,
-    reference_field_unit: str | None = None,
-) -> SensorLog:
-    """Read a magnetometer + accelerometer log; the field in nT, the specific force in g.
-
-    Columns are detected unless given (names or 0-based positions); each sensor's unit is the one
-    given, else the one its column names carry, else the fallback (nT and g, or the units of a
-    calibration), and both are checked against Earth's field and gravity. reference_field : a
-    known field magnitude in `reference_field_unit` (default: the magnetometer's unit).
-    """
-    table = path if isinstance(path, Table) else read_table(path, header=header, text=text)
-    frame = table.frame
-    if not table.layout.header and not (mag_columns and acc_columns):
-        raise InputError(
-            f"{table.source} has no header row; pass --mag-columns and --acc-columns with "
-            f"0-based positions, for example --mag-columns 3 4 5 --acc-columns 0 1 2"
-        )
-    mag_cols = resolve_columns(frame, mag_columns, what="magnetometer")
-    acc_cols = resolve_columns(frame, acc_columns, what="accelerometer")
-    if set(mag_cols) & set(acc_cols):
-        raise InputError(
-            f"the magnetometer columns ({', '.join(mag_cols)}) and accelerometer "
-            f"columns ({', '.join(acc_cols)}) overlap; pass --mag-columns and "
-            f"--acc-columns"
-        )
-    notes: list = []
-    mag_unit, mag_how = sensor_unit(mag_cols, mag_unit, mag_fallback, notes, flag="--mag-unit")
-    acc_unit, acc_how = sensor_unit(
-        acc_cols, acc_unit, acc_fallback, notes, "accelerometer", "--acc-unit"
-    )
-    if mag_unit == "raw":
-        raise InputError(
-            "the e-compass needs the magnetometer in a field unit (nT, uT, ...), "
-            "not raw counts; pass --mag-unit"
-        )
-    values, kept, dropped = _screened(table, mag_cols + acc_cols, drop_invalid, notes)
-    mag = values[:, :3] * units.field_factor(mag_unit)
-    acc = values[:, 3:] * units.acc_factor(acc_unit)
-    checks = [
-        unit_check(mag, mag_unit, mag_how, "magnetometer", "--mag-unit", raw_allowed=False),
-        unit_check(acc, acc_unit, acc_how, "accelerometer", "--acc-unit"),
-    ]
-    reference = None
-    if reference_field is not None:
-        reference = units.to_base(
-            validation.number(reference_field, "the reference field", positive=True),
-            reference_field_unit or mag_unit,
-        )
-    return SensorLog(
-        path=table.source,
-        frame=frame,
-        kept=kept,
-        mag=mag,
-        acc=acc,
-        mag_columns=mag_cols,
-        acc_columns=acc_cols,
-        mag_unit=mag_unit,
-        acc_unit=acc_unit,
-        dropped=dropped,
-        notes=notes,
-        warnings=[w for w in checks if w is not None],
-        layout=table.layout,
-        reference_field=reference,
-    )
 
 
 def read_columns(path, columns, *, header: bool | None = None) -> np.ndarray:

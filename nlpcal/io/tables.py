@@ -342,9 +342,10 @@ def csv_to_memmap(
         screen = RowScreen(drop_repeats=drop_invalid)
         store = tempfile.TemporaryFile(dir=directory)
         rows = dropped = 0
-        options = {**layout.pandas_options(), "usecols": positions, "chunksize": chunk_rows}
-        try:
+        options = {**layout.pandas_options(), "chunksize": chunk_rows}  # every column: ragged
+        try:  # rows are errors
             for chunk in pd.read_csv(source, engine="c", **options):
+                chunk = chunk.iloc[:, sorted(set(positions))]
                 chunk.columns = [preview.columns[k] for k in sorted(set(positions))]
                 numeric = numeric_columns(
                     chunk, wanted, drop_invalid=drop_invalid, source=name, decimal=layout.decimal

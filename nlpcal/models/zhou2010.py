@@ -180,3 +180,42 @@ def correct(samples, params: Zhou2010Parameters) -> np.ndarray:
     """
     samples = np.asarray(samples, dtype=float)
     return (samples - params.offsets) @ correction_matrix(params).T
+
+
+def from_correction(matrix, offsets) -> tuple[Zhou2010Parameters, np.ndarray]:
+    """The nine parameters of any affine correction B_out = A (B_M - b), and the rotation Q that
+    they do not carry: A = Q O_p S_p.
+
+    Eq. 4 in [1] writes the correction as the upper-triangular M = O_p S_p = (S N)^-1 with
+    S = diag(1 + s) and N = T = O_p^-1. A rotation Q in front of M leaves A^T A = M^T M, so
+
+        (A^T A)^-1 = (S N) (S N)^T,
+
+    and S N is the upper-triangular factor, with positive diagonal, of (A^T A)^-1 (a Cholesky
+    factorisation taken from the last row up). The rows of S N are the sensor axes scaled by their
+    gains (1 + s): row x = (1 + s_x)(cos a cos g, cos a sin g, -sin a), row y = (1 + s_y)(0,
+    cos b, sin b), row z = (1 + s_z)(0, 0, 1), which gives the gains and the angles. Q = A S N.
+
+    matrix : (3, 3) A, invertible with det A > 0 (a correction, not a reflection). [1]
+    offsets : (3,) b. [field unit]
+    Returns (parameters, Q); raises ValueError when A is singular or reverses handedness.
+    """
+    a = np.asarray(matrix, dtype=float)
+    if a.shape != (3, 3) or not np.isfinite(a).all():
+        raise ValueError("the correction matrix must be 3 x 3 and finite")
+    if not np.linalg.det(a) > 0:
+        raise ValueError("the correction matrix is singular or reverses handedness (det <= 0)")
+    c = np.linalg.inv(a.T @ a)  # (A^T A)^-1 = (S N)(S N)^T
+    flip = np.eye(3)[::-1]
+    sn = flip @ np.linalg.cholesky(flip @ c @ flip) @ flip  # upper triangular, positive diagonal
+    g_x = float(np.linalg.norm(sn[0]))
+    g_y = float(np.hypot(sn[1, 1], sn[1, 2]))
+    g_z = float(sn[2, 2])
+    alpha = np.arctan2(-sn[0, 2], np.hypot(sn[0, 0], sn[0, 1]))
+    gamma = np.arctan2(sn[0, 1], sn[0, 0])
+    beta = np.arctan2(sn[1, 2], sn[1, 1])
+    offsets = np.asarray(offsets, dtype=float).ravel()
+    params = Zhou2010Parameters.from_vector(
+        [*offsets, g_x - 1.0, g_y - 1.0, g_z - 1.0, *np.degrees([alpha, beta, gamma])]
+    )
+    return params, a @ sn

@@ -135,3 +135,13 @@ def objective_expression(theta, gram, centre, length, reference: str):
     U, P = coefficient_function(layout.varying_gamma)(theta, centre, length)
     m = power_moments(U, P, gram, layout)
     return spread_objective(m, length) if reference == "none" else reference_objective(m, length)
+
+
+def mean_magnitude_expression(theta, gram, centre, length, reference: str):
+    """The mean of |B1| from the power moments of u, L (1 + sum_k c_k m_k), for the references
+    "none" and "constant" (whose weights are uniform). [field unit]"""
+    layout = mom.layout(reference == "series")
+    U, P = coefficient_function(layout.varying_gamma)(theta, centre, length)
+    m = power_moments(U, P, gram, layout)
+    c = SQRT_SERIES
+    return length * (1 + sum(c[k + 1] * m[k] for k in range(4)))

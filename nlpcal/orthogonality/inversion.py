@@ -161,6 +161,7 @@ def invert(
         bad = int((magnitude <= 1e-9 * nominal).sum())
         raise InputError(f"{bad} sample(s) have zero magnitude; drop those rows")
     n = samples.shape[0]
+    validation.reference_scale(reference, nominal, "the reference field")
     moments = accumulate(samples, reference)
     kind = moments.reference
     before = field_statistics(samples, None, reference)
@@ -168,7 +169,15 @@ def invert(
     p = np.concatenate([moment_parameters(moments), [scale]])
     outcome = solve(inversion_solver(kind, bool(verbose)), x0=start, p=p, lbx=-bounds, ubx=bounds)
     where = f"{source}: " if source else ""
-    if not outcome.success:
+    if not outcome.success:  # say so when the attitudes are the cause
+        weak = _uncertainty(moments, start, before, spread=reference is None).weak
+        if weak:
+            raise QualityError(
+                f"{where}the attitudes do not determine "
+                f"{', '.join(ANGLE_NAMES[i] for i in weak)}; rotate the probe through "
+                f"directions spread over the whole sphere",
+                "Not_Identifiable",
+            )
         raise SolveError(
             f"{where}IPOPT did not converge on the angles", status=outcome.status, result=outcome
         )

@@ -1,0 +1,77 @@
+"""`nlpcal report`: a calibration and a log as one self-contained HTML file.
+
+    nlpcal report PARAMS.json LOG.csv -o report.html [--columns X Y Z] [--unit U]
+                  [--reference-field F | --reference-column COL | --reference-model igrf|wmm ...]
+
+The report embeds the figure (base64 PNG; needs matplotlib, else it says so), the parameters with
+standard errors, units and correlations, the Table 1 rows of the calibration and of the log,
+identifiability, warnings and provenance (nlpcal version, input files and their SHA-256, options).
+It opens from disk in any browser: no script, nothing fetched.
+"""
+
+from __future__ import annotations
+
+import sys
+
+from .calibrate import _add_temperature_arguments, _correction
+from .common import (
+    add_command,
+    add_log_arguments,
+    add_reference_arguments,
+    log_options,
+    report_log,
+    say,
+    tell,
+)
+
+
+def register(sub):
+    parser = add_command(
+        sub,
+        "report",
+        help="a self-contained HTML report of a calibration on a log",
+        description=__doc__.split("\n\n")[2],
+        examples=(
+            "nlpcal report params.json log.csv -o report.html",
+            "nlpcal report params.json log.csv --reference-model igrf --lat 48.1 --lon 11.6 "
+            "--date 2026-05-01 -o report.html",
+        ),
+    )
+    parser.add_argument(
+        "params", metavar="PARAMS.json", help="the parameters written by 'nlpcal calibrate'"
+    )
+    parser.add_argument("log", metavar="LOG", help="the log: a delimited text file, or - for stdin")
+    add_log_arguments(parser, "the column names, else the unit of the calibrated log")
+    _add_temperature_arguments(parser)
+    add_reference_arguments(parser)
+    parser.add_argument(
+        "-o", "--output", required=True, metavar="REPORT.html", help="write the report here"
+    )
+    parser.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..correction import read_log_for
+    from ..io import check_output_path, read_table, write_text_atomic
+    from ..report import report
+
+    check_output_path(args.output)
+    table = read_table(args.log, header=args.header)
+    correction = _correction(args, table, require_temperature=True)
+    log = read_log_for(table, correction, **log_options(args))
+    report_log(log)
+    corrected = correction.apply(log)
+    tell(correction.notes)
+    options = {
+        key: value
+        for key, value in sorted(vars(args).items())
+        if key not in ("func", "params", "log", "output") and value not in (None, False)
+    }
+    options["command_line"] = " ".join(["nlpcal", *sys.argv[1:]]) if sys.argv else "nlpcal"
+    written = report(
+        correction.parameters, log, corrected, parameters_path=args.params, options=options
+    )
+    tell(written.notes)
+    write_text_atomic(args.output, written.html)
+    say(f"nlpcal report: wrote {args.output}")
+    return 0

@@ -1,0 +1,137 @@
+"""Exports and imports of the calibration formats users come from: MATLAB magcal, a matrix JSON,
+ArduPilot, PX4 and a C header.
+
+Every format is one module that documents the target system's formula next to its code, and
+writes or reads an `AffineCorrection` B_out = A (B_M - b). `export` turns a calibration into a
+format's text; `import_file` reads a file back into a `CalibrationResult` through the Cholesky
+route (`nlpcal.models.zhou2010.from_correction`) that `apply` and `stats` use like any other.
+"""
+
+from __future__ import annotations
+
+from ..calibration.result import CalibrationResult
+from ..errors import InputError
+from ..io.files import existing_file, sha256_file
+from . import ardupilot, c_header, matlab, matrix, px4
+from .affine import AffineCorrection, Export, polar, rotation_angle_deg
+
+#: Format name -> module; every module has write(correction, ...) and read(text, source, ...).
+FORMATS = {
+    "matlab": matlab,
+    "matrix": matrix,
+    "ardupilot": ardupilot,
+    "px4": px4,
+    "c-header": c_header,
+}
+#: A rotation the nine parameters do not carry is mentioned above this angle. [deg]
+ROTATION_NOTE_DEG = 1e-6
+#: Formats whose unit is fixed by the target system.
+AUTOPILOTS = ("ardupilot", "px4")
+
+
+def _check(fmt: str, unit, instance) -> None:
+    if fmt not in FORMATS:
+        raise InputError(f"unknown format {fmt!r}; expected one of {', '.join(FORMATS)}")
+    if fmt in AUTOPILOTS and unit is not None:
+        fixed = FORMATS[fmt].UNIT
+        raise InputError(f"{fmt} parameters are in {fixed}; --unit applies to the other formats")
+    if fmt not in AUTOPILOTS and instance is not None:
+        raise InputError(f"--instance applies to ardupilot and px4, not to {fmt}")
+
+
+def export(
+    result,
+    fmt: str,
+    *,
+    unit: str | None = None,
+    instance: int | None = None,
+    max_rotation_deg: float | None = None,
+) -> Export:
+    """A calibration in one of `FORMATS`, as text with notes for the user.
+
+    result : a CalibrationResult, or a temperature calibration (its parameters at t0).
+    unit : the unit of the offsets and field in matlab, matrix and c-header (default: the unit
+        of the log the calibration was estimated from); the autopilots' units are fixed.
+    instance : the compass instance (ardupilot 1-3, default 1) or slot (px4 0-3, default 0).
+    max_rotation_deg : the largest rotation between nlpcal's axes and the symmetric matrix of the
+        autopilot formats (default `nlpcal.formats.autopilot.MAX_ROTATION_DEG`). [deg]
+    """
+    _check(fmt, unit, instance)
+    if not isinstance(result, CalibrationResult):
+        result = result.calibration  # a temperature calibration: the nine parameters at t0
+    correction = AffineCorrection.from_result(result, unit)
+    if fmt in AUTOPILOTS:
+        module = FORMATS[fmt]
+        chosen = module.INSTANCES[0] if instance is None else instance
+        return module.write(correction, instance=chosen, max_rotation_deg=max_rotation_deg)
+    written = FORMATS[fmt].write(correction)
+    written.rotation_deg = rotation_angle_deg(correction.polar()[0])
+    return written
+
+
+def import_file(
+    path,
+    fmt: str,
+    *,
+    unit: str | None = None,
+    field: float | None = None,
+    instance: int | None = None,
+) -> tuple[CalibrationResult, list]:
+    """A calibration from a file of one of `FORMATS`, and notes for the user.
+
+    unit : the unit of the file's offsets and field, for matlab, matrix and c-header when the file
+        does not say (default nT).
+    field : the total field the correction should map to [the file's unit]. A file that carries
+        its expected field (magcal's expmfs, the matrix "field") has A rescaled by field / expected;
+        otherwise it is recorded as the reference field.
+    instance : the compass instance (ardupilot 1-3, default 1) or slot (px4 0-3, default 0).
+    """
+    _check(fmt, unit, instance)
+    path = existing_file(path, f"a {fmt} file")
+    try:
+        text = path.read_text()
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a text file; expected a {fmt} file") from None
+    module = FORMATS[fmt]
+    if fmt in AUTOPILOTS:
+        chosen = module.INSTANCES[0] if instance is None else instance
+        correction = module.read(text, str(path), instance=chosen)
+    else:
+        correction = module.read(text, str(path), unit=unit)
+    notes = []
+    scaled = None
+    if field is not None:
+        if correction.field is not None:
+            correction, scaled = correction.rescaled(field)
+            notes.append(
+                f"A scaled by {scaled:.9g} so that the correction maps to {field:g} "
+                f"{correction.unit} instead of the file's expected field"
+            )
+        else:
+            correction.field = field
+    result = correction.to_result(
+        log_unit=None if fmt in AUTOPILOTS else correction.unit,
+        imported_from=str(path),
+        format=fmt,
+        sha256=sha256_file(path),
+        field_scale=scaled,
+    )
+    angle = result.input["rotation_not_carried"]["angle_deg"]
+    if angle > ROTATION_NOTE_DEG:
+        notes.append(
+            f"the nine parameters carry no rotation: the file's correction equals Q B1 with Q a "
+            f"rotation of {angle:.4g} deg (same magnitude |B1|)"
+        )
+    return result, notes
+
+
+__all__ = [
+    "AUTOPILOTS",
+    "FORMATS",
+    "AffineCorrection",
+    "Export",
+    "export",
+    "import_file",
+    "polar",
+    "rotation_angle_deg",
+]

@@ -1,0 +1,224 @@
+"""The affine form of a calibration, B_out = A (B_M - b): what every external format carries.
+
+The nine parameters of Eq. 4 in [1] give A = O_p S_p (upper triangular) and b = Z_p. Other tools
+store other shapes of the same map, and this module holds the two pieces of linear algebra that
+translate between them, each written once:
+
+* into the nine parameters: the Cholesky route of `nlpcal.models.zhou2010.from_correction`,
+  (A^T A)^-1 = (S N)(S N)^T, which leaves a rotation Q (A = Q O_p S_p) that the nine parameters
+  do not carry;
+* into a symmetric matrix (ArduPilot, PX4): the polar decomposition A = R P, with P symmetric
+  positive definite and R a rotation. An autopilot that applies P gives R^T B1: the same
+  magnitude |B1|, in axes turned by R. P's axes are the ones closest to the sensor's own axes;
+  those of Eq. 4 keep z on the sensor's z axis and y in its y-z plane. R is small when the axes
+  are nearly orthogonal (1.35 deg for the angles of [1]) and is reported with every export.
+
+References
+----------
+[1] Zhou et al. (2010), see `nlpcal.models.zhou2010`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import units, validation
+from ..calibration.result import CalibrationResult
+from ..errors import InputError
+from ..models.zhou2010 import correction_matrix, from_correction
+from ..results import Document, DocumentReader
+from ..version import __version__
+
+#: The model every format states, in the column-vector convention.
+MODEL = "B1 = A (B_M - b)"
+
+
+def polar(matrix) -> tuple[np.ndarray, np.ndarray]:
+    """The polar decomposition A = R P: R a rotation, P symmetric positive definite. [1]
+
+    From the singular value decomposition A = W diag(sigma) V^T: R = W V^T, P = V diag(sigma) V^T.
+    Raises InputError when A is singular or reverses handedness (R would be a reflection).
+    """
+    a = validation.matrix(matrix, "the correction matrix A", invertible=True)
+    if not np.linalg.det(a) > 0:
+        raise InputError("the correction matrix A reverses handedness (det A < 0)")
+    w, sigma, vt = np.linalg.svd(a)
+    p = vt.T @ np.diag(sigma) @ vt
+    return w @ vt, 0.5 * (p + p.T)
+
+
+def rotation_angle_deg(rotation) -> float:
+    """The angle of a rotation matrix, accurate for small angles too. [deg]"""
+    r = np.asarray(rotation, dtype=float)
+    sine = 0.5 * np.linalg.norm([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+    return float(np.degrees(np.arctan2(sine, 0.5 * (np.trace(r) - 1.0))))
+
+
+def expected_field(result: CalibrationResult) -> float | None:
+    """The total field a calibration maps to: its reference field (or the mean of a reference
+    series), else the mean |B1| of its last Table 1 row, else None. [result unit]"""
+    reference = result.reference or {}
+    for key in ("field", "field_mean"):
+        if isinstance(reference.get(key), (int, float)):
+            return float(reference[key])
+    if result.statistics and isinstance(result.statistics[-1].get("mean"), (int, float)):
+        return float(result.statistics[-1]["mean"])
+    return None
+
+
+@dataclass
+class AffineCorrection(Document):
+    """B_out = A (B_M - b): an affine correction in one unit.
+
+    matrix : (3, 3) A, row-major, in the column-vector convention. [1]
+    offsets : (3,) b. [unit]
+    unit : the unit of b, of B_M and of B_out ("raw" for counts).
+    field : the total field |B_out| the correction maps to, or None. [unit]
+    source : where it came from (nlpcal version, parameters file, file read, ...).
+    """
+
+    FORMAT = "nlpcal-affine-correction"
+    WHAT = "affine correction (A, b)"
+    #: A hand-written file with "A" and "b" but no "format" is read too.
+    LEGACY_FORMATS = (("A", None),)
+
+    matrix: np.ndarray
+    offsets: np.ndarray
+    unit: str = "nT"
+    field: float | None = None
+    source: dict = dataclasses.field(default_factory=dict)
+
+    @classmethod
+    def from_result(cls, result: CalibrationResult, unit: str | None = None) -> AffineCorrection:
+        """The correction of a calibration, with b and the field in `unit` (default: the unit
+        of the log it was estimated from)."""
+        unit = unit or result.log_unit
+        units.check_compatible(result.unit, unit, "the export unit")
+        model = result.model
+        expected = expected_field(result)
+        return cls(
+            matrix=correction_matrix(model),  # A = O_p S_p, Eq. 4
+            offsets=units.from_base(units.to_base(model.offsets, result.unit), unit),
+            unit=unit,
+            field=None if expected is None else units.from_base(expected, unit),
+            source={"nlpcal_version": __version__, **_provenance(result)},
+        )
+
+    def in_unit(self, unit: str) -> AffineCorrection:
+        """The same correction with b and the field in `unit` (A is dimensionless)."""
+        units.check_compatible(self.unit, unit, f"unit {unit!r}")
+
+        def convert(value):
+            return None if value is None else units.from_base(units.to_base(value, self.unit), unit)
+
+        return AffineCorrection(
+            self.matrix, convert(self.offsets), unit, convert(self.field), dict(self.source)
+        )
+
+    def apply(self, samples) -> np.ndarray:
+        """B_out = A (B_M - b) for (N, 3) samples in this unit. [unit]"""
+        return (np.asarray(samples, dtype=float) - self.offsets) @ self.matrix.T
+
+    def polar(self) -> tuple[np.ndarray, np.ndarray]:
+        """(R, P) with A = R P (`polar`)."""
+        return polar(self.matrix)
+
+    def rescaled(self, target: float) -> tuple[AffineCorrection, float]:
+        """The correction scaled to map onto `target` instead of its own field [unit], and the
+        factor applied to A. [1]"""
+        target = validation.number(target, "the field", positive=True)
+        if self.field is None:
+            raise InputError("the correction carries no expected field to rescale")
+        factor = target / self.field
+        return (
+            AffineCorrection(self.matrix * factor, self.offsets, self.unit, target, self.source),
+            factor,
+        )
+
+    def to_result(self, log_unit: str | None = None, **input_block) -> CalibrationResult:
+        """A CalibrationResult holding the nine parameters of this correction (Cholesky route).
+
+        log_unit : the unit of the logs it applies to (default: the base unit, nT or raw).
+        The rotation Q that the nine parameters do not carry (A = Q O_p S_p) is recorded under
+        input.rotation_not_carried; |B1| is the same with or without it.
+        """
+        matrix = validation.matrix(self.matrix, "the correction matrix A", invertible=True)
+        try:
+            params, rotation = from_correction(matrix, units.to_base(self.offsets, self.unit))
+        except ValueError as exc:
+            raise InputError(str(exc)) from None
+        base = units.base_unit(self.unit)
+        angle = rotation_angle_deg(rotation)
+        reference: dict = {"mode": "none"}
+        if self.field is not None:
+            reference = {"mode": "constant", "field": units.to_base(self.field, self.unit)}
+        return CalibrationResult(
+            parameters=params.to_dict(),
+            statistics=[],
+            method="imported",
+            reference=reference,
+            unit=base,
+            input={
+                **input_block,
+                "log_unit": log_unit or base,
+                "rotation_not_carried": {"angle_deg": angle, "matrix": rotation.tolist()},
+            },
+        )
+
+    # -- the matrix JSON format --------------------------------------------------------------
+
+    def body(self) -> dict:
+        r, p = self.polar()
+        return {
+            "model": MODEL,
+            "A": self.matrix.tolist(),
+            "b": list(map(float, self.offsets)),
+            "unit": self.unit,
+            "A_unit": "1",
+            "field": self.field,
+            "symmetric": {
+                "about": "A = R P: P symmetric (what ArduPilot and PX4 apply), R a rotation",
+                "P": p.tolist(),
+                "R": r.tolist(),
+                "rotation_deg": rotation_angle_deg(r),
+            },
+            "source": dict(self.source),
+            "nlpcal_version": __version__,
+        }
+
+    @classmethod
+    def from_body(cls, reader: DocumentReader) -> AffineCorrection:
+        matrix = reader.array("A", (3, 3))
+        validation.matrix(matrix, f"{reader.source}: A", invertible=True)
+        unit = reader.string("unit", "nT", options=list(units.FIELD_UNITS_NT))
+        return cls(
+            matrix=matrix,
+            offsets=reader.array("b", (3,)),
+            unit=unit,
+            field=reader.number("field", None, positive=True),
+            source=reader.mapping("source", {}),
+        )
+
+
+def _provenance(result: CalibrationResult) -> dict:
+    block = {"method": result.method, "parameters_unit": result.unit}
+    if result.input.get("log"):
+        block["log"] = result.input["log"]
+    return block
+
+
+@dataclass
+class Export:
+    """What an export writes: the text, the notes for the user, the rotation not carried."""
+
+    text: str
+    notes: list = dataclasses.field(default_factory=list)
+    rotation_deg: float | None = None
+
+
+def number_text(value: float) -> str:
+    """A float written so that it reads back to the same double (shortest round trip)."""
+    return repr(float(value))

@@ -1,0 +1,116 @@
+"""ArduPilot: a .param file with COMPASS_OFS, COMPASS_DIA, COMPASS_ODI and COMPASS_SCALE.
+
+ArduPilot corrects every compass sample in AP_Compass_Backend::correct_field (libraries/
+AP_Compass/AP_Compass_Backend.cpp), in milligauss, before motor compensation:
+
+    m' = D (k (m + OFS))                    OFS = (COMPASS_OFS_X, _Y, _Z), added [mGauss]
+    D = [[DIA_X, ODI_X, ODI_Y],             k = COMPASS_SCALE, applied only within
+         [ODI_X, DIA_Y, ODI_Z],                 [1/1.5, 1.5] (Compass::have_scale_factor);
+         [ODI_Y, ODI_Z, DIA_Z]]                 0, the default, means no scaling
+                                            D = identity when DIA is all zero
+
+Instance 1 uses COMPASS_OFS_X, COMPASS_DIA_X, COMPASS_ODI_X, COMPASS_SCALE; instance 2 the same
+names with a 2 (COMPASS_OFS2_X, COMPASS_DIA2_X, COMPASS_ODI2_X, COMPASS_SCALE2), instance 3 with a
+3 (AP_Compass.cpp parameter table). The offsets are in mGauss (1 mG = 100 nT); DIA, ODI and SCALE
+are dimensionless.
+
+From B1 = R P (B_M - b): OFS = -b [mG], D = P, COMPASS_SCALE = 1, and ArduPilot computes R^T B1.
+ArduPilot's own calibrator accepts diagonals in (0.2, 5.0) and off-diagonals with |ODI| < 1
+(CompassCalibrator::fit_acceptable), and its pre-arm check refuses offsets longer than
+COMPASS_OFFS_MAX (default 1800 mG): a calibration outside the first two cannot be exported, the
+third is a warning. ArduPilot stores parameters as 32-bit floats (about 7 significant digits).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+from .affine import AffineCorrection, Export, number_text
+from .autopilot import check_range, parameters, rotation_lines, symmetric
+
+UNIT = "mG"
+#: (DIA low, DIA high, |ODI| limit) of CompassCalibrator::fit_acceptable. [1]
+DIAGONAL_RANGE = (0.2, 5.0)
+OFFDIAGONAL_LIMIT = 1.0
+#: COMPASS_SCALE applied only within this range (Compass::have_scale_factor). [1]
+SCALE_RANGE = (1.0 / 1.5, 1.5)
+#: Default COMPASS_OFFS_MAX: the longest offset vector the pre-arm check accepts. [mG]
+OFFSETS_MAX = 1800.0
+INSTANCES = (1, 2, 3)
+
+
+def names(instance: int) -> dict:
+    """Parameter names of a compass instance (1, 2 or 3)."""
+    if instance not in INSTANCES:
+        raise InputError(f"ArduPilot compass instances are 1, 2 and 3, got {instance}")
+    n = "" if instance == 1 else str(instance)
+    return {
+        "OFS": [f"COMPASS_OFS{n}_{a}" for a in "XYZ"],
+        "DIA": [f"COMPASS_DIA{n}_{a}" for a in "XYZ"],
+        "ODI": [f"COMPASS_ODI{n}_{a}" for a in "XYZ"],
+        "SCALE": f"COMPASS_SCALE{n}",
+    }
+
+
+def write(correction: AffineCorrection, instance: int = 1, max_rotation_deg=None) -> Export:
+    p, rotation, b, angle = symmetric(correction, UNIT, "ArduPilot", max_rotation_deg)
+    keys = names(instance)
+    dia = np.diag(p)
+    odi = np.array([p[0, 1], p[0, 2], p[1, 2]])  # D = [[X, oX, oY], [oX, Y, oZ], [oY, oZ, Z]]
+    for name, value in zip(keys["DIA"], dia):
+        check_range(name, value, *DIAGONAL_RANGE, "ArduPilot", "what its CompassCalibrator accepts")
+    for name, value in zip(keys["ODI"], odi):
+        check_range(
+            name,
+            value,
+            -OFFDIAGONAL_LIMIT,
+            OFFDIAGONAL_LIMIT,
+            "ArduPilot",
+            "CompassCalibrator accepts |ODI| < 1",
+        )
+    offsets = -b  # ArduPilot adds its offsets: m + OFS = m - b
+    notes = []
+    if np.linalg.norm(offsets) > OFFSETS_MAX:
+        notes.append(
+            f"the offsets are {np.linalg.norm(offsets):.0f} mG long, more than ArduPilot's default "
+            f"COMPASS_OFFS_MAX of {OFFSETS_MAX:g} mG: its pre-arm check will refuse them unless "
+            f"COMPASS_OFFS_MAX is raised (check the installation for magnetic parts first)"
+        )
+    lines = [
+        f"# nlpcal calibration for ArduPilot compass {instance}: m' = D (COMPASS_SCALE (m + OFS)),"
+        f" D = [[DIA_X, ODI_X, ODI_Y], [ODI_X, DIA_Y, ODI_Z], [ODI_Y, ODI_Z, DIA_Z]], in mGauss",
+        *rotation_lines(rotation, angle, "#"),
+    ]
+    lines += [f"{k},{number_text(v)}" for k, v in zip(keys["OFS"], offsets)]
+    lines += [f"{k},{number_text(v)}" for k, v in zip(keys["DIA"], dia)]
+    lines += [f"{k},{number_text(v)}" for k, v in zip(keys["ODI"], odi)]
+    lines.append(f"{keys['SCALE']},1.0")
+    return Export("\n".join(lines) + "\n", notes, angle)
+
+
+def read(text: str, source: str, instance: int = 1) -> AffineCorrection:
+    """The correction ArduPilot applies with the file's parameters of one compass instance."""
+    values = parameters(text, source)
+    keys = names(instance)
+    wanted = [*keys["OFS"], *keys["DIA"], *keys["ODI"], keys["SCALE"]]
+    if not any(name in values for name in wanted):
+        raise InputError(
+            f"{source}: no {keys['OFS'][0]}, {keys['DIA'][0]}, ... for compass "
+            f"instance {instance} (pass --instance)"
+        )
+    ofs = np.array([values.get(k, 0.0) for k in keys["OFS"]])
+    dia = np.array([values.get(k, 0.0) for k in keys["DIA"]])
+    odi = np.array([values.get(k, 0.0) for k in keys["ODI"]])
+    if not dia.any():
+        dia = np.ones(3)  # correct_field: all-zero diagonals mean the identity
+    scale = values.get(keys["SCALE"], 0.0)
+    if not SCALE_RANGE[0] <= scale <= SCALE_RANGE[1]:
+        scale = 1.0  # have_scale_factor: outside the range the scale is not applied
+    d = np.array([[dia[0], odi[0], odi[1]], [odi[0], dia[1], odi[2]], [odi[1], odi[2], dia[2]]])
+    return AffineCorrection(
+        matrix=scale * d,
+        offsets=-ofs,
+        unit=UNIT,
+        source={"file": source, "format": "ardupilot", "instance": instance},
+    )

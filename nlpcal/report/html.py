@@ -1,0 +1,254 @@
+"""A calibration report as one self-contained HTML file: figures embedded as base64 PNG, styles
+inline, no script and nothing fetched from the network, so it opens from disk in any browser.
+
+Sections: the figure of the log before and after; the nine parameters with standard errors and
+units; their correlations; the Table 1 rows of the calibration and of the log; the reference
+field; identifiability; warnings; provenance (nlpcal version, input files and their SHA-256,
+options).
+"""
+
+from __future__ import annotations
+
+import base64
+import datetime
+import html
+import json
+
+import numpy as np
+
+from ..calibration.result import CalibrationResult
+from ..models.zhou2010 import PARAMETER_NAMES, PARAMETER_UNITS
+from ..statistics import STAT_KEYS
+from ..version import __version__
+from .view import CalibrationView
+
+SYMBOLS = {
+    "z_x": "z<sub>x</sub>",
+    "z_y": "z<sub>y</sub>",
+    "z_z": "z<sub>z</sub>",
+    "s_x": "s<sub>x</sub>",
+    "s_y": "s<sub>y</sub>",
+    "s_z": "s<sub>z</sub>",
+    "alpha_deg": "&alpha;",
+    "beta_deg": "&beta;",
+    "gamma_deg": "&gamma;",
+}
+MEANINGS = {
+    "z": "zero offset Z<sub>p</sub>",
+    "s": "scale error, gain 1 + s",
+    "alpha_deg": "x axis out of the plane x<sub>1</sub>o y<sub>1</sub>",
+    "beta_deg": "y axis from oy<sub>1</sub>",
+    "gamma_deg": "x projection from ox<sub>1</sub>",
+}
+STYLE = """
+body { font-family: system-ui, -apple-system, "Segoe UI", Roboto, sans-serif; margin: 2em auto;
+       max-width: 1200px; color: #1a1a1a; line-height: 1.4; padding: 0 1em; }
+h1 { font-size: 1.6em; margin-bottom: 0.2em; } h2 { font-size: 1.25em; margin-top: 1.6em;
+  border-bottom: 1px solid #ccc; padding-bottom: 0.2em; }
+table { border-collapse: collapse; margin: 0.5em 0; font-size: 0.92em; }
+th, td { border: 1px solid #d0d0d0; padding: 0.25em 0.6em; text-align: right; }
+th { background: #f2f2f2; } td.text, th.text { text-align: left; }
+.num { font-variant-numeric: tabular-nums; font-family: ui-monospace, Menlo, Consolas, monospace; }
+.warn { background: #fff4e0; border-left: 4px solid #e69500; padding: 0.4em 0.8em;
+        margin: 0.3em 0; }
+.ok { color: #1d7a2e; } .bad { color: #b00020; font-weight: bold; }
+img { max-width: 100%; height: auto; border: 1px solid #ddd; }
+code, pre { font-family: ui-monospace, Menlo, Consolas, monospace; font-size: 0.9em; }
+pre { background: #f7f7f7; padding: 0.6em; overflow-x: auto; }
+.small { color: #555; font-size: 0.85em; }
+"""
+
+
+def _e(value) -> str:
+    return html.escape(str(value))
+
+
+def _number(value, digits: int = 8) -> str:
+    if value is None:
+        return "&ndash;"
+    if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
+        return str(int(value))
+    return f"{float(value):.{digits}g}"
+
+
+def _table(header, rows, text_columns=(0,)) -> str:
+    head = "".join(
+        f'<th class="{"text" if k in text_columns else ""}">{h}</th>' for k, h in enumerate(header)
+    )
+    body = "".join(
+        "<tr>"
+        + "".join(
+            f'<td class="{"text" if k in text_columns else "num"}">{cell}</td>'
+            for k, cell in enumerate(row)
+        )
+        + "</tr>"
+        for row in rows
+    )
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def _parameters(result: CalibrationResult) -> str:
+    errors = result.standard_errors or {}
+    rows = []
+    for name, unit in zip(PARAMETER_NAMES, PARAMETER_UNITS):
+        meaning = MEANINGS.get(name, MEANINGS.get(name[0], ""))
+        rows.append(
+            [
+                f"{SYMBOLS[name]} <code>{name}</code>",
+                _number(result.parameters[name], 10),
+                _number(errors.get(name), 3),
+                _e(result.unit if unit == "field" else unit),
+                meaning,
+            ]
+        )
+    note = ""
+    if not errors:
+        note = '<p class="warn">No standard errors: the data leave a direction undetermined.</p>'
+    return (
+        _table(["parameter", "value", "standard error", "unit", "meaning"], rows, (0, 3, 4)) + note
+    )
+
+
+def _correlations(result: CalibrationResult) -> str:
+    matrix = result.correlation()
+    if matrix is None:
+        return "<p>No covariance in this result (no standard errors, or an older file).</p>"
+
+    def cell(value: float) -> tuple[str, str]:
+        shade = int(255 - 155 * min(abs(value), 1.0))
+        colour = f"rgb(255,{shade},{shade})" if value > 0 else f"rgb({shade},{shade},255)"
+        weight = "font-weight:bold;" if abs(value) > 0.9 else ""
+        return f'<span style="{weight}">{value:+.3f}</span>', colour
+
+    gauge = (
+        " The gauge s<sub>x</sub> + s<sub>y</sub> + s<sub>z</sub> = 0 (no reference field) ties "
+        "the three scale errors together."
+        if result.gauge
+        else ""
+    )
+    head = "".join(f"<th>{SYMBOLS[n]}</th>" for n in PARAMETER_NAMES)
+    body = ""
+    for i, name in enumerate(PARAMETER_NAMES):
+        cells = ""
+        for j in range(len(PARAMETER_NAMES)):
+            text, colour = cell(float(matrix[i, j]))
+            cells += f'<td class="num" style="background:{colour}">{text}</td>'
+        body += f"<tr><th>{SYMBOLS[name]}</th>{cells}</tr>"
+    return (
+        f"<table><thead><tr><th></th>{head}</tr></thead><tbody>{body}</tbody></table>"
+        '<p class="small">Correlation of the estimates (red positive, blue negative; bold where '
+        f"|r| &gt; 0.9).{gauge}</p>"
+    )
+
+
+def _rows(rows, unit: str) -> str:
+    extra = [k for k in ("rmse", "objective", "iterations") if any(k in r for r in rows)]
+    header = ["row", *[f"{k} [{unit}]" for k in STAT_KEYS]]
+    header += [
+        {"objective": f"objective [{unit}&sup2;]", "rmse": f"rmse [{unit}]"}.get(k, k)
+        for k in extra
+    ]
+    table = [
+        [_e(r.get("label", "")), *[_number(r.get(k), 9) for k in (*STAT_KEYS, *extra)]]
+        for r in rows
+    ]
+    return _table(header, table)
+
+
+def _pre(document) -> str:
+    return f"<pre>{_e(json.dumps(document, indent=2, default=str))}</pre>"
+
+
+def _identifiability(result: CalibrationResult) -> str:
+    block = result.identifiability or {}
+    if not block:
+        return "<p>Not recorded (an imported calibration has no data behind it).</p>"
+    missing = block.get("not_identifiable") or []
+    poor = block.get("poorly_determined") or []
+    coverage = block.get("coverage") or {}
+    items = [
+        (
+            "not determined by the data",
+            f'<span class="bad">{_e(", ".join(missing))}</span>'
+            if missing
+            else '<span class="ok">none</span>',
+        ),
+        (
+            "poorly determined",
+            f'<span class="bad">{_e(", ".join(poor))}</span>'
+            if poor
+            else '<span class="ok">none</span>',
+        ),
+        ("least determined combination", _e(", ".join(block.get("weakest_combination", [])))),
+        (
+            "attitude coverage",
+            f"{coverage.get('covered', '?')} of {coverage.get('direction_bins', 26)} direction bins"
+            if coverage
+            else "&ndash;",
+        ),
+        (
+            "lag-1 autocorrelation of the residuals",
+            _number(block.get("residual_lag1_autocorrelation"), 3),
+        ),
+        ("standard-error widening for it", _number(block.get("standard_error_inflation"), 4)),
+    ]
+    return _table(["", ""], [[k, v] for k, v in items], (0, 1))
+
+
+def render_report(
+    result: CalibrationResult,
+    view: CalibrationView,
+    provenance: dict,
+    png: bytes | None = None,
+    missing_figure: str = "",
+) -> str:
+    """The report as HTML text.
+
+    result : the calibration; view : the log before and after it; provenance : input files with
+    their SHA-256 and the options of the run; png : the figure (`nlpcal.plots.calibration_png`),
+    or None with `missing_figure` saying why.
+    """
+    now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    if png is not None:
+        encoded = base64.b64encode(png).decode("ascii")
+        figure = (
+            f'<img src="data:image/png;base64,{encoded}" alt="total field before and after the '
+            f'correction, residual histograms, direction coverage map and cycle convergence">'
+        )
+    else:
+        figure = f'<p class="warn">No figure: {_e(missing_figure)}</p>'
+    warnings = "".join(f'<p class="warn">{_e(w)}</p>' for w in result.warnings) or (
+        '<p class="ok">No warnings.</p>'
+    )
+    calibration_rows = (
+        _rows(result.statistics, result.unit)
+        if result.statistics
+        else "<p>The calibration carries no Table 1 rows (imported).</p>"
+    )
+    title = _e(view.title or "calibration report")
+    sections = [
+        f"<h1>nlpcal calibration report</h1><p class='small'>{title} &middot; generated {now} "
+        f"by nlpcal {_e(__version__)}</p>",
+        f"<h2>Before and after</h2>{figure}",
+        f"<h2>Table 1 rows of this log</h2>{_rows(view.rows(), view.unit)}"
+        f"<p class='small'>std with ddof = 0; RMSE against the reference {view.target_label} "
+        f"when one is given.</p>",
+        "<h2>Parameters (Zhou et al. 2010, Eq. 4: B1 = O<sub>p</sub> S<sub>p</sub> "
+        f"(B<sub>M</sub> &minus; Z<sub>p</sub>))</h2>{_parameters(result)}"
+        f"<p class='small'>Method: {_e(result.method)}; solver: "
+        f"{_e(result.solver.get('status', 'none'))}, "
+        f"{_e(result.solver.get('iterations', 0))} iterations.</p>",
+        f"<h2>Correlations</h2>{_correlations(result)}",
+        f"<h2>Table 1 rows of the calibration</h2>{calibration_rows}",
+        f"<h2>Reference field</h2>{_pre(result.reference)}"
+        + (f"<h3>Gauge</h3>{_pre(result.gauge)}" if result.gauge else ""),
+        f"<h2>Identifiability</h2>{_identifiability(result)}",
+        f"<h2>Warnings</h2>{warnings}",
+        f"<h2>Provenance</h2>{_pre(provenance)}",
+    ]
+    return (
+        "<!DOCTYPE html>\n<html lang='en'><head><meta charset='utf-8'>"
+        "<meta name='viewport' content='width=device-width, initial-scale=1'>"
+        f"<title>nlpcal report: {title}</title><style>{STYLE}</style></head>"
+        f"<body>{''.join(sections)}</body></html>\n"
+    )
