@@ -314,7 +314,7 @@ def test_quiet_and_verbose(tmp_path, capsys):
 
 def test_allow_unidentifiable_writes_the_result_with_its_warning(tmp_path, capsys):
     # The field only ever within 32 deg of -z, with much noise: the offsets trade off against the
-    # radius of a far-away sphere and their standard errors exceed 10 % of the field.
+    # radius of a far-away sphere, and the staged cycle walks along that valley.
     from synthetic import uniform_directions
 
     directions = uniform_directions(40000, np.random.default_rng(1))

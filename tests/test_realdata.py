@@ -127,3 +127,13 @@ def test_the_upright_log_fails_the_quality_check_and_says_why(real_data, tmp_pat
     assert code == 1 and not out.exists()
     assert "do not determine" in captured.err
     assert "never pointed along" in captured.err and "+z" in captured.err
+
+
+def test_the_joint_solve_on_the_upright_log_blames_the_coverage(real_data, tmp_path, capsys):
+    path = real_data / "xio_fusion_ximu3" / "sensor_data.csv"
+    if not path.exists():
+        pytest.skip(f"{path} is absent")
+    code, captured = _cli(capsys, "calibrate", path, "--method", "joint", "-o", tmp_path / "p.json")
+    assert code == 1
+    assert "of 26 direction bins, a cap of the sphere" in captured.err
+    assert "rotate the sensor through more attitudes" in captured.err
