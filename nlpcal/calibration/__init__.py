@@ -79,8 +79,6 @@ def calibrate(
     progress : None, or called with (cycle, Table 1 row) after every staged cycle.
     threads : threads of the passes over the data (default: the cores available to the process,
         its CPU affinity within its cgroup's quota); BLAS is held to one thread meanwhile.
-    threads : threads of the passes over the data (default: the cores available to the process,
-        its CPU affinity within its cgroup's quota); BLAS is held to one thread meanwhile.
     require_identifiable : raise QualityError (holding the result) when the attitude coverage
         leaves parameters undetermined; False returns the result with its warnings.
     allow_unconverged : return a staged result that stopped at its cycle limit, or away from the

@@ -14,7 +14,14 @@ from .. import inference
 from ..errors import SolveError
 from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters, correct
 from ..moments import Moments
-from ..nlp.blocks import SCALE_INDICES, block_step, objective_function, pack, variable_scale
+from ..nlp.blocks import (
+    SCALE_INDICES,
+    block_step,
+    objective_function,
+    pack,
+    resolution,
+    variable_scale,
+)
 from ..robust import robust_std
 from ..statistics import field_statistics
 from .problem import Problem
@@ -149,7 +156,7 @@ def joint_gap(problem: Problem, theta, errors) -> dict:
     status of the joint solve.
     """
     try:
-        step = block_step(problem.moments, "joint", theta)
+        step = block_step(problem.moments, "joint", theta, stationary=resolution(problem.moments))
     except SolveError as failure:
         return {"status": failure.status, "max_gap_in_standard_errors": None}
     staged = Zhou2010Parameters.from_theta(theta).as_vector()

@@ -4,8 +4,12 @@ The paper argues that a joint solve converges badly because offsets (hundreds of
 errors (~1e-3) and angles (~1e-2 rad) differ by orders of magnitude. `nlpcal.nlp.blocks` scales
 every variable to order one, and IPOPT uses the exact Hessian of the moment objective.
 
-Start: offsets at the centre of a sphere fitted to the raw samples, angles zero, and scales zero
-(Eq. 8) or the common scale that maps the sphere radius onto the reference field.
+Start: the algebraic ellipsoid fit (`algebraic_start`), else offsets at the centre of a sphere
+fitted to the raw samples, angles zero, and scales zero (Eq. 8) or the common scale that maps the
+sphere radius onto the reference field. A start whose Newton step is shorter than
+`nlpcal.nlp.blocks.STATIONARY_SE` standard errors is the optimum to the resolution of the data
+and is not handed to IPOPT (status At_Stationary_Point): on a near-spherical log the algebraic
+fit often is.
 
 References
 ----------
@@ -20,7 +24,7 @@ import numpy as np
 
 from ..models.zhou2010 import from_correction
 from ..moments import PSI_EXPONENTS
-from ..nlp.blocks import block_step, variable_scale
+from ..nlp.blocks import block_step, resolution, variable_scale
 
 
 def algebraic_start(moments) -> np.ndarray | None:
@@ -108,12 +112,13 @@ def run_joint(problem, start=None):
         start = algebraic_start(problem.moments)
     if start is None:
         start = joint_start(problem.moments)
-    step = block_step(problem.moments, "joint", start)
+    stationary = resolution(problem.moments)
+    step = block_step(problem.moments, "joint", start, stationary=stationary)
     records = [(step, "joint")]
     scale = variable_scale(problem.moments.frame.radius)
     for _ in range(MAX_REWEIGHTS if problem.loss.robust else 0):
         changed = problem.reweight(step.theta)
-        new = block_step(problem.moments, "joint", step.theta)
+        new = block_step(problem.moments, "joint", step.theta, stationary=stationary)
         move = float(np.max(np.abs(new.theta - step.theta) / scale))
         step = new
         records.append((step, "joint (reweighted)"))
