@@ -57,7 +57,7 @@ def scaled_hessian(moments: Moments, theta, step=None) -> np.ndarray:
     """
     scale = variable_scale(moments.frame.radius)
     if step is not None and step.problem.block == "joint":
-        return step.f_ref * step.problem.hessian(step.x, step.p)
+        return step.f_ref * step.objective_hessian()
     p = pack(moments, theta, scale, 1.0)
     hess = np.asarray(objective_function(moments.reference)(theta, p)[2], dtype=float)
     return scale[:, None] * hess * scale[None, :]

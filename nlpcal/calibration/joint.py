@@ -19,12 +19,20 @@ References
 from __future__ import annotations
 
 import time
+from functools import cache
 
 import numpy as np
 
 from ..models.zhou2010 import from_correction
 from ..moments import PSI_EXPONENTS
 from ..nlp.blocks import block_step, resolution, variable_scale
+
+
+@cache
+def _product_columns(layout) -> np.ndarray:
+    """The Gram column of each product psi_k psi_l (a plain monomial of degree <= 4)."""
+    column = {key[2]: j for j, key in enumerate(layout.keys) if key[:2] == (0, 0)}
+    return np.array([[column[tuple(np.add(e, f))] for f in PSI_EXPONENTS] for e in PSI_EXPONENTS])
 
 
 def algebraic_start(moments) -> np.ndarray | None:
@@ -44,10 +52,7 @@ def algebraic_start(moments) -> np.ndarray | None:
     if layout.varying_gamma:
         return None
     mean = moments.gram[layout.one] / moments.gram[layout.one, layout.one]
-    column = {key[2]: j for j, key in enumerate(layout.keys) if key[:2] == (0, 0)}
-    products = np.array(
-        [[mean[column[tuple(np.add(e, f))]] for f in PSI_EXPONENTS] for e in PSI_EXPONENTS]
-    )
+    products = mean[_product_columns(layout)]
     trace = np.r_[1.0, 1.0, 1.0, np.zeros(7)]
     try:
         q = np.linalg.solve(products, trace)

@@ -28,7 +28,7 @@ References
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import casadi as ca
 import numpy as np
@@ -200,6 +200,13 @@ class Step:
     problem: BlockProblem
     p: ca.DM  # the parameter vector the problem was solved with
     x: np.ndarray  # the scaled variables of `theta` in this problem
+    hess: np.ndarray | None = field(default=None, repr=False)
+
+    def objective_hessian(self) -> np.ndarray:
+        """Hessian of the scaled objective f / f_ref in x at `x`, evaluated once."""
+        if self.hess is None:
+            self.hess = self.problem.hessian(self.x, self.p)
+        return self.hess
 
     @property
     def iterations(self) -> int:
@@ -241,11 +248,11 @@ def parameters(moments: mom.Moments) -> ca.DM:
     return moments.cache["p"]
 
 
-def _newton_decrease(problem: BlockProblem, p: ca.DM, f_start: float, gradient) -> float:
-    """The decrease of the scaled objective that one Newton step from x = 0 promises, on the
-    gauge's null space when the block has one; inf when the Hessian there is not positive."""
+def _newton_decrease(problem: BlockProblem, gradient, h: np.ndarray) -> float:
+    """The decrease of the scaled objective that one Newton step from x = 0 promises (gradient
+    and Hessian h there), on the gauge's null space when the block has one; inf when the Hessian
+    there is not positive."""
     g = np.asarray(gradient, dtype=float).ravel()
-    h = problem.hessian(np.zeros(g.size), p)
     if problem.has_gauge:
         normal = np.array([1.0 if i in SCALE_INDICES else 0.0 for i in problem.free])
         basis = np.linalg.svd(normal[None, :])[2][1:].T
@@ -290,11 +297,12 @@ def block_step(
             x=zero, f=1.0, status="At_Precision_Floor", success=True, iterations=0
         )
         return Step(theta, outcome, f_start, f_start, 1.0, problem, ca.DM(p), outcome.x)
-    if _newton_decrease(problem, p, f_start, gradient) <= stationary * f_start:
+    hess = problem.hessian(zero, p)
+    if _newton_decrease(problem, gradient, hess) <= stationary * f_start:
         outcome = SolveOutcome(
             x=zero, f=1.0, status="At_Stationary_Point", success=True, iterations=0
         )
-        return Step(theta, outcome, f_start, f_start, 1.0, problem, ca.DM(p), outcome.x)
+        return Step(theta, outcome, f_start, f_start, 1.0, problem, ca.DM(p), zero, hess)
     f_ref = max(f_start, SCALE_FLOOR * moments.length**2)
     p[p.numel() - 1] = f_ref
     p = ca.DM(p)  # the step keeps its own copy: the cached vector changes with the next solve
