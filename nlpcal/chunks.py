@@ -76,13 +76,15 @@ def using(count: int | None):
 
 def with_threads(function):
     """Give `function` a keyword `threads`: the threads of the passes it makes (None: the
-    available cores)."""
+    available cores). BLAS stays at one thread for the whole call, not only inside the passes:
+    the small products between them gain nothing from BLAS threads, and OpenBLAS threads woken
+    by one of them keep spinning into the next pass, taking a core from it."""
 
     @functools.wraps(function)
     def wrapper(*args, threads: int | None = None, **kwargs):
         if threads is not None and not (isinstance(threads, int) and threads >= 1):
             raise InputError(f"threads must be a whole number of at least 1, got {threads!r}")
-        with using(threads):
+        with using(threads), single_blas():
             return function(*args, **kwargs)
 
     return wrapper
@@ -106,11 +108,16 @@ def shares(n: int, chunk_rows: int, workers: int):
     return [(a, b) for a, b in zip(bounds, bounds[1:]) if b > a]
 
 
+def single_blas():
+    """A context in which BLAS uses one thread (threadpoolctl; the previous limits after it)."""
+    return _blas_controller().limit(limits=1, user_api="blas")
+
+
 def map_shares(work, n: int, chunk_rows: int, workers: int | None = None) -> list:
     """work(start, stop) for every share, in threads, BLAS held to one thread meanwhile; the
     results in order of the shares."""
     ranges = shares(n, chunk_rows, workers or thread_count()) or [(0, n)]
-    with _blas_controller().limit(limits=1, user_api="blas"):
+    with single_blas():
         if len(ranges) == 1:
             return [work(*ranges[0])]
         with ThreadPoolExecutor(max_workers=len(ranges)) as pool:

@@ -262,6 +262,12 @@ def test_ipopt_failure_is_surfaced(noisy, monkeypatch):
 
     monkeypatch.setattr(problems, "solve", failing)
     with pytest.raises(SolveError) as info:
+        calibrate(noisy[:200], method="staged")
+    assert info.value.status == "Maximum_Iterations_Exceeded"
+    # The joint solve from the sphere fit (the algebraic fit can be the optimum already, and is
+    # then not handed to IPOPT).
+    monkeypatch.setattr("nlpcal.calibration.joint.algebraic_start", lambda moments: None)
+    with pytest.raises(SolveError) as info:
         calibrate(noisy[:200], method="joint")
     assert info.value.status == "Maximum_Iterations_Exceeded"
 
@@ -335,6 +341,7 @@ def test_a_failure_blames_the_coverage_only_when_it_is_to_blame(noisy, monkeypat
         )
 
     monkeypatch.setattr(blocks, "solve", failing)
+    monkeypatch.setattr("nlpcal.calibration.joint.algebraic_start", lambda moments: None)
     with pytest.raises(SolveError) as info:
         calibrate(noisy, method="joint")
     assert "rotate the sensor" not in str(info.value)

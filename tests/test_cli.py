@@ -48,7 +48,8 @@ def test_calibrate_recovers_the_truth(log_csv, tmp_path, capsys, method):
         "Search_Direction_Becomes_Too_Small",
         "At_Stationary_Point",
     )
-    assert doc["solver"]["iterations"] > 0
+    # The joint solve may start at its optimum (the algebraic fit) and then takes no iteration.
+    assert doc["solver"]["iterations"] > 0 or doc["solver"]["status"] == "At_Stationary_Point"
     p = doc["parameters"]
     for k in ("z_x", "z_y", "z_z"):
         assert abs(p[k] - PAPER_TRUTH[k]) < 0.5

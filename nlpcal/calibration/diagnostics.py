@@ -14,7 +14,14 @@ from .. import inference, units
 from ..errors import SolveError
 from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters, correct
 from ..moments import Moments
-from ..nlp.blocks import SCALE_INDICES, block_step, objective_function, pack, variable_scale
+from ..nlp.blocks import (
+    SCALE_INDICES,
+    block_step,
+    objective_function,
+    pack,
+    resolution,
+    variable_scale,
+)
 from ..robust import robust_std
 from ..statistics import field_statistics
 from .problem import Problem
@@ -59,7 +66,7 @@ def scaled_hessian(moments: Moments, theta, step=None) -> np.ndarray:
     """
     scale = variable_scale(moments.frame.radius)
     if step is not None and step.problem.block == "joint":
-        return step.f_ref * step.problem.hessian(step.x, step.p)
+        return step.f_ref * step.objective_hessian()
     p = pack(moments, theta, scale, 1.0)
     hess = np.asarray(objective_function(moments.reference)(theta, p)[2], dtype=float)
     return scale[:, None] * hess * scale[None, :]
@@ -166,7 +173,7 @@ def joint_gap(problem: Problem, theta, errors) -> dict:
     status of the joint solve.
     """
     try:
-        step = block_step(problem.moments, "joint", theta)
+        step = block_step(problem.moments, "joint", theta, stationary=resolution(problem.moments))
     except SolveError as failure:
         return {"status": failure.status, "max_gap_in_standard_errors": None}
     staged = Zhou2010Parameters.from_theta(theta).as_vector()

@@ -4,8 +4,12 @@ The paper argues that a joint solve converges badly because offsets (hundreds of
 errors (~1e-3) and angles (~1e-2 rad) differ by orders of magnitude. `nlpcal.nlp.blocks` scales
 every variable to order one, and IPOPT uses the exact Hessian of the moment objective.
 
-Start: offsets at the centre of a sphere fitted to the raw samples, angles zero, and scales zero
-(Eq. 8) or the common scale that maps the sphere radius onto the reference field.
+Start: the algebraic ellipsoid fit (`algebraic_start`), else offsets at the centre of a sphere
+fitted to the raw samples, angles zero, and scales zero (Eq. 8) or the common scale that maps the
+sphere radius onto the reference field. A start whose Newton step is shorter than
+`nlpcal.nlp.blocks.STATIONARY_SE` standard errors is the optimum to the resolution of the data
+and is not handed to IPOPT (status At_Stationary_Point): on a near-spherical log the algebraic
+fit often is.
 
 References
 ----------
@@ -15,12 +19,20 @@ References
 from __future__ import annotations
 
 import time
+from functools import cache
 
 import numpy as np
 
 from ..models.zhou2010 import from_correction
 from ..moments import PSI_EXPONENTS
-from ..nlp.blocks import block_step, variable_scale
+from ..nlp.blocks import block_step, resolution, variable_scale
+
+
+@cache
+def _product_columns(layout) -> np.ndarray:
+    """The Gram column of each product psi_k psi_l (a plain monomial of degree <= 4)."""
+    column = {key[2]: j for j, key in enumerate(layout.keys) if key[:2] == (0, 0)}
+    return np.array([[column[tuple(np.add(e, f))] for f in PSI_EXPONENTS] for e in PSI_EXPONENTS])
 
 
 def algebraic_start(moments) -> np.ndarray | None:
@@ -40,10 +52,7 @@ def algebraic_start(moments) -> np.ndarray | None:
     if layout.varying_gamma:
         return None
     mean = moments.gram[layout.one] / moments.gram[layout.one, layout.one]
-    column = {key[2]: j for j, key in enumerate(layout.keys) if key[:2] == (0, 0)}
-    products = np.array(
-        [[mean[column[tuple(np.add(e, f))]] for f in PSI_EXPONENTS] for e in PSI_EXPONENTS]
-    )
+    products = mean[_product_columns(layout)]
     trace = np.r_[1.0, 1.0, 1.0, np.zeros(7)]
     try:
         q = np.linalg.solve(products, trace)
@@ -108,12 +117,13 @@ def run_joint(problem, start=None):
         start = algebraic_start(problem.moments)
     if start is None:
         start = joint_start(problem.moments)
-    step = block_step(problem.moments, "joint", start, problem.ipopt)
+    stationary = resolution(problem.moments)
+    step = block_step(problem.moments, "joint", start, problem.ipopt, stationary=stationary)
     records = [(step, "joint")]
     scale = variable_scale(problem.moments.frame.radius)
     for _ in range(MAX_REWEIGHTS if problem.loss.robust else 0):
         changed = problem.reweight(step.theta)
-        new = block_step(problem.moments, "joint", step.theta, problem.ipopt)
+        new = block_step(problem.moments, "joint", step.theta, problem.ipopt, stationary=stationary)
         move = float(np.max(np.abs(new.theta - step.theta) / scale))
         step = new
         records.append((step, "joint (reweighted)"))

@@ -28,7 +28,7 @@ References
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import casadi as ca
 import numpy as np
@@ -200,6 +200,13 @@ class Step:
     problem: BlockProblem
     p: ca.DM  # the parameter vector the problem was solved with
     x: np.ndarray  # the scaled variables of `theta` in this problem
+    hess: np.ndarray | None = field(default=None, repr=False)
+
+    def objective_hessian(self) -> np.ndarray:
+        """Hessian of the scaled objective f / f_ref in x at `x`, evaluated once."""
+        if self.hess is None:
+            self.hess = self.problem.hessian(self.x, self.p)
+        return self.hess
 
     @property
     def iterations(self) -> int:
@@ -213,6 +220,21 @@ class Step:
 #: A block whose Newton step from its start would lower the objective by less than this fraction
 #: is at its optimum already: it is not handed to IPOPT (whose tolerance is of this order). [1]
 STATIONARY_RTOL = 1e-12
+#: A joint solve whose Newton step from its start would move the parameters by less than this
+#: many standard errors starts at its optimum to the resolution of the data (`resolution`).
+STATIONARY_SE = 0.01
+
+
+def resolution(moments: mom.Moments, standard_errors: float = STATIONARY_SE) -> float:
+    """The Newton decrease, as a fraction of the objective, of a step `standard_errors` long.
+
+    With the covariance C = (2 f / N) H^-1 of a least-squares estimate (f the mean squared
+    residual, H its Hessian), a Newton step delta = H^-1 g is sqrt(delta^T C^-1 delta) =
+    sqrt(N d / f) standard errors long, d = g^T H^-1 g / 2 the decrease it promises; that length
+    bounds the move of every parameter in its own standard errors. So the step is shorter than
+    s standard errors when d / f <= s^2 / N (never below STATIONARY_RTOL, the precision of f).
+    """
+    return max(STATIONARY_RTOL, standard_errors**2 / moments.n)
 
 
 def parameters(moments: mom.Moments) -> ca.DM:
@@ -226,11 +248,11 @@ def parameters(moments: mom.Moments) -> ca.DM:
     return moments.cache["p"]
 
 
-def _newton_decrease(problem: BlockProblem, p: ca.DM, f_start: float, gradient) -> float:
-    """The decrease of the scaled objective that one Newton step from x = 0 promises, on the
-    gauge's null space when the block has one; inf when the Hessian there is not positive."""
+def _newton_decrease(problem: BlockProblem, gradient, h: np.ndarray) -> float:
+    """The decrease of the scaled objective that one Newton step from x = 0 promises (gradient
+    and Hessian h there), on the gauge's null space when the block has one; inf when the Hessian
+    there is not positive."""
     g = np.asarray(gradient, dtype=float).ravel()
-    h = problem.hessian(np.zeros(g.size), p)
     if problem.has_gauge:
         normal = np.array([1.0 if i in SCALE_INDICES else 0.0 for i in problem.free])
         basis = np.linalg.svd(normal[None, :])[2][1:].T
@@ -244,13 +266,18 @@ def _newton_decrease(problem: BlockProblem, p: ca.DM, f_start: float, gradient) 
 
 
 def block_step(
-    moments: mom.Moments, block: str, theta, options: IpoptOptions = IpoptOptions()
+    moments: mom.Moments,
+    block: str,
+    theta,
+    options: IpoptOptions = IpoptOptions(),
+    stationary: float = STATIONARY_RTOL,
 ) -> Step:
     """Minimise over one block of theta from `theta`, the other blocks held fixed.
 
     Raises SolveError when IPOPT fails; a solve that ends above its start (it should not) keeps
     the start, so a stage never makes the objective worse. A block already at its optimum (a
-    Newton step would gain less than STATIONARY_RTOL of the objective) is not re-solved.
+    Newton step would gain less than the fraction `stationary` of the objective, see
+    `resolution`) is not re-solved.
     """
     problem = block_problem(block, moments.reference, options)
     theta = np.asarray(theta, dtype=float)
@@ -270,11 +297,12 @@ def block_step(
             x=zero, f=1.0, status="At_Precision_Floor", success=True, iterations=0
         )
         return Step(theta, outcome, f_start, f_start, 1.0, problem, ca.DM(p), outcome.x)
-    if _newton_decrease(problem, p, f_start, gradient) <= STATIONARY_RTOL * f_start:
+    hess = problem.hessian(zero, p)
+    if _newton_decrease(problem, gradient, hess) <= stationary * f_start:
         outcome = SolveOutcome(
             x=zero, f=1.0, status="At_Stationary_Point", success=True, iterations=0
         )
-        return Step(theta, outcome, f_start, f_start, 1.0, problem, ca.DM(p), outcome.x)
+        return Step(theta, outcome, f_start, f_start, 1.0, problem, ca.DM(p), zero, hess)
     f_ref = max(f_start, SCALE_FLOOR * moments.length**2)
     p[p.numel() - 1] = f_ref
     p = ca.DM(p)  # the step keeps its own copy: the cached vector changes with the next solve
