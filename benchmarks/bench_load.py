@@ -7,7 +7,8 @@ In one run, with the same interpreter and arrays:
 - small logs: warm calls of nlpcal.calibrate on 2 000 samples (the problems already built),
   joint and staged;
 - 1e6 samples in memory: one Gram pass (the 10 x 10 Gram of the quadratic monomials, the floor
-  of any full fit), the joint solve and the staged cycle, each as a ratio to that Gram pass;
+  of any full fit; numpy with its BLAS threads, as a user would write it), the joint solve and
+  the staged cycle, each as a ratio to that Gram pass;
 - the same 1e6 calibrations while `--load` processes spin on the cores (two on a 2-core machine
   leave the calibration a fair share of half the machine), as a ratio to their idle time.
 
@@ -23,6 +24,7 @@ install to compare them, for example the README's plain install and one with the
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import multiprocessing
 import platform
 import statistics
@@ -80,16 +82,11 @@ def main(argv=None) -> int:
     parser.add_argument("-n", type=float, default=1e6, help="samples of the large log")
     args = parser.parse_args(argv)
 
-    try:
-        import threadpoolctl
-
-        pool = "threadpoolctl " + threadpoolctl.__version__
-    except ImportError:
-        pool = "no threadpoolctl"
+    extras = [name for name in ("pyarrow", "scipy") if importlib.util.find_spec(name)]
     print(
         f"# {platform.machine()}, {multiprocessing.cpu_count()} cores, Python "
         f"{platform.python_version()}, numpy {np.__version__}, nlpcal {nlpcal.__version__}, "
-        f"{pool}"
+        f"extras installed: {', '.join(extras) or 'none'}"
     )
 
     version = timed(lambda: command("--version"), args.repeats)

@@ -14,14 +14,17 @@ timing, so results are reproducible for a given thread count.
 from __future__ import annotations
 
 import contextlib
-import functools
 import math
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
+from contextvars import ContextVar
 from functools import lru_cache
+from numbers import Integral
 
 from threadpoolctl import ThreadpoolController
 
+from . import validation
 from .errors import InputError
 
 
@@ -60,39 +63,31 @@ def _cgroup_quota() -> int | None:
 
 #: Threads per pass when none are set: the cores available to the process when it started.
 WORKERS = available_cores()
-_threads: int | None = None
+#: Threads per pass set for the call running in this thread (None: WORKERS).
+_threads: ContextVar[int | None] = ContextVar("nlpcal_pass_threads", default=None)
 
 
 @contextlib.contextmanager
-def using(count: int | None):
-    """Use `count` threads for the passes inside the block (None: the available cores)."""
-    global _threads
-    previous, _threads = _threads, count
+def call_threads(threads=None):
+    """The passes inside the block use `threads` threads (None: the available cores), and BLAS
+    stays at one thread for the whole block, not only inside the passes: the small products
+    between them gain nothing from BLAS threads, and OpenBLAS threads woken by one of them keep
+    spinning into the next pass, taking a core from it. More threads than cores oversubscribe
+    them: that is the caller's choice."""
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, Integral)):
+        raise InputError(f"threads must be a whole number of at least 1, got {threads!r}")
+    count = None if threads is None else validation.count(threads, "threads")
+    token = _threads.set(count)
     try:
-        yield
+        with single_blas():
+            yield
     finally:
-        _threads = previous
-
-
-def with_threads(function):
-    """Give `function` a keyword `threads`: the threads of the passes it makes (None: the
-    available cores). BLAS stays at one thread for the whole call, not only inside the passes:
-    the small products between them gain nothing from BLAS threads, and OpenBLAS threads woken
-    by one of them keep spinning into the next pass, taking a core from it."""
-
-    @functools.wraps(function)
-    def wrapper(*args, threads: int | None = None, **kwargs):
-        if threads is not None and not (isinstance(threads, int) and threads >= 1):
-            raise InputError(f"threads must be a whole number of at least 1, got {threads!r}")
-        with using(threads), single_blas():
-            return function(*args, **kwargs)
-
-    return wrapper
+        _threads.reset(token)
 
 
 def thread_count() -> int:
     """The threads a pass uses now."""
-    return _threads or WORKERS
+    return _threads.get() or WORKERS
 
 
 @lru_cache(maxsize=1)
@@ -108,9 +103,29 @@ def shares(n: int, chunk_rows: int, workers: int):
     return [(a, b) for a, b in zip(bounds, bounds[1:]) if b > a]
 
 
+_hold = threading.Lock()
+_holders = 0
+_limiter = None
+
+
+@contextlib.contextmanager
 def single_blas():
-    """A context in which BLAS uses one thread (threadpoolctl; the previous limits after it)."""
-    return _blas_controller().limit(limits=1, user_api="blas")
+    """BLAS at one thread inside the block. threadpoolctl's limits hold for the whole process, so
+    of blocks that overlap (in any threads) the first sets the limit and the last restores what
+    was there before the first."""
+    global _holders, _limiter
+    with _hold:
+        if _holders == 0:
+            _limiter = _blas_controller().limit(limits=1, user_api="blas")
+        _holders += 1
+    try:
+        yield
+    finally:
+        with _hold:
+            _holders -= 1
+            if _holders == 0 and _limiter is not None:
+                _limiter.restore_original_limits()
+                _limiter = None
 
 
 def map_shares(work, n: int, chunk_rows: int, workers: int | None = None) -> list:

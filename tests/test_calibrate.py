@@ -368,3 +368,101 @@ def test_cycle_rows_from_the_moments_agree_with_passes_over_the_data(reference):
     for table in rows.values():  # the first and the last cycle are passes over the data
         assert table[1]["max"] is not None and table[-1]["max"] is not None
     assert rows[False][-1]["std"] == pytest.approx(rows[True][-1]["std"], rel=1e-9)
+
+
+# A MEMS-like sensor: offsets larger than the field, scale errors of several per cent.
+MEMS_TRUTH = {
+    "z_x": 61_000.0,
+    "z_y": -23_000.0,
+    "z_z": 8_000.0,
+    "s_x": 0.12,
+    "s_y": -0.07,
+    "s_z": 0.03,
+    "alpha_deg": 3.1,
+    "beta_deg": -1.7,
+    "gamma_deg": 2.4,
+}
+
+
+def test_moment_rows_hold_on_a_mems_like_log():
+    """Rows from the moments agree with passes over the data; where the expansion behind them
+    does not hold (the raw log of a sensor whose offsets exceed the field) there is no such row."""
+    from nlpcal.calibration.problem import Problem
+    from nlpcal.calibration.staged import StopRule, run_staged
+    from nlpcal.moments import accumulate
+
+    samples, _ = make_log(n=4000, noise=500.0, seed=5, truth=MEMS_TRUTH, field=50_000.0)
+    rows = {}
+    for exact in (True, False):
+        problem = Problem(samples, None, accumulate(samples))
+        rule = StopRule(max_cycles=8, rtol=0, every_row_exact=exact)
+        rows[exact] = run_staged(problem, rule)[1]
+    assert any(row.get("from_moments") for row in rows[False])
+    for exact_row, row in zip(rows[True][1:], rows[False][1:]):
+        assert row["mean"] == pytest.approx(exact_row["mean"], rel=1e-7)
+        assert row["std"] == pytest.approx(exact_row["std"], rel=1e-4)
+    assert problem.moment_row("raw", np.zeros(9), iterations=0, wall_s=0.0) is None
+
+
+@pytest.mark.parametrize("reference", [None, 50_000.0])
+def test_the_algebraic_fit_is_the_truth_without_noise(reference):
+    from nlpcal.calibration.joint import algebraic_start
+    from nlpcal.models.zhou2010 import Zhou2010Parameters
+    from nlpcal.moments import accumulate
+
+    samples, _ = make_log(n=3000, noise=0.0, seed=6, truth=MEMS_TRUTH, field=50_000.0)
+    theta = algebraic_start(accumulate(samples, reference))
+    found = Zhou2010Parameters.from_theta(theta).to_dict()
+    expected = dict(MEMS_TRUTH)
+    if reference is None:  # the gauge: the gains averaging one
+        gains = np.array([1 + MEMS_TRUTH[k] for k in SCALES])
+        expected.update(zip(SCALES, gains / gains.mean() - 1))
+    for name, value in expected.items():
+        assert found[name] == pytest.approx(value, rel=1e-8, abs=1e-6), name
+
+
+@pytest.mark.parametrize("reference", [None, PAPER_FIELD])
+def test_a_start_not_re_solved_is_within_a_hundredth_of_a_standard_error(noisy, reference):
+    """The joint solve's stationary start against IPOPT forced to solve from it."""
+    result = calibrate(noisy, method="joint", reference_field=reference)
+    assert result.solver["status"] == "At_Stationary_Point"
+    from nlpcal.calibration.joint import algebraic_start
+    from nlpcal.models.zhou2010 import Zhou2010Parameters
+    from nlpcal.moments import accumulate
+
+    moments = accumulate(noisy, reference)
+    forced = blocks.block_step(moments, "joint", algebraic_start(moments), stationary=0.0)
+    assert forced.iterations > 0
+    solved = Zhou2010Parameters.from_theta(forced.theta).to_dict()
+    for name, error in result.standard_errors.items():
+        assert abs(result.parameters[name] - solved[name]) <= 0.01 * error, name
+
+
+def test_threads_are_checked_and_leave_blas_as_they_found_it(noisy):
+    import threading
+
+    import threadpoolctl
+
+    def blas_threads():
+        return [
+            m["num_threads"] for m in threadpoolctl.threadpool_info() if m["user_api"] == "blas"
+        ]
+
+    before = blas_threads()
+    for bad in (True, 0, 1.5, "2"):
+        with pytest.raises(InputError, match="threads"):
+            calibrate(noisy, method="joint", threads=bad)
+    one = calibrate(noisy, method="joint", threads=np.int64(1))
+    two = calibrate(noisy, method="joint", threads=2)
+    assert one.parameters == pytest.approx(two.parameters, rel=1e-9, abs=1e-9)
+    assert blas_threads() == before
+    # Calls that overlap in threads: the last one out restores the limits.
+    calls = [
+        threading.Thread(target=calibrate, args=(noisy,), kwargs={"method": m, "threads": t})
+        for m, t in (("joint", 1), ("staged", None), ("joint", 2))
+    ]
+    for call in calls:
+        call.start()
+    for call in calls:
+        call.join()
+    assert blas_threads() == before

@@ -14,14 +14,8 @@ from .. import inference, units
 from ..errors import SolveError
 from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters, correct
 from ..moments import Moments
-from ..nlp.blocks import (
-    SCALE_INDICES,
-    block_step,
-    objective_function,
-    pack,
-    resolution,
-    variable_scale,
-)
+from ..nlp import blocks
+from ..nlp.blocks import block_step, objective_function, pack, variable_scale
 from ..robust import robust_std
 from ..statistics import field_statistics
 from .problem import Problem
@@ -75,11 +69,7 @@ def scaled_hessian(moments: Moments, theta, step=None) -> np.ndarray:
 def gauge_basis(moments: Moments) -> np.ndarray:
     """Orthonormal basis of the scaled variables the gauge leaves free (all nine with a reference;
     eight without one, s_x + s_y + s_z = 0)."""
-    if moments.reference != "none":
-        return np.eye(9)
-    normal = np.zeros(9)
-    normal[list(SCALE_INDICES)] = variable_scale(moments.frame.radius)[list(SCALE_INDICES)]
-    return np.linalg.svd(normal[None, :])[2][1:].T  # 9 x 8, orthogonal to the gauge's normal
+    return np.eye(9) if moments.reference != "none" else blocks.gauge_basis(range(9))  # 9 x 8
 
 
 def _names(indices) -> list:
@@ -173,13 +163,17 @@ def joint_gap(problem: Problem, theta, errors) -> dict:
     status of the joint solve.
     """
     try:
-        step = block_step(problem.moments, "joint", theta, stationary=resolution(problem.moments))
+        step = block_step(
+            problem.moments, "joint", theta, stationary=blocks.resolution(problem.moments)
+        )
     except SolveError as failure:
         return {"status": failure.status, "max_gap_in_standard_errors": None}
     staged = Zhou2010Parameters.from_theta(theta).as_vector()
     joint = Zhou2010Parameters.from_theta(step.theta).as_vector()
     gap = None
-    if errors is not None:
+    if step.newton_decrease is not None:  # not re-solved: the Newton step's length bounds it
+        gap = float(np.sqrt(problem.moments.n * step.newton_decrease / step.f_start))
+    elif errors is not None:
         sd = np.array([errors[name] for name in PARAMETER_NAMES])
         gap = float(np.max(np.abs(staged - joint) / np.where(sd > 0, sd, np.inf)))
     return {

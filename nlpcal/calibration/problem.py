@@ -22,6 +22,10 @@ from ..statistics import corrected_magnitude, correction, field_statistics, refe
 #: A loss scale estimated from the residuals is re-estimated at every reweighting until it
 #: changes by less than this fraction, then kept, so that the last steps minimise one objective.
 SCALE_SETTLED = 1e-3
+#: A cycle's row comes from the moments only while the relative spread of |B1|^2 about its mean
+#: is below this: the truncation error of its mean is then of the order of 1e-8 and of its std
+#: 1e-5, relative (`nlp.objective.centred_expansion`). [1]
+MOMENT_ROW_SPREAD = 0.05
 
 
 @dataclass
@@ -77,15 +81,17 @@ class Problem:
         stats["parameters"] = Zhou2010Parameters.from_theta(theta).to_dict()
         return {"label": label, **stats, "iterations": int(iterations), "wall_s": float(wall_s)}
 
-    def moment_row(self, label, theta, *, iterations, wall_s) -> dict:
+    def moment_row(self, label, theta, *, iterations, wall_s) -> dict | None:
         """A Table 1 row from the moments alone: mean and std of |B1| and the objective, without
-        max, min and range (they need a pass over the data). Without a reference the std is the
-        square root of the Eq. 8 objective; with a constant one, of f - (mean - F)^2."""
-        f, mean = (
+        max, min and range (they need a pass over the data); None where the expansion behind it
+        does not hold (the spread of |B1| above MOMENT_ROW_SPREAD of its mean, as in the first
+        cycles of a log whose offsets exceed the field)."""
+        f, mean, variance, spread = (
             float(v)
             for v in summary_function(self.moments.reference)(theta, parameters(self.moments))
         )
-        variance = f if self.reference is None else f - (mean - float(self.reference)) ** 2
+        if not spread <= MOMENT_ROW_SPREAD:
+            return None
         return {
             "label": label,
             "max": None,

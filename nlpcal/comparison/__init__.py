@@ -344,7 +344,6 @@ def _summary(staged, stop_reason, joint, cg_joint, cg_staged) -> dict:
     }
 
 
-@chunks.with_threads
 def compare(
     samples,
     *,
@@ -355,6 +354,7 @@ def compare(
     loss: str = "l2",
     loss_scale: float | None = None,
     require_identifiable: bool = True,
+    threads: int | None = None,
 ) -> Comparison:
     """Run the staged cycle, the joint solve and the paper's CG (joint and staged) on one log.
 
@@ -370,94 +370,97 @@ def compare(
 
     Returns a Comparison. Raises InputError for unusable input and SolveError when IPOPT fails.
     """
-    units.check_compatible(unit, reference_unit or unit)
-    samples = validation.samples(samples)
-    reference = validation.reference(reference_field, samples.shape[0])
-    samples = units.to_base(samples, unit)
-    reference = units.to_base(reference, reference_unit or unit)
-    chosen = Loss(loss, units.to_base(loss_scale, unit))
-    validation.reference_scale(reference, validation.mean_magnitude(samples))
-    moments = accumulate(samples, reference)
-    problem = Problem(samples=samples, reference=reference, moments=moments, loss=chosen)
-    if chosen.robust:  # the weights of the robust optimum, then the same objective for all
-        run_joint(problem)
-        problem.frozen = True
-    moments = problem.moments
+    with chunks.call_threads(threads):
+        units.check_compatible(unit, reference_unit or unit)
+        samples = validation.samples(samples)
+        reference = validation.reference(reference_field, samples.shape[0])
+        samples = units.to_base(samples, unit)
+        reference = units.to_base(reference, reference_unit or unit)
+        chosen = Loss(loss, units.to_base(loss_scale, unit))
+        validation.reference_scale(reference, validation.mean_magnitude(samples))
+        moments = accumulate(samples, reference)
+        problem = Problem(samples=samples, reference=reference, moments=moments, loss=chosen)
+        if chosen.robust:  # the weights of the robust optimum, then the same objective for all
+            run_joint(problem)
+            problem.frozen = True
+        moments = problem.moments
 
-    rule = StopRule(max_cycles=int(settings.cycles), rtol=settings.rtol)
-    try:
-        _, staged, stages, stop_reason = run_staged(problem, rule)
-        start = joint_start(moments)
-        joint_step, joint_rows, joint_stages = run_joint(problem, start)  # the CG's start
-    except SolveError as failure:
-        raise explain_failure(problem, failure) from None
-    joint_theta = joint_step.theta
-    joint = joint_rows[-1]
-    joint["status"] = joint_stages[-1]["status"]
-    joint_path = _joint_trajectory(joint_step, joint["iterations"], joint["objective"])
-    hs = scaled_hessian(moments, joint_theta, joint_step)
-    weak = uncertainty(problem, joint["objective"], hs)[1]["not_identifiable"]
-    if weak and require_identifiable:
-        raise QualityError(
-            f"the data do not determine {', '.join(weak)}, so no method has an optimum to reach; "
-            f"rotate the sensor through more attitudes (require_identifiable=False compares "
-            f"anyway)",
-            "Not_Identifiable",
-        )
-
-    cg_joint, cg_joint_paths = [], {}
-    for scaled in (False, True):
-        options = CGOptions(**{**asdict(settings.cg), "scaled": scaled})
-        label = "cg joint scaled" if scaled else "cg joint"
-        _, row, outcome = run_cg_joint(problem, start, options, label=label)
-        cg_joint.append(row)
-        cg_joint_paths[label] = _cg_trajectory([outcome.history])
-
-    _, cg_staged, cg_stages = run_cg_staged(problem, settings.cycles, settings.cg, settings.rtol)
-
-    trajectories = {
-        "staged": _staged_trajectory(staged, stages),
-        "joint": joint_path,
-        "cg_joint": cg_joint_paths["cg joint"],
-        "cg_joint_scaled": cg_joint_paths["cg joint scaled"],
-        "cg_staged": _cg_trajectory([s["history"] for s in cg_stages]),
-    }
-
-    summary = _summary(staged, stop_reason, joint, cg_joint, cg_staged)
-    summary["block_coupling"] = block_coupling(moments, joint_theta)
-    warnings = []
-    if stop_reason == "max_cycles":
-        warnings.append(
-            f"the staged cycle was still improving after {settings.cycles} cycles "
-            f"(std {staged[-1]['std']:.4g} vs joint {joint['std']:.4g}); pass a "
-            f"larger --cycles to see where it ends"
-        )
-    for row in cg_joint:
-        if row["status"] != "converged":
-            warnings.append(
-                f"{row['label']}: the conjugate gradient did not converge "
-                f"({row['status']} after {row['iterations']} iterations; std "
-                f"{row['std']:.4g} vs joint {joint['std']:.4g})"
+        rule = StopRule(max_cycles=int(settings.cycles), rtol=settings.rtol)
+        try:
+            _, staged, stages, stop_reason = run_staged(problem, rule)
+            start = joint_start(moments)
+            joint_step, joint_rows, joint_stages = run_joint(problem, start)  # the CG's start
+        except SolveError as failure:
+            raise explain_failure(problem, failure) from None
+        joint_theta = joint_step.theta
+        joint = joint_rows[-1]
+        joint["status"] = joint_stages[-1]["status"]
+        joint_path = _joint_trajectory(joint_step, joint["iterations"], joint["objective"])
+        hs = scaled_hessian(moments, joint_theta, joint_step)
+        weak = uncertainty(problem, joint["objective"], hs)[1]["not_identifiable"]
+        if weak and require_identifiable:
+            raise QualityError(
+                f"the data do not determine {', '.join(weak)}, so no method has an optimum to "
+                f"reach; rotate the sensor through more attitudes (require_identifiable=False "
+                f"compares anyway)",
+                "Not_Identifiable",
             )
-    bad = [r["label"] for r in cg_staged[1:] if not r.get("converged", True)]
-    if bad:
-        warnings.append(f"conjugate gradient stages that did not converge in: {', '.join(bad)}")
 
-    summary["loss"] = problem.loss.to_dict()
-    return Comparison(
-        samples=samples,
-        staged=staged,
-        joint=joint,
-        cg_joint=cg_joint,
-        cg_staged=cg_staged,
-        trajectories=trajectories,
-        summary=summary,
-        reference=problem.reference_document(),
-        settings=settings,
-        unit=units.base_unit(unit),
-        warnings=warnings,
-        n_samples=int(samples.shape[0]),
-    )
+        cg_joint, cg_joint_paths = [], {}
+        for scaled in (False, True):
+            options = CGOptions(**{**asdict(settings.cg), "scaled": scaled})
+            label = "cg joint scaled" if scaled else "cg joint"
+            _, row, outcome = run_cg_joint(problem, start, options, label=label)
+            cg_joint.append(row)
+            cg_joint_paths[label] = _cg_trajectory([outcome.history])
+
+        _, cg_staged, cg_stages = run_cg_staged(
+            problem, settings.cycles, settings.cg, settings.rtol
+        )
+
+        trajectories = {
+            "staged": _staged_trajectory(staged, stages),
+            "joint": joint_path,
+            "cg_joint": cg_joint_paths["cg joint"],
+            "cg_joint_scaled": cg_joint_paths["cg joint scaled"],
+            "cg_staged": _cg_trajectory([s["history"] for s in cg_stages]),
+        }
+
+        summary = _summary(staged, stop_reason, joint, cg_joint, cg_staged)
+        summary["block_coupling"] = block_coupling(moments, joint_theta)
+        warnings = []
+        if stop_reason == "max_cycles":
+            warnings.append(
+                f"the staged cycle was still improving after {settings.cycles} cycles "
+                f"(std {staged[-1]['std']:.4g} vs joint {joint['std']:.4g}); pass a "
+                f"larger --cycles to see where it ends"
+            )
+        for row in cg_joint:
+            if row["status"] != "converged":
+                warnings.append(
+                    f"{row['label']}: the conjugate gradient did not converge "
+                    f"({row['status']} after {row['iterations']} iterations; std "
+                    f"{row['std']:.4g} vs joint {joint['std']:.4g})"
+                )
+        bad = [r["label"] for r in cg_staged[1:] if not r.get("converged", True)]
+        if bad:
+            warnings.append(f"conjugate gradient stages that did not converge in: {', '.join(bad)}")
+
+        summary["loss"] = problem.loss.to_dict()
+        return Comparison(
+            samples=samples,
+            staged=staged,
+            joint=joint,
+            cg_joint=cg_joint,
+            cg_staged=cg_staged,
+            trajectories=trajectories,
+            summary=summary,
+            reference=problem.reference_document(),
+            settings=settings,
+            unit=units.base_unit(unit),
+            warnings=warnings,
+            n_samples=int(samples.shape[0]),
+        )
 
 
 def compare_log(

@@ -35,7 +35,7 @@ import numpy as np
 
 from .. import moments as mom
 from ..errors import SolveError
-from .objective import mean_magnitude_expression, objective_expression
+from .objective import magnitude_summary_expression, objective_expression
 from .solver import IpoptOptions, SolveOutcome, build_nlpsol, problem, solve
 
 #: Indices of theta freed by each problem, in the paper's stage order.
@@ -134,14 +134,21 @@ def objective_function(reference: str) -> ca.Function:
 
 @problem("zhou2010.summary", examples=[("none",), ("constant",)])
 def summary_function(reference: str) -> ca.Function:
-    """(theta, p) -> (f [field^2], mean of |B1| [field unit]) from the moments: the Table 1 row
-    of a cycle without a pass over the data."""
+    """(theta, p) -> (f [field^2], mean [field unit] and variance [field^2] of |B1|, the spread
+    rho of the expansion [1]) from the moments: the Table 1 row of a cycle (Fig. 1 and Table 1
+    in [1]) without a pass over the data, valid while rho is small (`nlp.objective`)."""
     s = _symbols(reference)
     theta = ca.MX.sym("theta", 9)
     f = objective_expression(theta, s.gram, s.centre, s.length, reference)
-    mean = mean_magnitude_expression(theta, s.gram, s.centre, s.length, reference)
+    mean, variance, spread = magnitude_summary_expression(
+        theta, s.gram, s.centre, s.length, reference
+    )
     return ca.Function(
-        f"summary_{reference}", [theta, s.data], [f, mean], ["theta", "p"], ["f", "mean"]
+        f"summary_{reference}",
+        [theta, s.data],
+        [f, mean, variance, spread],
+        ["theta", "p"],
+        ["f", "mean", "variance", "rho"],
     )
 
 
@@ -201,6 +208,7 @@ class Step:
     p: ca.DM  # the parameter vector the problem was solved with
     x: np.ndarray  # the scaled variables of `theta` in this problem
     hess: np.ndarray | None = field(default=None, repr=False)
+    newton_decrease: float | None = None  # [field^2], what a Newton step from the start promised
 
     def objective_hessian(self) -> np.ndarray:
         """Hessian of the scaled objective f / f_ref in x at `x`, evaluated once."""
@@ -222,6 +230,7 @@ class Step:
 STATIONARY_RTOL = 1e-12
 #: A joint solve whose Newton step from its start would move the parameters by less than this
 #: many standard errors starts at its optimum to the resolution of the data (`resolution`).
+#: [standard errors]
 STATIONARY_SE = 0.01
 
 
@@ -232,7 +241,9 @@ def resolution(moments: mom.Moments, standard_errors: float = STATIONARY_SE) -> 
     residual, H its Hessian), a Newton step delta = H^-1 g is sqrt(delta^T C^-1 delta) =
     sqrt(N d / f) standard errors long, d = g^T H^-1 g / 2 the decrease it promises; that length
     bounds the move of every parameter in its own standard errors. So the step is shorter than
-    s standard errors when d / f <= s^2 / N (never below STATIONARY_RTOL, the precision of f).
+    s standard errors when d / f <= s^2 / N. Above N = s^2 / STATIONARY_RTOL (1e8 samples for
+    s = 0.01) the precision of f, not the data, sets the limit: steps up to
+    s sqrt(N / 1e8) standard errors are then below what the float64 moments resolve.
     """
     return max(STATIONARY_RTOL, standard_errors**2 / moments.n)
 
@@ -248,14 +259,20 @@ def parameters(moments: mom.Moments) -> ca.DM:
     return moments.cache["p"]
 
 
+def gauge_basis(free) -> np.ndarray:
+    """Orthonormal basis of the scaled variables of the parameters `free` (indices into theta)
+    that the gauge s_x + s_y + s_z = 0 leaves free (every scale has the same variable scale)."""
+    normal = np.array([1.0 if i in SCALE_INDICES else 0.0 for i in free])
+    return np.linalg.svd(normal[None, :])[2][1:].T
+
+
 def _newton_decrease(problem: BlockProblem, gradient, h: np.ndarray) -> float:
     """The decrease of the scaled objective that one Newton step from x = 0 promises (gradient
     and Hessian h there), on the gauge's null space when the block has one; inf when the Hessian
     there is not positive."""
     g = np.asarray(gradient, dtype=float).ravel()
     if problem.has_gauge:
-        normal = np.array([1.0 if i in SCALE_INDICES else 0.0 for i in problem.free])
-        basis = np.linalg.svd(normal[None, :])[2][1:].T
+        basis = gauge_basis(problem.free)
         g, h = basis.T @ g, basis.T @ h @ basis
     try:
         factor = np.linalg.cholesky(0.5 * (h + h.T))
@@ -287,10 +304,8 @@ def block_step(
     p[p.numel() - 1] = 1.0
     free = problem.free
     zero = np.zeros(len(free))
-    f_start, gradient = (
-        float(v) if k == 0 else v
-        for k, v in enumerate(problem.solver.get_function("nlp_grad_f")(zero, p))
-    )
+    f_value, gradient = problem.solver.get_function("nlp_grad_f")(zero, p)
+    f_start = float(f_value)
     if f_start <= PRECISION_FLOOR * moments.length**2:
         # Noise-free data at their optimum: nothing left that float64 moments can resolve.
         outcome = SolveOutcome(
@@ -298,11 +313,12 @@ def block_step(
         )
         return Step(theta, outcome, f_start, f_start, 1.0, problem, ca.DM(p), outcome.x)
     hess = problem.hessian(zero, p)
-    if _newton_decrease(problem, gradient, hess) <= stationary * f_start:
+    decrease = _newton_decrease(problem, gradient, hess)
+    if decrease <= stationary * f_start:
         outcome = SolveOutcome(
             x=zero, f=1.0, status="At_Stationary_Point", success=True, iterations=0
         )
-        return Step(theta, outcome, f_start, f_start, 1.0, problem, ca.DM(p), zero, hess)
+        return Step(theta, outcome, f_start, f_start, 1.0, problem, ca.DM(p), zero, hess, decrease)
     f_ref = max(f_start, SCALE_FLOOR * moments.length**2)
     p[p.numel() - 1] = f_ref
     p = ca.DM(p)  # the step keeps its own copy: the cached vector changes with the next solve
