@@ -45,7 +45,7 @@ from .correction import (
 )
 from .drift.fit import DriftFit
 from .errors import InputError, QualityError, SolveError, WriteError
-from .io import read_log, read_table_header, write_bytes_atomic, write_csv_atomic
+from .io import read_log, read_table, write_bytes_atomic, write_csv_atomic, write_table
 from .io.sources import COMPRESSED_SUFFIXES, is_parquet, log_paths, write_parquet
 from .models.zhou2010 import PARAMETER_NAMES
 from .statistics import field_statistics
@@ -262,13 +262,14 @@ class ApplyTask:
                     f"calibration failed, or it was not calibrated)"
                 )
             parameters = load_parameters(params_path) if params_path else None
+            table = read_table(log_path, header=self.read_options.get("header"), text=True)
             correction = Correction.plan(
                 parameters,
                 DriftFit.load(self.drift) if self.drift else None,
                 self.temperature_column,
-                log_columns=list(read_table_header(log_path).columns),
+                log_columns=table.columns,
             )
-            log = read_log_for(log_path, correction, **self.read_options)
+            log = read_log_for(table, correction, **self.read_options)
             corrected = correction.apply(log)
             extra = {}
             if self.flag_outliers:
@@ -277,14 +278,14 @@ class ApplyTask:
             frame = log.written_back(corrected, TOTAL_COLUMN, extra)
             if is_parquet(log_path):
                 write_bytes_atomic(output, write_parquet(frame))
-            else:
-                write_csv_atomic(output, frame)
+            else:  # in the layout of the log, as `nlpcal apply` writes it
+                write_table(frame, log.layout, output)
             row.update(
                 output=str(output),
                 n_samples=log.n,
                 std_measured=field_statistics(log.samples)["std"],
                 std_corrected=float(np.std(np.linalg.norm(corrected, axis=1))),
-                warnings=WARNING_SEPARATOR.join([*log.notes, *correction.notes]),
+                warnings=WARNING_SEPARATOR.join([*log.warnings, *log.notes, *correction.notes]),
                 unit=log.base_unit,
             )
             _status(row, "ok")

@@ -1,38 +1,101 @@
-"""Passes over the samples in chunks, split between threads.
+"""Passes over the samples in chunks, split between threads, never oversubscribing the cores.
 
 numpy releases the GIL inside BLAS and its element-wise loops, and the chunk work here is too
-small for BLAS to spread over the cores by itself; so each core takes one contiguous share of the
-chunks, with BLAS held to one thread meanwhile (through threadpoolctl, the `fast` extra; without
-it the pass runs in one thread, as BLAS threads and pass threads would fight for the cores). The
-shares are fixed by N and the worker count, not by timing, so results are reproducible.
+small for BLAS to spread over the cores by itself; so each thread takes one contiguous share of
+the chunks, and BLAS is held to one thread for the whole pass (threadpoolctl, a dependency of
+nlpcal). Without that hold every BLAS call may start threads of its own beside the pass's, and
+on a busy machine (OpenBLAS threads wait by spinning) they fight for the cores.
+
+The pass uses the cores available to the process (its CPU affinity and the CPU quota of its
+cgroup), or the number set with `threads`. The shares are fixed by N and the thread count, not by
+timing, so results are reproducible for a given thread count.
 """
 
 from __future__ import annotations
 
 import contextlib
+import math
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
+from contextvars import ContextVar
 from functools import lru_cache
+from numbers import Integral
 
-#: Threads per pass: the cores of this machine, at most four.
-WORKERS = max(1, min(4, os.cpu_count() or 1))
+from threadpoolctl import ThreadpoolController
+
+from . import validation
+from .errors import InputError
+
+
+def available_cores() -> int:
+    """The cores this process may use: its CPU affinity, within its cgroup's CPU quota."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        cores = os.cpu_count() or 1
+    quota = _cgroup_quota()
+    return max(1, min(cores, quota) if quota else cores)
+
+
+def _cgroup_quota() -> int | None:
+    """ceil(quota / period) of the cgroup's CPU limit (v2 cpu.max or v1 cfs), or None."""
+    candidates = (
+        ("/sys/fs/cgroup/cpu.max", None),
+        ("/sys/fs/cgroup/cpu/cpu.cfs_quota_us", "/sys/fs/cgroup/cpu/cpu.cfs_period_us"),
+    )
+    for path, period_path in candidates:
+        try:
+            with open(path) as handle:
+                fields = handle.read().split()
+            if period_path:
+                with open(period_path) as handle:
+                    fields.append(handle.read().strip())
+        except OSError:
+            continue
+        if len(fields) >= 2 and fields[0] not in ("max", "-1"):
+            try:
+                return max(1, math.ceil(int(fields[0]) / int(fields[1])))
+            except (ValueError, ZeroDivisionError):
+                return None
+    return None
+
+
+#: Threads per pass when none are set: the cores available to the process when it started.
+WORKERS = available_cores()
+#: Threads per pass set for the call running in this thread (None: WORKERS).
+_threads: ContextVar[int | None] = ContextVar("nlpcal_pass_threads", default=None)
+
+
+@contextlib.contextmanager
+def call_threads(threads=None):
+    """The passes inside the block use `threads` threads (None: the available cores), and BLAS
+    stays at one thread for the whole block, not only inside the passes: the small products
+    between them gain nothing from BLAS threads, and OpenBLAS threads woken by one of them keep
+    spinning into the next pass, taking a core from it. More threads than cores oversubscribe
+    them: that is the caller's choice."""
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, Integral)):
+        raise InputError(f"threads must be a whole number of at least 1, got {threads!r}")
+    count = None if threads is None else validation.count(threads, "threads")
+    token = _threads.set(count)
+    try:
+        with single_blas():
+            yield
+    finally:
+        _threads.reset(token)
+
+
+def thread_count() -> int:
+    """The threads a pass uses now."""
+    return _threads.get() or WORKERS
 
 
 @lru_cache(maxsize=1)
-def _blas_controller():
-    try:
-        from threadpoolctl import ThreadpoolController
-    except ImportError:
-        return None
+def _blas_controller() -> ThreadpoolController:
     return ThreadpoolController()
 
 
-def parallel_available() -> bool:
-    """Whether passes can run in several threads (threadpoolctl installed, several cores)."""
-    return WORKERS > 1 and _blas_controller() is not None
-
-
-def shares(n: int, chunk_rows: int, workers: int = WORKERS):
+def shares(n: int, chunk_rows: int, workers: int):
     """Contiguous (start, stop) ranges, aligned to chunks, one per worker that has work."""
     chunks = -(-n // chunk_rows)
     workers = max(1, min(workers, chunks))
@@ -40,18 +103,37 @@ def shares(n: int, chunk_rows: int, workers: int = WORKERS):
     return [(a, b) for a, b in zip(bounds, bounds[1:]) if b > a]
 
 
+_hold = threading.Lock()
+_holders = 0
+_limiter = None
+
+
+@contextlib.contextmanager
+def single_blas():
+    """BLAS at one thread inside the block. threadpoolctl's limits hold for the whole process, so
+    of blocks that overlap (in any threads) the first sets the limit and the last restores what
+    was there before the first."""
+    global _holders, _limiter
+    with _hold:
+        if _holders == 0:
+            _limiter = _blas_controller().limit(limits=1, user_api="blas")
+        _holders += 1
+    try:
+        yield
+    finally:
+        with _hold:
+            _holders -= 1
+            if _holders == 0 and _limiter is not None:
+                _limiter.restore_original_limits()
+                _limiter = None
+
+
 def map_shares(work, n: int, chunk_rows: int, workers: int | None = None) -> list:
-    """work(start, stop) for every share, in threads; the results in order of the shares."""
-    if workers is None:
-        workers = WORKERS if parallel_available() else 1
-    ranges = shares(n, chunk_rows, workers) or [(0, n)]
-    if len(ranges) == 1:
-        return [work(*ranges[0])]
-    controller = _blas_controller()
-    limit = (
-        controller.limit(limits=1, user_api="blas")
-        if controller is not None
-        else contextlib.nullcontext()
-    )
-    with limit, ThreadPoolExecutor(max_workers=len(ranges)) as pool:
-        return list(pool.map(lambda r: work(*r), ranges))
+    """work(start, stop) for every share, in threads, BLAS held to one thread meanwhile; the
+    results in order of the shares."""
+    ranges = shares(n, chunk_rows, workers or thread_count()) or [(0, n)]
+    with single_blas():
+        if len(ranges) == 1:
+            return [work(*ranges[0])]
+        with ThreadPoolExecutor(max_workers=len(ranges)) as pool:
+            return list(pool.map(lambda r: work(*r), ranges))

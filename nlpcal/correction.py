@@ -120,7 +120,7 @@ class Correction:
 
     def temperature(self, log: Log) -> np.ndarray:
         """The log's temperatures [degC], with a note when they leave the fitted range."""
-        values = log.extras[self.temperature_column]
+        values = log.values(self.temperature_column)
         if self.drift is not None:
             low, high, what = *self.drift.temperature_range, "the drift fit"
         else:

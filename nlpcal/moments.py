@@ -36,7 +36,7 @@ References
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cache
 from itertools import combinations_with_replacement
 
@@ -183,6 +183,8 @@ class Moments:
         gathered in the same pass.
     weight_sum : the sum of the per-sample weights the Gram matrix is normalised by (N without
         weights).
+    cache : values derived from these moments by the layers that use them (the problems'
+        parameter vector), built once.
     """
 
     gram: np.ndarray
@@ -192,6 +194,7 @@ class Moments:
     reference: str
     measured: dict
     weight_sum: float = 0.0
+    cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def layout(self) -> Layout:

@@ -23,14 +23,13 @@ memory by accident.
 
 from __future__ import annotations
 
-import contextlib
 import sys
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .chunks import map_shares
+from . import chunks
 
 #: Sizes of the strided subsamples the survey of a Dask log gathers: the sphere frame and the
 #: attitude coverage (20 000), the median absolute deviation of the residuals (50 000), the mean
@@ -78,6 +77,19 @@ class Survey:
     head: np.ndarray
     rows: dict = field(default_factory=dict)
 
+    def columns(self, selection) -> Survey:
+        """The survey of some columns: a slice, or one column index (whose rows are (N,))."""
+        pick = [selection] if isinstance(selection, int) else selection
+        return Survey(
+            self.low[pick],
+            self.high[pick],
+            self.nonpositive[pick],
+            self.total[pick],
+            self.squares[pick],
+            self.head[:, selection],
+            {step: rows[:, selection] for step, rows in self.rows.items()},
+        )
+
     def scaled(self, factor: float) -> Survey:
         """The survey of the values times a positive factor."""
         return Survey(
@@ -91,7 +103,7 @@ class Survey:
         )
 
 
-def _survey_block(block, start: int, steps: tuple) -> Survey:
+def survey_block(block, start: int, steps: tuple) -> Survey:
     """The survey of the rows start:start + len(block) of a log."""
     block = np.asarray(block, dtype=float)
     low, high = column_ranges(block)
@@ -107,7 +119,7 @@ def _survey_block(block, start: int, steps: tuple) -> Survey:
     )
 
 
-def _merge_surveys(first: Survey, second: Survey) -> Survey:
+def merge_surveys(first: Survey, second: Survey) -> Survey:
     """Two surveys of neighbouring rows, `second` after `first`."""
     return Survey(
         low=np.minimum(first.low, second.low),  # NaN propagates
@@ -117,6 +129,19 @@ def _merge_surveys(first: Survey, second: Survey) -> Survey:
         squares=first.squares + second.squares,
         head=np.concatenate([first.head, second.head])[:SURVEY_HEAD],
         rows={step: np.concatenate([first.rows[step], second.rows[step]]) for step in first.rows},
+    )
+
+
+def merge_all(surveys: list) -> Survey:
+    """The surveys of consecutive blocks, in order, merged at once."""
+    return Survey(
+        low=np.min([s.low for s in surveys], axis=0),  # NaN propagates
+        high=np.max([s.high for s in surveys], axis=0),
+        nonpositive=np.sum([s.nonpositive for s in surveys], axis=0),
+        total=np.sum([s.total for s in surveys], axis=0),
+        squares=np.sum([s.squares for s in surveys], axis=0),
+        head=np.concatenate([s.head for s in surveys])[:SURVEY_HEAD],
+        rows={step: np.concatenate([s.rows[step] for s in surveys]) for step in surveys[0].rows},
     )
 
 
@@ -237,12 +262,12 @@ def survey_together(*values) -> None:
     for value in pending:
         steps = value.steps()
         parts = [
-            dask.delayed(_survey_block)(block, start, steps)
+            dask.delayed(survey_block)(block, start, steps)
             for block, (start, _) in zip(value.blocks(), value.block_offsets())
         ]
-        trees.append(_tree(parts, _merge_surveys))
+        trees.append(tree(parts, merge_surveys))
     started = time.perf_counter()
-    with _single_threaded_blas():
+    with chunks.single_blas():  # Dask threads run blocks side by side
         surveys = dask.compute(*trees)
     for value, survey in zip(pending, surveys):
         value._survey = survey
@@ -286,7 +311,7 @@ def reduce(samples, reference, work, merge, chunk_rows: int):
     """
     if isinstance(samples, LazySamples) or isinstance(reference, LazySamples):
         return _reduce_dask(samples, reference, work, merge)
-    parts = map_shares(
+    parts = chunks.map_shares(
         lambda begin, end: work(samples[begin:end], reference_chunk(reference, begin, end)),
         samples.shape[0],
         chunk_rows,
@@ -302,24 +327,24 @@ def _reduce_dask(samples, reference, work, merge):
     import dask.array as da
 
     if not isinstance(samples, LazySamples):  # a Dask reference with samples in memory
-        chunks = (reference.array.chunks[0], -1)
-        samples = LazySamples(da.from_array(np.asarray(samples), chunks=chunks))
+        blocks = (reference.array.chunks[0], -1)
+        samples = LazySamples(da.from_array(np.asarray(samples), chunks=blocks))
     offsets = samples.block_offsets()
     if isinstance(reference, LazySamples):
-        chunks = samples.array.chunks[0]
-        references = reference.blocks(None if reference.array.chunks[0] == chunks else chunks)
+        rows = samples.array.chunks[0]
+        references = reference.blocks(None if reference.array.chunks[0] == rows else rows)
     else:  # in memory: each task takes its own rows of the reference
         references = [reference_chunk(reference, start, stop) for start, stop in offsets]
     parts = [dask.delayed(work)(block, ref) for block, ref in zip(samples.blocks(), references)]
     started = time.perf_counter()
-    with _single_threaded_blas():
-        result = dask.compute(_tree(parts, merge))[0]
+    with chunks.single_blas():  # Dask threads run blocks side by side
+        result = dask.compute(tree(parts, merge))[0]
     samples.passes += 1
     samples.timings.append((type(work).__name__, time.perf_counter() - started))
     return result
 
 
-def _tree(parts: list, merge):
+def tree(parts: list, merge):
     """Merge delayed partial results pairwise, neighbours with neighbours, until one is left."""
     import dask
 
@@ -330,13 +355,3 @@ def _tree(parts: list, merge):
         ]
         parts = pairs
     return parts[0]
-
-
-def _single_threaded_blas():
-    """BLAS held to one thread in this process while Dask threads run blocks side by side (the
-    workers of a cluster are started that way by dask.distributed)."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:
-        return contextlib.nullcontext()
-    return threadpool_limits(limits=1, user_api="blas")

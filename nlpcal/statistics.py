@@ -229,6 +229,10 @@ def format_table(rows, unit: str = "nT", extra=()) -> str:
         header,
         "-" * len(header),
     ]
+    # Two decimals for fields of 100 and more (nT, counts); more for small numbers (a log in
+    # gauss or uT), so that a spread of 0.003 G does not print as 0.00.
+    scale = max([abs(float(r[c])) for r in rows for c in STAT_KEYS if r.get(c)] or [1.0])
+    decimals = 2 if scale >= 100 else min(8, 4 - int(np.floor(np.log10(scale))))
     for row in rows:
         cells = []
         for c in columns:
@@ -237,7 +241,9 @@ def format_table(rows, unit: str = "nT", extra=()) -> str:
                 cells.append(f"{value:>12d}")
             elif value is None:
                 cells.append(f"{'':>12}")
-            elif c in STAT_KEYS or abs(value) >= 1:
+            elif c in STAT_KEYS:
+                cells.append(f"{value:>12.{decimals}f}")
+            elif abs(value) >= 1:
                 cells.append(f"{value:>12.2f}")
             else:
                 cells.append(f"{value:>12.4g}")

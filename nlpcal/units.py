@@ -151,3 +151,89 @@ def suggested_unit(columns, prefixes=MAGNETIC_PREFIXES, suffixes=FIELD_SUFFIXES)
         if ch in "xyz" and is_axis_template((low[:i], low[i + 1 :]), prefixes, suffixes):
             return suffixes.get(clean(low[i + 1 :]))
     return None
+
+
+# --- plausibility of magnitudes against the declared or assumed unit ---------------------------
+
+#: Earth's field at the surface, from the magnetic equator to the poles. [nT]
+EARTH_FIELD_NT = (22_000.0, 67_000.0)
+#: Standard gravity at rest is 1 g; a hand-held or moving accelerometer reads around it. [g]
+GRAVITY_G = (0.5, 2.0)
+#: A magnitude more than this factor outside the expected range is taken for a unit mistake:
+#: hard iron, indoor disturbances and motion rarely move it that far, a wrong unit moves it by
+#: 10 to 10^9. [1]
+IMPLAUSIBLE_FACTOR = 2.0
+
+
+def _plausible(value: float, band, factor: float = 1.0) -> bool:
+    low, high = band
+    return low / factor <= value <= high * factor
+
+
+def readable(value: float) -> str:
+    """A magnitude for a message: three significant digits, thousands grouped."""
+    if value == 0 or not np.isfinite(value):
+        return f"{value:g}"
+    digits = 2 - int(np.floor(np.log10(abs(value))))
+    return f"{round(value, digits):,.{max(digits, 0)}f}".replace(",", " ")
+
+
+def unit_warning(
+    magnitudes,
+    unit: str,
+    how: str,
+    *,
+    sensor: str = "magnetometer",
+    flag: str = "--unit",
+    raw_allowed: bool = True,
+) -> str | None:
+    """A warning when the typical magnitude of a sensor's samples does not fit its unit.
+
+    magnitudes : candidate typical magnitudes in `unit` (the median |v|, the radius of a fitted
+        sphere); the unit is implausible only when every one of them is.
+    unit : the unit the samples are read in. how : "given" (by the user), "names" (the column
+        names carry it) or "assumed" (a fallback).
+    sensor : "magnetometer" (judged against Earth's field, EARTH_FIELD_NT) or "accelerometer"
+        (against gravity, GRAVITY_G).
+    raw_allowed : whether the caller takes raw counts (the e-compass does not).
+    Returns None when plausible, or for raw counts (they have no physical scale).
+    """
+    if unit == "raw":
+        return None
+    if sensor == "magnetometer":
+        table, band, base, what = FIELD_UNITS_NT, EARTH_FIELD_NT, "nT", "Earth's field"
+    else:
+        table, band, base, what = ACC_UNITS_G, GRAVITY_G, "g", "gravity at rest"
+    values = [float(m) for m in np.atleast_1d(magnitudes) if np.isfinite(m) and m > 0]
+    if not values or any(_plausible(m * table[unit], band, IMPLAUSIBLE_FACTOR) for m in values):
+        return None
+    typical = values[0]
+    fits = [u for u in table if u != "raw" and _plausible(typical * table[u], band)]
+    fits = fits or [
+        u for u in table if u != "raw" and _plausible(typical * table[u], band, IMPLAUSIBLE_FACTOR)
+    ]
+    said = {
+        "given": f"as given ({flag} {unit})",
+        "names": f"as the column names say ({unit})",
+        "assumed": f"in {unit}, assumed because the column names carry no unit",
+    }[how]
+    converted = "" if unit == base else f" = {readable(typical * table[unit])} {base}"
+    low, high = (f"{v:,g}".replace(",", " ") for v in band)
+    read = (
+        f"read {said}, the {sensor} magnitude is about {readable(typical)} {unit}{converted}, "
+        f"far from {what} ({low} to {high} {base})"
+    )
+    if fits:
+        options = ", ".join(
+            f"{readable(typical * table[u])} {base} in {u} ({flag} {u})" for u in fits
+        )
+        advice = f"it would be {options}"
+    else:
+        advice = f"no {sensor} unit nlpcal knows puts it there"
+    counts = (
+        f"; if the numbers are raw counts, {flag} raw keeps them as counts"
+        if "raw" in table and raw_allowed
+        else f"; raw counts must be scaled to {'g' if base == 'g' else 'a field unit'} first"
+    )
+    kept = "; the unit given is used" if how == "given" else ""
+    return f"{read}: {advice}{counts}{kept}"

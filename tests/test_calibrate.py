@@ -1,5 +1,7 @@
 """nlpcal.calibrate: truth recovery, reference modes, the gauge, Table 1 rows and bad input."""
 
+import re
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -179,7 +181,8 @@ def test_rotation_about_one_axis_is_reported_as_not_identifiable(method):
         result = calibrate(samples, method=method, reference_field=PAPER_FIELD)
     except SolveError as failure:
         assert "do not determine" in str(failure)
-        named = set(str(failure).split("do not determine ")[1].split(";")[0].split(", "))
+        reason = str(failure).split("do not determine ")[1].split("What would help")[0]
+        named = set(re.findall(r"\b(z_[xyz]|s_[xyz]|alpha_deg|beta_deg|gamma_deg)\b", reason))
     else:
         named = set(result.identifiability["not_identifiable"])
         assert any("not identifiable" in w for w in result.warnings)
@@ -259,6 +262,12 @@ def test_ipopt_failure_is_surfaced(noisy, monkeypatch):
 
     monkeypatch.setattr(problems, "solve", failing)
     with pytest.raises(SolveError) as info:
+        calibrate(noisy[:200], method="staged")
+    assert info.value.status == "Maximum_Iterations_Exceeded"
+    # The joint solve from the sphere fit (the algebraic fit can be the optimum already, and is
+    # then not handed to IPOPT).
+    monkeypatch.setattr("nlpcal.calibration.joint.algebraic_start", lambda moments: None)
+    with pytest.raises(SolveError) as info:
         calibrate(noisy[:200], method="joint")
     assert info.value.status == "Maximum_Iterations_Exceeded"
 
@@ -332,7 +341,128 @@ def test_a_failure_blames_the_coverage_only_when_it_is_to_blame(noisy, monkeypat
         )
 
     monkeypatch.setattr(blocks, "solve", failing)
+    monkeypatch.setattr("nlpcal.calibration.joint.algebraic_start", lambda moments: None)
     with pytest.raises(SolveError) as info:
         calibrate(noisy, method="joint")
     assert "rotate the sensor" not in str(info.value)
     assert "coverage is not the cause" in str(info.value)
+
+
+@pytest.mark.parametrize("reference", [None, PAPER_FIELD])
+def test_cycle_rows_from_the_moments_agree_with_passes_over_the_data(reference):
+    from nlpcal.calibration.problem import Problem
+    from nlpcal.calibration.staged import StopRule, run_staged
+    from nlpcal.moments import accumulate
+    from nlpcal.simulation import simulate
+
+    samples = simulate(3000, attitudes="turntable", noise=1.0, seed=4).to_numpy()
+    rows = {}
+    for exact in (True, False):
+        problem = Problem(samples, reference, accumulate(samples, reference))
+        rows[exact] = run_staged(problem, StopRule(max_cycles=8, rtol=0, every_row_exact=exact))[1]
+    for exact_row, moment_row in zip(rows[True][2:-1], rows[False][2:-1]):
+        assert moment_row["from_moments"] and moment_row["max"] is None
+        assert moment_row["mean"] == pytest.approx(exact_row["mean"], abs=1e-3)  # nT
+        assert moment_row["std"] == pytest.approx(exact_row["std"], rel=1e-6)
+        assert moment_row["objective"] == pytest.approx(exact_row["objective"], rel=1e-6)
+    for table in rows.values():  # the first and the last cycle are passes over the data
+        assert table[1]["max"] is not None and table[-1]["max"] is not None
+    assert rows[False][-1]["std"] == pytest.approx(rows[True][-1]["std"], rel=1e-9)
+
+
+# A MEMS-like sensor: offsets larger than the field, scale errors of several per cent.
+MEMS_TRUTH = {
+    "z_x": 61_000.0,
+    "z_y": -23_000.0,
+    "z_z": 8_000.0,
+    "s_x": 0.12,
+    "s_y": -0.07,
+    "s_z": 0.03,
+    "alpha_deg": 3.1,
+    "beta_deg": -1.7,
+    "gamma_deg": 2.4,
+}
+
+
+def test_moment_rows_hold_on_a_mems_like_log():
+    """Rows from the moments agree with passes over the data; where the expansion behind them
+    does not hold (the raw log of a sensor whose offsets exceed the field) there is no such row."""
+    from nlpcal.calibration.problem import Problem
+    from nlpcal.calibration.staged import StopRule, run_staged
+    from nlpcal.moments import accumulate
+
+    samples, _ = make_log(n=4000, noise=500.0, seed=5, truth=MEMS_TRUTH, field=50_000.0)
+    rows = {}
+    for exact in (True, False):
+        problem = Problem(samples, None, accumulate(samples))
+        rule = StopRule(max_cycles=8, rtol=0, every_row_exact=exact)
+        rows[exact] = run_staged(problem, rule)[1]
+    assert any(row.get("from_moments") for row in rows[False])
+    for exact_row, row in zip(rows[True][1:], rows[False][1:]):
+        assert row["mean"] == pytest.approx(exact_row["mean"], rel=1e-7)
+        assert row["std"] == pytest.approx(exact_row["std"], rel=1e-4)
+    assert problem.moment_row("raw", np.zeros(9), iterations=0, wall_s=0.0) is None
+
+
+@pytest.mark.parametrize("reference", [None, 50_000.0])
+def test_the_algebraic_fit_is_the_truth_without_noise(reference):
+    from nlpcal.calibration.joint import algebraic_start
+    from nlpcal.models.zhou2010 import Zhou2010Parameters
+    from nlpcal.moments import accumulate
+
+    samples, _ = make_log(n=3000, noise=0.0, seed=6, truth=MEMS_TRUTH, field=50_000.0)
+    theta = algebraic_start(accumulate(samples, reference))
+    found = Zhou2010Parameters.from_theta(theta).to_dict()
+    expected = dict(MEMS_TRUTH)
+    if reference is None:  # the gauge: the gains averaging one
+        gains = np.array([1 + MEMS_TRUTH[k] for k in SCALES])
+        expected.update(zip(SCALES, gains / gains.mean() - 1))
+    for name, value in expected.items():
+        assert found[name] == pytest.approx(value, rel=1e-8, abs=1e-6), name
+
+
+@pytest.mark.parametrize("reference", [None, PAPER_FIELD])
+def test_a_start_not_re_solved_is_within_a_hundredth_of_a_standard_error(noisy, reference):
+    """The joint solve's stationary start against IPOPT forced to solve from it."""
+    result = calibrate(noisy, method="joint", reference_field=reference)
+    assert result.solver["status"] == "At_Stationary_Point"
+    from nlpcal.calibration.joint import algebraic_start
+    from nlpcal.models.zhou2010 import Zhou2010Parameters
+    from nlpcal.moments import accumulate
+
+    moments = accumulate(noisy, reference)
+    forced = blocks.block_step(moments, "joint", algebraic_start(moments), stationary=0.0)
+    assert forced.iterations > 0
+    solved = Zhou2010Parameters.from_theta(forced.theta).to_dict()
+    for name, error in result.standard_errors.items():
+        assert abs(result.parameters[name] - solved[name]) <= 0.01 * error, name
+
+
+def test_threads_are_checked_and_leave_blas_as_they_found_it(noisy):
+    import threading
+
+    import threadpoolctl
+
+    def blas_threads():
+        return [
+            m["num_threads"] for m in threadpoolctl.threadpool_info() if m["user_api"] == "blas"
+        ]
+
+    before = blas_threads()
+    for bad in (True, 0, 1.5, "2"):
+        with pytest.raises(InputError, match="threads"):
+            calibrate(noisy, method="joint", threads=bad)
+    one = calibrate(noisy, method="joint", threads=np.int64(1))
+    two = calibrate(noisy, method="joint", threads=2)
+    assert one.parameters == pytest.approx(two.parameters, rel=1e-9, abs=1e-9)
+    assert blas_threads() == before
+    # Calls that overlap in threads: the last one out restores the limits.
+    calls = [
+        threading.Thread(target=calibrate, args=(noisy,), kwargs={"method": m, "threads": t})
+        for m, t in (("joint", 1), ("staged", None), ("joint", 2))
+    ]
+    for call in calls:
+        call.start()
+    for call in calls:
+        call.join()
+    assert blas_threads() == before

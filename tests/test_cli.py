@@ -46,8 +46,10 @@ def test_calibrate_recovers_the_truth(log_csv, tmp_path, capsys, method):
         "Solved_To_Acceptable_Level",
         "At_Precision_Floor",
         "Search_Direction_Becomes_Too_Small",
+        "At_Stationary_Point",
     )
-    assert doc["solver"]["iterations"] > 0
+    # The joint solve may start at its optimum (the algebraic fit) and then takes no iteration.
+    assert doc["solver"]["iterations"] > 0 or doc["solver"]["status"] == "At_Stationary_Point"
     p = doc["parameters"]
     for k in ("z_x", "z_y", "z_z"):
         assert abs(p[k] - PAPER_TRUTH[k]) < 0.5
@@ -193,7 +195,11 @@ def test_calibrate_input_errors_exit_2(tmp_path, capsys, name, text, extra, mess
     assert code == 2
     assert message in err
     assert "Traceback" not in err and out == ""
-    assert len(err.strip().splitlines()) == 1
+    # one sentence for the error, last; warnings about the data (a unit that does not fit,
+    # repeated rows) may come before it
+    lines = err.strip().splitlines()
+    assert lines[-1].startswith("nlpcal calibrate: error: ")
+    assert all(line.startswith("nlpcal: ") for line in lines[:-1])
 
 
 def test_drop_invalid_reports_the_count(tmp_path, capsys):

@@ -289,6 +289,41 @@ def test_cli_compare_writes_json_table_and_plot(log_csv, tmp_path, capsys):
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) < 200_000
 
 
+def test_compare_figure_is_150_dpi_and_titled_with_the_file_name(log_csv, tmp_path, monkeypatch):
+    pytest.importorskip("matplotlib")
+    from PIL import Image
+
+    import nlpcal.plots
+
+    titles = []
+    original = nlpcal.plots.comparison_png
+
+    def spy(result, **kw):
+        titles.append(kw.get("title"))
+        return original(result, **kw)
+
+    monkeypatch.setattr(nlpcal.plots, "comparison_png", spy)
+    png = tmp_path / "c.png"
+    assert (
+        main(
+            [
+                "compare",
+                str(log_csv),
+                *FAST,
+                "-q",
+                "-o",
+                str(tmp_path / "c.json"),
+                "--plot",
+                str(png),
+            ]
+        )
+        == 0
+    )
+    assert titles == [log_csv.name]  # the name, not the absolute path
+    width, height = Image.open(png).size
+    assert width >= 13 * 150 and height >= 7 * 150  # 13 x 7 in at 150 dpi or more
+
+
 def test_cli_compare_to_stdout_with_reference_column(log_csv, capsys):
     assert main(["compare", str(log_csv), *FAST, "--reference-column", "F"]) == 0
     document = json.loads(capsys.readouterr().out)
@@ -334,7 +369,7 @@ def test_cli_compare_without_matplotlib_says_how_to_install(log_csv, tmp_path, m
 
 
 def test_cli_compare_solver_failure_exits_1(log_csv, monkeypatch, capsys):
-    def failing(problem):
+    def failing(problem, start=None):
         raise SolveError("IPOPT did not solve the joint problem", "Maximum_Iterations_Exceeded")
 
     monkeypatch.setattr(compare_module, "run_joint", failing)

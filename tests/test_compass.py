@@ -728,7 +728,7 @@ def test_cli_error_paths(turn_log, capsys, monkeypatch):
         ],
         capsys,
     )
-    assert code == 0 and "skipped 1 row" in err
+    assert code == 0 and "dropped 1 row" in err
     log.head(10).drop(columns="turn").to_csv(d / "tiny.csv", index=False)
     code, err = _run(["compass", "calibrate", str(d / "tiny.csv"), *CAL_ARGS], capsys)
     assert code == 2 and "need at least" in err

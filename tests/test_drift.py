@@ -776,33 +776,35 @@ def test_drift_fit_cli_errors(small, capsys, tmp_path):
     )
     assert_input_error(["drift"], capsys, "required")
     # --drop-invalid makes the bad temperature row a warning
-    status, out, err = run(fit + [small["bad_t"]] + cols + ["--drop-invalid"], capsys)
+    status, out, err = run(
+        fit + [small["bad_t"]] + cols + ["--drop-invalid", "--base-temperature", "6"], capsys
+    )
     assert status == 0 and json.loads(out)["n"] == 59 and "dropped 1 row" in err
 
 
-def test_drift_fit_cli_small_span_warning_and_default_base_temperature(small, capsys, tmp_path):
+def test_drift_fit_cli_small_span_warning_and_required_base_temperature(small, capsys, tmp_path):
     out = tmp_path / "narrow.json"
-    status, _, err = run(
-        [
-            "drift",
-            "fit",
-            small["narrow"],
-            "--temperature-column",
-            "temperature",
-            "--reference-column",
-            "proton",
-            "-o",
-            out,
-        ],
-        capsys,
-    )
+    argv = [
+        "drift",
+        "fit",
+        small["narrow"],
+        "--temperature-column",
+        "temperature",
+        "--reference-column",
+        "proton",
+        "-o",
+        out,
+    ]
+    # Without t0 the command says why it needs one, with the log's own range; nothing is written.
+    err = assert_input_error(argv, capsys, "--base-temperature", "system calibration", "6.02")
+    assert "9.3 nT" in err and not out.exists()
+    status, _, err = run(argv + ["--base-temperature", "7.3"], capsys)
     assert status == 0
     assert "too small" in err and "standard error" in err and "+/-" in err
-    assert "no base temperature given" in err
     document = json.loads(out.read_text())
-    assert document["base_temperature_source"] == "log mean"
-    assert document["base_temperature_degC"] == pytest.approx(6.02)
-    assert len(document["warnings"]) == 2
+    assert document["base_temperature_source"] == "argument"
+    assert document["base_temperature_degC"] == 7.3
+    assert len(document["warnings"]) == 1
     assert document["a_standard_error_nT_per_degC"] > 0.1 * abs(document["a_nT_per_degC"])
 
 
@@ -1050,6 +1052,8 @@ def test_outputs_are_atomic(small, capsys, tmp_path):
                 "temperature",
                 "--reference-column",
                 "proton",
+                "--base-temperature",
+                "6",
                 "-o",
                 target,
             ],

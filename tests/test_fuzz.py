@@ -142,7 +142,17 @@ COMMANDS = [
     ["calibrate", "{log}", "--reference-column", "proton_nT", "--temperature-column", "temp_c"],
     ["stats", "{log}", "--json"],
     ["compare", "{log}", "--cycles", "2", "--cg-max-iter", "20"],
-    ["drift", "fit", "{log}", "--temperature-column", "temp_c", "--reference-column", "proton_nT"],
+    [
+        "drift",
+        "fit",
+        "{log}",
+        "--temperature-column",
+        "temp_c",
+        "--reference-column",
+        "proton_nT",
+        "--base-temperature",
+        "20",
+    ],
     ["orthogonality", "invert", "{log}"],
     ["compass", "calibrate", "{log}"],
 ]
@@ -205,6 +215,8 @@ def documents(tmp_path_factory):
             "temp_c",
             "--reference-column",
             "proton_nT",
+            "--base-temperature",
+            "20",
         ],
         "compass": ["compass", "calibrate", folder / "q" / "turns.csv", "--turn-column", "turn"],
     }.items():

@@ -1,11 +1,14 @@
 """The nine-parameter calibration on real MEMS logs of ../shared/data/real (skipped without it)."""
 
+import json
+
 import numpy as np
 import pandas as pd
 import pytest
 
 from nlpcal import calibrate
 from nlpcal.errors import SolveError
+from nlpcal.io import read_log
 
 
 def _log(real_data, folder, name, columns, factor):
@@ -56,3 +59,81 @@ def test_partial_coverage_is_reported(real_data):
     assert result.identifiability["coverage"]["covered"] < 13
     assert any("poor attitude coverage" in w for w in result.warnings)
     assert np.isfinite(result.statistics[-1]["std"])
+
+
+def _cli(capsys, *argv):
+    from nlpcal.cli import main
+
+    code = main([str(a) for a in argv])
+    return code, capsys.readouterr()
+
+
+@pytest.mark.parametrize(
+    "path, arguments, columns",
+    [
+        ("bazhin_ellipsoid_fit/mag_out.txt", ["--unit", "raw"], ["0", "1", "2"]),
+        ("wagonwheel_magcal/data.csv", ["--unit", "raw"], ["1", "2", "3"]),
+        ("freeimu_gui_accmag/magn.txt", ["--unit", "raw"], ["0", "1", "2"]),
+    ],
+)
+def test_headerless_whitespace_and_timed_logs_calibrate_as_they_are(
+    real_data, tmp_path, capsys, path, arguments, columns
+):
+    log = real_data / path
+    if not log.exists():
+        pytest.skip(f"{log} is absent")
+    out = tmp_path / "p.json"
+    code, captured = _cli(capsys, "calibrate", log, *arguments, "--method", "joint", "-o", out)
+    assert code == 0, captured.err
+    document = json.loads(out.read_text())
+    assert document["input"]["columns"] == columns
+    assert document["input"]["layout"]["header"] is False
+    final, measured = document["statistics"][-1], document["statistics"][0]
+    assert final["std"] < measured["std"] / 5
+
+
+def test_unit_mistakes_on_real_logs_are_warned_about(real_data, capsys, tmp_path):
+    # counts (no unit in a headerless file) and gauss (names without units) read as nT
+    for path, suggestion in (
+        ("bazhin_ellipsoid_fit/mag_out.txt", "--unit raw"),
+        ("ck_explorer_accmag/acc_mag_log.csv", "--unit G"),
+    ):
+        log = real_data / path
+        if not log.exists():
+            pytest.skip(f"{log} is absent")
+        code, captured = _cli(capsys, "stats", log)
+        assert code == 0
+        assert "far from Earth's field" in captured.err and suggestion in captured.err
+
+
+def test_the_zero_row_of_the_rasteiro_logs_is_left_out(real_data):
+    path = real_data / "rasteiro_robot_multisensor" / "MPU6050RM3100_derived.csv"
+    if not path.exists():
+        pytest.skip(f"{path} is absent")
+    log = read_log(path)
+    assert log.unit == "uT" and log.dropped == 1 and not log.kept[0]
+    assert not (log.samples == 0).all(axis=1).any()
+    result = calibrate(log.samples, method="joint")
+    corrected_spread = result.statistics[-1]["std"] / result.statistics[-1]["mean"]
+    assert corrected_spread < 0.012  # 0.0101 without the row, 0.0216 with it
+
+
+def test_the_upright_log_fails_the_quality_check_and_says_why(real_data, tmp_path, capsys):
+    path = real_data / "xio_fusion_ximu3" / "sensor_data.csv"
+    if not path.exists():
+        pytest.skip(f"{path} is absent")
+    out = tmp_path / "p.json"
+    code, captured = _cli(capsys, "calibrate", path, "-q", "-o", out)
+    assert code == 1 and not out.exists()
+    assert "do not determine" in captured.err
+    assert "never pointed along" in captured.err and "+z" in captured.err
+
+
+def test_the_joint_solve_on_the_upright_log_blames_the_coverage(real_data, tmp_path, capsys):
+    path = real_data / "xio_fusion_ximu3" / "sensor_data.csv"
+    if not path.exists():
+        pytest.skip(f"{path} is absent")
+    code, captured = _cli(capsys, "calibrate", path, "--method", "joint", "-o", tmp_path / "p.json")
+    assert code == 1
+    assert "of 26 direction bins, a cap of the sphere" in captured.err
+    assert "rotate the sensor through more attitudes" in captured.err

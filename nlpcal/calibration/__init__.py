@@ -7,31 +7,34 @@ References
 
 from __future__ import annotations
 
-from .. import passes, units, validation
+import numpy as np
+
+from .. import chunks, passes, units, validation
 from ..errors import QualityError, SolveError
 from ..io.lazy import field_samples
 from ..io.logs import Log
 from ..models.zhou2010 import Zhou2010Parameters
 from ..moments import accumulate
 from ..nlp.blocks import GAUGE
+from ..nlp.solver import IpoptOptions
 from ..robust import TUNING, Loss
 from .diagnostics import (
+    coverage_centre,
     direction_coverage,
     explain_failure,
     joint_gap,
     residual_spread,
     scaled_hessian,
     uncertainty,
+    undetermined_message,
     warnings_for,
 )
 from .joint import run_joint
 from .problem import Problem
 from .result import CalibrationResult
-from .staged import StopRule, run_staged
+from .staged import CYCLES_DEFAULT, StopRule, run_staged
 
 METHODS = ("staged", "joint")
-#: Default most cycles of the staged method.
-CYCLES_DEFAULT = 50
 #: Default relative improvement below which the staged cycle stops. [1]
 RTOL_DEFAULT = 1e-9
 #: A staged result further than this many standard errors from the joint optimum of the same
@@ -59,6 +62,8 @@ def calibrate(
     require_identifiable: bool = True,
     allow_unconverged: bool = False,
     progress=None,
+    verbose: bool = False,
+    threads: int | None = None,
 ) -> CalibrationResult:
     """Estimate the nine parameters of Eq. 4 in [1] from a log of many attitudes.
 
@@ -77,138 +82,167 @@ def calibrate(
     loss_scale : the residual beyond which a sample is down-weighted; default 1.345 (Huber) or
         2.385 (Cauchy) times 1.4826 MAD of the residuals. [unit]
     progress : None, or called with (cycle, Table 1 row) after every staged cycle.
-    require_identifiable : raise QualityError (holding the result) when the attitude coverage
-        leaves parameters undetermined; False returns the result with its warnings.
+    threads : threads of the passes over the data (default: the cores available to the process,
+        its CPU affinity within its cgroup's quota); BLAS is held to one thread meanwhile.
+    threads : threads of the passes over the data (default: the cores available to the process,
+        its CPU affinity within its cgroup's quota); BLAS is held to one thread meanwhile.
+    require_identifiable : raise QualityError (holding the result) when the data leave parameters
+        undetermined (a direction along which |B1| does not change, or a standard error above
+        `diagnostics.UNDETERMINED`: 10 % of the field, 0.1, 10 deg); False returns the result
+        with its warnings.
     allow_unconverged : return a staged result that stopped at its cycle limit, or away from the
         joint optimum of the same objective, with a warning and without standard errors, instead
         of raising QualityError.
+    verbose : print IPOPT's log of every solve (on stdout, as CasADi does).
 
     Returns a CalibrationResult. Raises InputError for unusable input, SolveError when IPOPT
     fails and QualityError as above.
     """
-    validation.choice(method, "method", METHODS)
-    cycles = validation.count(cycles, "cycles")
-    target_std = validation.optional_number(target_std, "target_std", positive=True)
-    target_range = validation.optional_number(target_range, "target_range", positive=True)
-    rtol = validation.number(rtol, "rtol", minimum=0.0)
-    units.check_compatible(unit, reference_unit or unit)
-    chosen_loss = Loss(
-        loss,
-        units.to_base(
-            validation.optional_number(loss_scale, "the loss scale", positive=True), unit
-        ),
-    )
-    # A Dask array or DataFrame stays on its cluster: one survey pass checks it (nlpcal.passes).
-    samples, reference_field = passes.surveyed(field_samples(samples), reference_field)
-    samples = validation.samples(samples)
-    reference = validation.reference(reference_field, samples.shape[0])
-    samples = units.to_base(samples, unit)  # in base units a memory map stays mapped
-    reference = units.to_base(reference, reference_unit or unit)
-    target_std, target_range = units.to_base(target_std, unit), units.to_base(target_range, unit)
-    validation.reference_scale(reference, validation.mean_magnitude(samples))
-    moments = accumulate(samples, reference)
-    problem = Problem(
-        samples=samples,
-        reference=reference,
-        moments=moments,
-        loss=chosen_loss,
-    )
-    try:
-        if method == "staged":
-            rule = StopRule(
-                max_cycles=cycles, target_std=target_std, target_range=target_range, rtol=rtol
-            )
-            theta, rows, stages, stop_reason = run_staged(problem, rule, progress)
-            hs = scaled_hessian(problem.moments, theta)
+    with chunks.call_threads(threads):
+        validation.choice(method, "method", METHODS)
+        cycles = validation.count(cycles, "cycles")
+        target_std = validation.optional_number(target_std, "target_std", positive=True)
+        target_range = validation.optional_number(target_range, "target_range", positive=True)
+        rtol = validation.number(rtol, "rtol", minimum=0.0)
+        units.check_compatible(unit, reference_unit or unit)
+        chosen_loss = Loss(
+            loss,
+            units.to_base(
+                validation.optional_number(loss_scale, "the loss scale", positive=True), unit
+            ),
+        )
+        # A Dask array or DataFrame stays on its cluster: one survey pass checks it (passes).
+        samples, reference_field = passes.surveyed(field_samples(samples), reference_field)
+        samples = validation.samples(samples)
+        reference = validation.reference(reference_field, samples.shape[0])
+        samples = units.to_base(samples, unit)  # in base units a memory map stays mapped
+        reference = units.to_base(reference, reference_unit or unit)
+        target_std, target_range = (
+            units.to_base(target_std, unit),
+            units.to_base(target_range, unit),
+        )
+        validation.reference_scale(reference, validation.mean_magnitude(samples))
+        moments = accumulate(samples, reference)
+        problem = Problem(
+            samples=samples,
+            reference=reference,
+            moments=moments,
+            loss=chosen_loss,
+            ipopt=IpoptOptions(print_level=5) if verbose else IpoptOptions(),
+        )
+        try:
+            if method == "staged":
+                rule = StopRule(
+                    max_cycles=cycles,
+                    target_std=target_std,
+                    target_range=target_range,
+                    rtol=rtol,
+                    every_row_exact=False,
+                )
+                theta, rows, stages, stop_reason = run_staged(problem, rule, progress)
+                hs = scaled_hessian(problem.moments, theta)
+            else:
+                step, rows, stages = run_joint(problem)
+                theta, stop_reason = step.theta, "solved"
+                hs = scaled_hessian(problem.moments, theta, step)
+        except SolveError as failure:
+            raise explain_failure(problem, failure) from None
+        final = rows[-1]
+        errors, identifiability, covariance = uncertainty(
+            problem, final["objective"], hs, final["residual_lag1_autocorrelation"], theta
+        )
+        if identifiability["not_identifiable"]:  # theta is not to be trusted: judge the directions
+            centred = np.zeros(9)  # about the fitted sphere's centre, or the samples' mean when the
+            centred[0:3] = coverage_centre(samples, problem.moments.frame)  # sphere is degenerate
+            identifiability["coverage"] = direction_coverage(samples, centred)
         else:
-            step, rows, stages = run_joint(problem)
-            theta, stop_reason = step.theta, "solved"
-            hs = scaled_hessian(problem.moments, theta, step)
-    except SolveError as failure:
-        raise explain_failure(problem, failure) from None
-    final = rows[-1]
-    errors, identifiability, covariance = uncertainty(
-        problem, final["objective"], hs, final["residual_lag1_autocorrelation"], theta
-    )
-    identifiability["coverage"] = direction_coverage(samples, theta)
-    warnings = warnings_for(problem, theta, hs, errors, identifiability, final)
-    spread = residual_spread(problem, theta)
-    robust = {**problem.loss.to_dict(), **spread}
-    if problem.loss.robust:
-        robust.update(
-            scale_source="given"
-            if problem.scale_given
-            else f"1.4826 MAD x {TUNING[problem.loss.kind]:g}",
-            reweightings=problem.reweights,
-            downweighted=final["downweighted"],
-            downweighted_fraction=final["downweighted"] / len(samples),
-            centre=problem.centre,
-        )
-    elif spread["residual_std"] > HEAVY_TAIL_RATIO * spread["residual_robust_std"]:
-        warnings.append(
-            f"the residuals are heavy-tailed (std {spread['residual_std']:.3g}, robust std "
-            f"{spread['residual_robust_std']:.3g}): spikes or disturbances may pull the least-"
-            f"squares estimate; a robust loss (--loss huber) down-weights them"
-        )
-    unconverged = None
-    if method == "staged":
-        gap = joint_gap(problem, theta, errors)
-        identifiability["joint_gap"] = gap
-        distance = gap["max_gap_in_standard_errors"]
-        if distance is not None and distance > STAGED_GAP_LIMIT:
-            message = staged_message(stop_reason, cycles, gap)
-            warnings.append(message)
-            identifiability["standard_errors_at_joint_optimum"] = errors
-            errors = covariance = None  # they describe an optimum, which this point is not
-            if stop_reason in ("max_cycles", "rtol"):  # a target stop is the user's request
-                stop_reason = stop_reason if stop_reason == "max_cycles" else "above_joint_optimum"
-                unconverged = message
-        elif stop_reason == "max_cycles" and len(rows) > 2:
-            warnings.append(
-                f"the staged cycle stopped at the maximum of {cycles} cycles before its rtol "
-                f"rule ({rtol:g}) held; its parameters agree with the joint optimum of the same "
-                f"data within {STAGED_GAP_LIMIT:g} standard errors"
+            identifiability["coverage"] = direction_coverage(samples, theta)
+        base = units.base_unit(unit)
+        warnings = warnings_for(problem, theta, hs, errors, identifiability, final, base)
+        point_errors = errors  # the standard errors at theta, which the quality check judges
+        spread = residual_spread(problem, theta)
+        robust = {**problem.loss.to_dict(), **spread}
+        if problem.loss.robust:
+            robust.update(
+                scale_source="given"
+                if problem.scale_given
+                else f"1.4826 MAD x {TUNING[problem.loss.kind]:g}",
+                reweightings=problem.reweights,
+                downweighted=final["downweighted"],
+                downweighted_fraction=final["downweighted"] / len(samples),
+                centre=problem.centre,
             )
-    mode = problem.moments.reference
-    result = CalibrationResult(
-        parameters=Zhou2010Parameters.from_theta(theta).to_dict(),
-        statistics=rows,
-        method=method,
-        reference=problem.reference_document(),
-        gauge=dict(GAUGE) if mode == "none" else None,
-        solver={
-            "name": "ipopt",
-            "status": stages[-1]["status"],
-            "success": True,
-            "iterations": sum(s["iterations"] for s in stages),
-            "stop_reason": stop_reason,
-            "stages": stages,
-        },
-        unit=units.base_unit(unit),
-        standard_errors=errors,
-        covariance=covariance,
-        identifiability=identifiability,
-        warnings=warnings,
-        n_samples=int(samples.shape[0]),
-        input={"log_unit": unit},
-        robust=robust,
-    )
-    if require_identifiable and identifiability["not_identifiable"]:
-        raise QualityError(
-            f"the data do not determine "
-            f"{', '.join(identifiability['not_identifiable'])}; rotate the sensor "
-            f"through more attitudes (require_identifiable=False returns the "
-            f"result anyway)",
-            "Not_Identifiable",
-            result=result,
+        elif spread["residual_std"] > HEAVY_TAIL_RATIO * spread["residual_robust_std"]:
+            warnings.append(
+                f"the residuals are heavy-tailed (std {spread['residual_std']:.3g}, robust std "
+                f"{spread['residual_robust_std']:.3g}): spikes or disturbances may pull the least-"
+                f"squares estimate; a robust loss (--loss huber) down-weights them"
+            )
+        unconverged = None
+        if method == "staged":
+            gap = joint_gap(problem, theta, errors)
+            identifiability["joint_gap"] = gap
+            distance = gap["max_gap_in_standard_errors"]
+            checked = "objective_joint" in gap and distance is not None
+            if not checked or distance > STAGED_GAP_LIMIT:
+                message = staged_message(stop_reason, cycles, gap)
+                warnings.append(message)
+                identifiability["standard_errors_at_joint_optimum"] = errors
+                errors = covariance = None  # they describe an optimum, not this point
+                # a target stop is the user's request; a cycle that converged by its rtol rule but
+                # cannot be checked (no standard errors, no joint optimum) keeps its warning
+                if stop_reason == "max_cycles" or (stop_reason == "rtol" and checked):
+                    stop_reason = (
+                        stop_reason if stop_reason == "max_cycles" else "above_joint_optimum"
+                    )
+                    unconverged = message
+            elif stop_reason == "max_cycles" and len(rows) > 2:
+                warnings.append(
+                    f"the staged cycle stopped at the maximum of {cycles} cycles before its "
+                    f"rtol rule ({rtol:g}) held; its parameters agree with the joint optimum of "
+                    f"the same data within {STAGED_GAP_LIMIT:g} standard errors"
+                )
+        mode = problem.moments.reference
+        result = CalibrationResult(
+            parameters=Zhou2010Parameters.from_theta(theta).to_dict(),
+            statistics=rows,
+            method=method,
+            reference=problem.reference_document(),
+            gauge=dict(GAUGE) if mode == "none" else None,
+            solver={
+                "name": "ipopt",
+                "status": stages[-1]["status"],
+                "success": True,
+                "iterations": sum(s["iterations"] for s in stages),
+                "stop_reason": stop_reason,
+                "stages": stages,
+            },
+            unit=units.base_unit(unit),
+            standard_errors=errors,
+            covariance=covariance,
+            identifiability=identifiability,
+            warnings=warnings,
+            n_samples=int(samples.shape[0]),
+            input={"log_unit": unit},
+            robust=robust,
         )
-    if unconverged and not allow_unconverged:
-        raise QualityError(
-            f"{unconverged} (allow_unconverged=True returns it anyway)",
-            "Staged_Unconverged",
-            result=result,
-        )
-    return result
+        if require_identifiable and identifiability["not_identifiable"]:
+            also = f" Besides, {unconverged[0].lower()}{unconverged[1:]}." if unconverged else ""
+            raise QualityError(
+                undetermined_message(
+                    point_errors, identifiability, final, problem.moments.reference, base
+                )
+                + also,
+                "Not_Identifiable",
+                result=result,
+            )
+        if unconverged and not allow_unconverged:
+            raise QualityError(
+                f"{unconverged} (allow_unconverged=True returns it anyway)",
+                "Staged_Unconverged",
+                result=result,
+            )
+        return result
 
 
 def staged_message(stop_reason: str, cycles: int, gap: dict) -> str:
@@ -220,7 +254,16 @@ def staged_message(stop_reason: str, cycles: int, gap: dict) -> str:
     )
     distance = gap.get("max_gap_in_standard_errors")
     if "objective_joint" not in gap:
-        return f"{why}; the joint optimum of the same data could not be found ({gap['status']})"
+        return (
+            f"{why}, and the joint optimum of the same data, to check it against, could not "
+            f"be found ({gap['status']}); rotate the sensor through more attitudes"
+        )
+    if distance is None:
+        return (
+            f"{why}; without standard errors its distance from the joint optimum "
+            f"({gap['objective_joint']:.6g} against {gap['objective_staged']:.6g}) cannot be "
+            f"judged"
+        )
     where = (
         ""
         if distance is None

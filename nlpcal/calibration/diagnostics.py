@@ -10,18 +10,28 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import inference
+from .. import inference, units
 from ..errors import SolveError
 from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters, correct
 from ..moments import Moments
-from ..nlp.blocks import SCALE_INDICES, block_step, objective_function, pack, variable_scale
+from ..nlp import blocks
+from ..nlp.blocks import block_step, objective_function, pack, variable_scale
 from ..robust import robust_std
 from ..statistics import field_statistics
 from .problem import Problem
 
 #: Standard errors above these are "poorly determined": offsets 1 % of the field, scale errors
-#: 0.01, angles 1 deg.
+#: 0.01, angles 1 deg (a calibration that changes |B| by about 1 % either way).
 POORLY_DETERMINED = np.array([1e-2] * 3 + [1e-2] * 3 + [1.0] * 3)
+#: Standard errors above these mean the data do not determine the parameter at all (offsets 10 %
+#: of the field, scale errors 0.1, angles 10 deg): the linearisation behind a standard error no
+#: longer holds, and the solvers wander along the valley (data on a cap of the sphere).
+UNDETERMINED = 10.0 * POORLY_DETERMINED
+#: Above this relative spread of |B1| after calibration, the field or the sensor is disturbed
+#: beyond what the nine parameters describe (a clean fluxgate reaches 1e-4). [1]
+DISTURBED_SPREAD = 5e-3
+#: Above this widening of the standard errors, neighbouring residuals are worth mentioning. [1]
+CORRELATED_INFLATION = 2.0
 #: The 26 directions of a cube's faces, edges and corners: the bins of `direction_coverage`.
 _BIN_DIRECTIONS = np.array(
     [
@@ -50,7 +60,7 @@ def scaled_hessian(moments: Moments, theta, step=None) -> np.ndarray:
     """
     scale = variable_scale(moments.frame.radius)
     if step is not None and step.problem.block == "joint":
-        return step.f_ref * step.problem.hessian(step.x, step.p)
+        return step.f_ref * step.objective_hessian()
     p = pack(moments, theta, scale, 1.0)
     hess = np.asarray(objective_function(moments.reference)(theta, p)[2], dtype=float)
     return scale[:, None] * hess * scale[None, :]
@@ -59,11 +69,7 @@ def scaled_hessian(moments: Moments, theta, step=None) -> np.ndarray:
 def gauge_basis(moments: Moments) -> np.ndarray:
     """Orthonormal basis of the scaled variables the gauge leaves free (all nine with a reference;
     eight without one, s_x + s_y + s_z = 0)."""
-    if moments.reference != "none":
-        return np.eye(9)
-    normal = np.zeros(9)
-    normal[list(SCALE_INDICES)] = variable_scale(moments.frame.radius)[list(SCALE_INDICES)]
-    return np.linalg.svd(normal[None, :])[2][1:].T  # 9 x 8, orthogonal to the gauge's normal
+    return np.eye(9) if moments.reference != "none" else blocks.gauge_basis(range(9))  # 9 x 8
 
 
 def _names(indices) -> list:
@@ -103,16 +109,23 @@ def uncertainty(
         to_units[6:9] = np.degrees(to_units[6:9])
         covariance = to_units[:, None] * result.covariance * to_units[None, :]
         errors = {name: float(v) for name, v in zip(PARAMETER_NAMES, np.sqrt(np.diag(covariance)))}
-    limits = np.concatenate([POORLY_DETERMINED[:3] * moments.frame.radius, POORLY_DETERMINED[3:]])
+    radius = moments.frame.radius
+    limits = np.concatenate([POORLY_DETERMINED[:3] * radius, POORLY_DETERMINED[3:]])
+    far = np.concatenate([UNDETERMINED[:3] * radius, UNDETERMINED[3:]])
+    undetermined = [
+        name for name, limit in zip(PARAMETER_NAMES, far) if errors and errors[name] > limit
+    ]
     poorly = [
         name
         for name, limit in zip(PARAMETER_NAMES, limits)
-        if errors is not None and errors[name] > limit
+        if errors and errors[name] > limit and name not in undetermined
     ]
+    weak = _names(result.weak)
     return (
         errors,
         {
-            "not_identifiable": _names(result.weak),
+            "not_identifiable": [n for n in PARAMETER_NAMES if n in weak or n in undetermined],
+            "undetermined": undetermined,
             "poorly_determined": poorly,
             "weakest_combination": _names(result.weakest),
             "hessian_eigenvalues_scaled": [float(v) for v in result.eigenvalues * 2.0 / n],
@@ -120,6 +133,7 @@ def uncertainty(
             "residual_lag1_autocorrelation": float(autocorrelation),
             "standard_error_inflation": result.inflation,
             "poorly_determined_limits": {n_: float(v) for n_, v in zip(PARAMETER_NAMES, limits)},
+            "undetermined_limits": {n_: float(v) for n_, v in zip(PARAMETER_NAMES, far)},
         },
         covariance,
     )
@@ -149,13 +163,17 @@ def joint_gap(problem: Problem, theta, errors) -> dict:
     status of the joint solve.
     """
     try:
-        step = block_step(problem.moments, "joint", theta)
+        step = block_step(
+            problem.moments, "joint", theta, stationary=blocks.resolution(problem.moments)
+        )
     except SolveError as failure:
         return {"status": failure.status, "max_gap_in_standard_errors": None}
     staged = Zhou2010Parameters.from_theta(theta).as_vector()
     joint = Zhou2010Parameters.from_theta(step.theta).as_vector()
     gap = None
-    if errors is not None:
+    if step.newton_decrease is not None:  # not re-solved: the Newton step's length bounds it
+        gap = float(np.sqrt(problem.moments.n * step.newton_decrease / step.f_start))
+    elif errors is not None:
         sd = np.array([errors[name] for name in PARAMETER_NAMES])
         gap = float(np.max(np.abs(staged - joint) / np.where(sd > 0, sd, np.inf)))
     return {
@@ -173,13 +191,45 @@ def residual_spread(problem: Problem, theta) -> dict:
     return {"residual_std": float(np.std(residuals)), "residual_robust_std": robust_std(residuals)}
 
 
+def coverage_centre(samples, frame, max_points: int = 20000) -> np.ndarray:
+    """Where to judge the field directions of samples whose parameters are not determined: the
+    centre of the sphere fitted to them, unless that sphere is degenerate (a radius over three
+    times their spread: samples in a plane), then their mean. [field unit]"""
+    sub = np.asarray(samples[:: max(1, samples.shape[0] // max_points)], dtype=float)
+    mean = sub.mean(axis=0)
+    spread = float(np.sqrt(np.mean(np.sum((sub - mean) ** 2, axis=1))))
+    return np.asarray(frame.centre) if frame.radius <= 3.0 * spread else mean
+
+
 def direction_coverage(samples, theta, max_points: int = 20000) -> dict:
     """How many of 26 direction bins the corrected field B1 visits (a strided subsample)."""
     sub = samples[:: max(1, samples.shape[0] // max_points)]
     b1 = correct(sub, Zhou2010Parameters.from_theta(theta))
     nearest = np.argmax(b1 @ _BIN_DIRECTIONS.T, axis=1)
-    covered = int(np.unique(nearest).size)
-    return {"direction_bins": 26, "covered": covered, "fraction": covered / 26}
+    visited = np.unique(nearest)
+    covered = int(visited.size)
+    missing = [_BIN_NAMES[k] for k in range(26) if k not in set(visited.tolist())]
+    missing.sort(key=_bin_order)  # +x, -x, +y, -y, +z, -z, then edges and corners
+    return {
+        "direction_bins": 26,
+        "covered": covered,
+        "fraction": covered / 26,
+        "missing": missing,
+    }
+
+
+def _bin_name(direction) -> str:
+    """ "+x", "-x+y", "+x-y-z": the signs of a bin direction's non-zero components."""
+    return "".join(
+        f"{'+' if v > 0 else '-'}{axis}" for v, axis in zip(direction, "xyz") if abs(v) > 1e-9
+    )
+
+
+_BIN_NAMES = [_bin_name(d) for d in _BIN_DIRECTIONS]
+
+
+def _bin_order(name: str) -> tuple:
+    return (len(name), ["xyz".index(axis) for axis in name[1::2]], name[0::2])
 
 
 def exact_optimum_shift(problem: Problem, theta, hs: np.ndarray, errors) -> float | None:
@@ -220,22 +270,126 @@ def explain_failure(problem: Problem, failure: SolveError) -> SolveError:
     objective = field_statistics(problem.samples, theta, problem.reference)["objective"]
     _, identifiability, _ = uncertainty(problem, objective, hs)
     weak = identifiability["not_identifiable"]
+    identifiability["coverage"] = direction_coverage(problem.samples, theta)
+    if not weak and identifiability["coverage"]["fraction"] < COVERAGE_WARN:
+        final = field_statistics(problem.samples, theta, problem.reference)
+        help_ = what_would_help(identifiability, final, problem.moments.reference)
+        covered = identifiability["coverage"]["covered"]
+        return SolveError(
+            f"{failure}: the field directions cover {covered} of 26 direction bins, a cap of the "
+            f"sphere on which a larger, far-away sphere fits nearly as well, so the solver "
+            f"wanders. {help_[:1].upper()}{help_[1:]}",
+            failure.status,
+            result=theta,
+        )
+    if not weak:
+        return SolveError(
+            f"{failure}: the attitudes determine every parameter, so the coverage is not the "
+            f"cause; try the other method (--method joint or staged)",
+            failure.status,
+            result=theta,
+        )
+    final = field_statistics(problem.samples, theta, problem.reference)
+    help_ = what_would_help(identifiability, final, problem.moments.reference)
+    help_ = help_ or "rotate the sensor through more attitudes"
+    return SolveError(
+        f"{failure}: the data do not determine {', '.join(weak)}. {help_[:1].upper()}{help_[1:]}",
+        failure.status,
+        result=theta,
+    )
+
+
+def _unit_word(unit: str) -> str:
+    return "counts" if unit == "raw" else unit
+
+
+#: The three kinds of parameter, their names and how their limits are stated.
+_KINDS = (
+    ("offsets", PARAMETER_NAMES[:3]),
+    ("scale errors", PARAMETER_NAMES[3:6]),
+    ("angles", PARAMETER_NAMES[6:]),
+)
+
+
+def _judged(errors: dict, limits: dict, names, unit: str, share: float) -> str:
+    """ "offsets z_x ± 10.4, z_y ± 9.6 counts (limit 6.28 counts = 1 % of the field); angles ..."
+    : standard errors by kind, each kind's limit stated once."""
+    parts = []
+    for kind, members in _KINDS:
+        chosen = [n for n in members if n in names]
+        if not chosen:
+            continue
+        word = {"offsets": f" {_unit_word(unit)}", "scale errors": "", "angles": " deg"}[kind]
+        if kind == "offsets":
+            limit = f"limit {units.readable(limits[chosen[0]])}{word} = {share:g} % of the field"
+        else:
+            limit = f"limit {limits[chosen[0]]:g}{word}"
+        values = ", ".join(f"{n} ± {units.readable(errors[n])}" for n in chosen)
+        parts.append(f"{kind} {values}{word} ({limit})")
+    return "; ".join(parts)
+
+
+def what_would_help(identifiability: dict, final: dict, reference: str) -> str:
+    """What would determine the parameters better, from what limits them here."""
+    advice = []
+    coverage = identifiability.get("coverage", {})
+    missing = coverage.get("missing", [])
+    if missing:
+        more = f" and {len(missing) - 6} other directions" if len(missing) > 6 else ""
+        advice.append(
+            f"rotate the sensor through more attitudes: the field never pointed along "
+            f"{', '.join(missing[:6])}{more} (sensor axes; {coverage['covered']} of 26 direction "
+            f"bins visited)"
+        )
+    mean = final.get("mean") or 0.0
+    spread = final.get("std", 0.0) / mean if mean > 0 else 0.0
+    if spread > DISTURBED_SPREAD:
+        advice.append(
+            f"a steadier field: |B1| still varies by {spread:.1%} (a clean field gives 0.1 %): "
+            f"iron, electronics or motion nearby, or sensor errors beyond the nine parameters"
+        )
+    inflation = identifiability.get("standard_error_inflation", 1.0)
+    if inflation > CORRELATED_INFLATION:
+        rho = identifiability.get("residual_lag1_autocorrelation", 0.0)
+        advice.append(
+            f"more independent samples: neighbouring residuals are alike (lag-1 correlation "
+            f"{rho:.2f}, standard errors x{inflation:.1f})"
+        )
+    if reference == "none":
+        advice.append("a known field magnitude (--reference-field F) to fix the overall scale")
+    return "what would help: " + "; ".join(advice) if advice else ""
+
+
+def undetermined_message(errors, identifiability: dict, final: dict, reference: str, unit):
+    """Why the data do not determine some parameters, and what would: a few sentences."""
+    undetermined = identifiability.get("undetermined", [])
+    weak = [n for n in identifiability["not_identifiable"] if n not in undetermined]
+    parts = []
+    if undetermined:
+        judged = _judged(
+            errors,
+            identifiability["undetermined_limits"],
+            undetermined,
+            unit,
+            100 * UNDETERMINED[0],
+        )
+        parts.append(f"the data do not determine the {judged}")
     if weak:
-        advice = (
-            f"the data do not determine {', '.join(weak)}; rotate the sensor through more attitudes"
+        parts.append(
+            f"the data do not determine {', '.join(weak)} (|B1| does not change along a "
+            f"combination of them)"
         )
-    else:
-        advice = (
-            "the attitudes determine every parameter, so the coverage is not the cause; "
-            "try the other method (--method joint or staged)"
-        )
-    return SolveError(f"{failure}: {advice}", failure.status, result=theta)
+    help_ = what_would_help(identifiability, final, reference)
+    return "; ".join(parts) + (f". {help_[0].upper()}{help_[1:]}." if help_ else ".")
 
 
-def warnings_for(problem: Problem, theta, hs, errors, identifiability: dict, final: dict) -> list:
+def warnings_for(
+    problem: Problem, theta, hs, errors, identifiability: dict, final: dict, unit: str = "nT"
+) -> list:
     """What the data cannot tell, in words (and the exact-optimum check, into identifiability)."""
     warnings = []
-    if problem.moments.reference == "none":
+    reference = problem.moments.reference
+    if reference == "none":
         warnings.append(
             "absolute scale not identifiable without a reference field: the scales "
             "are fixed by the gauge s_x + s_y + s_z = 0; the scale ratios, offsets "
@@ -243,22 +397,28 @@ def warnings_for(problem: Problem, theta, hs, errors, identifiability: dict, fin
         )
     if identifiability["not_identifiable"]:
         warnings.append(
-            "not identifiable from this attitude coverage: "
-            + ", ".join(identifiability["not_identifiable"])
-            + "; rotate the sensor through more attitudes"
+            "not identifiable: "
+            + undetermined_message(errors, identifiability, final, reference, unit).rstrip(".")
         )
     coverage = identifiability["coverage"]
-    if coverage["fraction"] < COVERAGE_WARN:
+    if coverage["fraction"] < COVERAGE_WARN and not identifiability["not_identifiable"]:
         warnings.append(
             f"poor attitude coverage: the corrected field visits "
             f"{coverage['covered']} of 26 direction bins; the result leans on a "
             f"small part of the sphere"
         )
     if identifiability["poorly_determined"]:
+        judged = _judged(
+            errors,
+            identifiability["poorly_determined_limits"],
+            identifiability["poorly_determined"],
+            unit,
+            100 * POORLY_DETERMINED[0],
+        )
+        help_ = what_would_help(identifiability, final, reference)
         warnings.append(
-            "poorly determined (standard error above the limits in "
-            "identifiability.poorly_determined_limits): "
-            + ", ".join(identifiability["poorly_determined"])
+            f"poorly determined (standard errors above the limits): {judged}"
+            + (f". {help_[0].upper()}{help_[1:]}" if help_ else "")
         )
     if final.get("series_rel_error", 0.0) > SERIES_CHECK:
         shift = exact_optimum_shift(problem, theta, hs, errors)

@@ -17,7 +17,8 @@ import numpy as np
 
 from ..models.zhou2010 import Zhou2010Parameters
 from ..moments import Moments, accumulate
-from ..nlp.blocks import objective_function, pack
+from ..nlp.blocks import objective_function, pack, parameters, summary_function
+from ..nlp.solver import IpoptOptions
 from ..passes import reduce
 from ..robust import MAD_SAMPLES, Loss
 from ..statistics import corrected_magnitude, correction, field_statistics, reference_chunk
@@ -25,6 +26,10 @@ from ..statistics import corrected_magnitude, correction, field_statistics, refe
 #: A loss scale estimated from the residuals is re-estimated at every reweighting until it
 #: changes by less than this fraction, then kept, so that the last steps minimise one objective.
 SCALE_SETTLED = 1e-3
+#: A cycle's row comes from the moments only while the relative spread of |B1|^2 about its mean
+#: is below this: the truncation error of its mean is then of the order of 1e-8 and of its std
+#: 1e-5, relative (`nlp.objective.centred_expansion`). [1]
+MOMENT_ROW_SPREAD = 0.05
 
 
 @dataclass
@@ -39,6 +44,7 @@ class Problem:
         given.
     centre : without a reference, the centre of |B1| the residuals are taken from (the weighted
         mean of the latest pass). [field unit]
+    ipopt : the IPOPT settings of every solve (print_level > 0 shows IPOPT's log).
     """
 
     samples: np.ndarray
@@ -50,6 +56,7 @@ class Problem:
     reweights: int = 0
     weighted_at: np.ndarray | None = None  # the estimate the current weights were taken at
     frozen: bool = False  # the weights stay as they are (a comparison of solvers on them)
+    ipopt: IpoptOptions = IpoptOptions()
 
     def __post_init__(self):
         self.scale_given = self.loss.scale is not None
@@ -77,6 +84,37 @@ class Problem:
         stats["series_rel_error"] = abs(series - exact) / exact if exact > 0 else 0.0
         stats["parameters"] = Zhou2010Parameters.from_theta(theta).to_dict()
         return {"label": label, **stats, "iterations": int(iterations), "wall_s": float(wall_s)}
+
+    def moment_row(self, label, theta, *, iterations, wall_s) -> dict | None:
+        """A Table 1 row from the moments alone: mean and std of |B1| and the objective, without
+        max, min and range (they need a pass over the data); None where the expansion behind it
+        does not hold (the spread of |B1| above MOMENT_ROW_SPREAD of its mean, as in the first
+        cycles of a log whose offsets exceed the field)."""
+        f, mean, variance, spread = (
+            float(v)
+            for v in summary_function(self.moments.reference)(theta, parameters(self.moments))
+        )
+        if not spread <= MOMENT_ROW_SPREAD:
+            return None
+        return {
+            "label": label,
+            "max": None,
+            "min": None,
+            "mean": mean,
+            "std": float(np.sqrt(max(variance, 0.0))),
+            "range": None,
+            "objective": f,
+            "from_moments": True,
+            "parameters": Zhou2010Parameters.from_theta(theta).to_dict(),
+            "iterations": int(iterations),
+            "wall_s": float(wall_s),
+        }
+
+    @property
+    def rows_from_moments(self) -> bool:
+        """Whether cycle rows can come from the moments: least squares without a reference
+        series (a robust loss and a series weight the samples in ways the mean cannot show)."""
+        return not self.loss.robust and self.moments.reference in ("none", "constant")
 
     def reference_document(self) -> dict:
         """The "reference" block of a result: the mode and the field (or its mean)."""

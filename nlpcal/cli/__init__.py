@@ -19,7 +19,6 @@ from ..version import __version__
 from . import (
     batch,
     calibrate,
-    common,
     compare,
     compass,
     drift,
@@ -29,11 +28,10 @@ from . import (
     report,
     simulate,
 )
-from .common import Parser, UsageError, add_quiet_argument
+from .common import HelpFormatter, Parser, UsageError, add_verbosity, set_verbosity
 
-#: The subcommand modules, in the order of the help.
+#: The subcommand modules, in the order of the help (calibrate, apply and stats first).
 COMMANDS = (
-    simulate,
     calibrate,
     batch,
     compare,
@@ -43,17 +41,46 @@ COMMANDS = (
     export,
     imports,
     report,
+    simulate,
 )
+
+DESCRIPTION = """\
+nlpcal calibrates three-axis magnetometers (fluxgates, MEMS compasses). From a log of readings
+taken while the sensor is turned through many orientations in a steady field, it estimates the
+offsets (hard iron), the scale error of each axis and the angles between the axes, so that the
+corrected field has the same magnitude in every orientation. Logs are delimited text (comma,
+semicolon, tab or whitespace, with or without a header row; '-' reads stdin), Parquet files,
+or a quoted pattern or a folder of them.
+
+start here:
+  nlpcal calibrate LOG.csv -o params.json             estimate the calibration from a log
+  nlpcal apply params.json LOG.csv -o corrected.csv   correct a log (any log of that sensor)
+  nlpcal stats LOG.csv --params params.json           |B| before and after, as a table
+
+  e.g. nlpcal calibrate mag.txt --unit raw   (counts, no header: the three columns are found)
+       nlpcal calibrate log.csv --columns 4 5 6 --unit uT
+
+Each command explains itself: nlpcal COMMAND --help.
+"""
+
+EPILOG = """\
+exit status: 0 success; 1 the solve failed or the data cannot determine the calibration;
+2 bad usage or input (one sentence on stderr). Data go to stdout or -o, messages to stderr.
+"""
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = Parser(prog="nlpcal", description=__doc__.splitlines()[0])
+    parser = Parser(
+        prog="nlpcal", description=DESCRIPTION, epilog=EPILOG, formatter_class=HelpFormatter
+    )
     parser.add_argument("--version", action="version", version=f"nlpcal {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
+    sub = parser.add_subparsers(
+        dest="command", metavar="COMMAND", parser_class=Parser, title="commands"
+    )
     sub.required = True
     for module in COMMANDS:
         module.register(sub)
-    add_quiet_argument(parser)
+    add_verbosity(parser)
     return parser
 
 
@@ -71,11 +98,11 @@ def main(argv=None) -> int:
     try:
         args = parser.parse_args(argv)
     except UsageError as exc:
-        print(f"{exc}\n(see 'nlpcal --help')", file=sys.stderr)
+        print(f"{exc}\n(see '{exc.prog} --help')", file=sys.stderr)
         return 2
     except SystemExit as exc:  # --help and --version
         return int(exc.code or 0)
-    common.QUIET = bool(getattr(args, "quiet", False))
+    set_verbosity(args)
     previous = signal.getsignal(signal.SIGTERM)
     in_main_thread = _set_signal(signal.SIGTERM, _terminate)
     try:

@@ -1,37 +1,44 @@
 """`nlpcal calibrate`, `nlpcal apply` and `nlpcal stats`: the nine-parameter model on logs, with
 the temperature options of Liu et al. (2022).
 
-    nlpcal calibrate LOG.csv --reference-column COL --temperature-column COL
-                     [--temperature-model common|per-axis] [--base-temperature T0] [-o params.json]
-    nlpcal apply PARAMS.json LOG.csv [--drift drift.json] [--temperature-column COL] [-o out.csv]
-    nlpcal stats LOG.csv [--params PARAMS.json] [--reference-column COL]
+    nlpcal calibrate LOG [--columns X Y Z] [--unit U] [--reference-field F | --reference-column COL]
+                     [--temperature-column COL [--temperature-model common|per-axis]
+                     [--base-temperature T0]] [--allow-unidentifiable] [-o params.json]
+    nlpcal apply PARAMS.json LOG [--drift drift.json] [--temperature-column COL] [-o out.csv]
+    nlpcal stats LOG [--params PARAMS.json] [--reference-column COL]
                      [--drift drift.json] [--temperature-column COL] [--json]
 
-Temperatures are in degC. `calibrate --temperature-column` estimates the nine parameters and the
-temperature coefficients together; its parameters file carries a "temperature_model" object that
-`apply` and `stats` use with the log's temperature column. `apply --drift` divides the raw vector
-by k(t) (Eq. 9) before Eq. 4; `stats --reference-column` adds the RMSE of Eq. 10 to every row, so
+LOG is any delimited text log, or `-` for stdin. Temperatures are in degC. `calibrate
+--temperature-column` estimates the nine parameters and the temperature coefficients together;
+its parameters file carries a "temperature_model" object that `apply` and `stats` use with the
+log's temperature column. `apply --drift` divides the raw vector by k(t) (Eq. 9) before Eq. 4;
+`stats --reference-column` adds the RMSE of Eq. 10 to every row, so
 `stats LOG --reference-column F --params P --drift D` prints the paper's three rows.
 """
 
 from __future__ import annotations
 
 import time
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from .common import (
+    add_command,
     add_log_arguments,
     add_loss_arguments,
     add_reference_arguments,
     add_reference_model_arguments,
     add_scheduler_arguments,
-    emit_csv,
+    add_threads_argument,
     emit_json,
     log_options,
     progress,
+    report_log,
     say,
+    solver_log,
     tell,
     warn,
+    warning,
 )
 
 if TYPE_CHECKING:
@@ -42,8 +49,9 @@ TOTAL_COLUMN = "b_total"
 OUTLIER_COLUMN = "outlier"
 TEMPERATURE_MODELS = ("common", "per-axis")
 #: Defaults of the staged cycle (the library's `nlpcal.calibration.CYCLES_DEFAULT`, ...).
-CYCLES_DEFAULT = 50
+CYCLES_DEFAULT = 500
 RTOL_DEFAULT = 1e-9
+LOG_HELP = "the log: a delimited text file (comma, semicolon, tab or whitespace), or - for stdin"
 
 
 def register(sub):
@@ -56,42 +64,63 @@ def register(sub):
 
 
 def _register_calibrate(sub):
-    parser = sub.add_parser(
+    parser = add_command(
+        sub,
         "calibrate",
-        help="estimate the nine parameters of Eq. 4 from a log",
-        description="Estimate offsets, scale errors and non-orthogonality angles (Zhou et al. "
-        "2010, Eq. 4) by minimising the spread of |B1| (Eq. 8), or its distance to a "
-        "reference field. Prints the Table 1 rows to stderr.",
+        help="estimate a magnetometer's calibration from a log of many orientations",
+        description="""\
+Estimate the nine parameters that turn the raw readings B_M into the corrected field
+B1 = O S (B_M - Z) (Zhou et al. 2010, Eq. 4):
+  Z = z_x, z_y, z_z      offsets (hard iron, sensor bias), in the unit of the field columns
+  s_x, s_y, s_z          scale errors of the axes (0.01 = 1 % too large)
+  alpha, beta, gamma     angles by which the axes miss being perpendicular [deg]
+The log should hold readings taken while the sensor was turned through many orientations in a
+steady field. Without a reference field the parameters make |B1| as constant as possible; the
+overall scale is then fixed by s_x + s_y + s_z = 0. The |B| statistics (measured, then after
+each cycle: the paper's Table 1) are printed on stderr with what the data cannot determine, and
+the parameters are written as JSON for 'nlpcal apply'. Exit 1 when the data cannot determine
+them (say, the sensor was never turned over); --allow-unidentifiable writes them anyway.""",
+        examples=(
+            "nlpcal calibrate log.csv -o params.json",
+            "nlpcal calibrate mag.txt --unit raw -o params.json     # counts, no header row",
+            "nlpcal calibrate log.csv --columns 4 5 6 --unit uT     # columns by position",
+            "nlpcal calibrate log.csv --reference-field 48500       # a known |B| in nT",
+            "logger | nlpcal calibrate - --unit G -o params.json    # from stdin",
+        ),
     )
-    parser.add_argument("log", metavar="LOG.csv")
+    parser.add_argument("log", metavar="LOG", help=LOG_HELP)
     add_log_arguments(parser)
     parser.add_argument(
         "--method",
         choices=("staged", "joint"),
         default="staged",
-        help="staged: the paper's cycle orthogonal -> scale -> offset (default); "
-        "joint: all nine at once",
+        help="staged: the paper's cycle, angles -> scales -> offsets, repeated (default); "
+        "joint: all nine in one solve (same optimum, fewer iterations)",
     )
     parser.add_argument(
         "--cycles",
         type=int,
         default=CYCLES_DEFAULT,
         metavar="K",
-        help=f"most staged cycles (default {CYCLES_DEFAULT})",
+        help=f"most cycles of the staged method (default {CYCLES_DEFAULT})",
     )
     parser.add_argument(
-        "--target-std", type=float, metavar="F", help="stop the cycle when std |B1| <= F [unit]"
+        "--target-std",
+        type=float,
+        metavar="F",
+        help="stop the cycle when the std of |B1| <= F, in the unit of the field columns",
     )
     parser.add_argument(
         "--target-range",
         type=float,
         metavar="F",
-        help="stop the cycle when max - min of |B1| <= F [unit]",
+        help="stop the cycle when max - min of |B1| <= F, in the unit of the field columns",
     )
     parser.add_argument(
         "--rtol",
         type=float,
         default=RTOL_DEFAULT,
+        metavar="R",
         help="stop the cycle when the objective improves by less than this "
         f"fraction (default {RTOL_DEFAULT:g})",
     )
@@ -99,9 +128,9 @@ def _register_calibrate(sub):
     parser.add_argument(
         "--temperature-column",
         metavar="COL",
-        help="column of temperatures [degC]: estimate the nine parameters and "
-        "temperature coefficients together (needs --reference-column; "
-        "--method, --cycles and the targets do not apply)",
+        help="column of temperatures [degC] (name or position): estimate the nine parameters "
+        "and how they drift with temperature together (Liu et al. 2022; needs "
+        "--reference-column; --method, --cycles and the targets do not apply)",
     )
     parser.add_argument(
         "--temperature-model",
@@ -114,22 +143,29 @@ def _register_calibrate(sub):
         "--base-temperature",
         type=float,
         metavar="T0",
-        help="temperature at which the nine parameters are reported [degC] "
-        "(default: the log's mean)",
-    )
-    add_loss_arguments(parser)
-    parser.add_argument(
-        "--allow-unconverged",
-        action="store_true",
-        help="write a staged result that stopped at its cycle limit or away from the joint "
-        "optimum of the same data (with a warning and without standard errors) instead of "
-        "failing the quality check",
+        help="with --temperature-column: the temperature at which the nine parameters are "
+        "reported [degC], e.g. 20 (default: the log's mean temperature)",
     )
     parser.add_argument(
         "--low-memory",
         action="store_true",
         help="stream the log into a memory-mapped temporary file in chunks, so "
         "that logs larger than memory can be calibrated",
+    )
+    add_loss_arguments(parser)
+    add_threads_argument(parser)
+    parser.add_argument(
+        "--allow-unidentifiable",
+        action="store_true",
+        help="write the result even when the data cannot determine some parameters (exit 0, "
+        "with the warning in the output); default: exit 1 and write nothing",
+    )
+    parser.add_argument(
+        "--allow-unconverged",
+        action="store_true",
+        help="write a staged result that stopped at its cycle limit or away from the joint "
+        "optimum of the same data (with a warning and without standard errors) instead of "
+        "failing the quality check",
     )
     add_scheduler_arguments(parser)
     parser.add_argument(
@@ -158,7 +194,9 @@ def _write_plot(args, log, parameters, corrected=None) -> None:
     from ..report import figure_png
 
     if args.plot:
-        png = figure_png(log, parameters, corrected, title=f"{args.log} ({args.command})")
+        png = figure_png(
+            log, parameters, corrected, title=f"{Path(log.path).name} ({args.command})"
+        )
         write_bytes_atomic(args.plot, png)
         warn(f"wrote {args.plot}")
 
@@ -186,7 +224,7 @@ def _dask_progress(spec):
 
     from . import common
 
-    if spec not in ("threads", "processes") or common.QUIET or not sys.stderr.isatty():
+    if spec not in ("threads", "processes") or common.VERBOSITY < 0 or not sys.stderr.isatty():
         return contextlib.nullcontext()
     from dask.diagnostics import ProgressBar
 
@@ -218,7 +256,7 @@ def _read_for_calibration(args, extra):
 def _run_calibrate(args) -> int:
     from ..calibration import calibrate_log
     from ..drift.temperature import calibrate_temperature_log
-    from ..errors import InputError
+    from ..errors import InputError, QualityError
     from ..io import check_output_path
 
     check_output_path(args.output, args.log)
@@ -242,38 +280,56 @@ def _run_calibrate(args) -> int:
         if value
     ]
     if (args.method == "joint" or temperature) and staged_only:
-        warn(f"{', '.join(staged_only)} only steer the staged cycle; the joint solve ignores them")
+        warning(
+            f"{', '.join(staged_only)} only steer the staged cycle; the joint solve ignores them"
+        )
     started = time.perf_counter()
     extra = [args.temperature_column] if args.temperature_column else []
     progress(f"reading {args.log} ...")
     log = _read_for_calibration(args, extra)
     progress("")
-    tell(log.notes)
+    report_log(log)
     read_s = time.perf_counter() - started
     started = time.perf_counter()
     result: CalibrationResult | TemperatureCalibrationResult
-    if temperature:
-        result = calibrate_temperature_log(
-            log,
-            args.temperature_column,
-            model=args.temperature_model or "common",
-            base_temperature=args.base_temperature,
-        )
-    else:
-        result = calibrate_log(
-            log,
-            method=args.method,
-            cycles=args.cycles,
-            rtol=args.rtol,
-            target_std=args.target_std,
-            target_range=args.target_range,
-            loss=args.loss,
-            loss_scale=args.loss_scale,
-            allow_unconverged=args.allow_unconverged,
-            progress=lambda cycle, row: progress(
-                f"cycle {cycle}: std of |B1| {row['std']:.6g} {log.base_unit}"
-            ),
-        )
+    try:
+        with solver_log():
+            if temperature:
+                result = calibrate_temperature_log(
+                    log,
+                    args.temperature_column,
+                    model=args.temperature_model or "common",
+                    base_temperature=args.base_temperature,
+                )
+            else:
+                result = calibrate_log(
+                    log,
+                    method=args.method,
+                    cycles=args.cycles,
+                    rtol=args.rtol,
+                    target_std=args.target_std,
+                    target_range=args.target_range,
+                    loss=args.loss,
+                    loss_scale=args.loss_scale,
+                    require_identifiable=not args.allow_unidentifiable,
+                    allow_unconverged=args.allow_unconverged,
+                    threads=args.threads,
+                    verbose=args.verbose,
+                    progress=lambda cycle, row: progress(
+                        f"cycle {cycle}: std of |B1| {row['std']:.6g} {log.base_unit}"
+                    ),
+                )
+    except QualityError as failure:
+        progress("")
+        if failure.result is not None:
+            say(failure.result.table())
+        if failure.status != "Not_Identifiable":
+            raise
+        raise QualityError(
+            f"{failure} --allow-unidentifiable writes the result anyway, with this warning.",
+            failure.status,
+            result=failure.result,
+        ) from None
     progress("")
     warn(
         f"read {log.n} rows in {read_s:.2f} s (pandas {log.engine} engine); calibrated in "
@@ -286,11 +342,14 @@ def _run_calibrate(args) -> int:
             f"{robust['loss']} loss, scale {robust['scale']:.4g} {result.unit}: "
             f"{robust['downweighted']} of {log.n} samples down-weighted"
         )
-    tell(result.warnings)
+    for message in result.warnings:
+        warning(message)
     corrected = None
     if args.plot and temperature:
         corrected = _apply_temperature(result, log, args.temperature_column)
     emit_json(result.to_dict(), args.output)
+    if args.output:
+        warn(f"wrote {args.output}")
     _write_plot(args, log, result, corrected)
     return 0
 
@@ -310,8 +369,8 @@ def _add_temperature_arguments(parser):
     parser.add_argument(
         "--drift",
         metavar="DRIFT.json",
-        help="output of 'nlpcal drift fit': divide the raw vector by k(t) "
-        "(Eq. 9) before the correction",
+        help="output of 'nlpcal drift fit': divide the raw vector by the temperature factor "
+        "k(t) (Liu et al. 2022, Eq. 9) before the correction",
     )
     parser.add_argument(
         "--temperature-column",
@@ -322,14 +381,26 @@ def _add_temperature_arguments(parser):
 
 
 def _register_apply(sub):
-    parser = sub.add_parser(
+    parser = add_command(
+        sub,
         "apply",
-        help="correct a log with calibrated parameters (Eq. 4)",
-        description="Write the log with its field columns corrected by Eq. 4 and a total-field "
-        f"column '{TOTAL_COLUMN}' added; all other columns are kept.",
+        help="correct a log with a calibration (writes the log back, field columns corrected)",
+        description=f"""\
+Correct the field columns of a log with the parameters of 'nlpcal calibrate' (Eq. 4) and add
+their magnitude as a last column '{TOTAL_COLUMN}'. The log is written back in the layout it was
+read in (delimiter, header row or not, decimal mark, leading comment lines); every other column
+passes through unchanged, character for character. Rows reading exactly (0, 0, 0), and with
+--drop-invalid rows with missing values, are left out (and counted on stderr).""",
+        examples=(
+            "nlpcal apply params.json log.csv -o corrected.csv",
+            "nlpcal apply params.json mag.txt > corrected.txt     # whitespace in, whitespace out",
+            "nlpcal apply params.json log.csv --drift drift.json --temperature-column temp_c",
+        ),
     )
-    parser.add_argument("params", metavar="PARAMS.json")
-    parser.add_argument("log", metavar="LOG.csv")
+    parser.add_argument(
+        "params", metavar="PARAMS.json", help="the parameters written by 'nlpcal calibrate'"
+    )
+    parser.add_argument("log", metavar="LOG", help=LOG_HELP)
     add_log_arguments(parser, "the column names, else the unit of the calibrated log")
     _add_temperature_arguments(parser)
     parser.add_argument(
@@ -339,28 +410,29 @@ def _register_apply(sub):
         "robust standard deviations (1.4826 MAD) of the calibration's residuals",
     )
     parser.add_argument(
-        "-o", "--output", metavar="CORRECTED.csv", help="corrected log (stdout when absent)"
+        "-o",
+        "--output",
+        metavar="CORRECTED",
+        help="write the corrected log here (stdout when absent)",
     )
     _add_plot_argument(parser)
     add_reference_model_arguments(parser)
     parser.set_defaults(func=run_apply)
 
 
-def _correction(args, require_temperature: bool):
+def _correction(args, table, require_temperature: bool):
     """The Correction that --params/PARAMS.json, --drift and --temperature-column ask for."""
     from ..correction import Correction, load_parameters
     from ..drift.fit import DriftFit
-    from ..io import read_table_header
 
     params_path = getattr(args, "params", None)
     parameters = load_parameters(params_path) if params_path else None
     drift = DriftFit.load(args.drift) if args.drift else None
-    header = list(read_table_header(args.log).columns)
     return Correction.plan(
         parameters,
         drift,
         args.temperature_column,
-        log_columns=header,
+        log_columns=table.columns,
         require_temperature=require_temperature,
     )
 
@@ -368,15 +440,16 @@ def _correction(args, require_temperature: bool):
 def run_apply(args) -> int:
     from ..correction import outliers, read_log_for
     from ..errors import InputError
-    from ..io import check_output_path
+    from ..io import check_output_path, read_table, write_table
 
     check_output_path(args.output, args.log, args.params, args.drift)
     _check_plot(args)
-    correction = _correction(args, require_temperature=True)
+    table = read_table(args.log, header=args.header, text=True)
+    correction = _correction(args, table, require_temperature=True)
     if args.plot and correction.parameters is None:
         raise InputError("--plot needs parameters (PARAMS.json), not a drift file alone")
-    log = read_log_for(args.log, correction, **log_options(args))
-    tell(log.notes)
+    log = read_log_for(table, correction, **log_options(args))
+    report_log(log)
     corrected = correction.apply(log)
     tell(correction.notes)
     extra = {}
@@ -384,9 +457,9 @@ def run_apply(args) -> int:
         extra[OUTLIER_COLUMN] = flags = outliers(correction, corrected)
         warn(f"{int(flags.sum())} of {len(flags)} rows flagged as outliers")
     frame = log.written_back(corrected, TOTAL_COLUMN, extra)
-    emit_csv(frame, args.output)  # exact values: the other columns pass through unchanged
+    write_table(frame, log.layout, args.output)
     if args.output:
-        warn(f"wrote {len(frame)} corrected rows to {args.output}")
+        warn(f"wrote {len(frame)} corrected rows to {args.output} ({log.layout.describe()})")
     _write_plot(args, log, correction.parameters, corrected)
     return 0
 
@@ -395,39 +468,54 @@ def run_apply(args) -> int:
 
 
 def _register_stats(sub):
-    parser = sub.add_parser(
+    parser = add_command(
+        sub,
         "stats",
-        help="Table 1 statistics of |B| (and of |B1| with --params)",
-        description="Print max, min, mean, std (ddof=0) and range of the total field: the "
-        "measured row, and the corrected row when --params is given.",
+        help="|B| statistics of a log, before and after a calibration",
+        description="""\
+Print max, min, mean, std (ddof = 0) and range of the total field |B|: the measured row, and the
+corrected row with --params (the rows of Table 1 of Zhou et al. 2010). The spread of |B| over a
+log of many orientations in a steady field is what a calibration removes: a good one leaves
+little more than the sensor noise. With --reference-column every row also gets the RMSE against
+the reference (Eq. 10 of Liu et al. 2022).""",
+        examples=(
+            "nlpcal stats log.csv",
+            "nlpcal stats log.csv --params params.json",
+            "nlpcal stats log.csv --params params.json --reference-column proton_nT --json",
+        ),
     )
-    parser.add_argument("log", metavar="LOG.csv")
+    parser.add_argument("log", metavar="LOG", help=LOG_HELP)
     add_log_arguments(parser, "the column names, else the unit of the calibrated log")
-    parser.add_argument("--params", metavar="PARAMS.json")
+    parser.add_argument(
+        "--params",
+        metavar="PARAMS.json",
+        help="parameters written by 'nlpcal calibrate': add the corrected row",
+    )
     _add_temperature_arguments(parser)
     parser.add_argument(
         "--reference-column",
         metavar="COL",
-        help="column of reference magnitudes [unit]: add the RMSE of Eq. 10 "
-        "(Liu et al. 2022) to every row",
+        help="column of reference magnitudes (name or position; its unit from its name, "
+        "else the field columns'): add the RMSE of Eq. 10 (Liu et al. 2022) to every row",
     )
-    parser.add_argument("--json", action="store_true", help="print the rows as JSON")
+    parser.add_argument("--json", action="store_true", help="print the rows as JSON on stdout")
     add_reference_model_arguments(parser)
     parser.set_defaults(func=run_stats)
 
 
 def run_stats(args) -> int:
     from ..correction import read_log_for, statistics_rows
-    from ..io import read_log
+    from ..io import read_log, read_table
     from ..statistics import format_table
 
+    table = read_table(args.log, header=args.header)
     if args.params or args.drift or args.temperature_column:
-        correction = _correction(args, require_temperature=False)
-        log = read_log_for(args.log, correction, **log_options(args))
+        correction = _correction(args, table, require_temperature=False)
+        log = read_log_for(table, correction, **log_options(args))
     else:
         correction = None
-        log = read_log(args.log, **log_options(args))
-    tell(log.notes)
+        log = read_log(table, **log_options(args))
+    report_log(log)
     rows, extra = statistics_rows(log, correction)
     if correction is not None:
         tell(correction.notes)

@@ -1,6 +1,6 @@
 """`nlpcal compare`: staged cycle vs joint IPOPT vs the paper's conjugate gradient on one log.
 
-    nlpcal compare LOG.csv [--cycles K] [--reference-field F | --reference-column COL]
+    nlpcal compare LOG [--cycles K] [--reference-field F | --reference-column COL]
                    [--columns X Y Z] -o compare.json [--plot compare.png]
 
 JSON keys: "staged" (measured row, then one per cycle), "joint" (one row), "cg_joint" (the
@@ -13,42 +13,57 @@ matplotlib).
 
 from __future__ import annotations
 
-import sys
+from pathlib import Path
 
 from .common import (
+    add_command,
     add_log_arguments,
     add_loss_arguments,
     add_reference_arguments,
+    add_threads_argument,
     emit_json,
     log_options,
-    tell,
+    report_log,
+    say,
+    solver_log,
+    warn,
+    warning,
 )
 
 
 def register(sub):
-    parser = sub.add_parser(
+    parser = add_command(
+        sub,
         "compare",
-        help="staged cycle vs joint IPOPT vs the paper's conjugate gradient",
-        description="Run, on the same log, the staged cycle of Zhou et al. (2010) Fig. 1 (IPOPT "
-        "stages), the joint nine-parameter IPOPT solve, and the paper's conjugate "
-        "gradient of section 5 jointly and stage by stage; write Table 1 rows for "
-        "each and, with --plot, the figures of Fig. 2 and the objective against "
-        "cumulative iterations.",
+        help="compare the solvers on one log: staged cycle, joint solve, the paper's gradient",
+        description="""\
+Run, on the same log, the three ways of finding the nine parameters of 'nlpcal calibrate':
+the staged cycle of Zhou et al. (2010) Fig. 1 with IPOPT for each stage, one joint IPOPT solve
+of all nine, and the paper's own conjugate-gradient method (section 5), jointly and stage by
+stage. Prints the |B| statistics of each (the paper's Table 1) on stderr, writes them as JSON,
+and with --plot draws |B1| after each cycle, before and after calibration, and the objective
+against solver iterations. A conjugate gradient that does not converge is a finding, reported
+as a warning (exit 0).""",
+        examples=(
+            "nlpcal compare log.csv -o compare.json --plot compare.png",
+            "nlpcal compare mag.txt --unit raw --cycles 20 --plot compare.png",
+        ),
     )
-    parser.add_argument("log", metavar="LOG.csv")
+    parser.add_argument("log", metavar="LOG", help="the log: delimited text, or - for stdin")
     add_log_arguments(parser)
     parser.add_argument(
         "--cycles",
         type=int,
         default=50,
         metavar="K",
-        help="most cycles of the staged and CG-staged runs (default 50); both "
+        help="most cycles of the staged and conjugate-gradient staged runs (default 50); both "
         "stop earlier when a cycle no longer lowers the objective",
     )
     parser.add_argument(
         "--rtol",
         type=float,
         default=1e-9,
+        metavar="R",
         help="stop a cycle run when the objective improves by less than this "
         "fraction (default 1e-9)",
     )
@@ -64,24 +79,27 @@ def register(sub):
         type=float,
         default=1.0,
         metavar="C",
-        help="CG step constant a = C / (largest Hessian eigenvalue at the start) (default 1)",
+        help="conjugate-gradient step constant a = C / (largest Hessian eigenvalue at the "
+        "start), e.g. 0.25 for smaller steps (default 1)",
     )
     parser.add_argument(
         "--cg-rel-eps",
         type=float,
         default=1e-6,
         metavar="R",
-        help="CG stop |grad f| <= R |grad f at the start| (default 1e-6)",
+        help="stop the conjugate gradient when |grad f| <= R |grad f at the start| (default 1e-6)",
     )
     add_reference_arguments(parser)
     add_loss_arguments(parser)
+    add_threads_argument(parser)
     parser.add_argument(
         "-o", "--output", metavar="COMPARE.json", help="write the JSON here (stdout when absent)"
     )
     parser.add_argument(
         "--plot",
         metavar="COMPARE.png",
-        help="write the figures here (needs matplotlib: pip install 'nlpcal[plot]')",
+        help="write the figure here, a PNG at 150 dpi titled with the log's file name (needs "
+        "matplotlib: pip install 'nlpcal[plot]')",
     )
     parser.set_defaults(func=run)
 
@@ -104,14 +122,17 @@ def run(args) -> int:
     if args.plot:
         require_matplotlib()
     log = read_log(args.log, **log_options(args))
-    tell(log.notes)
-    result = compare_log(log, settings=settings, loss=args.loss, loss_scale=args.loss_scale)
-    png = comparison_png(result, title=str(args.log)) if args.plot else None
-    print(result.table(), file=sys.stderr)
+    report_log(log)
+    with solver_log():
+        result = compare_log(
+            log, settings=settings, loss=args.loss, loss_scale=args.loss_scale, threads=args.threads
+        )
+    png = comparison_png(result, title=Path(log.path).name) if args.plot else None
+    say(result.table())
     for message in result.warnings:
-        print(f"nlpcal compare: warning: {message}", file=sys.stderr)
+        warning(message)
     emit_json(result.to_dict(), args.output)
     if png is not None:
         write_bytes_atomic(args.plot, png)
-        print(f"nlpcal compare: wrote {args.plot}", file=sys.stderr)
+        warn(f"wrote {args.plot}")
     return 0

@@ -7,9 +7,19 @@ attitude columns, overall and per pitch band (the paper's Table 2).
 
 from __future__ import annotations
 
-import sys
-
-from .common import MODELS, add_place_arguments, emit_csv, emit_json, tell, warn
+from .common import (
+    MODELS,
+    add_command,
+    add_field_argument,
+    add_input_arguments,
+    add_place_arguments,
+    emit_json,
+    report_log,
+    say,
+    solver_log,
+    warn,
+    warning,
+)
 
 ATTITUDE_COLUMNS = ("roll_deg", "pitch_deg", "heading_deg")
 FIELD_UNITS = ("nT", "uT", "mT", "mG", "G", "T")
@@ -19,25 +29,47 @@ DEFAULT_PITCH_BANDS = (0.0, 30.0, 60.0, 85.0, 90.0)  # nlpcal.compass.DEFAULT_PI
 
 
 def register(sub):
-    parser = sub.add_parser(
+    parser = add_command(
+        sub,
         "compass",
-        help="e-compass (Qiu 2017): calibrate magnetometer + accelerometer, attitude",
-        description=__doc__.splitlines()[0],
+        help="e-compass (Qiu et al. 2017): calibrate a magnetometer + accelerometer, attitude",
+        description="""\
+An e-compass is a magnetometer and an accelerometer in one housing. Its calibration (Qiu et al.
+2017) finds, for each sensor, the bias, the sensitivity of each axis and the small angles by
+which it is mounted askew in the housing; then roll, pitch and heading follow from the two
+vectors. Three actions: calibrate (from a log of many orientations), attitude (roll, pitch,
+heading for a log) and evaluate (errors against true angles).""",
+        examples=(
+            "nlpcal compass calibrate log.csv -o compass.json",
+            "nlpcal compass attitude compass.json log.csv -o attitude.csv",
+            "nlpcal compass evaluate attitude.csv --truth-columns roll pitch yaw",
+        ),
     )
     actions = parser.add_subparsers(
-        dest="compass_command", metavar="ACTION", parser_class=type(parser)
+        dest="compass_command", metavar="ACTION", parser_class=type(parser), title="actions"
     )
     actions.required = True
 
-    cal = actions.add_parser(
+    cal = add_command(
+        actions,
         "calibrate",
         help="mounting angles, bias and sensitivity of both sensors",
-        description="Turn mode (--turn-column): the paper's turns about the housing x, y and z "
-        "axes, then ellipsoid fits. Free-rotation mode (no --turn-column): ellipsoid "
-        "fits and the dip-angle constancy; the sensor pair's orientation relative to "
-        "the housing is then not identifiable.",
+        description="""\
+Turn mode (--turn-column): the paper's protocol, one full turn of the housing about each of its
+x, y and z axes (a sample every 30 deg is enough), then ellipsoid fits. Free-rotation mode (no
+--turn-column): the sensors turned by hand through many orientations; ellipsoid fits and the
+constancy of the dip angle between field and gravity. The sensor pair's orientation relative to
+the housing is then not identifiable, and attitudes refer to the accelerometer's axes.
+Units are read from the column names (mx_uT, "Accelerometer X (g)", ...) unless given, and
+checked against Earth's field and gravity.""",
+        examples=(
+            "nlpcal compass calibrate log.csv -o compass.json",
+            "nlpcal compass calibrate turns.csv --turn-column turn -o compass.json",
+            "nlpcal compass calibrate log.csv --mag-columns 7 8 9 --acc-columns 1 2 3 "
+            "--mag-unit uT --acc-unit m/s2",
+        ),
     )
-    cal.add_argument("log", metavar="LOG.csv")
+    cal.add_argument("log", metavar="LOG", help="the log: delimited text, or - for stdin")
     _add_sensor_arguments(cal, "nT", "g")
     cal.add_argument(
         "--turn-column",
@@ -45,17 +77,18 @@ def register(sub):
         help="column naming each sample's turn axis: x, y, z, optionally with a "
         "suffix for repeated turns (y2); absent selects free-rotation mode",
     )
-    cal.add_argument(
-        "--field-nt",
-        type=float,
-        metavar="NT",
-        help="local total field [nT] (default: estimated with det(correction) = 1)",
+    add_field_argument(
+        cal,
+        "known total field magnitude, in the magnetometer's unit (e.g. 48.5 for uT); default: "
+        "estimated, with det(correction) = 1",
+        legacy="--field-nt",
+        legacy_dest="reference_field_nt",
     )
     cal.add_argument(
         "--ellipsoid-seed",
         choices=("linear", "centroid"),
         default="linear",
-        help="start of the ellipsoid NLPs (default linear least squares)",
+        help="start of the ellipsoid fits: linear least squares (default) or the centroid",
     )
     cal.add_argument(
         "--rest-tolerance",
@@ -72,19 +105,27 @@ def register(sub):
     )
     cal.set_defaults(func=run_calibrate)
 
-    att = actions.add_parser(
+    att = add_command(
+        actions,
         "attitude",
         help="add roll_deg, pitch_deg, heading_deg to a log",
-        description="Apply a compass calibration and compute roll, pitch and heading (Eq. 10).",
+        description="""\
+Apply a compass calibration and compute roll, pitch and heading [deg] (Eq. 10 of Qiu et al.
+2017) for every row; the log is written back in its own layout with the three columns added
+(replacing columns of the same name).""",
+        examples=("nlpcal compass attitude compass.json log.csv -o attitude.csv",),
     )
-    att.add_argument("calibration", metavar="COMPASS.json")
-    att.add_argument("log", metavar="LOG.csv")
+    att.add_argument(
+        "calibration", metavar="COMPASS.json", help="written by 'nlpcal compass calibrate'"
+    )
+    att.add_argument("log", metavar="LOG", help="the log: delimited text, or - for stdin")
     _add_sensor_arguments(att, "the calibration's", "the calibration's")
     att.add_argument(
         "--declination-deg",
         type=float,
         metavar="DEG",
-        help="magnetic declination [deg], east positive, added to give true heading (default 0)",
+        help="magnetic declination [deg], east positive, added to give true heading (default 0; "
+        "e.g. 2.5)",
     )
     att.add_argument(
         "--declination-model",
@@ -94,23 +135,31 @@ def register(sub):
     )
     add_place_arguments(att, columns=False)
     att.add_argument(
-        "-o", "--output", metavar="ATTITUDE.csv", help="output CSV (stdout when absent)"
+        "-o", "--output", metavar="ATTITUDE", help="the log with the angles (stdout when absent)"
     )
     att.set_defaults(func=run_attitude)
 
-    ev = actions.add_parser(
+    ev = add_command(
+        actions,
         "evaluate",
         help="attitude error statistics against true attitude columns",
-        description="Max |error| and RMS of roll, pitch and heading, overall and per band of "
-        "|true pitch|; JSON to -o or stdout, a table on stderr.",
+        description="""\
+Max |error| and RMS of roll, pitch and heading, overall and per band of |true pitch| (Table 2 of
+Qiu et al. 2017); JSON to -o or stdout, a table on stderr.""",
+        examples=(
+            "nlpcal compass evaluate attitude.csv --truth-columns true_roll true_pitch true_yaw",
+        ),
     )
-    ev.add_argument("attitude", metavar="ATTITUDE.csv")
+    ev.add_argument(
+        "attitude", metavar="ATTITUDE", help="a log with estimated and true angles, or -"
+    )
+    add_input_arguments(ev)
     ev.add_argument(
         "--truth-columns",
         nargs=3,
         required=True,
         metavar=("ROLL", "PITCH", "HEADING"),
-        help="true roll, pitch and heading columns [deg]",
+        help="true roll, pitch and heading columns [deg] (names or 0-based positions)",
     )
     ev.add_argument(
         "--estimate-columns",
@@ -143,19 +192,22 @@ def _add_sensor_arguments(parser, mag_fallback: str, acc_fallback: str):
         "--mag-columns",
         nargs=3,
         metavar=("MX", "MY", "MZ"),
-        help="magnetometer columns (default: detected, bx/by/bz, mx/my/mz, ...)",
+        help="magnetometer columns, names or 0-based positions (default: recognised, bx/by/bz, "
+        'mx/my/mz, mag_x/..., "Magnetometer X (uT)")',
     )
     parser.add_argument(
         "--acc-columns",
         nargs=3,
         metavar=("AX", "AY", "AZ"),
-        help="accelerometer columns (default: detected, ax/ay/az, acc_x/...)",
+        help="accelerometer columns, names or 0-based positions (default: recognised, "
+        "ax/ay/az, acc_x/...)",
     )
     parser.add_argument(
         "--mag-unit",
         choices=FIELD_UNITS,
         default=None,
-        help=f"unit of the magnetometer columns (default: from their names, else {mag_fallback})",
+        help=f"unit of the magnetometer columns (default: from their names, else {mag_fallback}); "
+        "magnitudes far from Earth's field are warned about",
     )
     parser.add_argument(
         "--acc-unit",
@@ -163,10 +215,12 @@ def _add_sensor_arguments(parser, mag_fallback: str, acc_fallback: str):
         default=None,
         help=f"unit of the accelerometer columns (default: from their names, else {acc_fallback})",
     )
+    add_input_arguments(parser)
     parser.add_argument(
         "--drop-invalid",
         action="store_true",
-        help="skip rows with missing or non-numeric values (reporting how many) instead of failing",
+        help="skip rows with missing or non-numeric values, and rows repeating the row before "
+        "(reporting how many), instead of failing",
     )
 
 
@@ -177,6 +231,7 @@ def _sensor_options(args) -> dict:
         "mag_unit": args.mag_unit,
         "acc_unit": args.acc_unit,
         "drop_invalid": args.drop_invalid,
+        "header": args.header,
     }
 
 
@@ -185,21 +240,28 @@ def run_calibrate(args) -> int:
     from ..io import check_output_path, read_sensor_log
 
     check_output_path(args.output, args.log)
-    log = read_sensor_log(args.log, **_sensor_options(args))
-    tell(log.notes)
+    legacy = getattr(args, "reference_field_nt", None)
+    log = read_sensor_log(
+        args.log,
+        **_sensor_options(args),
+        reference_field=legacy if legacy is not None else args.reference_field,
+        reference_field_unit="nT" if legacy is not None else None,
+    )
+    report_log(log)
     if not args.turn_column:
         warn(
             "no --turn-column: free-rotation mode (the sensor pair's orientation relative to the "
             "housing cannot be found; attitudes refer to the accelerometer's axes)"
         )
-    result = calibrate_sensor_log(
-        log,
-        turn_column=args.turn_column,
-        field_nt=args.field_nt,
-        ellipsoid_seed=args.ellipsoid_seed,
-        rest_tolerance=args.rest_tolerance,
-    )
-    tell(result.warnings)
+    with solver_log():
+        result = calibrate_sensor_log(
+            log,
+            turn_column=args.turn_column,
+            ellipsoid_seed=args.ellipsoid_seed,
+            rest_tolerance=args.rest_tolerance,
+        )
+    for message in result.warnings:
+        warning(message)
     emit_json(result.to_dict(), args.output)
     for sensor in (result.magnetometer, result.accelerometer):
         angles = sensor.to_dict()["mounting_deg"]
@@ -213,29 +275,31 @@ def run_calibrate(args) -> int:
 
 def run_attitude(args) -> int:
     from ..compass import CompassCalibration, attitude
-    from ..io import check_output_path, read_sensor_log
+    from ..io import check_output_path, read_sensor_log, read_table, write_table
 
     check_output_path(args.output, args.log, args.calibration)
     calibration = CompassCalibration.load(args.calibration)
     recorded = calibration.input
     options = _sensor_options(args)
+    table = read_table(args.log, header=options.pop("header"), text=True)
     options["mag_columns"] = args.mag_columns or recorded.get("mag_columns")
     options["acc_columns"] = args.acc_columns or recorded.get("acc_columns")
     log = read_sensor_log(
-        args.log,
+        table,
         **options,
         mag_fallback=recorded.get("mag_unit", "nT"),
         acc_fallback=recorded.get("acc_unit", "g"),
     )
-    tell(log.notes)
+    report_log(log)
     result = attitude(calibration, log.mag, log.acc, declination_deg=_declination(args))
-    tell(result.warnings)
+    for message in result.warnings:
+        warning(message)
     frame, replaced = log.with_columns(
         dict(zip(ATTITUDE_COLUMNS, (result.roll_deg, result.pitch_deg, result.heading_deg)))
     )
     if replaced:
         warn(f"the log already has {', '.join(replaced)}; replaced them")
-    emit_csv(frame, args.output)  # exact values: the log's own columns pass through unchanged
+    write_table(frame, log.layout, args.output)  # the log's own columns pass through unchanged
     return 0
 
 
@@ -265,11 +329,12 @@ def _declination(args) -> float:
 
 def run_evaluate(args) -> int:
     from ..compass import evaluate, format_evaluation
-    from ..io import check_output_path, read_columns
+    from ..io import check_output_path, read_columns, read_table
 
     check_output_path(args.output, args.attitude)
-    truth = read_columns(args.attitude, args.truth_columns)
-    estimate = read_columns(args.attitude, args.estimate_columns)
+    table = read_table(args.attitude, header=args.header)
+    truth = read_columns(table, args.truth_columns)
+    estimate = read_columns(table, args.estimate_columns)
     stats = evaluate(
         estimate,
         truth,
@@ -277,12 +342,12 @@ def run_evaluate(args) -> int:
         remove_heading_offset=args.remove_heading_offset,
     )
     stats["input"] = {
-        "file": str(args.attitude),
+        "file": table.source,
         "truth_columns": list(args.truth_columns),
         "estimate_columns": list(args.estimate_columns),
     }
     if stats["rows_skipped"]:
         warn(f"skipped {stats['rows_skipped']} row(s) without finite estimated and true angles")
     emit_json(stats, args.output)
-    print(format_evaluation(stats), file=sys.stderr)
+    say(format_evaluation(stats))
     return 0

@@ -15,18 +15,26 @@ from __future__ import annotations
 
 import sys
 
-from .common import FIELD_UNITS, say, tell
+from .common import FIELD_UNITS, add_command, say, tell
 
 FORMATS = ("matlab", "matrix", "ardupilot", "px4", "c-header")  # nlpcal.formats.FORMATS
 
 
 def register(sub):
-    parser = sub.add_parser(
+    parser = add_command(
+        sub,
         "export",
         help="write a calibration for MATLAB, ArduPilot, PX4, firmware (C) or as a matrix",
         description=__doc__.split("\n\n")[2],
+        examples=(
+            "nlpcal export params.json --format ardupilot -o compass.param",
+            "nlpcal export params.json --format c-header -o calibration.h",
+            "nlpcal export params.json --format matlab --unit uT",
+        ),
     )
-    parser.add_argument("params", metavar="PARAMS.json")
+    parser.add_argument(
+        "params", metavar="PARAMS.json", help="the parameters written by 'nlpcal calibrate'"
+    )
     add_format_arguments(
         parser,
         "unit of the offsets and field in matlab, matrix and c-header (default: the unit of the "

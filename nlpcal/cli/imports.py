@@ -1,34 +1,40 @@
 """`nlpcal import`: a calibration from another system back to the nine parameters.
 
-    nlpcal import FILE --format matlab|matrix|ardupilot|px4|c-header [--field F] [--unit U]
-                  [--instance N] -o params.json
+    nlpcal import FILE --format matlab|matrix|ardupilot|px4|c-header [--reference-field F]
+                  [--unit U] [--instance N] -o params.json
 
 Any affine correction B_out = A (B_M - b) is turned into the nine parameters of Eq. 4 through
 the Cholesky route (A^T A)^-1 = (S N)(S N)^T; the rotation that the nine parameters do not carry
-is reported (the magnitude |B1| is the same). The result is a parameters file that `apply`,
-`stats`, `report` and `export` use like any other.
+is reported (the magnitude |B1| is the same). The result is a parameters file that apply,
+stats, report and export use like any other.
 """
 
 from __future__ import annotations
 
-from .common import emit_json, say, tell
+from .common import add_command, add_field_argument, emit_json, say, tell
 from .export import add_format_arguments
 
 
 def register(sub):
-    parser = sub.add_parser(
+    parser = add_command(
+        sub,
         "import",
         help="read a MATLAB, ArduPilot, PX4, matrix or C-header calibration into params.json",
         description=__doc__.split("\n\n")[2],
+        examples=(
+            "nlpcal import compass.param --format ardupilot -o params.json",
+            "nlpcal import magcal.json --format matlab --unit uT --reference-field 48.5",
+        ),
     )
-    parser.add_argument("file", metavar="FILE")
     parser.add_argument(
-        "--field",
-        type=float,
-        metavar="F",
-        help="total field the correction should map to [the file's unit]: a file with its own "
-        "expected field (magcal's expmfs, the matrix 'field') has A rescaled to it; otherwise it "
-        "is recorded as the reference field",
+        "file", metavar="FILE", help="the calibration file of the other system (text or JSON)"
+    )
+    add_field_argument(
+        parser,
+        "total field the correction should map to [the file's unit], e.g. 48.5: a file with "
+        "its own expected field (magcal's expmfs, the matrix 'field') has A rescaled to it; "
+        "otherwise it is recorded as the reference field",
+        legacy="--field",
     )
     add_format_arguments(
         parser,
@@ -47,7 +53,7 @@ def run(args) -> int:
 
     check_output_path(args.output)
     result, notes = import_file(
-        args.file, args.fmt, unit=args.unit, field=args.field, instance=args.instance
+        args.file, args.fmt, unit=args.unit, field=args.reference_field, instance=args.instance
     )
     tell(notes)
     emit_json(result.to_dict(), args.output)

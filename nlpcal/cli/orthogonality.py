@@ -1,55 +1,95 @@
-"""`nlpcal orthogonality`: worst-case total-field error, error map and angle inversion (seed 003).
+"""`nlpcal orthogonality`: worst-case total-field error, error map and angle inversion (Wang et
+al. 2015).
 
-    nlpcal orthogonality worst-case --angles-deg A B G --field F [-o out.json] [-v]
-    nlpcal orthogonality map --angles-deg A B G --field F [-o map.png] [--csv map.csv|-]
+    nlpcal orthogonality worst-case --angles-deg A B G --reference-field F [-o out.json] [-v]
+    nlpcal orthogonality map --angles-deg A B G --reference-field F [-o map.png] [--csv map.csv|-]
                              [--step-deg 1]
-    nlpcal orthogonality invert LOG.csv [LOG2.csv ...] [--field F] [--bound-deg B [B B]]
+    nlpcal orthogonality invert LOG [LOG2 ...] [--reference-field F] [--bound-deg B [B B]]
                              [--columns X Y Z] [--unit nT] [--drop-invalid] [-o out.json] [-v]
 
-Angles are alpha, beta, gamma of Zhou et al. (2010) in degrees; fields in nT. `invert` with two or
+Angles are alpha, beta, gamma of Zhou et al. (2010) in degrees; the field of worst-case and map
+in nT, the reference field of invert in the unit of the logs' field columns. `invert` with two or
 more logs of the same probe also reports their repeatability (Table 4 of Wang et al. 2015).
 JSON goes to -o or, without it, to stdout; messages and warnings go to stderr. Exit status: 0
 success (also when a bound is active: that is a warning), 1 IPOPT failed, 2 bad usage or input.
+The old name --field is still accepted everywhere (in nT).
 """
 
 from __future__ import annotations
 
-import contextlib
-import sys
-
-from .common import emit_csv, emit_json, tell
+from .common import (
+    add_command,
+    add_field_argument,
+    add_log_arguments,
+    emit_csv,
+    emit_json,
+    log_options,
+    report_log,
+    solver_log,
+    warn,
+    warning,
+)
 
 DEFAULT_BOUND_DEG = 0.5  # the library's nlpcal.orthogonality.DEFAULT_BOUND_DEG [deg]
+ANGLES_HELP = (
+    "how far the three sensor axes are from perpendicular [deg], in the convention of Zhou et al. "
+    "(2010): alpha and gamma tilt the x axis, beta the y axis; e.g. 0.1 0.1 0.1"
+)
 
 
 def register(sub):
-    parser = sub.add_parser(
+    parser = add_command(
+        sub,
         "orthogonality",
-        help="non-orthogonality: worst-case error, error map, angle inversion",
-        description=__doc__.splitlines()[0].split(": ", 1)[1],
+        help="axes not quite perpendicular: worst-case |B| error, error map, angle inversion",
+        description="""\
+Non-orthogonal axes (Wang et al. 2015): when the three sensor axes are not exactly
+perpendicular, the measured |B| depends on the field's direction. worst-case finds the largest
+error over all directions for given angles, map draws it over all directions, invert finds the
+angles from logs of a probe rotated in a steady field.""",
+        examples=(
+            "nlpcal orthogonality worst-case --angles-deg 0.1 0.1 0.1 --reference-field 55000",
+            "nlpcal orthogonality map --angles-deg 0.1 0.1 0.1 --reference-field 55000 -o map.png",
+            "nlpcal orthogonality invert run1.csv run2.csv -o angles.json",
+        ),
     )
-    inner = parser.add_subparsers(dest="orthogonality_command", metavar="SUBCOMMAND")
+    inner = parser.add_subparsers(
+        dest="orthogonality_command",
+        metavar="SUBCOMMAND",
+        parser_class=type(parser),
+        title="subcommands",
+    )
     inner.required = True
 
-    worst = inner.add_parser(
+    worst = add_command(
+        inner,
         "worst-case",
         help="largest total-field error over all field directions",
-        description="Largest positive and most negative total-field error |TB| - |B| over all "
-        "directions (theta, phi), solved with IPOPT from several starts and "
-        "certified by the singular values of T.",
+        description="""\
+Largest positive and most negative total-field error |TB| - |B| over all field directions
+(theta, phi) for given angles, solved with IPOPT from several starts and certified by the
+singular values of T. Wang et al. (2015) report about 95 nT for 0.1 deg each at 55 000 nT.""",
+        examples=(
+            "nlpcal orthogonality worst-case --angles-deg 0.1 0.1 0.1 --reference-field 55000",
+        ),
     )
     _add_angles_and_field(worst)
     worst.add_argument(
         "-o", "--output", metavar="OUT.json", help="write the JSON here (default: stdout)"
     )
-    worst.add_argument("-v", "--verbose", action="store_true", help="show IPOPT's log (on stderr)")
 
-    mapping = inner.add_parser(
+    mapping = add_command(
+        inner,
         "map",
         help="theta-phi map and sphere picture of the total-field error",
-        description="The total-field error over a (theta, phi) grid: a PNG with the sphere "
-        "(Fig. 3 of Wang et al. 2015) and the theta-phi map (Fig. 4), and/or a CSV "
-        "with columns theta_deg, phi_deg, delta_B_nT.",
+        description="""\
+The total-field error over a (theta, phi) grid of field directions: a PNG with the sphere
+(Fig. 3 of Wang et al. 2015) and the theta-phi map (Fig. 4), and/or a CSV with columns
+theta_deg, phi_deg, delta_B_nT.""",
+        examples=(
+            "nlpcal orthogonality map --angles-deg 0.1 0.1 0.1 --reference-field 55000 -o map.png",
+            "nlpcal orthogonality map --angles-deg 0.1 0 0 --reference-field 50000 --csv - ",
+        ),
     )
     _add_angles_and_field(mapping)
     mapping.add_argument(
@@ -67,20 +107,33 @@ def register(sub):
         help="grid step in theta and phi, in (0, 10] [deg] (default 1)",
     )
 
-    invert = inner.add_parser(
+    invert = add_command(
+        inner,
         "invert",
         help="the three angles from rotation logs (bounded IPOPT problem)",
-        description="Invert alpha, beta, gamma from logs of a probe rotated in a constant field "
-        "(unit sensitivities and zero offsets assumed). With --field, the corrected "
-        "total field is fitted to that field; without it, its spread around the mean "
-        "is minimised (the paper's objective). With two or more logs of the same "
-        "probe, also reports the mean, the largest deviation from it and the "
-        "worst-case total-field error that deviation implies. Give the logs "
-        "before --bound-deg/--columns (or end those with --).",
+        description="""\
+Invert alpha, beta, gamma from logs of a probe rotated in a steady field (unit sensitivities and
+zero offsets assumed: use it on a probe whose offsets and scales are already corrected). With
+--reference-field, the corrected total field is fitted to that field; without it, its spread
+around the mean is minimised (the paper's objective). With two or more logs of the same probe,
+also reports the mean, the largest deviation from it and the worst-case total-field error that
+deviation implies. Give the logs before --bound-deg/--columns (or end those with --).""",
+        examples=(
+            "nlpcal orthogonality invert rotation.csv -o angles.json",
+            "nlpcal orthogonality invert run1.csv run2.csv run3.csv --reference-field 55000",
+        ),
     )
-    invert.add_argument("logs", nargs="+", metavar="LOG.csv", help="rotation log(s), CSV")
     invert.add_argument(
-        "--field", type=float, metavar="NT", help="known total field for the reference variant [nT]"
+        "logs",
+        nargs="+",
+        metavar="LOG",
+        help="rotation log(s): delimited text, or - for stdin",
+    )
+    add_field_argument(
+        invert,
+        "known total field magnitude, in the unit of the field columns (e.g. 55000 for nT)",
+        legacy="--field",
+        legacy_dest="reference_field_nt",
     )
     invert.add_argument(
         "--bound-deg",
@@ -91,28 +144,10 @@ def register(sub):
         help="bound |angle| <= DEG, one value or three (alpha beta gamma) [deg] "
         f"(default {DEFAULT_BOUND_DEG:g})",
     )
-    invert.add_argument(
-        "--columns",
-        nargs="+",
-        metavar="COL",
-        help="the three field columns (default: recognised bx/by/bz, x/y/z, ...)",
-    )
-    invert.add_argument(
-        "--unit",
-        default=None,
-        choices=["nT", "uT", "mT", "mG", "G", "T"],
-        help="unit of the field columns (default: from the column names, "
-        'mx_uT, "X (uT)" ..., else nT)',
-    )
-    invert.add_argument(
-        "--drop-invalid",
-        action="store_true",
-        help="drop rows with missing or non-numeric values instead of failing",
-    )
+    add_log_arguments(invert, choices=("nT", "uT", "mT", "mG", "G", "T"))
     invert.add_argument(
         "-o", "--output", metavar="OUT.json", help="write the JSON here (default: stdout)"
     )
-    invert.add_argument("-v", "--verbose", action="store_true", help="show IPOPT's log (on stderr)")
 
     parser.set_defaults(func=run)
 
@@ -124,10 +159,10 @@ def _add_angles_and_field(parser):
         nargs=3,
         required=True,
         metavar=("ALPHA", "BETA", "GAMMA"),
-        help="non-orthogonality angles, Zhou 2010 convention [deg]",
+        help=ANGLES_HELP,
     )
-    parser.add_argument(
-        "--field", type=float, required=True, metavar="NT", help="total field magnitude [nT]"
+    add_field_argument(
+        parser, "total field magnitude [nT], e.g. 55000", legacy="--field", required=True
     )
 
 
@@ -141,11 +176,11 @@ def _run_worst_case(args) -> int:
     from ..orthogonality import worst_case
 
     check_output_path(args.output)
-    with _solver_log(args.verbose):
-        result = worst_case(args.angles_deg, args.field, verbose=args.verbose)
+    with solver_log():
+        result = worst_case(args.angles_deg, args.reference_field, verbose=args.verbose)
     emit_json(result.to_dict(), args.output)
     if args.output:
-        _info(
+        warn(
             f"max |dB| = {result.max_abs_error_nT:.4f} nT at theta = "
             f"{result.worst.theta_deg:.2f} deg, phi = {result.worst.phi_deg:.2f} deg; "
             f"wrote {args.output}"
@@ -168,44 +203,44 @@ def _run_map(args) -> int:
         check_output_path(args.output)
     if args.csv and args.csv != "-":
         check_output_path(args.csv)
-    theta, phi, error = error_map(args.angles_deg, args.field, args.step_deg)
+    theta, phi, error = error_map(args.angles_deg, args.reference_field, args.step_deg)
     png = None
     if args.output:
         png = orthogonality_map_png(
-            args.angles_deg, args.field, theta, phi, error, worst_case(args.angles_deg, args.field)
+            args.angles_deg,
+            args.reference_field,
+            theta,
+            phi,
+            error,
+            worst_case(args.angles_deg, args.reference_field),
         )
     # everything is computed: only now touch the outputs
     if png is not None:
         write_bytes_atomic(args.output, png)
-        _info(f"wrote {args.output} (grid max |dB| = {abs(error).max():.4f} nT)")
+        warn(f"wrote {args.output} (grid max |dB| = {abs(error).max():.4f} nT)")
     if args.csv:
         table = error_table(theta, phi, error)
         emit_csv(table, None if args.csv == "-" else args.csv, "%.10g")
         if args.csv != "-":
-            _info(f"wrote {args.csv} ({len(table)} grid points)")
+            warn(f"wrote {args.csv} ({len(table)} grid points)")
     return 0
 
 
 def _run_invert(args) -> int:
-    from ..errors import InputError
     from ..io import check_output_path, read_log
     from ..orthogonality import invert_logs
 
     check_output_path(args.output, *args.logs)
-    if args.columns is not None and len(args.columns) != 3:
-        raise InputError(f"got {len(args.columns)} field columns, expected 3; pass --columns X Y Z")
-    logs = [
-        read_log(path, args.columns, unit=args.unit, drop_invalid=args.drop_invalid)
-        for path in args.logs
-    ]
+    options = log_options(args)
+    logs = [read_log(path, **options) for path in args.logs]
     for log in logs:
-        tell(log.notes)
-    with _solver_log(args.verbose):
+        report_log(log)
+    with solver_log():
         result = invert_logs(
-            logs, field_nT=args.field, bound_deg=args.bound_deg, verbose=args.verbose
+            logs, field_nT=logs[0].reference, bound_deg=args.bound_deg, verbose=args.verbose
         )
     for message in result.warnings:
-        _info(f"warning: {message}")
+        warning(message)
     document = result.to_dict()
     emit_json(document, args.output)
     if args.output:
@@ -220,14 +255,5 @@ def _run_invert(args) -> int:
                 f"{result.max_abs_deviation_deg:.5f} deg -> at most "
                 f"{result.implied_worst_case_nT:.2f} nT"
             )
-        _info(f"{angles} deg{extra}; wrote {args.output}")
+        warn(f"{angles} deg{extra}; wrote {args.output}")
     return 0
-
-
-def _solver_log(verbose: bool):
-    """With -v, IPOPT's log (printed through Python's stdout by CasADi) goes to stderr."""
-    return contextlib.redirect_stdout(sys.stderr) if verbose else contextlib.nullcontext()
-
-
-def _info(message: str) -> None:
-    print(f"nlpcal orthogonality: {message}", file=sys.stderr)

@@ -14,17 +14,33 @@ from __future__ import annotations
 import sys
 
 from .calibrate import _add_temperature_arguments, _correction
-from .common import add_log_arguments, add_reference_arguments, log_options, say, tell
+from .common import (
+    add_command,
+    add_log_arguments,
+    add_reference_arguments,
+    log_options,
+    report_log,
+    say,
+    tell,
+)
 
 
 def register(sub):
-    parser = sub.add_parser(
+    parser = add_command(
+        sub,
         "report",
         help="a self-contained HTML report of a calibration on a log",
         description=__doc__.split("\n\n")[2],
+        examples=(
+            "nlpcal report params.json log.csv -o report.html",
+            "nlpcal report params.json log.csv --reference-model igrf --lat 48.1 --lon 11.6 "
+            "--date 2026-05-01 -o report.html",
+        ),
     )
-    parser.add_argument("params", metavar="PARAMS.json")
-    parser.add_argument("log", metavar="LOG.csv")
+    parser.add_argument(
+        "params", metavar="PARAMS.json", help="the parameters written by 'nlpcal calibrate'"
+    )
+    parser.add_argument("log", metavar="LOG", help="the log: a delimited text file, or - for stdin")
     add_log_arguments(parser, "the column names, else the unit of the calibrated log")
     _add_temperature_arguments(parser)
     add_reference_arguments(parser)
@@ -36,13 +52,14 @@ def register(sub):
 
 def run(args) -> int:
     from ..correction import read_log_for
-    from ..io import check_output_path, write_text_atomic
+    from ..io import check_output_path, read_table, write_text_atomic
     from ..report import report
 
     check_output_path(args.output)
-    correction = _correction(args, require_temperature=True)
-    log = read_log_for(args.log, correction, **log_options(args))
-    tell(log.notes)
+    table = read_table(args.log, header=args.header)
+    correction = _correction(args, table, require_temperature=True)
+    log = read_log_for(table, correction, **log_options(args))
+    report_log(log)
     corrected = correction.apply(log)
     tell(correction.notes)
     options = {

@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import sys
-
-from .common import emit_csv
+from .common import add_command, add_field_argument, emit_csv, warn
 
 #: What --preset accepts (the library's `nlpcal.simulation.PRESETS` and `DIRECTORY_PRESETS`).
 PRESET_NAMES = ("zhou2010", "liu2022", "qiu2017")
@@ -12,23 +10,36 @@ ATTITUDE_NAMES = ("clustered", "tilt_band", "turntable", "uniform")
 
 
 def register(sub):
-    parser = sub.add_parser(
+    parser = add_command(
+        sub,
         "simulate",
-        help="write a synthetic log with known truth",
-        description="Write a synthetic log (columns bx, by, bz in nT) from the forward model of "
-        "Eq. 4, or a folder of logs for the presets that replicate an experiment.",
+        help="write a synthetic log with known truth (to try nlpcal without a sensor)",
+        description="""\
+Write a synthetic log: a sensor with known offsets, scale errors and axis angles (Eq. 4 of Zhou
+et al. 2010) turned through many orientations in a steady field, with white noise; columns bx,
+by, bz in nT. 'nlpcal calibrate' on it should find the truth again. The presets liu2022 and
+qiu2017 write a folder of logs that replicate those papers' experiments.""",
+        examples=(
+            "nlpcal simulate -o log.csv && nlpcal calibrate log.csv",
+            "nlpcal simulate -n 500 --noise 5 --attitudes tilt_band --seed 3 -o tilted.csv",
+            "nlpcal simulate --preset liu2022 -o replica/",
+        ),
     )
     parser.add_argument(
         "--preset",
         default="zhou2010",
-        help="zhou2010 (one log), or a folder preset: liu2022, qiu2017",
+        help="zhou2010: one log with the parameters and field of Zhou et al. (2010) (default); "
+        "liu2022, qiu2017: a folder of logs replicating those experiments (needs -o DIR)",
     )
     parser.add_argument(
         "--params",
         metavar="TRUTH.json",
-        help='truth: {"parameters": {z_x, ..., gamma_deg}, "field_nT": F}',
+        help='the truth to simulate instead of the preset\'s, e.g. {"parameters": {"z_x": 100, '
+        '..., "gamma_deg": 0.2}, "field_nT": 50000}',
     )
-    parser.add_argument("-n", type=int, default=None, help="number of samples (default 2000)")
+    parser.add_argument(
+        "-n", type=int, default=None, metavar="N", help="number of samples (default 2000)"
+    )
     parser.add_argument(
         "--noise",
         type=float,
@@ -36,19 +47,22 @@ def register(sub):
         metavar="NT",
         help="white noise per axis [nT] (default 1)",
     )
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        metavar="S",
+        help="random seed: the same seed gives the same log (default 0)",
+    )
     parser.add_argument(
         "--attitudes",
         default="uniform",
         choices=ATTITUDE_NAMES,
-        help="attitude distribution (default uniform)",
+        help="how the orientations are spread: uniform over the sphere (default), turntable "
+        "(turns about a few axes), tilt_band (never far from level), clustered (a few spots)",
     )
-    parser.add_argument(
-        "--field",
-        type=float,
-        default=None,
-        metavar="NT",
-        help="field magnitude [nT] (default: the preset's)",
+    add_field_argument(
+        parser, "field magnitude [nT], e.g. 48000 (default: the preset's)", legacy="--field"
     )
     parser.add_argument(
         "-o",
@@ -72,7 +86,7 @@ def run(args) -> int:
             args.preset, args.output, seed=args.seed, noise=args.noise, n=args.n
         )
         for path in written:
-            print(f"wrote {path}", file=sys.stderr)
+            warn(f"wrote {path}")
         return 0
     if args.preset not in sim.PRESETS:
         known = sorted(set(sim.PRESETS) | set(sim.DIRECTORY_PRESETS))
@@ -85,8 +99,8 @@ def run(args) -> int:
             read_json_document(args.params, "parameters JSON"), str(args.params)
         )
         field = given_field if given_field is not None else field
-    if args.field is not None:
-        field = args.field
+    if args.reference_field is not None:
+        field = args.reference_field
     frame = sim.simulate(
         2000 if args.n is None else args.n,
         parameters=parameters,
@@ -97,5 +111,5 @@ def run(args) -> int:
     )
     emit_csv(frame, args.output, "%.10g")  # 10 digits: 1e-5 nT in a 50 000 nT field
     if args.output:
-        print(f"wrote {len(frame)} samples to {args.output}", file=sys.stderr)
+        warn(f"wrote {len(frame)} samples to {args.output}")
     return 0

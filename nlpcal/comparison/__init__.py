@@ -26,7 +26,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from .. import units, validation
+from .. import chunks, units, validation
 from ..calibration.diagnostics import explain_failure, scaled_hessian, uncertainty
 from ..calibration.joint import joint_start, run_joint
 from ..calibration.problem import Problem
@@ -35,21 +35,24 @@ from ..errors import QualityError, SolveError
 from ..io.logs import Log
 from ..models.zhou2010 import Zhou2010Parameters, correct
 from ..moments import accumulate
-from ..nlp.blocks import objective_function, pack
 from ..results import Document, DocumentReader
 from ..robust import Loss
 from ..statistics import STD_DDOF, format_table
 from ..version import __version__
+from .analysis import (
+    block_coupling,
+    cg_trajectory,
+    joint_trajectory,
+    run_summary,
+    staged_trajectory,
+    thin,
+)
 from .conjugate_gradient import CGOptions, run_cg_joint, run_cg_staged
 
 #: Keys of compare.json that hold Table 1 rows (issue 3; keep exactly).
 ROW_KEYS = ("staged", "joint", "cg_joint", "cg_staged")
 #: The statistics every row carries.
 ROW_FIELDS = ("max", "min", "mean", "std", "range", "objective", "iterations", "wall_s")
-#: A staged cycle counts as having reached the joint solve when its std is within this fraction.
-REACHED_JOINT_RTOL = 0.01
-#: Most points kept per trajectory in the JSON (log-spaced in the iteration count).
-TRAJECTORY_POINTS = 200
 
 
 @dataclass(frozen=True)
@@ -113,7 +116,7 @@ class Comparison(Document):
                 "rtol": self.settings.rtol,
                 "cg": asdict(self.settings.cg),
             },
-            "trajectories": {name: _thin(t) for name, t in self.trajectories.items()},
+            "trajectories": {name: thin(t) for name, t in self.trajectories.items()},
             "warnings": list(self.warnings),
             "nlpcal_version": __version__,
         }
@@ -170,180 +173,6 @@ class Comparison(Document):
         return np.linalg.norm(correct(self.samples, params), axis=1)
 
 
-def _thin(trajectory: dict, points: int = TRAJECTORY_POINTS) -> dict:
-    """Keep the first and last points and about `points` log-spaced in between."""
-    its = np.asarray(trajectory["iterations"])
-    if its.size <= points:
-        return {
-            k: [float(v) if k == "objective" else int(v) for v in trajectory[k]]
-            for k in ("iterations", "objective")
-        }
-    keep = np.unique(
-        np.concatenate(
-            [[0, its.size - 1], np.round(np.geomspace(1, its.size - 1, points)).astype(int)]
-        )
-    )
-    return {
-        "iterations": [int(its[i]) for i in keep],
-        "objective": [float(trajectory["objective"][i]) for i in keep],
-    }
-
-
-def _joint_trajectory(step, iterations: int, f_end: float) -> dict:
-    """The objective at every IPOPT iteration of the joint solve `step` (`nlpcal.problems.Step`).
-
-    IPOPT records the objective of its problem, f / f_ref, in the solver's statistics. When they
-    cannot be read, the start and the end of the solve are returned.
-    """
-    f_start = float(getattr(step, "f_start", f_end))
-    try:
-        stats = step.problem.solver.stats()
-        scaled = [float(v) for v in stats["iterations"]["obj"]]
-        if len(scaled) != iterations + 1:
-            raise ValueError("iteration record does not match the solve")
-        objective = [v * float(step.f_ref) for v in scaled]
-    except Exception:
-        return {"iterations": [0, iterations], "objective": [f_start, f_end]}
-    return {"iterations": list(range(len(objective))), "objective": objective}
-
-
-def _staged_trajectory(rows, stages) -> dict:
-    """Objective after every stage (or every cycle, when the stages do not record it)."""
-    path = {"iterations": [0], "objective": [rows[0]["objective"]]}
-    if stages and all("objective" in s for s in stages):
-        for stage in stages:
-            path["iterations"].append(path["iterations"][-1] + int(stage["iterations"]))
-            path["objective"].append(float(stage["objective"]))
-        return path
-    for row in rows[1:]:
-        path["iterations"].append(path["iterations"][-1] + row["iterations"])
-        path["objective"].append(row["objective"])
-    return path
-
-
-def _cg_trajectory(histories) -> dict:
-    """Concatenated CG objective histories of successive solves, against cumulative iterations."""
-    iterations: list[int] = []
-    objective: list[float] = []
-    total = 0
-    for history in histories:
-        for k, value in enumerate(history):
-            if k == 0 and iterations:
-                continue  # the start of a solve is the end of the one before
-            iterations.append(total + k)
-            objective.append(float(value))
-        total += len(history) - 1
-    return {"iterations": iterations, "objective": objective}
-
-
-def block_coupling(moments, theta) -> dict:
-    """How strongly the three stages are coupled at `theta`, and what that means for the cycle.
-
-    Near the optimum the objective is the quadratic of its Hessian H, and the cycle of Fig. 1
-    (each stage minimising over one block exactly, the others fixed) is block Gauss-Seidel on H
-    in the order orthogonal -> scale -> offset. Its error shrinks per cycle by the spectral radius
-    rho of the Gauss-Seidel matrix -(D + L)^-1 U (D, L, U the block diagonal, lower and upper
-    parts of H), so the objective above its minimum shrinks by about rho^2 per cycle. Without a
-    reference field the scale block is taken on the gauge s_x + s_y + s_z = 0.
-
-    Returns rho, rho^2, the cycles that rho^2 needs to cut the excess objective by 1e6, and the
-    largest canonical correlation between each pair of blocks (1: a direction of one block can
-    be traded for one of the other without changing f; 0: independent blocks). [1]
-    """
-    hess = np.asarray(
-        objective_function(moments.reference)(theta, pack(moments, theta, np.ones(9), 1.0))[2],
-        dtype=float,
-    )
-    gauge = moments.reference == "none"
-    scale_basis = np.linalg.svd(np.ones((1, 3)))[2][1:].T if gauge else np.eye(3)
-    sizes = (3, scale_basis.shape[1], 3)
-    basis = np.zeros((9, sum(sizes)))
-    basis[6:9, 0:3] = np.eye(3)  # stage order: orthogonal, scale, offset
-    basis[3:6, 3 : 3 + sizes[1]] = scale_basis
-    basis[0:3, 3 + sizes[1] :] = np.eye(3)
-    h = basis.T @ hess @ basis
-    h = 0.5 * (h + h.T)
-    edges = np.cumsum((0, *sizes))
-    parts = [slice(edges[k], edges[k + 1]) for k in range(3)]
-    lower = np.zeros_like(h)
-    for i in range(3):
-        for j in range(i + 1):
-            lower[parts[i], parts[j]] = h[parts[i], parts[j]]
-    upper = h - lower
-    try:
-        rho = float(max(abs(np.linalg.eigvals(-np.linalg.solve(lower, upper)))))
-        correlations = {}
-        names = ("orthogonal", "scale", "offset")
-        whiten = []
-        for part in parts:
-            values, vectors = np.linalg.eigh(h[part, part])
-            whiten.append(vectors / np.sqrt(values))
-        for i in range(3):
-            for j in range(i + 1, 3):
-                cross = whiten[i].T @ h[parts[i], parts[j]] @ whiten[j]
-                correlations[f"{names[i]}-{names[j]}"] = float(np.linalg.svd(cross)[1][0])
-    except (np.linalg.LinAlgError, FloatingPointError):
-        return {
-            "rho": None,
-            "rho_squared": None,
-            "cycles_per_1e6": None,
-            "canonical_correlations": None,
-        }
-    rate = rho**2
-    cycles = float(np.log(1e-6) / np.log(rate)) if 0 < rate < 1 else None
-    return {
-        "rho": rho,
-        "rho_squared": rate,
-        "cycles_per_1e6": cycles,
-        "canonical_correlations": correlations,
-    }
-
-
-def _summary(staged, stop_reason, joint, cg_joint, cg_staged) -> dict:
-    joint_std = joint["std"]
-    reached = next(
-        (
-            k
-            for k, row in enumerate(staged[1:], start=1)
-            if row["std"] <= joint_std * (1 + REACHED_JOINT_RTOL)
-        ),
-        None,
-    )
-    cg_reached = next(
-        (
-            k
-            for k, row in enumerate(cg_staged[1:], start=1)
-            if row["std"] <= joint_std * (1 + REACHED_JOINT_RTOL)
-        ),
-        None,
-    )
-    return {
-        "staged_cycles": len(staged) - 1,
-        "staged_stop_reason": stop_reason,
-        "staged_iterations": int(sum(r["iterations"] for r in staged)),
-        "staged_wall_s": float(sum(r["wall_s"] for r in staged)),
-        "staged_cycles_to_joint": reached,
-        "staged_final_std_over_joint": staged[-1]["std"] / joint_std if joint_std > 0 else None,
-        "reached_joint_rtol": REACHED_JOINT_RTOL,
-        "joint_iterations": int(joint["iterations"]),
-        "joint_wall_s": float(joint["wall_s"]),
-        "cg_joint": {
-            row["variant"]: {
-                "status": row["status"],
-                "iterations": row["iterations"],
-                "std": row["std"],
-                "wall_s": row["wall_s"],
-            }
-            for row in cg_joint
-        },
-        "cg_staged_cycles": len(cg_staged) - 1,
-        "cg_staged_iterations": int(sum(r["iterations"] for r in cg_staged)),
-        "cg_staged_wall_s": float(sum(r["wall_s"] for r in cg_staged)),
-        "cg_staged_cycles_to_joint": cg_reached,
-        "cg_staged_all_stages_converged": all(r.get("converged", True) for r in cg_staged[1:]),
-    }
-
-
 def compare(
     samples,
     *,
@@ -354,6 +183,7 @@ def compare(
     loss: str = "l2",
     loss_scale: float | None = None,
     require_identifiable: bool = True,
+    threads: int | None = None,
 ) -> Comparison:
     """Run the staged cycle, the joint solve and the paper's CG (joint and staged) on one log.
 
@@ -365,97 +195,101 @@ def compare(
         the reweighted joint solution, and every method then minimises that weighted objective.
         [loss_scale: unit]
     require_identifiable : raise QualityError when the attitudes leave parameters undetermined.
+    threads : threads of the passes over the data (default: the cores available).
 
     Returns a Comparison. Raises InputError for unusable input and SolveError when IPOPT fails.
     """
-    units.check_compatible(unit, reference_unit or unit)
-    samples = validation.samples(samples)
-    reference = validation.reference(reference_field, samples.shape[0])
-    samples = units.to_base(samples, unit)
-    reference = units.to_base(reference, reference_unit or unit)
-    chosen = Loss(loss, units.to_base(loss_scale, unit))
-    validation.reference_scale(reference, validation.mean_magnitude(samples))
-    moments = accumulate(samples, reference)
-    problem = Problem(samples=samples, reference=reference, moments=moments, loss=chosen)
-    if chosen.robust:  # the weights of the robust optimum, then the same objective for all
-        run_joint(problem)
-        problem.frozen = True
-    moments = problem.moments
+    with chunks.call_threads(threads):
+        units.check_compatible(unit, reference_unit or unit)
+        samples = validation.samples(samples)
+        reference = validation.reference(reference_field, samples.shape[0])
+        samples = units.to_base(samples, unit)
+        reference = units.to_base(reference, reference_unit or unit)
+        chosen = Loss(loss, units.to_base(loss_scale, unit))
+        validation.reference_scale(reference, validation.mean_magnitude(samples))
+        moments = accumulate(samples, reference)
+        problem = Problem(samples=samples, reference=reference, moments=moments, loss=chosen)
+        if chosen.robust:  # the weights of the robust optimum, then the same objective for all
+            run_joint(problem)
+            problem.frozen = True
+        moments = problem.moments
 
-    rule = StopRule(max_cycles=int(settings.cycles), rtol=settings.rtol)
-    try:
-        _, staged, stages, stop_reason = run_staged(problem, rule)
-        start = joint_start(moments)
-        joint_step, joint_rows, joint_stages = run_joint(problem)
-    except SolveError as failure:
-        raise explain_failure(problem, failure) from None
-    joint_theta = joint_step.theta
-    joint = joint_rows[-1]
-    joint["status"] = joint_stages[-1]["status"]
-    joint_path = _joint_trajectory(joint_step, joint["iterations"], joint["objective"])
-    hs = scaled_hessian(moments, joint_theta, joint_step)
-    weak = uncertainty(problem, joint["objective"], hs)[1]["not_identifiable"]
-    if weak and require_identifiable:
-        raise QualityError(
-            f"the data do not determine {', '.join(weak)}, so no method has an optimum to reach; "
-            f"rotate the sensor through more attitudes (require_identifiable=False compares "
-            f"anyway)",
-            "Not_Identifiable",
-        )
-
-    cg_joint, cg_joint_paths = [], {}
-    for scaled in (False, True):
-        options = CGOptions(**{**asdict(settings.cg), "scaled": scaled})
-        label = "cg joint scaled" if scaled else "cg joint"
-        _, row, outcome = run_cg_joint(problem, start, options, label=label)
-        cg_joint.append(row)
-        cg_joint_paths[label] = _cg_trajectory([outcome.history])
-
-    _, cg_staged, cg_stages = run_cg_staged(problem, settings.cycles, settings.cg, settings.rtol)
-
-    trajectories = {
-        "staged": _staged_trajectory(staged, stages),
-        "joint": joint_path,
-        "cg_joint": cg_joint_paths["cg joint"],
-        "cg_joint_scaled": cg_joint_paths["cg joint scaled"],
-        "cg_staged": _cg_trajectory([s["history"] for s in cg_stages]),
-    }
-
-    summary = _summary(staged, stop_reason, joint, cg_joint, cg_staged)
-    summary["block_coupling"] = block_coupling(moments, joint_theta)
-    warnings = []
-    if stop_reason == "max_cycles":
-        warnings.append(
-            f"the staged cycle was still improving after {settings.cycles} cycles "
-            f"(std {staged[-1]['std']:.4g} vs joint {joint['std']:.4g}); pass a "
-            f"larger --cycles to see where it ends"
-        )
-    for row in cg_joint:
-        if row["status"] != "converged":
-            warnings.append(
-                f"{row['label']}: the conjugate gradient did not converge "
-                f"({row['status']} after {row['iterations']} iterations; std "
-                f"{row['std']:.4g} vs joint {joint['std']:.4g})"
+        rule = StopRule(max_cycles=int(settings.cycles), rtol=settings.rtol)
+        try:
+            _, staged, stages, stop_reason = run_staged(problem, rule)
+            start = joint_start(moments)
+            joint_step, joint_rows, joint_stages = run_joint(problem, start)  # the CG's start
+        except SolveError as failure:
+            raise explain_failure(problem, failure) from None
+        joint_theta = joint_step.theta
+        joint = joint_rows[-1]
+        joint["status"] = joint_stages[-1]["status"]
+        joint_path = joint_trajectory(joint_step, joint["iterations"], joint["objective"])
+        hs = scaled_hessian(moments, joint_theta, joint_step)
+        weak = uncertainty(problem, joint["objective"], hs)[1]["not_identifiable"]
+        if weak and require_identifiable:
+            raise QualityError(
+                f"the data do not determine {', '.join(weak)}, so no method has an optimum to "
+                f"reach; rotate the sensor through more attitudes (require_identifiable=False "
+                f"compares anyway)",
+                "Not_Identifiable",
             )
-    bad = [r["label"] for r in cg_staged[1:] if not r.get("converged", True)]
-    if bad:
-        warnings.append(f"conjugate gradient stages that did not converge in: {', '.join(bad)}")
 
-    summary["loss"] = problem.loss.to_dict()
-    return Comparison(
-        samples=samples,
-        staged=staged,
-        joint=joint,
-        cg_joint=cg_joint,
-        cg_staged=cg_staged,
-        trajectories=trajectories,
-        summary=summary,
-        reference=problem.reference_document(),
-        settings=settings,
-        unit=units.base_unit(unit),
-        warnings=warnings,
-        n_samples=int(samples.shape[0]),
-    )
+        cg_joint, cg_joint_paths = [], {}
+        for scaled in (False, True):
+            options = CGOptions(**{**asdict(settings.cg), "scaled": scaled})
+            label = "cg joint scaled" if scaled else "cg joint"
+            _, row, outcome = run_cg_joint(problem, start, options, label=label)
+            cg_joint.append(row)
+            cg_joint_paths[label] = cg_trajectory([outcome.history])
+
+        _, cg_staged, cg_stages = run_cg_staged(
+            problem, settings.cycles, settings.cg, settings.rtol
+        )
+
+        trajectories = {
+            "staged": staged_trajectory(staged, stages),
+            "joint": joint_path,
+            "cg_joint": cg_joint_paths["cg joint"],
+            "cg_joint_scaled": cg_joint_paths["cg joint scaled"],
+            "cg_staged": cg_trajectory([s["history"] for s in cg_stages]),
+        }
+
+        summary = run_summary(staged, stop_reason, joint, cg_joint, cg_staged)
+        summary["block_coupling"] = block_coupling(moments, joint_theta)
+        warnings = []
+        if stop_reason == "max_cycles":
+            warnings.append(
+                f"the staged cycle was still improving after {settings.cycles} cycles "
+                f"(std {staged[-1]['std']:.4g} vs joint {joint['std']:.4g}); pass a "
+                f"larger --cycles to see where it ends"
+            )
+        for row in cg_joint:
+            if row["status"] != "converged":
+                warnings.append(
+                    f"{row['label']}: the conjugate gradient did not converge "
+                    f"({row['status']} after {row['iterations']} iterations; std "
+                    f"{row['std']:.4g} vs joint {joint['std']:.4g})"
+                )
+        bad = [r["label"] for r in cg_staged[1:] if not r.get("converged", True)]
+        if bad:
+            warnings.append(f"conjugate gradient stages that did not converge in: {', '.join(bad)}")
+
+        summary["loss"] = problem.loss.to_dict()
+        return Comparison(
+            samples=samples,
+            staged=staged,
+            joint=joint,
+            cg_joint=cg_joint,
+            cg_staged=cg_staged,
+            trajectories=trajectories,
+            summary=summary,
+            reference=problem.reference_document(),
+            settings=settings,
+            unit=units.base_unit(unit),
+            warnings=warnings,
+            n_samples=int(samples.shape[0]),
+        )
 
 
 def compare_log(
@@ -464,6 +298,7 @@ def compare_log(
     settings: CompareSettings = CompareSettings(),
     loss: str = "l2",
     loss_scale: float | None = None,
+    threads: int | None = None,
 ) -> Comparison:
     """`compare` on a log read by `nlpcal.io.read_log` (its reference included); the comparison
     records the log under `input`. loss_scale : in the unit of the log's field columns."""
@@ -474,6 +309,7 @@ def compare_log(
         unit=log.base_unit,
         loss=loss,
         loss_scale=units.to_base(loss_scale, log.unit),
+        threads=threads,
     )
     result.input = log.metadata(unit_factor_nT=units.field_factor(log.unit))
     if log.reference_column:

@@ -13,7 +13,8 @@ errors against a reference. The model is `nlpcal.models.qiu2017`; the NLPs are i
 """
 
 from ..errors import InputError
-from ..io.logs import SensorLog
+from ..io.sensors import SensorLog
+from ..io.tables import column_name
 from .ellipsoids import fit_axis_ellipsoid, fit_general_ellipsoid
 from .free import DEFAULT_REST_TOLERANCE, MIN_FREE_SAMPLES, calibrate_free, dip_alignment
 from .orientation import (
@@ -44,13 +45,13 @@ def calibrate_sensor_log(
     rest_tolerance: float | None = DEFAULT_REST_TOLERANCE,
 ) -> CompassCalibration:
     """Calibrate both sensors of a log read by `nlpcal.io.read_sensor_log`: turn mode with the
-    turn labels of `turn_column`, free-rotation mode without. The result records the log."""
+    turn labels of `turn_column` (a name or 0-based position), free-rotation mode without. The
+    field magnitude is `field_nt` [nT], else the log's reference field, else estimated. The result
+    records the log."""
+    if field_nt is None:
+        field_nt = log.reference_field
     if turn_column:
-        if turn_column not in log.frame.columns:
-            raise InputError(
-                f"turn column {turn_column!r} not found; the log has columns: "
-                f"{', '.join(map(str, log.frame.columns))}"
-            )
+        turn_column = column_name(log.frame, turn_column, "turn column")
         labels = log.frame[turn_column].to_numpy(dtype=object)[log.kept]
         result = calibrate_turns(
             log.mag, log.acc, labels, field_nt=field_nt, ellipsoid_seed=ellipsoid_seed
@@ -75,6 +76,7 @@ __all__ = [
     "NEAR_VERTICAL_DEG",
     "Attitude",
     "CompassCalibration",
+    "InputError",
     "SensorCalibration",
     "attitude",
     "calibrate_free",

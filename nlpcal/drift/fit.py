@@ -290,6 +290,7 @@ def fit_drift_log(
 ) -> DriftFit:
     """`fit_drift` on a log read by `nlpcal.io.read_log` with its reference column and
     `temperature_column` [degC]; the fit records the log under `input`."""
+    temperature_column = log.column(temperature_column)
     if temperature_column == log.reference_column:
         raise InputError(
             f"--temperature-column and --reference-column are both "

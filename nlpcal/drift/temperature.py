@@ -396,6 +396,7 @@ def calibrate_temperature_log(
 ) -> TemperatureCalibrationResult:
     """`calibrate_temperature` on a log read by `nlpcal.io.read_log` with its reference column
     and `temperature_column` [degC]; the result records the log under `input`."""
+    temperature_column = log.column(temperature_column)
     if log.reference is None:
         raise InputError(
             "the temperature calibration needs --reference-column COL, a reference "

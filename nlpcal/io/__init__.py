@@ -1,7 +1,8 @@
 """Reading logs and documents, writing outputs: the one home of nlpcal's file handling.
 
-`files` writes atomically and strictly (no NaN in JSON), `tables` reads CSV tables and picks their
-columns, `logs` turns a table into samples, reference and extra columns in base units.
+`files` writes atomically and strictly (no NaN in JSON), `layout` detects how a delimited text log
+is laid out, `tables` reads it and picks its columns, `rows` screens rows that are not readings,
+`logs` turns a table into samples, reference and extra columns in base units.
 """
 
 from .files import (
@@ -15,24 +16,31 @@ from .files import (
     write_json_atomic,
     write_text_atomic,
 )
-from .logs import Log, SensorLog, read_columns, read_log, read_sensor_log
+from .layout import Layout, detect_layout
+from .logs import Log, read_columns, read_log
+from .sensors import SensorLog, read_sensor_log
 from .tables import (
+    Table,
     column_name,
     csv_engine,
     csv_to_memmap,
     numeric_columns,
     read_table,
-    read_table_header,
     resolve_columns,
+    table_text,
+    write_table,
 )
 
 __all__ = [
+    "Layout",
     "Log",
     "SensorLog",
+    "Table",
     "check_output_path",
     "column_name",
     "csv_engine",
     "csv_to_memmap",
+    "detect_layout",
     "json_text",
     "numeric_columns",
     "plain",
@@ -41,11 +49,12 @@ __all__ = [
     "read_log",
     "read_sensor_log",
     "read_table",
-    "read_table_header",
     "resolve_columns",
     "sha256_file",
+    "table_text",
     "write_bytes_atomic",
     "write_csv_atomic",
     "write_json_atomic",
+    "write_table",
     "write_text_atomic",
 ]

@@ -1,18 +1,24 @@
 """Logs that stay where they are, for a Dask cluster: the rows of CSV or Parquet files (one file,
 a pattern or a folder) as a Dask array read block by block in every pass (`nlpcal.passes`).
 
-Each block is one task: a Parquet row group (pyarrow writes row groups of 1 Mi rows by default),
-or a byte range of a CSV file (BLOCK_BYTES, cut at line ends). A block is read, its columns
-chosen, checked and converted to the base unit exactly as `read_log` does with a whole file
-(`nlpcal.io.tables.numeric_columns`); a bad row fails the read with the file and row group named.
-The rows of every block are known before the first pass: from the Parquet footers, otherwise (CSV,
-or rows dropped with drop_invalid) from one counting pass, which also counts the rows dropped.
-Reading ends with the survey pass (`nlpcal.passes.survey_together`) that checks every value.
+Each block is one task: a Parquet row group (pyarrow writes row groups of 2^20 rows by default),
+or a byte range of a text file (BLOCK_BYTES, cut at line ends; a compressed file, or one not in
+UTF-8 or Latin-1, is one block). A block is read in the layout detected for its file, its columns
+chosen, checked and converted to the base unit as `read_log` does (`nlpcal.io.tables`), and its
+rows screened (`nlpcal.io.rows`: zero vectors left out, repeats counted and dropped with
+drop_invalid; a repeat across the boundary of two blocks is not seen). A bad value fails the read
+with its file named.
+
+Reading takes one pass when the blocks' row counts are known beforehand (Parquet footers) and
+every row is kept: each task reads, checks and screens its block and gathers the survey of
+`nlpcal.passes` at once. Otherwise (CSV, rows left out) that pass counts the rows of every block,
+and the survey is a second one.
 """
 
 from __future__ import annotations
 
 import io
+import time
 
 import numpy as np
 import pandas as pd
@@ -21,11 +27,14 @@ from .. import passes, units, validation
 from ..errors import InputError
 from ..geomagnetic import ReferenceModel
 from . import sources
-from .logs import Log, log_unit, reference_unit
-from .tables import column_name, numeric_columns, read_table_header, resolve_columns
+from .logs import Log, reference_unit, sensor_unit, unit_check
+from .rows import QUOTED_ROWS, RowScreen
+from .tables import column_name, log_files, numeric_columns, resolve_columns
 
-#: Bytes of CSV per block (one task). [byte]
+#: Bytes of text per block (one task). [byte]
 BLOCK_BYTES = 64 * 2**20
+#: Encodings whose bytes can be cut at any newline byte.
+SPLITTABLE = ("utf-8", "utf-8-sig", "latin-1", "ascii")
 
 
 def field_samples(values):
@@ -48,18 +57,28 @@ def field_samples(values):
 
 
 def _table_of(spec):
-    """The table of one block: ("parquet", path, row group, columns) gives a pyarrow Table,
-    ("csv", path, bytes, header line) a DataFrame."""
-    kind, path, where, extra = spec
+    """The table of one block: ("parquet", path, row group, columns, None) gives a pyarrow Table;
+    ("text", name, bytes, file, first block?) a DataFrame in the file's layout."""
+    kind, name, where, extra, first = spec
     if kind == "parquet":
-        return sources.parquet_row_group(path, where, extra)
+        return sources.parquet_row_group(name, where, extra)
+    layout, columns = extra.layout, list(extra.preview.columns)
+    options = layout.pandas_options()
+    if not first:  # the header row and comment lines are in the first block only
+        options.update(header=None, names=columns if layout.header else None)
     try:
-        frame = pd.read_csv(io.BytesIO(extra + where), engine="c")
+        frame = pd.read_csv(io.BytesIO(where), engine="c", **options)
     except pd.errors.EmptyDataError:
-        return pd.DataFrame(columns=pd.read_csv(io.BytesIO(extra), nrows=0).columns)
+        return pd.DataFrame(columns=columns)
     except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
-        raise InputError(f"{path}: cannot be read as CSV ({' '.join(str(exc).split())})") from None
-    frame.columns = [str(c).strip() for c in frame.columns]
+        message = " ".join(str(exc).split())[:160]
+        raise InputError(
+            f"{name}: cannot be read as a {layout.describe()} text log ({message})"
+        ) from None
+    if layout.header:
+        frame.columns = [str(c).strip() for c in frame.columns]
+    else:
+        frame.columns = [str(k) for k in range(frame.shape[1])]
     return frame
 
 
@@ -90,76 +109,122 @@ def _finite_block(table, wanted, factors):
     return out
 
 
-def _block(spec, wanted, factors, drop_invalid: bool):
-    """(values in the base unit, rows dropped) of one block; a block with a missing, non-numeric
-    or non-finite value goes through `numeric_columns`, which says where or drops the row."""
-    kind, path, where, _ = spec
+def _block(spec, wanted, factors, drop_invalid: bool) -> tuple:
+    """(values in the base unit, rows read, rows with a missing or non-numeric value, the
+    RowScreen) of one block."""
+    kind, name, where, extra, _ = spec
     table = _table_of(spec)
     values = _finite_block(table, wanted, factors)
-    if values is not None:
-        return values, 0
-    frame = sources.arrow_frame(table) if kind == "parquet" else table
-    source = f"{path} (row group {where})" if kind == "parquet" else f"{path} (a block)"
-    numeric = numeric_columns(frame, wanted, drop_invalid=drop_invalid, source=source)
-    return numeric.values * factors, numeric.dropped
+    rows = table.num_rows if hasattr(table, "num_rows") else len(table)
+    invalid = 0
+    if values is None:  # numeric_columns says where a bad value is, or drops its row
+        frame = sources.arrow_frame(table) if kind == "parquet" else table
+        source = f"{name} (row group {where})" if kind == "parquet" else name
+        decimal = "." if kind == "parquet" else extra.layout.decimal
+        numeric = numeric_columns(
+            frame, wanted, drop_invalid=drop_invalid, source=source, decimal=decimal
+        )
+        values, invalid = numeric.values * factors, numeric.dropped
+    screen = RowScreen(drop_repeats=drop_invalid)
+    keep = screen.keep(values[:, :3], np.arange(1, values.shape[0] + 1))
+    if not keep.all():
+        values = values[keep]
+    return values, rows, invalid, screen
 
 
 def _values(spec, wanted, factors, drop_invalid):
     return _block(spec, wanted, factors, drop_invalid)[0]
 
 
-def _counts(spec, wanted, factors, drop_invalid):
-    values, dropped = _block(spec, wanted, factors, drop_invalid)
-    return values.shape[0], dropped
+def _count(spec, wanted, factors, drop_invalid, start: int, steps):
+    """(rows kept, rows read, rows not numeric, RowScreen, survey or None) of a block: the survey
+    as if it began at row `start` with strides `steps` (right when no earlier row was left out),
+    when `steps` are given."""
+    values, rows, lost, screen = _block(spec, wanted, factors, drop_invalid)
+    survey = None if steps is None else passes.survey_block(values, start, steps)
+    return values.shape[0], rows, lost, screen, survey
 
 
-def _specs(paths, wanted, block_bytes: int) -> list:
+def _specs(files, block_bytes: int) -> list:
     """(spec, rows or None) of every block of a log's files, in row order."""
     from dask.bytes import read_bytes
 
-    specs = []
-    for path in paths:
-        if sources.is_parquet(path):
-            for index, rows in enumerate(sources.parquet_row_groups(path)):
-                specs.append((("parquet", str(path), index, wanted), rows))
+    specs: list = []
+    for part in files:
+        if part.parquet:
+            for index, rows in enumerate(sources.parquet_row_groups(part.source)):
+                specs.append((("parquet", part.name, index, None, None), rows))
             continue
-        with open(path, "rb") as handle:
-            header = handle.readline()
-        _, blocks = read_bytes(str(path), delimiter=b"\n", blocksize=block_bytes, sample=False)
+        layout = part.layout
+        whole = layout.compression or layout.encoding not in SPLITTABLE
+        _, blocks = read_bytes(
+            str(part.source),
+            delimiter=b"\n",
+            blocksize=None if whole else block_bytes,
+            compression=layout.compression,
+            sample=False,
+        )
         for k, block in enumerate(blocks[0]):
-            # The first block starts with the header line; the others are given it.
-            specs.append((("csv", str(path), block, b"" if k == 0 else header), None))
+            specs.append((("text", part.name, block, part, k == 0), None))
     return specs
 
 
-def lazy_table(source, wanted, factors, *, drop_invalid: bool = False, block_bytes=BLOCK_BYTES):
-    """(Dask array (N, k) of the `wanted` columns times `factors`, rows dropped) of a log."""
+def _screen_notes(screens: list, offsets: list, drop_invalid: bool) -> list:
+    """The notes of the blocks' row screens, as one screen of the whole log would say them."""
+    whole = RowScreen(drop_repeats=drop_invalid)
+    for screen, offset in zip(screens, offsets):
+        whole.rows += screen.rows
+        whole.zeros += screen.zeros
+        whole.repeats += screen.repeats
+        room = QUOTED_ROWS - len(whole.zero_rows)
+        whole.zero_rows.extend(offset + r for r in screen.zero_rows[: max(room, 0)])
+        if screen.longest > whole.longest:
+            whole.longest, whole.longest_at = screen.longest, offset + screen.longest_at
+    return whole.notes()
+
+
+def lazy_table(files, wanted, factors, *, drop_invalid=False, block_bytes=BLOCK_BYTES):
+    """(Dask array (N, k) of the `wanted` columns times `factors`, the survey of its rows when
+    the counting pass could gather it, rows left out, notes) of a log's files
+    (`nlpcal.io.tables.log_files`)."""
     import dask
     import dask.array as da
 
-    paths = sources.log_paths(source)
-    specs = _specs(paths, wanted, block_bytes)
+    specs = _specs(files, block_bytes)
     factors = np.asarray(factors, dtype=float)
-    rows = [n for _, n in specs]
-    dropped = 0
-    if drop_invalid or any(n is None for n in rows):  # one counting pass
-        counted = dask.compute(
-            *[dask.delayed(_counts)(spec, wanted, factors, drop_invalid) for spec, _ in specs]
-        )
-        rows = [kept for kept, _ in counted]
-        dropped = sum(lost for _, lost in counted)
+    declared = [n for _, n in specs]
+    known = all(n is not None for n in declared)
+    starts = np.concatenate([[0], np.cumsum(declared)]).astype(int) if known else [0] * len(specs)
+    steps = None
+    if known:
+        steps = tuple(sorted({max(1, int(starts[-1]) // size) for size in passes.SURVEY_SIZES}))
+    counted = dask.compute(
+        *[
+            dask.delayed(_count)(spec, wanted, factors, drop_invalid, int(start), steps)
+            for (spec, _), start in zip(specs, starts)
+        ]
+    )
+    kept = [c[0] for c in counted]
+    read_offsets = np.concatenate([[0], np.cumsum([c[1] for c in counted])]).astype(int)
+    invalid = sum(c[2] for c in counted)
+    lost = int(read_offsets[-1]) - sum(kept)
+    notes = [f"dropped {invalid} row(s) with missing or non-numeric values"] if invalid else []
+    notes += _screen_notes([c[3] for c in counted], list(read_offsets[:-1]), drop_invalid)
+    survey = None
+    if known and not lost:  # every block as declared: the counting pass was the survey
+        survey = passes.merge_all([c[4] for c in counted])
     blocks = [
         da.from_delayed(
             dask.delayed(_values)(spec, wanted, factors, drop_invalid),
             shape=(n, len(wanted)),
             dtype=float,
         )
-        for (spec, _), n in zip(specs, rows)
+        for (spec, _), n in zip(specs, kept)
         if n
     ]
     if not blocks:
-        raise InputError(f"{source}: no data rows")
-    return da.concatenate(blocks, axis=0), dropped
+        raise InputError(f"{files[0].name}: no data rows")
+    return da.concatenate(blocks, axis=0), survey, lost, notes
 
 
 def read_lazy_log(
@@ -174,14 +239,16 @@ def read_lazy_log(
     extra_columns=(),
     drop_invalid: bool = False,
     fallback_unit: str = "nT",
+    header: bool | None = None,
     block_bytes: int = BLOCK_BYTES,
 ) -> Log:
     """`nlpcal.io.read_log` for a Dask cluster: the same columns, units and checks, the samples
     (and a reference column) left in the files as `nlpcal.passes.LazySamples`.
 
-    Reading runs the survey pass (every value checked, the subsamples the calibration needs
-    gathered) on the current Dask scheduler. A per-sample geomagnetic reference and extra
-    columns (temperatures) need the log in memory (`read_log`).
+    Reading runs on the current Dask scheduler: one pass that checks every value and gathers
+    what the calibration takes from the log without a pass of its own (two for CSV, or when rows
+    are left out). A per-sample geomagnetic reference and extra columns (temperatures) need the
+    log in memory (`read_log`).
     """
     given = [reference_column, reference_field, reference_model]
     if sum(value is not None for value in given) > 1:
@@ -199,13 +266,20 @@ def read_lazy_log(
     except ImportError:
         raise InputError("a log on a Dask cluster needs dask: pip install 'nlpcal[dask]'") from None
     notes: list = []
-    header = read_table_header(source)
-    chosen = resolve_columns(header, columns)
-    unit = log_unit(chosen, unit, fallback_unit, notes)
+    files = log_files(source, header)
+    first = files[0]
+    chosen = resolve_columns(
+        first.preview,
+        columns,
+        header=first.layout.header,
+        decimal=first.layout.decimal,
+        notes=notes,
+    )
+    unit, how = sensor_unit(chosen, unit, fallback_unit, notes)
     wanted, factors = list(chosen), [units.field_factor(unit)] * 3
     name = None
     if reference_column is not None:
-        name = column_name(header, reference_column)
+        name = column_name(first.preview, reference_column)
         if name in chosen:
             raise InputError(
                 f"column {name!r} is one of the field columns ({', '.join(chosen)}); pass the "
@@ -215,15 +289,19 @@ def read_lazy_log(
         units.check_compatible(unit, ref_unit, f"reference column {name!r}")
         wanted.append(name)
         factors.append(units.field_factor(ref_unit))
-    table, dropped = lazy_table(
-        source, wanted, factors, drop_invalid=drop_invalid, block_bytes=block_bytes
+    started = time.perf_counter()
+    table, survey, lost, screened = lazy_table(
+        files, wanted, factors, drop_invalid=drop_invalid, block_bytes=block_bytes
     )
-    if dropped:
-        notes.append(f"dropped {dropped} row(s) with missing or non-numeric values")
-    samples = passes.LazySamples(table[:, :3])
+    notes.extend(screened)
+    samples = passes.LazySamples(
+        table[:, :3], None if survey is None else survey.columns(slice(0, 3))
+    )
+    samples.passes += 1
+    samples.timings.append(("read", time.perf_counter() - started))
     reference, model = None, None
     if name is not None:
-        reference = passes.LazySamples(table[:, 3])
+        reference = passes.LazySamples(table[:, 3], None if survey is None else survey.columns(3))
     passes.survey_together(samples, reference)
     if name is not None:
         reference = validation.reference(reference, samples.n, f"the reference column {name!r}")
@@ -244,12 +322,10 @@ def read_lazy_log(
         reference = units.to_base(
             validation.number(reference_field, "the reference field", positive=True), ref_unit
         )
-    parquet = all(sources.is_parquet(path) for path in sources.log_paths(source))
     blocks = len(samples.block_offsets())
-    notes.append(
-        f"the log stays in its files: {blocks} {'Parquet row groups' if parquet else 'CSV blocks'}"
-        f" read in every pass"
-    )
+    what = "Parquet row groups" if all(part.parquet for part in files) else "blocks"
+    notes.append(f"the log stays in its files: {blocks} {what} read in every pass")
+    check = unit_check(samples, unit, how)
     return Log(
         path=str(source),
         columns=list(chosen),
@@ -258,7 +334,9 @@ def read_lazy_log(
         reference=reference,
         reference_column=name,
         reference_source=model,
-        dropped=dropped,
-        engine="pyarrow" if parquet else "c",
+        dropped=lost,
+        engine="pyarrow" if files[0].parquet else "c",
         notes=notes,
+        warnings=[check] if check else [],
+        layout=first.layout,
     )

@@ -1,10 +1,15 @@
 """`read_log`: a magnetometer log as samples, reference and extra columns, in base units.
 
-The unit of the field columns is the one asked for, else the one their names carry (mx_uT,
-"Magnetometer X (uT)", _gauss, _counts for raw), else a fallback (nT, or the unit of the log the
-parameters being applied were estimated from). A reference column is in the unit its name
-carries ("proton_nT"), else in the log's unit; a reference number is in the log's unit unless its
-own unit is given. What the reader decided on the user's behalf is said in `Log.notes`.
+Any delimited text log is read (`nlpcal.io.tables`): comma, semicolon, tab or whitespace, with or
+without a header row, `-` for stdin. The unit of the field columns is the one asked for, else the
+one their names carry (mx_uT, "Magnetometer X (uT)", _gauss, _counts for raw), else a fallback
+(nT, or the unit of the log the parameters being applied were estimated from). Whatever the unit's
+source, the magnitudes are checked against Earth's field, and a unit that cannot be right is
+warned about with the units that would fit (`nlpcal.units.unit_warning`). A reference column is
+in the unit its name carries ("proton_nT"), else in the log's unit; a reference number is in the
+log's unit unless its own unit is given. Rows that are not readings are screened
+(`nlpcal.io.rows`). What the reader decided on the user's behalf is said in `Log.notes`, what
+looks wrong in `Log.warnings`.
 """
 
 from __future__ import annotations
@@ -17,13 +22,16 @@ import pandas as pd
 from .. import units, validation
 from ..errors import InputError
 from ..geomagnetic import ReferenceModel, parse_times
+from ..moments import sphere_frame
+from .layout import Layout
+from .rows import RowScreen
 from .tables import (
+    Table,
     column_name,
-    csv_engine,
     csv_to_memmap,
+    numbers,
     numeric_columns,
     read_table,
-    read_table_header,
     resolve_columns,
 )
 
@@ -32,18 +40,21 @@ from .tables import (
 class Log:
     """A field log read for nlpcal.
 
-    path : where it came from.
+    path : where it came from ("stdin" for `-`).
     columns : the three field columns.
     samples : (N, 3) field samples in the base unit (nT, or raw counts). [base unit]
     unit : the unit of the field columns in the file.
     reference : None, a number or (N,) values of the reference field magnitude. [base unit]
     reference_column : the column the reference came from, if any.
+    reference_source : what a geomagnetic-model reference came from (model, package), if any.
     extras : the other requested columns on the rows of `samples`, as read (temperature [degC]).
     frame : the whole table (None when streamed with low_memory).
     kept : boolean mask of the table's rows behind `samples` (None when streamed).
-    dropped : rows dropped as invalid.
+    dropped : rows left out (missing values, zero vectors, repeats with drop_invalid).
     engine : the pandas CSV engine that read it.
     notes : what the reader decided on the user's behalf, for the user to read.
+    warnings : what looks wrong (a unit that does not fit the magnitudes), for the user to read.
+    layout : how the file is laid out, to write it back the same way.
     """
 
     path: str
@@ -59,6 +70,8 @@ class Log:
     dropped: int = 0
     engine: str = "c"
     notes: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
+    layout: Layout = field(default_factory=Layout)
 
     @property
     def base_unit(self) -> str:
@@ -75,6 +88,7 @@ class Log:
             "log": self.path,
             "columns": list(self.columns),
             "log_unit": self.unit,
+            "layout": self.layout.to_dict(),
             "csv_engine": self.engine,
             "rows_dropped": int(self.dropped),
             **more,
@@ -82,9 +96,10 @@ class Log:
 
     def written_back(self, corrected, total_column: str, extra=None) -> pd.DataFrame:
         """The log's table on the rows of `samples`, its field columns replaced by `corrected`
-        [base unit] converted back to the log's unit, their magnitude in `total_column`, and the
-        `extra` columns (name -> values on the rows of `samples`). Every other column passes
-        through unchanged."""
+        [base unit] converted back to the log's unit, their magnitude in `total_column`
+        (appended last), and the `extra` columns (name -> values on the rows of `samples`).
+        Every other column passes through unchanged; write it with
+        `nlpcal.io.write_table(frame, log.layout, ...)` to keep the file's layout."""
         if self.frame is None:
             raise InputError(
                 f"{self.path}: a log streamed into a memory map cannot be written "
@@ -94,30 +109,64 @@ class Log:
         frame = self.frame.loc[self.kept].copy()
         for k, column in enumerate(self.columns):
             frame[column] = values[:, k]
+        if total_column in frame.columns:
+            frame = frame.drop(columns=total_column)
         frame[total_column] = np.linalg.norm(values, axis=1)
         for name, column in (extra or {}).items():
             frame[name] = column
         return frame
 
-    def values(self, column: str) -> np.ndarray:
+    def column(self, name) -> str:
+        """The name under which an extra column was read (`name` may be a 0-based position or
+        differ in case)."""
+        if name in self.extras:
+            return name
+        if self.frame is not None:
+            resolved = column_name(self.frame, name)
+            if resolved in self.extras:
+                return resolved
+        lower = {key.lower(): key for key in self.extras}
+        if str(name).lower() in lower:
+            return lower[str(name).lower()]
+        raise InputError(f"column {name!r} was not read with the log")
+
+    def values(self, column) -> np.ndarray:
         """An extra column on the rows of `samples`, as read."""
-        return self.extras[column]
+        return self.extras[self.column(column)]
 
 
-def log_unit(columns, unit=None, fallback: str = "nT", notes=None) -> str:
-    """The unit of the field columns: `unit`, else the one their names carry, else `fallback`."""
-    notes = [] if notes is None else notes
-    hinted = units.suggested_unit(columns)
+def sensor_unit(columns, unit, fallback, notes, what="magnetometer", flag="--unit") -> tuple:
+    """(unit, how) of a sensor's columns: `unit` ("given"), else the one their names carry
+    ("names"), else `fallback` ("assumed")."""
+    prefixes = units.MAGNETIC_PREFIXES if what == "magnetometer" else units.ACC_PREFIXES
+    suffixes = units.FIELD_SUFFIXES if what == "magnetometer" else units.ACC_SUFFIXES
+    hinted = units.suggested_unit(columns, prefixes, suffixes)
     if unit is None:
         if hinted:
-            notes.append(f"unit {hinted} taken from the column names ({', '.join(columns)})")
-        return hinted or fallback
-    units.field_factor(unit)
+            notes.append(f"{what} unit {hinted} taken from the column names ({', '.join(columns)})")
+            return hinted, "names"
+        return fallback, "assumed"
+    if what == "magnetometer":
+        units.field_factor(unit)
+    else:
+        units.acc_factor(unit)
     if hinted and hinted != unit:
         notes.append(
-            f"the column names ({', '.join(columns)}) suggest {hinted}, but --unit is {unit}"
+            f"the {what} columns ({', '.join(columns)}) suggest {hinted}, but {flag} is {unit}"
         )
-    return unit
+    return unit, "given"
+
+
+def typical_magnitudes(samples) -> list:
+    """Two estimates of a sensor's typical magnitude [unit of the samples]: the median |v|, and
+    the radius of a sphere fitted to the samples (free of hard-iron offsets when the attitudes
+    vary; meaningless when they do not, hence both)."""
+    samples = np.asarray(samples[:: max(1, samples.shape[0] // 20000)], dtype=float)
+    if samples.shape[0] == 0:
+        return []
+    median = float(np.median(np.linalg.norm(samples, axis=1)))
+    radius = sphere_frame(samples).radius if samples.shape[0] >= 10 else median
+    return [median, float(radius)]
 
 
 def reference_unit(column: str, log_unit_: str, notes) -> str:
@@ -126,6 +175,31 @@ def reference_unit(column: str, log_unit_: str, notes) -> str:
     if named and named != log_unit_:
         notes.append(f"reference column {column!r} read in {named}, the unit its name carries")
     return named or log_unit_
+
+
+def screened(table: Table, wanted: list, drop_invalid: bool, notes: list, frame=None) -> tuple:
+    """(values, kept mask over the table's rows, rows left out) of the wanted columns (of
+    `frame`, when given: the table's cells with some columns converted)."""
+    numeric = numeric_columns(
+        table.frame if frame is None else frame,
+        wanted,
+        drop_invalid=drop_invalid,
+        source=table.source,
+        decimal=table.layout.decimal,
+    )
+    if numeric.dropped:
+        notes.append(f"dropped {numeric.dropped} row(s) with missing or non-numeric values")
+    screen = RowScreen(drop_repeats=drop_invalid)
+    valid_rows = np.flatnonzero(numeric.kept)
+    keep = screen.keep(numeric.values[:, :3], valid_rows + 1)
+    notes.extend(screen.notes())
+    if not keep.any():
+        raise InputError(f"{table.source}: no data rows")
+    if keep.all():
+        return numeric.values, numeric.kept, numeric.dropped
+    kept = numeric.kept.copy()
+    kept[valid_rows[~keep]] = False
+    return numeric.values[keep], kept, numeric.dropped + int((~keep).sum())
 
 
 def read_log(
@@ -141,10 +215,13 @@ def read_log(
     drop_invalid: bool = False,
     low_memory: bool = False,
     fallback_unit: str = "nT",
+    header: bool | None = None,
+    text: bool = False,
 ) -> Log:
     """Read, validate and convert a field log.
 
-    columns : the three field columns (None: detected).
+    path : a delimited text log, "-" for stdin, or a `Table` already read.
+    columns : the three field columns, names or 0-based positions (None: detected).
     unit : the unit of the field columns (None: from their names, else `fallback_unit`).
     reference_column : a column of reference magnitudes, or reference_field : one number (in
         `reference_field_unit`, default the log's unit). The reference is converted to the base
@@ -152,7 +229,11 @@ def read_log(
     reference_model : or the total field of a geomagnetic model at the log's place and date,
         constant or per sample from position and time columns (`nlpcal.geomagnetic`). [nT]
     extra_columns : further numeric columns to read and validate (temperatures, say).
+    drop_invalid : drop rows with missing or non-numeric values, and field vectors repeating the
+        row before, instead of failing or keeping them. Exact-zero vectors are always left out.
     low_memory : stream the columns into a memory-mapped temporary file, O(chunk) memory.
+    header : force (True) or deny (False) a header row; None detects it.
+    text : keep the table's cells as text (for writing the log back unchanged).
     """
     given = [reference_column, reference_field, reference_model]
     if sum(value is not None for value in given) > 1:
@@ -167,41 +248,49 @@ def read_log(
             "a reference from position or time columns needs the log in memory; drop --low-memory"
         )
     if low_memory:
-        header = read_table_header(path)
-        chosen = resolve_columns(header, columns)
-        extra = [column_name(header, c) for c in extra]
-        unit = log_unit(chosen, unit, fallback_unit, notes)
+        decided: dict = {}
+
+        def scale(chosen) -> float:  # the unit, once the columns are known
+            decided["unit"], decided["how"] = sensor_unit(chosen, unit, fallback_unit, notes)
+            return units.field_factor(decided["unit"])
+
         mapped = csv_to_memmap(
-            path, chosen, extra, drop_invalid=drop_invalid, scale=units.field_factor(unit)
+            path, columns, extra, header=header, drop_invalid=drop_invalid, scale=scale
         )
-        values, frame, kept = mapped.values, None, None
-        dropped, engine = mapped.dropped, "c (chunked into a memory map)"
+        chosen, extra = mapped.columns[:3], mapped.columns[3:]
+        unit, how = decided["unit"], decided["how"]
+        notes.extend(mapped.notes)
+        values, frame, kept, dropped = mapped.values, None, None, mapped.dropped
+        engine, layout, source = "c (chunked into a memory map)", mapped.layout, mapped.source
         samples = values[:, :3]
     else:
-        frame = read_table(path)
-        chosen = resolve_columns(frame, columns)
-        extra = [column_name(frame, c) for c in extra]
-        checked, time_name = frame, None
-        if time_column:  # times enter the row checks as Unix seconds
-            time_name = column_name(frame, time_column)
-            checked = frame.assign(**{time_name: _unix_seconds(frame[time_name])})
-        numeric = numeric_columns(
-            checked,
-            chosen + extra + ([time_name] if time_name else []),
-            drop_invalid=drop_invalid,
-            source=str(path),
+        table = path if isinstance(path, Table) else read_table(path, header=header, text=text)
+        chosen = resolve_columns(
+            table.frame,
+            columns,
+            header=table.layout.header,
+            decimal=table.layout.decimal,
+            notes=notes,
         )
-        if not numeric.kept.any():
-            raise InputError(f"{path}: no data rows")
-        unit = log_unit(chosen, unit, fallback_unit, notes)
-        values, kept, dropped, engine = numeric.values, numeric.kept, numeric.dropped, csv_engine()
+        extra = [column_name(table.frame, c) for c in extra]
+        _check_distinct(chosen, extra)
+        checked, times_at = None, []
+        if time_column:  # times enter the row checks as Unix seconds
+            time_name = column_name(table.frame, time_column)
+            checked = table.frame.assign(**{time_name: _unix_seconds(table.frame[time_name])})
+            times_at = [time_name]
+        values, kept, dropped = screened(
+            table, chosen + extra + times_at, drop_invalid, notes, checked
+        )
+        unit, how = sensor_unit(chosen, unit, fallback_unit, notes)
+        frame, engine, layout, source = table.frame, table.engine, table.layout, table.source
         samples = values[:, :3] * units.field_factor(unit)
     _check_distinct(chosen, extra)
+    check = unit_check(samples, unit, how)
+    warnings = [check] if check else []
     resolved = dict(zip(requested, extra))  # the names asked for -> the log's own names
-    if dropped:
-        notes.append(f"dropped {dropped} row(s) with missing or non-numeric values")
     extras = {name: np.asarray(values[:, 3 + k]) for k, name in enumerate(extra)}
-    reference, name, source = None, None, None
+    reference, name, source_of_reference = None, None, None
     if reference_column is not None:
         name = extra[0]
         ref_unit = reference_unit(name, unit, notes)
@@ -220,11 +309,12 @@ def read_log(
         times = None
         if time_column:
             times = (values[:, -1] * 1e9).astype("int64").astype("datetime64[ns]")
-        reference, source = reference_model.field(found, times)
+        reference, source_of_reference = reference_model.field(found, times)
         if np.ndim(reference) == 0:
             notes.append(
-                f"reference field {source['total_nT']:.1f} nT from {source['name']} "
-                f"({source['package']} {source['package_version']})"
+                f"reference field {source_of_reference['total_nT']:.1f} nT from "
+                f"{source_of_reference['name']} ({source_of_reference['package']} "
+                f"{source_of_reference['package_version']})"
             )
     elif reference_field is not None:
         ref_unit = reference_field_unit or unit
@@ -233,19 +323,21 @@ def read_log(
             validation.number(reference_field, "the reference field", positive=True), ref_unit
         )
     return Log(
-        path=str(path),
-        columns=chosen,
+        path=source,
+        columns=list(chosen),
         samples=samples,
         unit=unit,
         reference=reference,
         reference_column=name,
-        reference_source=source,
+        reference_source=source_of_reference,
         extras=extras,
         frame=frame,
         kept=kept,
         dropped=dropped,
         engine=engine,
         notes=notes,
+        warnings=warnings,
+        layout=layout,
     )
 
 
@@ -254,6 +346,17 @@ def _unix_seconds(column) -> np.ndarray:
     times = parse_times(column)
     seconds = times.astype("int64") / 1e9
     return np.where(np.isnat(times), np.nan, seconds)
+
+
+def unit_check(
+    samples, unit: str, how: str, sensor="magnetometer", flag="--unit", raw_allowed=True
+) -> str | None:
+    """`nlpcal.units.unit_warning` for samples in the base unit of `sensor`."""
+    if unit == "raw" or samples.shape[0] == 0:
+        return None
+    factor = units.field_factor(unit) if sensor == "magnetometer" else units.acc_factor(unit)
+    in_unit = [m / factor for m in typical_magnitudes(samples)]
+    return units.unit_warning(in_unit, unit, how, sensor=sensor, flag=flag, raw_allowed=raw_allowed)
 
 
 def _check_distinct(field_columns, extra_columns) -> None:
@@ -266,136 +369,9 @@ def _check_distinct(field_columns, extra_columns) -> None:
             )
 
 
-@dataclass
-class SensorLog:
-    """A log of a magnetometer and an accelerometer in one housing (an e-compass).
-
-    mag : (N, 3) field in nT; acc : (N, 3) specific force in g, on the same rows.
-    frame, kept : the table and the rows behind the samples; notes : as in `Log`.
-    """
-
-    path: str
-    frame: pd.DataFrame
-    kept: np.ndarray
-    mag: np.ndarray
-    acc: np.ndarray
-    mag_columns: list
-    acc_columns: list
-    mag_unit: str
-    acc_unit: str
-    dropped: int = 0
-    notes: list = field(default_factory=list)
-
-    def with_columns(self, columns: dict) -> tuple:
-        """The table with `columns` (name -> values on the rows of the samples) added, NaN on the
-        rows skipped; returns (frame, the names that replaced existing columns)."""
-        out = self.frame.copy()
-        replaced = [name for name in columns if name in out.columns]
-        for name, values in columns.items():
-            column = np.full(len(out), np.nan)
-            column[self.kept] = values
-            out[name] = column
-        return out, replaced
-
-    def metadata(self, **more) -> dict:
-        return {
-            "file": self.path,
-            "mag_columns": list(self.mag_columns),
-            "acc_columns": list(self.acc_columns),
-            "mag_unit": self.mag_unit,
-            "acc_unit": self.acc_unit,
-            "rows_skipped": int(self.dropped),
-            **more,
-        }
-
-
-def _sensor_unit(columns, unit, fallback, prefixes, suffixes, what, notes) -> str:
-    hinted = units.suggested_unit(columns, prefixes, suffixes)
-    if unit is None:
-        if hinted:
-            notes.append(f"{what} unit {hinted} taken from the column names ({', '.join(columns)})")
-        return hinted or fallback
-    if hinted and hinted != unit:
-        notes.append(
-            f"the {what} columns ({', '.join(columns)}) suggest {hinted}, but the "
-            f"{what} unit given is {unit}"
-        )
-    return unit
-
-
-def read_sensor_log(
-    path,
-    mag_columns=None,
-    acc_columns=None,
-    *,
-    mag_unit: str | None = None,
-    acc_unit: str | None = None,
-    drop_invalid: bool = False,
-    mag_fallback: str = "nT",
-    acc_fallback: str = "g",
-) -> SensorLog:
-    """Read a magnetometer + accelerometer log; the field in nT, the specific force in g.
-
-    Columns are detected unless given; each sensor's unit is the one given, else the one its
-    column names carry, else the fallback (nT and g, or the units of a calibration).
-    """
-    frame = read_table(path)
-    mag_cols = resolve_columns(frame, mag_columns, what="magnetometer")
-    acc_cols = resolve_columns(frame, acc_columns, what="accelerometer")
-    if set(mag_cols) & set(acc_cols):
-        raise InputError(
-            f"the magnetometer columns ({', '.join(mag_cols)}) and accelerometer "
-            f"columns ({', '.join(acc_cols)}) overlap; pass --mag-columns and "
-            f"--acc-columns"
-        )
-    notes: list = []
-    mag_unit = _sensor_unit(
-        mag_cols,
-        mag_unit,
-        mag_fallback,
-        units.MAGNETIC_PREFIXES,
-        units.FIELD_SUFFIXES,
-        "magnetometer",
-        notes,
-    )
-    acc_unit = _sensor_unit(
-        acc_cols,
-        acc_unit,
-        acc_fallback,
-        units.ACC_PREFIXES,
-        units.ACC_SUFFIXES,
-        "accelerometer",
-        notes,
-    )
-    if mag_unit == "raw":
-        raise InputError(
-            "the e-compass needs the magnetometer in a field unit (nT, uT, ...), "
-            "not raw counts; pass --mag-unit"
-        )
-    numeric = numeric_columns(
-        frame, mag_cols + acc_cols, drop_invalid=drop_invalid, source=str(path)
-    )
-    if not numeric.kept.any():
-        raise InputError(f"{path}: no data rows")
-    if numeric.dropped:
-        notes.append(f"skipped {numeric.dropped} row(s) with missing or non-numeric values")
-    return SensorLog(
-        path=str(path),
-        frame=frame,
-        kept=numeric.kept,
-        mag=numeric.values[:, :3] * units.field_factor(mag_unit),
-        acc=numeric.values[:, 3:] * units.acc_factor(acc_unit),
-        mag_columns=mag_cols,
-        acc_columns=acc_cols,
-        mag_unit=mag_unit,
-        acc_unit=acc_unit,
-        dropped=numeric.dropped,
-        notes=notes,
-    )
-
-
-def read_columns(path, columns) -> np.ndarray:
-    """Named columns of a table as floats, NaN where a cell is not a number."""
-    frame = read_table(path)
-    names = [column_name(frame, c) for c in columns]
-    return frame[names].apply(pd.to_numeric, errors="coerce").to_numpy(dtype=float)
+def read_columns(path, columns, *, header: bool | None = None) -> np.ndarray:
+    """Columns of a table (names or 0-based positions) as floats, NaN where a cell is not a
+    number."""
+    table = path if isinstance(path, Table) else read_table(path, header=header)
+    names = [column_name(table.frame, c) for c in columns]
+    return np.column_stack([numbers(table.frame[name], table.layout.decimal) for name in names])

@@ -154,37 +154,24 @@ def parquet_chunks(path, chunk_rows: int, columns=None):
         raise InputError(f"{path}: cannot be read as Parquet ({_first_line(exc)})") from None
 
 
-def same_columns(paths, columns_of) -> list:
-    """The column names shared by every file of a log, or InputError naming the first file that
-    differs from the first."""
-    first = columns_of(paths[0])
-    for path in paths[1:]:
-        columns = columns_of(path)
-        if columns != first:
+def same_columns(named) -> list:
+    """The column names shared by every file of a log, given (name, columns) per file, or
+    InputError naming the first file whose columns differ from the first file's."""
+    first_name, first = named[0]
+    for name, columns in named[1:]:
+        if list(columns) != list(first):
             raise InputError(
-                f"{path}: its columns ({', '.join(map(str, columns))}) differ from those of "
-                f"{paths[0]} ({', '.join(map(str, first))}); the files of one log must have "
+                f"{name}: its columns ({', '.join(map(str, columns))}) differ from those of "
+                f"{first_name} ({', '.join(map(str, first))}); the files of one log must have "
                 f"the same columns"
             )
-    return first
+    return list(first)
 
 
 def concatenated(paths, frames) -> pd.DataFrame:
     """The tables of a log's files, one after another; they must have the same columns."""
-    columns = {path: [str(c) for c in frame.columns] for path, frame in zip(paths, frames)}
-    same_columns(list(paths), columns.__getitem__)
+    same_columns([(path, [str(c) for c in frame.columns]) for path, frame in zip(paths, frames)])
     return frames[0] if len(frames) == 1 else pd.concat(frames, ignore_index=True)
-
-
-def chunks(source, chunk_rows: int):
-    """The rows of a log (a file, a pattern or a folder) as DataFrames of at most `chunk_rows`
-    rows, file after file: O(chunk) memory. CSV is read by the pandas C engine, every column
-    (ragged rows are errors)."""
-    for path in log_paths(source):
-        if is_parquet(path):
-            yield from parquet_chunks(path, chunk_rows)
-        else:
-            yield from pd.read_csv(path, chunksize=chunk_rows, engine="c")
 
 
 def write_parquet(frame: pd.DataFrame) -> bytes:

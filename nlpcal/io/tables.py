@@ -1,13 +1,21 @@
-"""Tables: reading a CSV log, choosing its columns and taking numbers from them.
+"""Tables: reading a delimited text log, choosing its columns and taking numbers from them.
 
-Every problem with a table raises `InputError` with one sentence that says what was received and
-how to fix it.
+A log is read once into a `Table`: the cells, the layout it was found in (`nlpcal.io.layout`) and
+where it came from. Columns are chosen by name (exact, then case-insensitive), by 0-based
+position, or recognised from their names (bx/by/bz, mag_x/..., "Magnetometer X (uT)"); a file
+without a header row with three columns, or with a leading time column and three more, needs no
+--columns at all. Every problem with a table raises `InputError` with one sentence that says what
+was received and how to fix it.
 """
 
 from __future__ import annotations
 
+import io
+import re
+import shutil
+import sys
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +24,9 @@ import pandas as pd
 from .. import units
 from ..errors import InputError
 from . import sources
-from .files import existing_file
+from .files import write_text_atomic
+from .layout import STDIN, Layout, detect_layout, open_source
+from .rows import RowScreen
 
 #: What each sensor's axis columns may be called, for `resolve_columns`:
 #: name -> (prefixes, unit suffixes, examples for messages, flag for messages).
@@ -34,11 +44,8 @@ SENSORS = {
         "--acc-columns AX AY AZ",
     ),
 }
-
-
-def _one_line(error: Exception) -> str:
-    """An exception's message on one line (pandas' tokenizer messages end in a newline)."""
-    return " ".join(str(error).split())
+#: Rows looked at to recognise a leading time column in a file without a header row.
+PREVIEW_ROWS = 1000
 
 
 def csv_engine() -> str:
@@ -50,42 +57,175 @@ def csv_engine() -> str:
     return "pyarrow"
 
 
-def read_table(path) -> pd.DataFrame:
-    """Read a CSV log with the fastest available pandas engine (a Parquet file, or the files of
-    a glob pattern or a folder, through `nlpcal.io.sources`)."""
-    # Hook: Parquet, patterns and folders are read by nlpcal.io.sources.
+@dataclass
+class Table:
+    """A delimited text log as read.
+
+    source : the path, or "stdin".
+    frame : the cells; column names are the header's, or "0", "1", ... without a header row.
+    layout : how the file is laid out (delimiter, header, decimal mark, comments).
+    engine : the pandas engine that read it.
+    text : whether the cells were kept as text (so that they can be written back unchanged).
+    """
+
+    source: str
+    frame: pd.DataFrame
+    layout: Layout
+    engine: str = "c"
+    text: bool = False
+
+    @property
+    def columns(self) -> list:
+        return list(self.frame.columns)
+
+
+def _message(exc: Exception) -> str:
+    """The first line of a parser's message, printable characters only, at most 160 of them."""
+    first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    return "".join(ch for ch in first if ch.isprintable())[:160]
+
+
+def _frame(name: str, source, layout: Layout, *, text: bool = False, **more) -> tuple:
+    """(frame, engine) of a log in `layout`; column names as strings."""
+    options = {**layout.pandas_options(), **more}
+    if text:
+        options.update(dtype=str, keep_default_na=False)
+    engine = "c"
+    plain = layout.header and layout.delimiter != " " and layout.decimal == "."
+    if plain and not text and not layout.preamble and not more and csv_engine() == "pyarrow":
+        try:
+            arrow = {k: options[k] for k in ("sep", "header", "encoding", "compression")}
+            frame = pd.read_csv(_readable(source), engine="pyarrow", **arrow)
+            engine = "pyarrow"
+        except Exception:  # comments or ragged lines further down: the C engine copes
+            engine = "c"
+    if engine == "c":
+        try:
+            frame = pd.read_csv(_readable(source), engine="c", **options)
+        except pd.errors.EmptyDataError:
+            raise InputError(f"{name}: the file is empty") from None
+        except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
+            raise InputError(
+                f"{name}: cannot be read as a {layout.describe()} text log ({_message(exc)})"
+            ) from None
+    if layout.header:
+        frame.columns = [str(c).strip() for c in frame.columns]
+    else:
+        frame.columns = [str(k) for k in range(frame.shape[1])]
+    return frame, engine
+
+
+def _readable(source):
+    return io.BytesIO(source) if isinstance(source, (bytes, bytearray)) else source
+
+
+def read_table(path, *, header: bool | None = None, text: bool = False) -> Table:
+    """Read a delimited text log (a path, or "-" for stdin) whatever its layout.
+
+    header : force (True) or deny (False) a header row; None detects it.
+    text : keep every cell as text, so that columns not used pass through unchanged when the
+        table is written back (`table_text`).
+    """
+    # Hook: Parquet files, and the files of a glob pattern or a folder (nlpcal.io.sources).
     if sources.is_pattern(path):
         paths = sources.log_paths(path)
-        return sources.concatenated(paths, [read_table(p) for p in paths])
+        tables = [read_table(p, header=header, text=text) for p in paths]
+        frame = sources.concatenated(paths, [table.frame for table in tables])
+        return replace(tables[0], source=str(path), frame=frame)
     if sources.is_parquet(path):
-        return sources.read_parquet(path)
-    path = existing_file(path)
-    engine = csv_engine()
-    try:
-        frame = pd.read_csv(path, engine=engine)
-    except pd.errors.EmptyDataError:
-        raise InputError(f"{path}: the file is empty") from None
-    except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
-        if engine != "c":  # pyarrow is stricter; let the C engine have a go before giving up
-            try:
-                frame = pd.read_csv(path, engine="c")
-            except Exception as c_exc:  # the C engine says where, with the line number
-                raise InputError(f"{path}: cannot be read as CSV ({_one_line(c_exc)})") from None
-        else:
-            raise InputError(f"{path}: cannot be read as CSV ({_one_line(exc)})") from None
-    frame.columns = [str(c).strip() for c in frame.columns]
-    return frame
+        frame = sources.read_parquet(path)
+        if frame.empty:
+            raise InputError(f"{path}: no data rows")
+        return Table(source=str(path), frame=frame, layout=Layout(), engine="pyarrow")
+    name, source = open_source(path)
+    layout = detect_layout(name, source, header)
+    frame, engine = _frame(name, source, layout, text=text)
+    if frame.empty:
+        raise InputError(f"{name}: no data rows")
+    return Table(source=name, frame=frame, layout=layout, engine=engine, text=text)
 
 
-def resolve_columns(frame: pd.DataFrame, columns=None, what: str = "magnetometer") -> list:
-    """The three axis columns of a sensor: the ones asked for, or the one recognised triple.
+def _listing(frame: pd.DataFrame) -> str:
+    names = [str(c) for c in frame.columns]
+    if names == [str(k) for k in range(len(names))]:
+        last = len(names) - 1
+        return f"no header row, {len(names)} columns: give their 0-based positions 0 to {last}"
+    shown = ", ".join(f"{k} {name}" for k, name in enumerate(names[:40]))
+    more = f", ... ({len(names)} in all)" if len(names) > 40 else ""
+    return f"columns (0-based position and name): {shown}{more}"
+
+
+def column_name(frame: pd.DataFrame, name, what: str = "column") -> str:
+    """The column called `name` (case-insensitively when no exact match), or at 0-based position
+    `name`; InputError listing the columns otherwise (`what` names it in the message)."""
+    key = str(name).strip()
+    if key in frame.columns:
+        return key
+    lower = {str(c).lower(): c for c in frame.columns}
+    if key.lower() in lower:
+        return lower[key.lower()]
+    if re.fullmatch(r"\d+", key) and int(key) < frame.shape[1]:
+        return str(frame.columns[int(key)])
+    raise InputError(f"{what} {key!r} not found; the log has {_listing(frame)}")
+
+
+def numbers(column: pd.Series, decimal: str = ".") -> np.ndarray:
+    """A column as floats; cells that are not numbers become NaN."""
+    if pd.api.types.is_numeric_dtype(column) and not pd.api.types.is_bool_dtype(column):
+        return column.to_numpy(dtype=float, na_value=np.nan)
+    text = column.astype(str).str.strip()
+    if decimal == ",":
+        text = text.str.replace(",", ".", regex=False)
+    return pd.to_numeric(text, errors="coerce").to_numpy(dtype=float, na_value=np.nan)
+
+
+def _is_time(values: np.ndarray) -> bool:
+    finite = values[np.isfinite(values)]
+    return finite.size > 2 and bool(np.all(np.diff(finite) > 0))
+
+
+def _headerless_columns(frame: pd.DataFrame, what: str, decimal: str, notes) -> list:
+    """The field columns of a file without a header row: all three, or the three after a leading
+    time column; InputError for other shapes."""
+    flag = SENSORS[what][3]
+    preview = frame.head(PREVIEW_ROWS)
+    used = [c for c in frame.columns if np.isfinite(numbers(preview[c], decimal)).any()]
+    if what == "magnetometer" and len(used) == 3:
+        return used
+    if what == "magnetometer" and len(used) == 4 and _is_time(numbers(preview[used[0]], decimal)):
+        notes.append(
+            f"no header row: column {used[0]} increases on every row and is read as time; "
+            f"the field columns are {' '.join(used[1:])} (0-based positions)"
+        )
+        return used[1:]
+    example = " ".join(str(k) for k in range(max(len(used) - 3, 0), len(used)))
+    raise InputError(
+        f"the log has no header row and {len(used)} numeric columns, so the {what} columns "
+        f"cannot be told apart; pass {flag.split()[0]} with 0-based positions, for example "
+        f"{flag.split()[0]} {example}"
+    )
+
+
+def resolve_columns(
+    frame: pd.DataFrame,
+    columns=None,
+    what: str = "magnetometer",
+    *,
+    header: bool = True,
+    decimal: str = ".",
+    notes=None,
+) -> list:
+    """The three axis columns of a sensor: the ones asked for (names or 0-based positions), or
+    the one recognised triple.
 
     what : "magnetometer" or "accelerometer" (`SENSORS`).
+    header : False for a file without a header row: three columns, or a leading time column and
+        three more, are taken as they are (with a note).
     Raises InputError listing the columns found when a column is missing or the choice is
     ambiguous.
     """
     prefixes, suffixes, examples, flag = SENSORS[what]
-    found = list(frame.columns)
+    notes = [] if notes is None else notes
     if columns:
         columns = list(columns)
         if len(columns) != 3:
@@ -97,35 +237,22 @@ def resolve_columns(frame: pd.DataFrame, columns=None, what: str = "magnetometer
                 f"three different columns ({flag})"
             )
         return resolved
+    if not header:
+        return _headerless_columns(frame, what, decimal, notes)
     matches = [
         triple
-        for template, triple in units.axis_templates(found).items()
+        for template, triple in units.axis_templates(list(frame.columns)).items()
         if units.is_axis_template(template, prefixes, suffixes)
     ]
     if len(matches) == 1:
         return list(matches[0])
+    hint = f"pass {flag} (names or 0-based positions)"
     if not matches:
         raise InputError(
-            f"no {what} columns recognised ({examples}); the log has columns: "
-            f"{', '.join(found)}; pass {flag}"
+            f"no {what} columns recognised ({examples}); the log has {_listing(frame)}; {hint}"
         )
     options = "; ".join(" ".join(m) for m in matches)
-    raise InputError(
-        f"ambiguous {what} columns ({options}); the log has columns: "
-        f"{', '.join(found)}; pass {flag}"
-    )
-
-
-def column_name(frame: pd.DataFrame, name: str) -> str:
-    """The column called `name` (case-insensitively when no exact match), or InputError."""
-    if name in frame.columns:
-        return name
-    lower = {str(c).lower(): c for c in frame.columns}
-    if str(name).lower() in lower:
-        return lower[str(name).lower()]
-    raise InputError(
-        f"column {name!r} not found; the log has columns: {', '.join(map(str, frame.columns))}"
-    )
+    raise InputError(f"ambiguous {what} columns ({options}); the log has {_listing(frame)}; {hint}")
 
 
 @dataclass
@@ -138,7 +265,12 @@ class NumericColumns:
 
 
 def numeric_columns(
-    frame: pd.DataFrame, columns, *, drop_invalid: bool = False, source: str = "log"
+    frame: pd.DataFrame,
+    columns,
+    *,
+    drop_invalid: bool = False,
+    source: str = "log",
+    decimal: str = ".",
 ) -> NumericColumns:
     """Take `columns` as a float array; non-numeric, empty or non-finite cells are errors.
 
@@ -146,10 +278,7 @@ def numeric_columns(
     """
     data = np.empty((len(frame), len(columns)))
     for k, name in enumerate(columns):
-        column = frame[name]
-        if not pd.api.types.is_numeric_dtype(column) or pd.api.types.is_bool_dtype(column):
-            column = pd.to_numeric(column, errors="coerce")
-        data[:, k] = column.to_numpy(dtype=float, na_value=np.nan)
+        data[:, k] = numbers(frame[name], decimal)
     valid = np.asarray(np.isfinite(data).all(axis=1))
     bad = int((~valid).sum())
     if bad and not drop_invalid:
@@ -164,16 +293,75 @@ def numeric_columns(
 
 @dataclass
 class MappedColumns:
-    """Numeric columns of a CSV streamed into a memory-mapped temporary file.
+    """Numeric columns of a log streamed into a memory-mapped temporary file.
 
     values : (N, k) float64, backed by an unlinked temporary file (freed when dropped).
     columns : the k column names.
-    dropped : rows dropped as invalid.
+    dropped : rows dropped as invalid (missing values, zero vectors, repeats with drop_invalid).
+    notes : what was left out and why, for the user to read.
+    layout : the layout of the file.
     """
 
     values: np.ndarray
     columns: list
     dropped: int
+    notes: list
+    layout: Layout
+    source: str = ""
+
+
+def _spool_stdin(directory=None):
+    """Standard input copied into a temporary file, so that it can be read in chunks."""
+    spool = tempfile.NamedTemporaryFile(dir=directory, suffix=".log")
+    shutil.copyfileobj(sys.stdin.buffer, spool)
+    spool.flush()
+    return spool
+
+
+@dataclass
+class LogFile:
+    """One file of a log, as its chunks are read: CSV (or other delimited text) or Parquet.
+
+    name : for messages. source : what is read. layout : the text layout (the default one for
+    Parquet). preview : the first rows (none for Parquet): the column names, or 0, 1, ... without
+    a header row.
+    """
+
+    name: str
+    source: object
+    layout: Layout
+    preview: pd.DataFrame
+    parquet: bool = False
+
+    def chunks(self, wanted: list, chunk_rows: int):
+        """The `wanted` columns of the file, chunk after chunk, every column checked (ragged
+        rows are errors)."""
+        if self.parquet:
+            yield from sources.parquet_chunks(self.source, chunk_rows, wanted)
+            return
+        positions = sorted({list(self.preview.columns).index(c) for c in wanted})
+        options = {**self.layout.pandas_options(), "chunksize": chunk_rows}
+        for chunk in pd.read_csv(self.source, engine="c", **options):
+            chunk = chunk.iloc[:, positions]
+            chunk.columns = [self.preview.columns[k] for k in positions]
+            yield chunk
+
+
+def log_files(path, header: bool | None = None, name: str | None = None) -> list:
+    """The files of a log (one file, a pattern or a folder: `nlpcal.io.sources`), each with its
+    layout and first rows; they must have the same columns."""
+    found = []
+    for item in [path] if name else sources.log_paths(path):
+        if not name and sources.is_parquet(item):
+            columns = sources.parquet_columns(item)
+            found.append(LogFile(str(item), item, Layout(), pd.DataFrame(columns=columns), True))
+            continue
+        label, source = open_source(item)
+        layout = detect_layout(name or label, source, header)
+        preview, _ = _frame(name or label, source, layout, nrows=PREVIEW_ROWS)
+        found.append(LogFile(name or label, source, layout, preview))
+    sources.same_columns([(part.name, [str(c) for c in part.preview.columns]) for part in found])
+    return found
 
 
 def csv_to_memmap(
@@ -181,63 +369,105 @@ def csv_to_memmap(
     columns=None,
     extra_columns=(),
     *,
+    header: bool | None = None,
     drop_invalid: bool = False,
-    scale: float = 1.0,
+    scale=1.0,
     chunk_rows: int = 250_000,
     directory=None,
 ) -> MappedColumns:
-    """Stream the field columns (and `extra_columns`) of a CSV into a memory-mapped array.
+    """Stream the field columns (and `extra_columns`) of a log into a memory-mapped array.
 
     Memory stays O(chunk_rows) whatever the size of the log; the pandas C engine reads the chunks
-    (the pyarrow engine cannot read in chunks). The three field columns come first and are
-    multiplied by `scale` (a unit conversion) on the way; the extra columns are kept as they are.
+    (pyarrow those of a Parquet file; the files of a pattern or folder one after another).
+    The three field columns come first and are multiplied by `scale` (a unit conversion) on the
+    way (`scale` a number, or a function of the three column names); the extra columns are kept
+    as they are. Rows are screened as in `read_log`: zero vectors
+    left out, repeated vectors counted (dropped with drop_invalid).
     """
-    path = Path(path)
-    header = read_table_header(path)
-    chosen = resolve_columns(header, columns)
-    wanted = chosen + [column_name(header, name) for name in extra_columns]
-    factors = np.array([scale] * 3 + [1.0] * (len(wanted) - 3))
-    store = tempfile.TemporaryFile(dir=directory)
-    rows = dropped = 0
+    spool = _spool_stdin(directory) if str(path) == "-" else None
     try:
-        # Hook: the chunks of CSV or Parquet files, one file or many (nlpcal.io.sources).
-        for chunk in sources.chunks(path, chunk_rows):
-            chunk.columns = [str(c).strip() for c in chunk.columns]
-            numeric = numeric_columns(chunk, wanted, drop_invalid=drop_invalid, source=str(path))
-            dropped += numeric.dropped
-            rows += numeric.values.shape[0]
-            store.write(np.ascontiguousarray(numeric.values * factors).tobytes())
-    except InputError as exc:
-        store.close()
-        if "first at data row" in str(exc):
-            raise InputError(f"{exc} (in the chunk after row {rows + dropped})") from None
-        raise
-    except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
-        store.close()
-        raise InputError(f"{path}: cannot be read as CSV ({_one_line(exc)})") from None
+        files = log_files(spool.name if spool else path, header, STDIN if spool else None)
+        first = files[0]
+        notes: list = []
+        chosen = resolve_columns(
+            first.preview,
+            columns,
+            header=first.layout.header,
+            decimal=first.layout.decimal,
+            notes=notes,
+        )
+        wanted = chosen + [column_name(first.preview, c) for c in extra_columns]
+        factor = float(scale(chosen) if callable(scale) else scale)
+        factors = np.array([factor] * 3 + [1.0] * (len(wanted) - 3))
+        screen = RowScreen(drop_repeats=drop_invalid)
+        store = tempfile.TemporaryFile(dir=directory)
+        rows = dropped = 0
+        part = first
+        try:
+            for part in files:
+                for chunk in part.chunks(wanted, chunk_rows):
+                    numeric = numeric_columns(
+                        chunk,
+                        wanted,
+                        drop_invalid=drop_invalid,
+                        source=part.name,
+                        decimal=part.layout.decimal,
+                    )
+                    data_rows = rows + dropped + np.flatnonzero(numeric.kept) + 1
+                    keep = screen.keep(numeric.values[:, :3], data_rows)
+                    dropped += numeric.dropped + int((~keep).sum())
+                    values = numeric.values[keep]
+                    rows += values.shape[0]
+                    store.write(np.ascontiguousarray(values * factors).tobytes())
+        except InputError as exc:
+            store.close()
+            if "first at data row" in str(exc):
+                raise InputError(f"{exc} (in the chunk after row {rows + dropped})") from None
+            raise
+        except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
+            store.close()
+            raise InputError(
+                f"{part.name}: cannot be read as a {part.layout.describe()} text log "
+                f"({_message(exc)})"
+            ) from None
+    finally:
+        if spool is not None:
+            spool.close()
     store.flush()
+    name = STDIN if spool else str(path)
     if rows == 0:
         store.close()
-        raise InputError(f"{path}: no data rows")
-    values = np.memmap(store, dtype=np.float64, mode="r", shape=(rows, len(wanted)))
-    return MappedColumns(values=values, columns=wanted, dropped=dropped)
+        raise InputError(f"{name}: no data rows")
+    mapped = np.memmap(store, dtype=np.float64, mode="r", shape=(rows, len(wanted)))
+    return MappedColumns(
+        values=mapped,
+        columns=wanted,
+        dropped=dropped,
+        notes=notes + screen.notes(),
+        layout=first.layout,
+        source=name if len(files) > 1 or first.parquet else first.name,
+    )
 
 
-def read_table_header(path) -> pd.DataFrame:
-    """The column names of a CSV (an empty frame), with the checks of `read_table`."""
-    # Hook: Parquet, patterns and folders through nlpcal.io.sources.
-    if sources.is_pattern(path):
-        paths = sources.log_paths(path)
-        sources.same_columns(paths, lambda p: list(read_table_header(p).columns))
-        return read_table_header(paths[0])
-    if sources.is_parquet(path):
-        return pd.DataFrame(columns=sources.parquet_columns(path))
-    path = existing_file(path)
-    try:
-        frame = pd.read_csv(path, nrows=0)
-    except pd.errors.EmptyDataError:
-        raise InputError(f"{path}: the file is empty") from None
-    except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
-        raise InputError(f"{path}: cannot be read as CSV ({_one_line(exc)})") from None
-    frame.columns = [str(c).strip() for c in frame.columns]
-    return frame
+def table_text(frame: pd.DataFrame, layout: Layout) -> str:
+    """A table as text in `layout`: the same delimiter, decimal mark, line ending and header row
+    (or none), the comment lines that preceded the data first. Text cells are written as they
+    are; numbers exactly (shortest round-trip form)."""
+    body = frame.to_csv(
+        sep=" " if layout.delimiter == " " else layout.delimiter,
+        header=layout.header,
+        index=False,
+        decimal=layout.decimal,
+        lineterminator=layout.newline,
+    )
+    preamble = "".join(line + layout.newline for line in layout.preamble)
+    return preamble + body
+
+
+def write_table(frame: pd.DataFrame, layout: Layout, output=None) -> None:
+    """`table_text` to `output` (written atomically) or to stdout."""
+    text = table_text(frame, layout)
+    if output:
+        write_text_atomic(Path(output), text)
+    else:
+        sys.stdout.write(text)

@@ -28,14 +28,14 @@ References
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import casadi as ca
 import numpy as np
 
 from .. import moments as mom
 from ..errors import SolveError
-from .objective import objective_expression
+from .objective import magnitude_summary_expression, objective_expression
 from .solver import IpoptOptions, SolveOutcome, build_nlpsol, problem, solve
 
 #: Indices of theta freed by each problem, in the paper's stage order.
@@ -132,6 +132,26 @@ def objective_function(reference: str) -> ca.Function:
     )
 
 
+@problem("zhou2010.summary", examples=[("none",), ("constant",)])
+def summary_function(reference: str) -> ca.Function:
+    """(theta, p) -> (f [field^2], mean [field unit] and variance [field^2] of |B1|, the spread
+    rho of the expansion [1]) from the moments: the Table 1 row of a cycle (Fig. 1 and Table 1
+    in [1]) without a pass over the data, valid while rho is small (`nlp.objective`)."""
+    s = _symbols(reference)
+    theta = ca.MX.sym("theta", 9)
+    f = objective_expression(theta, s.gram, s.centre, s.length, reference)
+    mean, variance, spread = magnitude_summary_expression(
+        theta, s.gram, s.centre, s.length, reference
+    )
+    return ca.Function(
+        f"summary_{reference}",
+        [theta, s.data],
+        [f, mean, variance, spread],
+        ["theta", "p"],
+        ["f", "mean", "variance", "rho"],
+    )
+
+
 @dataclass(frozen=True)
 class BlockProblem:
     """One block's `nlpsol` and the functions IPOPT built with it (objective, Hessian)."""
@@ -185,8 +205,16 @@ class Step:
     f_end: float  # [field^2], the moment objective at `theta`
     f_ref: float  # [field^2], the objective scale the problem was solved with
     problem: BlockProblem
-    p: np.ndarray
+    p: ca.DM  # the parameter vector the problem was solved with
     x: np.ndarray  # the scaled variables of `theta` in this problem
+    hess: np.ndarray | None = field(default=None, repr=False)
+    newton_decrease: float | None = None  # [field^2], what a Newton step from the start promised
+
+    def objective_hessian(self) -> np.ndarray:
+        """Hessian of the scaled objective f / f_ref in x at `x`, evaluated once."""
+        if self.hess is None:
+            self.hess = self.problem.hessian(self.x, self.p)
+        return self.hess
 
     @property
     def iterations(self) -> int:
@@ -197,30 +225,105 @@ class Step:
         return self.outcome.status
 
 
+#: A block whose Newton step from its start would lower the objective by less than this fraction
+#: is at its optimum already: it is not handed to IPOPT (whose tolerance is of this order). [1]
+STATIONARY_RTOL = 1e-12
+#: A joint solve whose Newton step from its start would move the parameters by less than this
+#: many standard errors starts at its optimum to the resolution of the data (`resolution`).
+#: [standard errors]
+STATIONARY_SE = 0.01
+
+
+def resolution(moments: mom.Moments, standard_errors: float = STATIONARY_SE) -> float:
+    """The Newton decrease, as a fraction of the objective, of a step `standard_errors` long.
+
+    With the covariance C = (2 f / N) H^-1 of a least-squares estimate (f the mean squared
+    residual, H its Hessian), a Newton step delta = H^-1 g is sqrt(delta^T C^-1 delta) =
+    sqrt(N d / f) standard errors long, d = g^T H^-1 g / 2 the decrease it promises; that length
+    bounds the move of every parameter in its own standard errors. So the step is shorter than
+    s standard errors when d / f <= s^2 / N. Above N = s^2 / STATIONARY_RTOL (1e8 samples for
+    s = 0.01) the precision of f, not the data, sets the limit: steps up to
+    s sqrt(N / 1e8) standard errors are then below what the float64 moments resolve.
+    """
+    return max(STATIONARY_RTOL, standard_errors**2 / moments.n)
+
+
+def parameters(moments: mom.Moments) -> ca.DM:
+    """The problems' parameter vector for these moments (`Symbols.data`), built once per moments
+    (converting the Gram matrix costs more than an IPOPT iteration) and updated in place: the
+    data part never changes, theta_ref and f_ref are set by each solve."""
+    if "p" not in moments.cache:
+        moments.cache["p"] = ca.DM(
+            pack(moments, np.zeros(9), variable_scale(moments.frame.radius), 1.0)
+        )
+    return moments.cache["p"]
+
+
+def gauge_basis(free) -> np.ndarray:
+    """Orthonormal basis of the scaled variables of the parameters `free` (indices into theta)
+    that the gauge s_x + s_y + s_z = 0 leaves free (every scale has the same variable scale)."""
+    normal = np.array([1.0 if i in SCALE_INDICES else 0.0 for i in free])
+    return np.linalg.svd(normal[None, :])[2][1:].T
+
+
+def _newton_decrease(problem: BlockProblem, gradient, h: np.ndarray) -> float:
+    """The decrease of the scaled objective that one Newton step from x = 0 promises (gradient
+    and Hessian h there), on the gauge's null space when the block has one; inf when the Hessian
+    there is not positive."""
+    g = np.asarray(gradient, dtype=float).ravel()
+    if problem.has_gauge:
+        basis = gauge_basis(problem.free)
+        g, h = basis.T @ g, basis.T @ h @ basis
+    try:
+        factor = np.linalg.cholesky(0.5 * (h + h.T))
+    except np.linalg.LinAlgError:
+        return np.inf
+    half = np.linalg.solve(factor, g)
+    return 0.5 * float(half @ half)
+
+
 def block_step(
-    moments: mom.Moments, block: str, theta, options: IpoptOptions = IpoptOptions()
+    moments: mom.Moments,
+    block: str,
+    theta,
+    options: IpoptOptions = IpoptOptions(),
+    stationary: float = STATIONARY_RTOL,
 ) -> Step:
     """Minimise over one block of theta from `theta`, the other blocks held fixed.
 
     Raises SolveError when IPOPT fails; a solve that ends above its start (it should not) keeps
-    the start, so a stage never makes the objective worse.
+    the start, so a stage never makes the objective worse. A block already at its optimum (a
+    Newton step would gain less than the fraction `stationary` of the objective, see
+    `resolution`) is not re-solved.
     """
     problem = block_problem(block, moments.reference, options)
     theta = np.asarray(theta, dtype=float)
     var_scale = variable_scale(moments.frame.radius)
-    p = pack(moments, theta, var_scale, 1.0)
+    p = parameters(moments)
+    p[0:9] = ca.DM(theta)
+    p[p.numel() - 1] = 1.0
     free = problem.free
-    f_start = problem.objective(np.zeros(len(free)), p)
+    zero = np.zeros(len(free))
+    f_value, gradient = problem.solver.get_function("nlp_grad_f")(zero, p)
+    f_start = float(f_value)
     if f_start <= PRECISION_FLOOR * moments.length**2:
         # Noise-free data at their optimum: nothing left that float64 moments can resolve.
         outcome = SolveOutcome(
-            x=np.zeros(len(free)), f=1.0, status="At_Precision_Floor", success=True, iterations=0
+            x=zero, f=1.0, status="At_Precision_Floor", success=True, iterations=0
         )
-        return Step(theta, outcome, f_start, f_start, 1.0, problem, p, outcome.x)  # p: f_ref = 1
+        return Step(theta, outcome, f_start, f_start, 1.0, problem, ca.DM(p), outcome.x)
+    hess = problem.hessian(zero, p)
+    decrease = _newton_decrease(problem, gradient, hess)
+    if decrease <= stationary * f_start:
+        outcome = SolveOutcome(
+            x=zero, f=1.0, status="At_Stationary_Point", success=True, iterations=0
+        )
+        return Step(theta, outcome, f_start, f_start, 1.0, problem, ca.DM(p), zero, hess, decrease)
     f_ref = max(f_start, SCALE_FLOOR * moments.length**2)
-    p[-1] = f_ref
+    p[p.numel() - 1] = f_ref
+    p = ca.DM(p)  # the step keeps its own copy: the cached vector changes with the next solve
     bounds = {"lbg": 0.0, "ubg": 0.0} if problem.has_gauge else {}
-    outcome = solve(problem.solver, x0=np.zeros(len(free)), p=p, **bounds)
+    outcome = solve(problem.solver, x0=zero, p=p, **bounds)
     # Below PRECISION_FLOOR the gradient of the moment objective is rounding noise, and IPOPT
     # cannot meet its tolerance there: whether it then reports a step below machine precision or
     # runs out of iterations depends on the rounding of the BLAS kernel that summed the moments.
@@ -237,7 +340,7 @@ def block_step(
             f"IPOPT did not solve the {block} problem", outcome.status, result=theta
         )  # the start, where the data's null directions show
     if outcome.f * f_ref > f_start + 1e-12 * f_ref:
-        return Step(theta, outcome, f_start, f_start, f_ref, problem, p, np.zeros(len(free)))
+        return Step(theta, outcome, f_start, f_start, f_ref, problem, p, zero)
     step = np.zeros(9)
     step[free] = outcome.x
     return Step(

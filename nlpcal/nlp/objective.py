@@ -114,8 +114,17 @@ def reference_objective(m, length):
     return length**2 * (-2.0) * (c[2] * m2 + c[3] * m3 + c[4] * m4)
 
 
-def spread_objective(m, length):
-    """Eq. 8 in [1], the variance of |B1|, from the power moments of u. [field^2]"""
+def centred_expansion(m):
+    """sqrt(1 + u) about the mean mu of u, from the power moments m_1..m_4 of u.
+
+    sqrt(1 + u) = sqrt(1 + mu) sum_j c_j v^j with v = (u - mu) / (1 + mu), so with the central
+    moments k_j of u and S = sum_{j>=2} c_j k_j / (1 + mu)^j (the term j = 1 has mean zero)
+
+        mean sqrt(1 + u) = sqrt(1 + mu) (1 + S),   mean (1 + u) = 1 + mu.
+
+    Returns (1 + mu, S, rho) with rho = sqrt(k_2) / (1 + mu), the spread of v: the series cut
+    after v^4 holds while rho is small (its error is of the order of rho^5). [1]
+    """
     mu, m2, m3, m4 = m
     k2 = m2 - mu**2  # central moments of u
     k3 = m3 - 3 * mu * m2 + 2 * mu**3
@@ -123,7 +132,21 @@ def spread_objective(m, length):
     c = SQRT_SERIES
     one = 1 + mu
     S = c[2] * k2 / one**2 + c[3] * k3 / one**3 + c[4] * k4 / one**4
-    return -(length**2) * one * (2 * S + S**2)
+    return one, S, ca.sqrt(ca.fmax(k2, 0.0)) / one
+
+
+def magnitude_summary(m, length):
+    """Mean and variance of |B1| = L sqrt(1 + u) with uniform weights (the mean and the squared
+    std of a Table 1 row in [1]) and the spread rho of the expansion, from the power moments of
+    u (`centred_expansion`): the variance is L^2 (1 + mu) - mean^2 = -L^2 (1 + mu) (2 S + S^2).
+    [field unit], [field^2], [1]"""
+    one, S, spread = centred_expansion(m)
+    return length * ca.sqrt(one) * (1 + S), -(length**2) * one * (2 * S + S**2), spread
+
+
+def spread_objective(m, length):
+    """Eq. 8 in [1], the variance of |B1|, from the power moments of u. [field^2]"""
+    return magnitude_summary(m, length)[1]
 
 
 def objective_expression(theta, gram, centre, length, reference: str):
@@ -135,3 +158,11 @@ def objective_expression(theta, gram, centre, length, reference: str):
     U, P = coefficient_function(layout.varying_gamma)(theta, centre, length)
     m = power_moments(U, P, gram, layout)
     return spread_objective(m, length) if reference == "none" else reference_objective(m, length)
+
+
+def magnitude_summary_expression(theta, gram, centre, length, reference: str):
+    """(mean, variance, rho) of |B1| from the moments (`magnitude_summary`), for the references
+    "none" and "constant" (whose weights are uniform). [field unit], [field^2], [1]"""
+    layout = mom.layout(reference == "series")
+    U, P = coefficient_function(layout.varying_gamma)(theta, centre, length)
+    return magnitude_summary(power_moments(U, P, gram, layout), length)

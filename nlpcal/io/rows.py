@@ -1,0 +1,123 @@
+"""Rows that are not readings: exact-zero field vectors and vectors repeated row after row.
+
+A magnetometer in the Earth's field never reads exactly (0, 0, 0) on all three axes: such a row is
+a logger's start-up or no-data record, and one of them among a few thousand samples can double the
+spread left after calibration. Those rows are always left out, and counted.
+
+A field vector equal to the one of the row before is either a logger that reads faster than the
+sensor updates (every reading then appears several times) or a sensor that stuck. Either way the
+repeats are not new information, although a fit counts them as such. They are reported when they
+are many (REPEATS_NOTE_FRACTION) or run long (STUCK_RUN), and dropped with drop_invalid, keeping
+the first row of each run.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Report repeated vectors when they are at least this fraction of the rows. [1]
+REPEATS_NOTE_FRACTION = 0.05
+#: ... or when one vector is read this many times in a row. [rows]
+STUCK_RUN = 10
+#: Most row numbers quoted in a message.
+QUOTED_ROWS = 5
+
+
+def _runs(flags: np.ndarray) -> tuple:
+    """(starts, lengths) of the runs of True in a boolean array."""
+    padded = np.concatenate([[0], flags.astype(np.int8), [0]])
+    edges = np.diff(padded)
+    starts = np.flatnonzero(edges == 1)
+    return starts, np.flatnonzero(edges == -1) - starts
+
+
+class RowScreen:
+    """Screens the field vectors of a log, chunk after chunk, and says what it left out.
+
+    drop_repeats : drop vectors equal to the previous row's (keeping the first of each run).
+    """
+
+    def __init__(self, drop_repeats: bool = False):
+        self.drop_repeats = drop_repeats
+        self.rows = 0
+        self.zero_rows: list = []
+        self.zeros = 0
+        self.repeats = 0
+        self.longest = 0  # repeats in the longest run (the run holds one reading more)
+        self.longest_at = 0  # data row of the first reading of the longest run
+        self._previous: np.ndarray | None = None
+        self._run = 0
+        self._run_at = 0
+        self._previous_row = 0
+
+    def keep(self, field: np.ndarray, data_rows: np.ndarray) -> np.ndarray:
+        """Mask of the rows of `field` (N, 3) to keep; `data_rows` are their 1-based row numbers
+        in the file's data, for messages."""
+        field = np.asarray(field, dtype=float)
+        self.rows += field.shape[0]
+        x, y, z = field[:, 0], field[:, 1], field[:, 2]  # columns: faster than axis=1 reductions
+        zero = (x == 0.0) & (y == 0.0) & (z == 0.0)
+        if zero.any():
+            self.zeros += int(zero.sum())
+            room = QUOTED_ROWS - len(self.zero_rows)
+            self.zero_rows.extend(int(r) for r in data_rows[zero][: max(room, 0)])
+        repeat = np.zeros(field.shape[0], dtype=bool)
+        if field.shape[0]:
+            repeat[1:] = (x[1:] == x[:-1]) & (y[1:] == y[:-1]) & (z[1:] == z[:-1])
+            if self._previous is not None:
+                repeat[0] = bool(np.all(field[0] == self._previous))
+            repeat &= ~zero
+        self.repeats += int(repeat.sum())
+        self._count_runs(repeat, data_rows)
+        if field.shape[0]:
+            self._previous = field[-1].copy()
+        drop = zero | (repeat if self.drop_repeats else False)
+        return ~drop
+
+    def _count_runs(self, repeat: np.ndarray, data_rows: np.ndarray) -> None:
+        """Track the longest run of repeats, across chunks."""
+        if repeat.shape[0] == 0:
+            return
+        starts, lengths = _runs(repeat)
+        run = 0
+        for start, chunk_length in zip(starts, lengths):
+            length = int(chunk_length)
+            at = int(data_rows[start - 1]) if start > 0 else self._previous_row
+            if start == 0 and self._run:  # the run goes on from the previous chunk
+                length, at = length + self._run, self._run_at
+            if length > self.longest:
+                self.longest, self.longest_at = length, at
+            if start + chunk_length == repeat.shape[0]:
+                run, self._run_at = length, at
+        self._run = run
+        if data_rows.shape[0]:
+            self._previous_row = int(data_rows[-1])
+
+    def notes(self) -> list:
+        """What was left out or looks wrong, one sentence each."""
+        notes = []
+        if self.zeros:
+            where = ", ".join(str(r) for r in self.zero_rows)
+            more = ", ..." if self.zeros > len(self.zero_rows) else ""
+            notes.append(
+                f"left out {self.zeros} row(s) whose field vector is exactly (0, 0, 0) (data "
+                f"row {where}{more}): a logger's start-up or no-data record, not a reading"
+            )
+        many = self.repeats >= REPEATS_NOTE_FRACTION * max(self.rows, 1)
+        stuck = self.longest + 1 >= STUCK_RUN
+        if self.repeats and (many or stuck or self.drop_repeats):
+            share = self.repeats / max(self.rows, 1)
+            what = (
+                f"{self.repeats} of {self.rows} rows ({share:.0%}) repeat the field vector of "
+                f"the row before (the longest run: {self.longest + 1} identical readings from "
+                f"data row {self.longest_at})"
+            )
+            if self.drop_repeats:
+                notes.append(f"dropped the repeats (--drop-invalid): {what}")
+            else:
+                notes.append(
+                    f"{what}: the logger read faster than the sensor updated, or the sensor "
+                    f"stuck; each repeat counts as a new sample; --drop-invalid keeps the first "
+                    f"row of each run"
+                )
+        return notes
