@@ -57,3 +57,23 @@ def planar_directions(n, rng):
     """Field directions confined to the sensor's x-y plane: rotation about z only."""
     phi = rng.uniform(0, 2 * np.pi, n)
     return np.column_stack([np.cos(phi), np.sin(phi), np.zeros(n)])
+
+
+def circle_directions(n, rng, axis, half_angle_deg):
+    """Field directions on one circle, `half_angle_deg` from `axis`: the sensor turned about one
+    axis only (a turntable), the field at a fixed angle to it."""
+    axis = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
+    u = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(axis, u)
+    phi = rng.uniform(0, 2 * np.pi, n)
+    half = np.radians(half_angle_deg)
+    ring = np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * v
+    return np.cos(half) * axis + np.sin(half) * ring
+
+
+def band_directions(n, rng, tilt_deg):
+    """Field directions within `tilt_deg` of the sensor's x-y plane: turns about z with tilts."""
+    phi = rng.uniform(0, 2 * np.pi, n)
+    lift = np.radians(rng.uniform(-tilt_deg, tilt_deg, n))
+    return np.column_stack([np.cos(lift) * np.cos(phi), np.cos(lift) * np.sin(phi), np.sin(lift)])

@@ -8,10 +8,18 @@ import pytest
 
 import nlpcal
 from nlpcal import CalibrationResult, calibrate
+from nlpcal.calibration.coverage import PLANAR_NOISE
 from nlpcal.errors import InputError, QualityError, SolveError
 from nlpcal.nlp import blocks
 from nlpcal.nlp.solver import SolveOutcome
-from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log, planar_directions
+from synthetic import (
+    PAPER_FIELD,
+    PAPER_TRUTH,
+    band_directions,
+    circle_directions,
+    make_log,
+    planar_directions,
+)
 
 OFFSETS = ("z_x", "z_y", "z_z")
 SCALES = ("s_x", "s_y", "s_z")
@@ -187,6 +195,43 @@ def test_rotation_about_one_axis_is_reported_as_not_identifiable(method):
         named = set(result.identifiability["not_identifiable"])
         assert any("not identifiable" in w for w in result.warnings)
     assert named & {"z_z", "s_z", "alpha_deg", "beta_deg"}
+
+
+@pytest.mark.parametrize("method", ["staged", "joint"])
+@pytest.mark.parametrize("reference", [None, PAPER_FIELD])
+@pytest.mark.parametrize(
+    ("axis", "half_angle", "noise"),
+    [((0, 0, 1), 90, 1.0), ((1, 2, 2), 60, 1.0), ((1, 2, 2), 60, 0.0)],
+)
+def test_turns_about_one_axis_never_give_a_result(method, reference, axis, half_angle, noise):
+    # One circle of field directions, and so a planar ellipse of samples: a family of ellipsoids
+    # passes through it. Without a reference the joint optimum even scales the blind axis towards
+    # zero with a healthy-looking Hessian; the flatness of the samples is what tells.
+    rng = np.random.default_rng(8)
+    samples, _ = make_log(
+        n=1200, noise=noise, seed=9, directions=circle_directions(1200, rng, axis, half_angle)
+    )
+    with pytest.raises((QualityError, SolveError)) as info:
+        calibrate(samples, method=method, reference_field=reference)
+    assert "the samples lie in one plane" in str(info.value)
+    assert "tilting it out of that plane" in str(info.value)
+    if isinstance(info.value, QualityError):
+        flat = info.value.result.identifiability["flatness"]
+        assert (
+            flat["planar"]
+            and abs(abs(np.dot(flat["normal"], axis)) - np.linalg.norm(axis))
+            < 1e-6 * np.linalg.norm(axis) + 1e-3
+        )
+        assert set(flat["parameters"]) <= set(info.value.result.identifiability["not_identifiable"])
+
+
+def test_a_narrow_band_of_tilts_is_not_taken_for_a_plane():
+    rng = np.random.default_rng(8)
+    samples, _ = make_log(n=3000, noise=1.0, seed=9, directions=band_directions(3000, rng, 20))
+    result = calibrate(samples, method="joint", reference_field=PAPER_FIELD)
+    flat = result.identifiability["flatness"]
+    assert not flat["planar"] and flat["parameters"] == []
+    assert flat["out_of_plane_std"] > 1000 * PLANAR_NOISE  # nT: the tilts, not the noise
 
 
 def test_uniform_coverage_is_reported_as_identifiable(noisy):

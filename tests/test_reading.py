@@ -128,7 +128,6 @@ def test_stdin_streams_into_a_memory_map_too(monkeypatch):
 @pytest.mark.parametrize(
     "name, head, what",
     [
-        ("log.parquet", b"PAR1\x15\x04\x15\x80\x01\x00\xff\xfe" * 50, "a Parquet file"),
         ("log.h5", b"\x89HDF\r\n\x1a\n\x00\x00\x00" * 50, "an HDF5 file"),
         ("log.mat", b"MATLAB 5.0 MAT-file\x00\x01\x02" * 30, "a MATLAB .mat file"),
         ("magnetom.float", np.arange(30, dtype=">f4").tobytes(), "a binary file"),
@@ -140,6 +139,15 @@ def test_binary_files_are_refused_in_one_printable_sentence(tmp_path, capsys, na
     code, out, err = run(capsys, "calibrate", path)
     assert code == 2 and out == ""
     assert what in err and "delimited text log" in err
+    assert err.isprintable() or all(line.isprintable() for line in err.splitlines())
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_a_broken_parquet_file_is_refused_in_one_printable_sentence(tmp_path, capsys):
+    path = tmp_path / "log.parquet"
+    path.write_bytes(b"PAR1\x15\x04\x15\x80\x01\x00\xff\xfe" * 50)
+    code, out, err = run(capsys, "calibrate", path)
+    assert code == 2 and out == "" and "cannot be read as Parquet" in err
     assert err.isprintable() or all(line.isprintable() for line in err.splitlines())
     assert len(err.strip().splitlines()) == 1
 

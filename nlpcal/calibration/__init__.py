@@ -13,14 +13,13 @@ from .. import chunks, passes, units, validation
 from ..errors import QualityError, SolveError
 from ..io.lazy import field_samples
 from ..io.logs import Log
-from ..models.zhou2010 import Zhou2010Parameters
+from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
 from ..moments import accumulate
 from ..nlp.blocks import GAUGE
 from ..nlp.solver import IpoptOptions
 from ..robust import TUNING, Loss
+from .coverage import coverage_centre, direction_coverage, flatness
 from .diagnostics import (
-    coverage_centre,
-    direction_coverage,
     explain_failure,
     joint_gap,
     residual_spread,
@@ -146,11 +145,17 @@ def calibrate(
                 theta, stop_reason = step.theta, "solved"
                 hs = scaled_hessian(problem.moments, theta, step)
         except SolveError as failure:
-            raise explain_failure(problem, failure) from None
+            raise explain_failure(problem, failure, units.base_unit(unit)) from None
         final = rows[-1]
         errors, identifiability, covariance = uncertainty(
             problem, final["objective"], hs, final["residual_lag1_autocorrelation"], theta
         )
+        spread = residual_spread(problem, theta)
+        flat = flatness(samples, spread["residual_robust_std"])
+        identifiability["flatness"] = flat
+        if flat["planar"]:  # the Hessian at a degenerate optimum can look healthy
+            blind = set(flat["parameters"]) | set(identifiability["not_identifiable"])
+            identifiability["not_identifiable"] = [n for n in PARAMETER_NAMES if n in blind]
         if identifiability["not_identifiable"]:  # theta is not to be trusted: judge the directions
             centred = np.zeros(9)  # about the fitted sphere's centre, or the samples' mean when the
             centred[0:3] = coverage_centre(samples, problem.moments.frame)  # sphere is degenerate
@@ -160,7 +165,6 @@ def calibrate(
         base = units.base_unit(unit)
         warnings = warnings_for(problem, theta, hs, errors, identifiability, final, base)
         point_errors = errors  # the standard errors at theta, which the quality check judges
-        spread = residual_spread(problem, theta)
         robust = {**problem.loss.to_dict(), **spread}
         if problem.loss.robust:
             robust.update(

@@ -12,12 +12,13 @@ import numpy as np
 
 from .. import inference, units
 from ..errors import SolveError
-from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters, correct
+from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
 from ..moments import Moments
 from ..nlp import blocks
 from ..nlp.blocks import block_step, objective_function, pack, variable_scale
 from ..robust import robust_std
 from ..statistics import field_statistics
+from .coverage import COVERAGE_WARN, direction_coverage, flatness, planar_message
 from .problem import Problem
 
 #: Standard errors above these are "poorly determined": offsets 1 % of the field, scale errors
@@ -32,20 +33,6 @@ UNDETERMINED = 10.0 * POORLY_DETERMINED
 DISTURBED_SPREAD = 5e-3
 #: Above this widening of the standard errors, neighbouring residuals are worth mentioning. [1]
 CORRELATED_INFLATION = 2.0
-#: The 26 directions of a cube's faces, edges and corners: the bins of `direction_coverage`.
-_BIN_DIRECTIONS = np.array(
-    [
-        (i, j, k)
-        for i in (-1, 0, 1)
-        for j in (-1, 0, 1)
-        for k in (-1, 0, 1)
-        if (i, j, k) != (0, 0, 0)
-    ],
-    dtype=float,
-)
-_BIN_DIRECTIONS /= np.linalg.norm(_BIN_DIRECTIONS, axis=1, keepdims=True)
-#: Fewer bins than this fraction are reported as poor attitude coverage.
-COVERAGE_WARN = 0.5
 #: Above this relative gap between the moment objective and the exact one at the solution, the
 #: distance to the exact optimum is estimated (`exact_optimum_shift`).
 SERIES_CHECK = 1e-8
@@ -191,47 +178,6 @@ def residual_spread(problem: Problem, theta) -> dict:
     return {"residual_std": float(np.std(residuals)), "residual_robust_std": robust_std(residuals)}
 
 
-def coverage_centre(samples, frame, max_points: int = 20000) -> np.ndarray:
-    """Where to judge the field directions of samples whose parameters are not determined: the
-    centre of the sphere fitted to them, unless that sphere is degenerate (a radius over three
-    times their spread: samples in a plane), then their mean. [field unit]"""
-    sub = np.asarray(samples[:: max(1, samples.shape[0] // max_points)], dtype=float)
-    mean = sub.mean(axis=0)
-    spread = float(np.sqrt(np.mean(np.sum((sub - mean) ** 2, axis=1))))
-    return np.asarray(frame.centre) if frame.radius <= 3.0 * spread else mean
-
-
-def direction_coverage(samples, theta, max_points: int = 20000) -> dict:
-    """How many of 26 direction bins the corrected field B1 visits (a strided subsample)."""
-    sub = samples[:: max(1, samples.shape[0] // max_points)]
-    b1 = correct(sub, Zhou2010Parameters.from_theta(theta))
-    nearest = np.argmax(b1 @ _BIN_DIRECTIONS.T, axis=1)
-    visited = np.unique(nearest)
-    covered = int(visited.size)
-    missing = [_BIN_NAMES[k] for k in range(26) if k not in set(visited.tolist())]
-    missing.sort(key=_bin_order)  # +x, -x, +y, -y, +z, -z, then edges and corners
-    return {
-        "direction_bins": 26,
-        "covered": covered,
-        "fraction": covered / 26,
-        "missing": missing,
-    }
-
-
-def _bin_name(direction) -> str:
-    """ "+x", "-x+y", "+x-y-z": the signs of a bin direction's non-zero components."""
-    return "".join(
-        f"{'+' if v > 0 else '-'}{axis}" for v, axis in zip(direction, "xyz") if abs(v) > 1e-9
-    )
-
-
-_BIN_NAMES = [_bin_name(d) for d in _BIN_DIRECTIONS]
-
-
-def _bin_order(name: str) -> tuple:
-    return (len(name), ["xyz".index(axis) for axis in name[1::2]], name[0::2])
-
-
 def exact_optimum_shift(problem: Problem, theta, hs: np.ndarray, errors) -> float | None:
     """How far the exact optimum lies from `theta`, in standard errors (largest over parameters).
 
@@ -257,7 +203,7 @@ def exact_optimum_shift(problem: Problem, theta, hs: np.ndarray, errors) -> floa
     return float(np.max(np.abs(shift) / np.where(sd > 0, sd, np.inf)))
 
 
-def explain_failure(problem: Problem, failure: SolveError) -> SolveError:
+def explain_failure(problem: Problem, failure: SolveError, unit: str = "nT") -> SolveError:
     """Say which parameters the data do not determine, when IPOPT fails; blame the attitude
     coverage only when it is to blame.
 
@@ -266,6 +212,11 @@ def explain_failure(problem: Problem, failure: SolveError) -> SolveError:
     theta = failure.result
     if theta is None or not np.all(np.isfinite(theta)):
         return failure
+    flat = flatness(problem.samples, residual_spread(problem, theta)["residual_robust_std"])
+    if flat["planar"]:
+        return SolveError(
+            f"{failure}: {planar_message(flat, _unit_word(unit))}", failure.status, result=theta
+        )
     hs = scaled_hessian(problem.moments, theta)
     objective = field_statistics(problem.samples, theta, problem.reference)["objective"]
     _, identifiability, _ = uncertainty(problem, objective, hs)
@@ -363,8 +314,10 @@ def what_would_help(identifiability: dict, final: dict, reference: str) -> str:
 def undetermined_message(errors, identifiability: dict, final: dict, reference: str, unit):
     """Why the data do not determine some parameters, and what would: a few sentences."""
     undetermined = identifiability.get("undetermined", [])
-    weak = [n for n in identifiability["not_identifiable"] if n not in undetermined]
-    parts = []
+    flat = identifiability.get("flatness", {})
+    blind = flat.get("parameters", [])
+    weak = [n for n in identifiability["not_identifiable"] if n not in undetermined + blind]
+    parts = [planar_message(flat, _unit_word(unit))] if flat.get("planar") else []
     if undetermined:
         judged = _judged(
             errors,

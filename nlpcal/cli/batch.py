@@ -18,6 +18,7 @@ import time
 from . import calibrate as calibrate_cli
 from .common import (
     Parser,
+    add_command,
     add_log_arguments,
     add_scheduler_arguments,
     log_options,
@@ -102,32 +103,42 @@ def _add_batch_arguments(parser) -> None:
 
 
 def _register_calibrate(actions):
-    parser = actions.add_parser(
+    parser = add_command(
+        actions,
         "calibrate",
         parents=[calibrate_options()],
         help="calibrate every log: DIR/<log>.params.json and DIR/summary.csv",
-        description="Calibrate every log as 'nlpcal calibrate' does, with its options. Writes "
-        "DIR/<log name>.params.json per log and DIR/summary.csv: log, status (ok, "
-        "quality-failed, bad-input, solve-failed, error), exit_status (that of 'nlpcal "
-        "calibrate' on the log), the nine parameters each with its standard error (_se), "
-        "std_measured and std_corrected of |B|, coverage_fraction, warnings, message, unit, "
-        "n_samples, output, action (run, or skipped as up to date), seconds. Exit status: the "
-        "largest of the logs'.",
+        description="""Calibrate every log as 'nlpcal calibrate' does, with its options.
+Writes DIR/<log name>.params.json for each log that passes, and DIR/summary.csv with one row per
+log: log, status (ok, quality-failed, bad-input, solve-failed, error), exit_status (that of
+'nlpcal calibrate' on the log), the nine parameters each with its standard error (_se),
+std_measured and std_corrected of |B|, coverage_fraction, warnings, message, unit, n_samples,
+output, action (run, or skipped as up to date), seconds.
+Exit status: the largest of the logs'.""",
+        examples=(
+            "nlpcal batch calibrate 'fleet/*.csv' --out-dir cal",
+            "nlpcal batch calibrate fleet/ --out-dir cal --scheduler local --force",
+            "nlpcal batch calibrate 'fleet/*.csv' --out-dir cal --scheduler tcp://head:8786",
+        ),
     )
     _add_batch_arguments(parser)
     parser.set_defaults(func=run_batch_calibrate)
 
 
 def _register_apply(actions):
-    parser = actions.add_parser(
+    parser = add_command(
+        actions,
         "apply",
         help="correct every log: DIR/<log>.corrected.csv and DIR/summary.csv",
-        description="Correct every log as 'nlpcal apply' does. PARAMS is one parameters file "
-        "for every log, or the --out-dir of 'nlpcal batch calibrate' (DIR/<log "
-        "name>.params.json for each log). Writes DIR/<log name>.corrected.csv (.parquet for a "
-        "Parquet log) and DIR/summary.csv: log, status, exit_status, params, output, "
-        "n_samples, std_measured, std_corrected, outliers, warnings, message, unit, action, "
-        "seconds.",
+        description="""Correct every log as 'nlpcal apply' does.
+PARAMS is one parameters file for every log, or the --out-dir of 'nlpcal batch calibrate'
+(DIR/<log name>.params.json for each log). Writes DIR/<log name>.corrected.csv (.parquet for a
+Parquet log) and DIR/summary.csv: log, status, exit_status, params, output, n_samples,
+std_measured, std_corrected, outliers, warnings, message, unit, action, seconds.""",
+        examples=(
+            "nlpcal batch apply cal 'fleet/*.csv' --out-dir corrected    # each log's own params",
+            "nlpcal batch apply params.json 'fleet/*.csv' --out-dir corrected",
+        ),
     )
     parser.add_argument("params", metavar="PARAMS", help="a parameters file, or a folder of them")
     _add_batch_arguments(parser)

@@ -42,9 +42,10 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter):
         super().__init__(prog, max_help_position=30, width=100)
 
 
-def add_command(sub, name: str, *, help: str, description: str, examples=()):
+def add_command(sub, name: str, *, help: str, description: str, examples=(), **options):
     """A subcommand parser with the shared formatting and its examples (command lines, each a
-    string) at the end of its help; -v/-q are added to every parser by `add_verbosity`."""
+    string) at the end of its help; -v/-q are added to every parser by `add_verbosity`.
+    `options` go to argparse (`parents`, say)."""
     epilog = None
     if examples:
         epilog = "examples:\n" + "\n".join(f"  {line}" for line in examples)
@@ -54,6 +55,7 @@ def add_command(sub, name: str, *, help: str, description: str, examples=()):
         description=description,
         epilog=epilog,
         formatter_class=HelpFormatter,
+        **options,
     )
 
 

@@ -1,0 +1,124 @@
+"""Where the field pointed: the direction bins the corrected field visits, and logs whose samples
+lie in one plane (a sensor turned about one axis only), which no nine-parameter fit can use.
+
+All judged on a strided subsample of at most 20 000 rows (the survey's, for a Dask log).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters, correct
+
+#: The 26 directions of a cube's faces, edges and corners: the bins of `direction_coverage`.
+_BIN_DIRECTIONS = np.array(
+    [
+        (i, j, k)
+        for i in (-1, 0, 1)
+        for j in (-1, 0, 1)
+        for k in (-1, 0, 1)
+        if (i, j, k) != (0, 0, 0)
+    ],
+    dtype=float,
+)
+_BIN_DIRECTIONS /= np.linalg.norm(_BIN_DIRECTIONS, axis=1, keepdims=True)
+#: Fewer bins than this fraction are reported as poor attitude coverage.
+COVERAGE_WARN = 0.5
+#: Samples whose cloud is thinner than this many residual standard deviations across its flattest
+#: direction lie in one plane within the noise: the attitudes were turns about one axis only.
+PLANAR_NOISE = 5.0
+#: ... or thinner than this fraction of the cloud's radius, whatever the noise (noise-free logs).
+PLANAR_RELATIVE = 1e-3
+#: A sensor axis whose share of the plane's normal exceeds this is one the plane leaves blind.
+PLANAR_AXIS_SHARE = 0.2
+#: The sensor axes each parameter involves (alpha couples x and z, beta y and z, gamma x and y).
+_AXES_OF = dict(zip(PARAMETER_NAMES, ("x", "y", "z", "x", "y", "z", "xz", "yz", "xy"), strict=True))
+MAX_POINTS = 20000
+
+
+def subsample(samples, max_points: int = MAX_POINTS) -> np.ndarray:
+    """Every k-th row, at most about `max_points` of them. [field unit]"""
+    return np.asarray(samples[:: max(1, samples.shape[0] // max_points)], dtype=float)
+
+
+def coverage_centre(samples, frame) -> np.ndarray:
+    """Where to judge the field directions of samples whose parameters are not determined: the
+    centre of the sphere fitted to them, unless that sphere is degenerate (a radius over three
+    times their spread: samples in a plane), then their mean. [field unit]"""
+    sub = subsample(samples)
+    mean = sub.mean(axis=0)
+    spread = float(np.sqrt(np.mean(np.sum((sub - mean) ** 2, axis=1))))
+    return np.asarray(frame.centre) if frame.radius <= 3.0 * spread else mean
+
+
+def direction_coverage(samples, theta) -> dict:
+    """How many of 26 direction bins the corrected field B1 visits."""
+    b1 = correct(subsample(samples), Zhou2010Parameters.from_theta(theta))
+    nearest = np.argmax(b1 @ _BIN_DIRECTIONS.T, axis=1)
+    visited = np.unique(nearest)
+    covered = int(visited.size)
+    missing = [_BIN_NAMES[k] for k in range(26) if k not in set(visited.tolist())]
+    missing.sort(key=_bin_order)  # +x, -x, +y, -y, +z, -z, then edges and corners
+    return {
+        "direction_bins": 26,
+        "covered": covered,
+        "fraction": covered / 26,
+        "missing": missing,
+    }
+
+
+def flatness(samples, noise: float) -> dict:
+    """How thin the cloud of measured samples is across its flattest direction.
+
+    Turns about one axis put the field on one circle, and an affine image of a circle is a planar
+    ellipse: a whole family of ellipsoids passes through it, so the offset, scale and angles of the
+    axes along the plane's normal are not determined, whatever the solver returns (the spread of
+    |B1| even shrinks as the blind axis is scaled towards zero). `noise` is the residual standard
+    deviation of the fit [field unit].
+
+    Returns the out-of-plane standard deviation and the in-plane one [field unit], the unit normal
+    in sensor axes, whether the samples are planar, and the parameters the plane leaves blind.
+    """
+    sub = subsample(samples)
+    centred = sub - sub.mean(axis=0)
+    values, vectors = np.linalg.eigh(centred.T @ centred / max(sub.shape[0], 1))
+    thickness, extent = np.sqrt(np.clip(values[[0, 2]], 0.0, None))
+    normal = vectors[:, 0] * (1.0 if vectors[np.argmax(np.abs(vectors[:, 0])), 0] > 0 else -1.0)
+    planar = bool(thickness <= max(PLANAR_NOISE * noise, PLANAR_RELATIVE * extent))
+    blind_axes = {axis for axis, share in zip("xyz", np.abs(normal)) if share > PLANAR_AXIS_SHARE}
+    return {
+        "planar": planar,
+        "out_of_plane_std": float(thickness),
+        "in_plane_std": float(extent),
+        "normal": [float(v) for v in normal],
+        "parameters": [n for n in PARAMETER_NAMES if blind_axes & set(_AXES_OF[n])]
+        if planar
+        else [],
+    }
+
+
+def planar_message(flat: dict, unit: str) -> str:
+    """Why a planar log cannot be calibrated, and what would help: one sentence."""
+    normal = ", ".join(f"{v:+.2f}" for v in flat["normal"])
+    return (
+        f"the samples lie in one plane (their spread across it is {flat['out_of_plane_std']:.3g} "
+        f"{unit}, along it {flat['in_plane_std']:.3g} {unit}; normal ({normal}) in sensor axes): "
+        f"the sensor was turned about one axis only, and a whole family of ellipsoids passes "
+        f"through one circle of directions, so the data do not determine "
+        f"{', '.join(flat['parameters'])}; rotate the sensor through more attitudes, tilting it "
+        f"out of that plane"
+    )
+
+
+def _bin_name(direction) -> str:
+    """ "+x", "-x+y", "+x-y-z": the signs of a bin direction's non-zero components."""
+    return "".join(
+        f"{'+' if v > 0 else '-'}{axis}" for v, axis in zip(direction, "xyz") if abs(v) > 1e-9
+    )
+
+
+_BIN_NAMES = [_bin_name(d) for d in _BIN_DIRECTIONS]
+
+
+def _bin_order(name: str) -> tuple:
+    return (len(name), ["xyz".index(axis) for axis in name[1::2]], name[0::2])
