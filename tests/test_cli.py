@@ -371,3 +371,13 @@ def test_units_of_reference_column_and_applied_log(log_csv, tmp_path, capsys):
     assert code == 0 and "unit uT taken from the column names" in err
     corrected = pd.read_csv(__import__("io").StringIO(out))
     assert corrected["b_total"].std() < 3e-3  # in uT: 2.5 nT of noise
+
+
+def test_the_help_names_the_columns_apply_writes():
+    from nlpcal import correction
+    from nlpcal.cli import apply
+
+    assert (apply.TOTAL_COLUMN, apply.OUTLIER_COLUMN) == (
+        correction.TOTAL_COLUMN,
+        correction.OUTLIER_COLUMN,
+    )

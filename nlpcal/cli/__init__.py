@@ -17,6 +17,7 @@ import sys
 from ..errors import InputError, QualityError, SolveError, WriteError
 from ..version import __version__
 from . import (
+    apply,
     batch,
     calibrate,
     compare,
@@ -33,6 +34,7 @@ from .common import HelpFormatter, Parser, UsageError, add_verbosity, set_verbos
 #: The subcommand modules, in the order of the help (calibrate, apply and stats first).
 COMMANDS = (
     calibrate,
+    apply,
     batch,
     compare,
     orthogonality,

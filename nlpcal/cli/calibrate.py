@@ -1,5 +1,5 @@
-"""`nlpcal calibrate`, `nlpcal apply` and `nlpcal stats`: the nine-parameter model on logs, with
-the temperature options of Liu et al. (2022).
+"""`nlpcal calibrate`: the nine-parameter model on a log, with the temperature options of Liu et
+al. (2022); `nlpcal apply` and `nlpcal stats` use its result (`nlpcal.cli.apply`).
 
     nlpcal calibrate LOG [--columns X Y Z] [--unit U] [--reference-field F | --reference-column COL]
                      [--temperature-column COL [--temperature-model common|per-axis]
@@ -19,45 +19,41 @@ log's temperature column. `apply --drift` divides the raw vector by k(t) (Eq. 9)
 from __future__ import annotations
 
 import time
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 from .common import (
+    LOG_HELP,
     add_command,
     add_log_arguments,
     add_loss_arguments,
+    add_plot_argument,
     add_reference_arguments,
-    add_reference_model_arguments,
     add_scheduler_arguments,
     add_threads_argument,
+    check_plot,
     emit_json,
     log_options,
     progress,
     report_log,
     say,
     solver_log,
-    tell,
     warn,
     warning,
+    write_plot,
 )
 
 if TYPE_CHECKING:
     from ..calibration import CalibrationResult
     from ..drift.temperature import TemperatureCalibrationResult
 
-TOTAL_COLUMN = "b_total"
-OUTLIER_COLUMN = "outlier"
 TEMPERATURE_MODELS = ("common", "per-axis")
 #: Defaults of the staged cycle (the library's `nlpcal.calibration.CYCLES_DEFAULT`, ...).
 CYCLES_DEFAULT = 500
 RTOL_DEFAULT = 1e-9
-LOG_HELP = "the log: a delimited text file (comma, semicolon, tab or whitespace), or - for stdin"
 
 
 def register(sub):
     _register_calibrate(sub)
-    _register_apply(sub)
-    _register_stats(sub)
 
 
 # --- calibrate ----------------------------------------------------------------------------------
@@ -174,40 +170,8 @@ them (say, the sensor was never turned over); --allow-unidentifiable writes them
         metavar="PARAMS.json",
         help="write the parameters here (stdout when absent)",
     )
-    _add_plot_argument(parser)
+    add_plot_argument(parser)
     parser.set_defaults(func=run_calibrate)
-
-
-def _add_plot_argument(parser):
-    parser.add_argument(
-        "--plot",
-        metavar="FIG.png",
-        help="write a figure of the log before and after the correction: |B| against the "
-        "sample, histograms of |B| - F, the covered field directions, the cycles (needs "
-        "matplotlib: pip install 'nlpcal[plot]')",
-    )
-
-
-def _write_plot(args, log, parameters, corrected=None) -> None:
-    """The calibration figure of --plot, written atomically."""
-    from ..io import write_bytes_atomic
-    from ..report import figure_png
-
-    if args.plot:
-        png = figure_png(
-            log, parameters, corrected, title=f"{Path(log.path).name} ({args.command})"
-        )
-        write_bytes_atomic(args.plot, png)
-        warn(f"wrote {args.plot}")
-
-
-def _check_plot(args) -> None:
-    from ..io import check_output_path
-    from ..plots import require_matplotlib
-
-    check_output_path(getattr(args, "plot", None))
-    if getattr(args, "plot", None):
-        require_matplotlib()
 
 
 def run_calibrate(args) -> int:
@@ -260,7 +224,7 @@ def _run_calibrate(args) -> int:
     from ..io import check_output_path
 
     check_output_path(args.output, args.log)
-    _check_plot(args)
+    check_plot(args)
     temperature = args.temperature_column or args.temperature_model
     if args.temperature_model and not args.temperature_column:
         raise InputError("--temperature-model needs --temperature-column COL")
@@ -350,7 +314,7 @@ def _run_calibrate(args) -> int:
     emit_json(result.to_dict(), args.output)
     if args.output:
         warn(f"wrote {args.output}")
-    _write_plot(args, log, result, corrected)
+    write_plot(args, log, result, corrected)
     return 0
 
 
@@ -360,167 +324,3 @@ def _apply_temperature(result, log, temperature_column):
 
     correction = Correction.plan(result, None, temperature_column, log_columns=list(log.extras))
     return correction.apply(log)
-
-
-# --- apply --------------------------------------------------------------------------------------
-
-
-def _add_temperature_arguments(parser):
-    parser.add_argument(
-        "--drift",
-        metavar="DRIFT.json",
-        help="output of 'nlpcal drift fit': divide the raw vector by the temperature factor "
-        "k(t) (Liu et al. 2022, Eq. 9) before the correction",
-    )
-    parser.add_argument(
-        "--temperature-column",
-        metavar="COL",
-        help="column of temperatures [degC] for --drift or for parameters with "
-        "a temperature model (default: the column they were fitted with)",
-    )
-
-
-def _register_apply(sub):
-    parser = add_command(
-        sub,
-        "apply",
-        help="correct a log with a calibration (writes the log back, field columns corrected)",
-        description=f"""\
-Correct the field columns of a log with the parameters of 'nlpcal calibrate' (Eq. 4) and add
-their magnitude as a last column '{TOTAL_COLUMN}'. The log is written back in the layout it was
-read in (delimiter, header row or not, decimal mark, leading comment lines); every other column
-passes through unchanged, character for character. Rows reading exactly (0, 0, 0), and with
---drop-invalid rows with missing values, are left out (and counted on stderr).""",
-        examples=(
-            "nlpcal apply params.json log.csv -o corrected.csv",
-            "nlpcal apply params.json mag.txt > corrected.txt     # whitespace in, whitespace out",
-            "nlpcal apply params.json log.csv --drift drift.json --temperature-column temp_c",
-        ),
-    )
-    parser.add_argument(
-        "params", metavar="PARAMS.json", help="the parameters written by 'nlpcal calibrate'"
-    )
-    parser.add_argument("log", metavar="LOG", help=LOG_HELP)
-    add_log_arguments(parser, "the column names, else the unit of the calibrated log")
-    _add_temperature_arguments(parser)
-    parser.add_argument(
-        "--flag-outliers",
-        action="store_true",
-        help=f"add a boolean column '{OUTLIER_COLUMN}': |B1| further from its centre than 4 "
-        "robust standard deviations (1.4826 MAD) of the calibration's residuals",
-    )
-    parser.add_argument(
-        "-o",
-        "--output",
-        metavar="CORRECTED",
-        help="write the corrected log here (stdout when absent)",
-    )
-    _add_plot_argument(parser)
-    add_reference_model_arguments(parser)
-    parser.set_defaults(func=run_apply)
-
-
-def _correction(args, table, require_temperature: bool):
-    """The Correction that --params/PARAMS.json, --drift and --temperature-column ask for."""
-    from ..correction import Correction, load_parameters
-    from ..drift.fit import DriftFit
-
-    params_path = getattr(args, "params", None)
-    parameters = load_parameters(params_path) if params_path else None
-    drift = DriftFit.load(args.drift) if args.drift else None
-    return Correction.plan(
-        parameters,
-        drift,
-        args.temperature_column,
-        log_columns=table.columns,
-        require_temperature=require_temperature,
-    )
-
-
-def run_apply(args) -> int:
-    from ..correction import outliers, read_log_for
-    from ..errors import InputError
-    from ..io import check_output_path, read_table, write_table
-
-    check_output_path(args.output, args.log, args.params, args.drift)
-    _check_plot(args)
-    table = read_table(args.log, header=args.header, text=True)
-    correction = _correction(args, table, require_temperature=True)
-    if args.plot and correction.parameters is None:
-        raise InputError("--plot needs parameters (PARAMS.json), not a drift file alone")
-    log = read_log_for(table, correction, **log_options(args))
-    report_log(log)
-    corrected = correction.apply(log)
-    tell(correction.notes)
-    extra = {}
-    if args.flag_outliers:
-        extra[OUTLIER_COLUMN] = flags = outliers(correction, corrected)
-        warn(f"{int(flags.sum())} of {len(flags)} rows flagged as outliers")
-    frame = log.written_back(corrected, TOTAL_COLUMN, extra)
-    write_table(frame, log.layout, args.output)
-    if args.output:
-        warn(f"wrote {len(frame)} corrected rows to {args.output} ({log.layout.describe()})")
-    _write_plot(args, log, correction.parameters, corrected)
-    return 0
-
-
-# --- stats --------------------------------------------------------------------------------------
-
-
-def _register_stats(sub):
-    parser = add_command(
-        sub,
-        "stats",
-        help="|B| statistics of a log, before and after a calibration",
-        description="""\
-Print max, min, mean, std (ddof = 0) and range of the total field |B|: the measured row, and the
-corrected row with --params (the rows of Table 1 of Zhou et al. 2010). The spread of |B| over a
-log of many orientations in a steady field is what a calibration removes: a good one leaves
-little more than the sensor noise. With --reference-column every row also gets the RMSE against
-the reference (Eq. 10 of Liu et al. 2022).""",
-        examples=(
-            "nlpcal stats log.csv",
-            "nlpcal stats log.csv --params params.json",
-            "nlpcal stats log.csv --params params.json --reference-column proton_nT --json",
-        ),
-    )
-    parser.add_argument("log", metavar="LOG", help=LOG_HELP)
-    add_log_arguments(parser, "the column names, else the unit of the calibrated log")
-    parser.add_argument(
-        "--params",
-        metavar="PARAMS.json",
-        help="parameters written by 'nlpcal calibrate': add the corrected row",
-    )
-    _add_temperature_arguments(parser)
-    parser.add_argument(
-        "--reference-column",
-        metavar="COL",
-        help="column of reference magnitudes (name or position; its unit from its name, "
-        "else the field columns'): add the RMSE of Eq. 10 (Liu et al. 2022) to every row",
-    )
-    parser.add_argument("--json", action="store_true", help="print the rows as JSON on stdout")
-    add_reference_model_arguments(parser)
-    parser.set_defaults(func=run_stats)
-
-
-def run_stats(args) -> int:
-    from ..correction import read_log_for, statistics_rows
-    from ..io import read_log, read_table
-    from ..statistics import format_table
-
-    table = read_table(args.log, header=args.header)
-    if args.params or args.drift or args.temperature_column:
-        correction = _correction(args, table, require_temperature=False)
-        log = read_log_for(table, correction, **log_options(args))
-    else:
-        correction = None
-        log = read_log(table, **log_options(args))
-    report_log(log)
-    rows, extra = statistics_rows(log, correction)
-    if correction is not None:
-        tell(correction.notes)
-    if args.json:
-        emit_json({"unit": log.base_unit, "std_ddof": 0, "rows": rows}, None)
-    else:
-        print(format_table(rows, log.base_unit, extra=extra))
-    return 0

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import sys
+from pathlib import Path
 
 #: Field units accepted by --unit (the library's `nlpcal.units.FIELD_UNITS_NT`).
 FIELD_UNITS = ("nT", "uT", "mT", "mG", "G", "T", "raw")
@@ -385,3 +386,42 @@ def emit_csv(frame, output, float_format: str | None = None) -> None:
         write_csv_atomic(output, frame, float_format)
     else:
         frame.to_csv(sys.stdout, index=False, float_format=float_format)
+
+
+#: The help of a LOG argument.
+LOG_HELP = (
+    "the log: a delimited text file (comma, semicolon, tab or whitespace), a Parquet file, a "
+    "quoted pattern or a folder of them, or - for stdin"
+)
+
+
+def add_plot_argument(parser):
+    parser.add_argument(
+        "--plot",
+        metavar="FIG.png",
+        help="write a figure of the log before and after the correction: |B| against the "
+        "sample, histograms of |B| - F, the covered field directions, the cycles (needs "
+        "matplotlib: pip install 'nlpcal[plot]')",
+    )
+
+
+def write_plot(args, log, parameters, corrected=None) -> None:
+    """The calibration figure of --plot (`add_plot_argument`), written atomically."""
+    from ..io import write_bytes_atomic
+    from ..report import figure_png
+
+    if args.plot:
+        png = figure_png(
+            log, parameters, corrected, title=f"{Path(log.path).name} ({args.command})"
+        )
+        write_bytes_atomic(args.plot, png)
+        warn(f"wrote {args.plot}")
+
+
+def check_plot(args) -> None:
+    from ..io import check_output_path
+    from ..plots import require_matplotlib
+
+    check_output_path(getattr(args, "plot", None))
+    if getattr(args, "plot", None):
+        require_matplotlib()

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import sys
 
-from .calibrate import _add_temperature_arguments, _correction
+from .apply import add_temperature_arguments, correction_for
 from .common import (
     add_command,
     add_log_arguments,
@@ -42,7 +42,7 @@ def register(sub):
     )
     parser.add_argument("log", metavar="LOG", help="the log: a delimited text file, or - for stdin")
     add_log_arguments(parser, "the column names, else the unit of the calibrated log")
-    _add_temperature_arguments(parser)
+    add_temperature_arguments(parser)
     add_reference_arguments(parser)
     parser.add_argument(
         "-o", "--output", required=True, metavar="REPORT.html", help="write the report here"
@@ -57,7 +57,7 @@ def run(args) -> int:
 
     check_output_path(args.output)
     table = read_table(args.log, header=args.header)
-    correction = _correction(args, table, require_temperature=True)
+    correction = correction_for(args, table, require_temperature=True)
     log = read_log_for(table, correction, **log_options(args))
     report_log(log)
     corrected = correction.apply(log)
