@@ -4,8 +4,9 @@ Logs come from every kind of logger: comma-, semicolon-, tab- or whitespace-sepa
 without a header row, with `#` comment lines, sometimes with a decimal comma, sometimes from a pipe
 (`-` reads stdin). `detect_layout` looks at the start of the file and decides, and `Layout`
 remembers the decision so that a corrected log can be written back in the layout it was read in.
-Binary files (Parquet, HDF5, MATLAB, spreadsheets, raw floats) are refused by name in one
-sentence, never dumped to the terminal.
+Binary files (HDF5, MATLAB, spreadsheets, raw floats; Parquet arriving on stdin, since Parquet
+files are read by `nlpcal.io.sources`) are refused by name in one sentence, never dumped to the
+terminal.
 """
 
 from __future__ import annotations
