@@ -29,7 +29,7 @@ from ..geomagnetic import ReferenceModel
 from . import sources
 from .logs import Log, reference_unit, sensor_unit, unit_check
 from .rows import QUOTED_ROWS, RowScreen
-from .tables import column_name, log_files, numeric_columns, resolve_columns
+from .tables import column_name, log_files, named, numeric_columns, resolve_columns, unreadable
 
 #: Bytes of text per block (one task). [byte]
 BLOCK_BYTES = 64 * 2**20
@@ -71,15 +71,8 @@ def _table_of(spec):
     except pd.errors.EmptyDataError:
         return pd.DataFrame(columns=columns)
     except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
-        message = " ".join(str(exc).split())[:160]
-        raise InputError(
-            f"{name}: cannot be read as a {layout.describe()} text log ({message})"
-        ) from None
-    if layout.header:
-        frame.columns = [str(c).strip() for c in frame.columns]
-    else:
-        frame.columns = [str(k) for k in range(frame.shape[1])]
-    return frame
+        raise unreadable(name, layout, exc) from None
+    return named(frame, layout)
 
 
 def _column(table, name):

@@ -105,14 +105,22 @@ def _frame(name: str, source, layout: Layout, *, text: bool = False, **more) -> 
         except pd.errors.EmptyDataError:
             raise InputError(f"{name}: the file is empty") from None
         except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
-            raise InputError(
-                f"{name}: cannot be read as a {layout.describe()} text log ({_message(exc)})"
-            ) from None
+            raise unreadable(name, layout, exc) from None
+    return named(frame, layout), engine
+
+
+def unreadable(name: str, layout: Layout, exc: Exception) -> InputError:
+    """The one-sentence error of a text log that pandas' parser refuses."""
+    return InputError(f"{name}: cannot be read as a {layout.describe()} text log ({_message(exc)})")
+
+
+def named(frame: pd.DataFrame, layout: Layout) -> pd.DataFrame:
+    """The columns of a frame read in `layout`: the header's names stripped, else 0, 1, ..."""
     if layout.header:
         frame.columns = [str(c).strip() for c in frame.columns]
     else:
         frame.columns = [str(k) for k in range(frame.shape[1])]
-    return frame, engine
+    return frame
 
 
 def _readable(source):
