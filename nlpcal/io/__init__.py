@@ -18,12 +18,12 @@ from .files import (
 )
 from .layout import Layout, detect_layout
 from .logs import Log, read_columns, read_log
+from .mapped import csv_to_memmap
 from .sensors import SensorLog, read_sensor_log
 from .tables import (
     Table,
     column_name,
     csv_engine,
-    csv_to_memmap,
     numeric_columns,
     read_table,
     resolve_columns,

@@ -24,11 +24,11 @@ from ..errors import InputError
 from ..geomagnetic import ReferenceModel, parse_times
 from ..moments import sphere_frame
 from .layout import Layout
+from .mapped import csv_to_memmap
 from .rows import RowScreen
 from .tables import (
     Table,
     column_name,
-    csv_to_memmap,
     numbers,
     numeric_columns,
     read_table,

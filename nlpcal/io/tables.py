@@ -12,9 +12,7 @@ from __future__ import annotations
 
 import io
 import re
-import shutil
 import sys
-import tempfile
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -25,8 +23,7 @@ from .. import units
 from ..errors import InputError
 from . import sources
 from .files import write_text_atomic
-from .layout import STDIN, Layout, detect_layout, open_source
-from .rows import RowScreen
+from .layout import Layout, detect_layout, open_source
 
 #: What each sensor's axis columns may be called, for `resolve_columns`:
 #: name -> (prefixes, unit suffixes, examples for messages, flag for messages).
@@ -300,33 +297,6 @@ def numeric_columns(
 
 
 @dataclass
-class MappedColumns:
-    """Numeric columns of a log streamed into a memory-mapped temporary file.
-
-    values : (N, k) float64, backed by an unlinked temporary file (freed when dropped).
-    columns : the k column names.
-    dropped : rows dropped as invalid (missing values, zero vectors, repeats with drop_invalid).
-    notes : what was left out and why, for the user to read.
-    layout : the layout of the file.
-    """
-
-    values: np.ndarray
-    columns: list
-    dropped: int
-    notes: list
-    layout: Layout
-    source: str = ""
-
-
-def _spool_stdin(directory=None):
-    """Standard input copied into a temporary file, so that it can be read in chunks."""
-    spool = tempfile.NamedTemporaryFile(dir=directory, suffix=".log")
-    shutil.copyfileobj(sys.stdin.buffer, spool)
-    spool.flush()
-    return spool
-
-
-@dataclass
 class LogFile:
     """One file of a log, as its chunks are read: CSV (or other delimited text) or Parquet.
 
@@ -370,91 +340,6 @@ def log_files(path, header: bool | None = None, name: str | None = None) -> list
         found.append(LogFile(name or label, source, layout, preview))
     sources.same_columns([(part.name, [str(c) for c in part.preview.columns]) for part in found])
     return found
-
-
-def csv_to_memmap(
-    path,
-    columns=None,
-    extra_columns=(),
-    *,
-    header: bool | None = None,
-    drop_invalid: bool = False,
-    scale=1.0,
-    chunk_rows: int = 250_000,
-    directory=None,
-) -> MappedColumns:
-    """Stream the field columns (and `extra_columns`) of a log into a memory-mapped array.
-
-    Memory stays O(chunk_rows) whatever the size of the log; the pandas C engine reads the chunks
-    (pyarrow those of a Parquet file; the files of a pattern or folder one after another).
-    The three field columns come first and are multiplied by `scale` (a unit conversion) on the
-    way (`scale` a number, or a function of the three column names); the extra columns are kept
-    as they are. Rows are screened as in `read_log`: zero vectors
-    left out, repeated vectors counted (dropped with drop_invalid).
-    """
-    spool = _spool_stdin(directory) if str(path) == "-" else None
-    try:
-        files = log_files(spool.name if spool else path, header, STDIN if spool else None)
-        first = files[0]
-        notes: list = []
-        chosen = resolve_columns(
-            first.preview,
-            columns,
-            header=first.layout.header,
-            decimal=first.layout.decimal,
-            notes=notes,
-        )
-        wanted = chosen + [column_name(first.preview, c) for c in extra_columns]
-        factor = float(scale(chosen) if callable(scale) else scale)
-        factors = np.array([factor] * 3 + [1.0] * (len(wanted) - 3))
-        screen = RowScreen(drop_repeats=drop_invalid)
-        store = tempfile.TemporaryFile(dir=directory)
-        rows = dropped = 0
-        part = first
-        try:
-            for part in files:
-                for chunk in part.chunks(wanted, chunk_rows):
-                    numeric = numeric_columns(
-                        chunk,
-                        wanted,
-                        drop_invalid=drop_invalid,
-                        source=part.name,
-                        decimal=part.layout.decimal,
-                    )
-                    data_rows = rows + dropped + np.flatnonzero(numeric.kept) + 1
-                    keep = screen.keep(numeric.values[:, :3], data_rows)
-                    dropped += numeric.dropped + int((~keep).sum())
-                    values = numeric.values[keep]
-                    rows += values.shape[0]
-                    store.write(np.ascontiguousarray(values * factors).tobytes())
-        except InputError as exc:
-            store.close()
-            if "first at data row" in str(exc):
-                raise InputError(f"{exc} (in the chunk after row {rows + dropped})") from None
-            raise
-        except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
-            store.close()
-            raise InputError(
-                f"{part.name}: cannot be read as a {part.layout.describe()} text log "
-                f"({_message(exc)})"
-            ) from None
-    finally:
-        if spool is not None:
-            spool.close()
-    store.flush()
-    name = STDIN if spool else str(path)
-    if rows == 0:
-        store.close()
-        raise InputError(f"{name}: no data rows")
-    mapped = np.memmap(store, dtype=np.float64, mode="r", shape=(rows, len(wanted)))
-    return MappedColumns(
-        values=mapped,
-        columns=wanted,
-        dropped=dropped,
-        notes=notes + screen.notes(),
-        layout=first.layout,
-        source=name if len(files) > 1 or first.parquet else first.name,
-    )
 
 
 def table_text(frame: pd.DataFrame, layout: Layout) -> str:
