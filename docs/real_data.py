@@ -203,7 +203,7 @@ def measure(log: RealLog, folder: Path) -> dict:
     if "--unit" in log.arguments:  # the same command without --unit: is the mistake caught?
         at = log.arguments.index("--unit")
         bare = log.arguments[:at] + log.arguments[at + 2 :]
-        _, bare_err = run(["calibrate", path, *bare, "-q", "-o", folder / "bare.json"])
+        _, bare_err = run(["calibrate", path, *bare, "-o", folder / "bare.json"])
         row["unit_warning"] = next(
             (line for line in bare_err.splitlines() if "far from Earth's field" in line), ""
         )
@@ -255,7 +255,9 @@ def units_table(rows) -> str:
     for row in rows:
         if "unit_warning" not in row:
             continue
-        warning = row["unit_warning"].replace("nlpcal: warning: ", "") or "(no warning)"
+        warning = row["unit_warning"].replace("nlpcal: warning: ", "")
+        if not warning:  # the page promises that every unit mistake is warned about
+            raise SystemExit(f"{row['log'].path}: no warning about the unit without --unit")
         lines.append(f"| {Path(row['log'].path).name} | {warning} |")
     return "\n".join(lines)
 

@@ -168,8 +168,8 @@ def _common_parts(parts_list) -> tuple:
 def failure(exc: BaseException) -> tuple:
     """(status, message) of a log whose task raised `exc`."""
     message = " ".join(str(exc).split()) or type(exc).__name__
-    if isinstance(exc, QualityError):
-        return "quality-failed", message
+    if isinstance(exc, QualityError):  # without the Python keywords that would override it
+        return "quality-failed", " ".join(exc.reason.split())
     if isinstance(exc, SolveError):
         status = f" (IPOPT status: {exc.status})" if exc.status else ""
         return "solve-failed", message + status

@@ -24,7 +24,20 @@ class SolveError(NlpcalError, RuntimeError):
 class QualityError(SolveError):
     """The solve ended, but the result fails a quality check (parameters the data do not
     determine); `result` holds it for inspection. The command line exits with status 1 and writes
-    no output."""
+    no output.
+
+    `overrides` are the keyword arguments that would return the result anyway (for example
+    {"require_identifiable": False, "allow_unconverged": True}); the message names them, and
+    `reason` is the message without them.
+    """
+
+    def __init__(self, message: str, status: str = "", result=None, overrides=None):
+        self.reason = message
+        self.overrides = dict(overrides or {})
+        if self.overrides:
+            given = ", ".join(f"{name}={value!r}" for name, value in self.overrides.items())
+            message = f"{message} ({given} returns it anyway)"
+        super().__init__(message, status, result)
 
 
 class WriteError(NlpcalError, OSError):

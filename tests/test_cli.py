@@ -381,3 +381,30 @@ def test_the_help_names_the_columns_apply_writes():
         correction.TOTAL_COLUMN,
         correction.OUTLIER_COLUMN,
     )
+
+
+def test_no_command_writes_over_one_of_its_inputs(log_csv, tmp_path, capsys):
+    folder = tmp_path / "work"
+    folder.mkdir()
+    log = folder / "log.csv"
+    log.write_bytes(log_csv.read_bytes())
+    params = folder / "params.json"
+    assert run(capsys, "calibrate", log, "--method", "joint", "-o", params)[0] == 0
+    exported = folder / "cal.m"
+    assert run(capsys, "export", params, "--format", "matlab", "-o", exported)[0] == 0
+    attempts = [
+        ("export", params, "--format", "matlab", "-o", params),
+        ("import", exported, "--format", "matlab", "-o", exported),
+        ("report", params, log, "-o", params),
+        ("report", params, log, "-o", log),
+        ("calibrate", log, "--method", "joint", "-o", folder / "p2.json", "--plot", log),
+        ("calibrate", log, "--method", "joint", "-o", params, "--plot", params),
+        ("apply", params, log, "-o", folder / "c.csv", "--plot", params),
+        ("apply", params, folder / "*.csv", "-o", log),  # a pattern that matches the output
+        ("apply", params, folder, "-o", log),  # a folder that holds it
+    ]
+    before = {p: p.read_bytes() for p in (log, params, exported)}
+    for argv in attempts:
+        code, out, err = run(capsys, *argv)
+        assert code == 2 and "is also an input" in err, (argv, err)
+        assert {p: p.read_bytes() for p in before} == before, argv

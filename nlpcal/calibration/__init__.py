@@ -230,6 +230,8 @@ def calibrate(
             input={"log_unit": unit},
             robust=robust,
         )
+        unconverged = None if allow_unconverged else unconverged
+        overrides = {"allow_unconverged": True} if unconverged else {}
         if require_identifiable and identifiability["not_identifiable"]:
             also = f" Besides, {unconverged[0].lower()}{unconverged[1:]}." if unconverged else ""
             raise QualityError(
@@ -239,12 +241,11 @@ def calibrate(
                 + also,
                 "Not_Identifiable",
                 result=result,
+                overrides={"require_identifiable": False, **overrides},
             )
-        if unconverged and not allow_unconverged:
+        if unconverged:
             raise QualityError(
-                f"{unconverged} (allow_unconverged=True returns it anyway)",
-                "Staged_Unconverged",
-                result=result,
+                unconverged, "Staged_Unconverged", result=result, overrides=overrides
             )
         return result
 

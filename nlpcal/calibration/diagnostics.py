@@ -31,6 +31,9 @@ UNDETERMINED = 10.0 * POORLY_DETERMINED
 #: Above this relative spread of |B1| after calibration, the field or the sensor is disturbed
 #: beyond what the nine parameters describe (a clean fluxgate reaches 1e-4). [1]
 DISTURBED_SPREAD = 5e-3
+#: A meat matrix of the sandwich with an eigenvalue below -this x its largest is not a sum of
+#: squares (`sandwich`).
+MEAT_TOLERANCE = 1e-9
 #: Above this widening of the standard errors, neighbouring residuals are worth mentioning. [1]
 CORRELATED_INFLATION = 2.0
 #: Above this relative gap between the moment objective and the exact one at the solution, the
@@ -81,8 +84,9 @@ def uncertainty(
         "autocorrelation": autocorrelation,
         "dof": n - 9,
     }
+    form = "gauss-newton"
     if problem.loss.robust and theta is not None:
-        information, meat = sandwich(problem, theta)
+        information, meat, form = sandwich(problem, theta)
         result = inference.estimate(information, meat=meat, **options)
     else:
         result = inference.estimate(
@@ -91,7 +95,7 @@ def uncertainty(
             **options,
         )
     errors = covariance = None
-    if result.covariance is not None:
+    if result.covariance is not None and np.all(np.isfinite(result.covariance)):
         to_units = variable_scale(moments.frame.radius).copy()  # scaled -> parameter units
         to_units[6:9] = np.degrees(to_units[6:9])
         covariance = to_units[:, None] * result.covariance * to_units[None, :]
@@ -116,7 +120,7 @@ def uncertainty(
             "poorly_determined": poorly,
             "weakest_combination": _names(result.weakest),
             "hessian_eigenvalues_scaled": [float(v) for v in result.eigenvalues * 2.0 / n],
-            "covariance_form": "sandwich" if problem.loss.robust else "gauss-newton",
+            "covariance_form": form,
             "residual_lag1_autocorrelation": float(autocorrelation),
             "standard_error_inflation": result.inflation,
             "poorly_determined_limits": {n_: float(v) for n_, v in zip(PARAMETER_NAMES, limits)},
@@ -127,18 +131,30 @@ def uncertainty(
 
 
 def sandwich(problem: Problem, theta) -> tuple:
-    """(A, B) of the sandwich covariance of an M-estimate, in the scaled variables.
+    """(A, B, form) of the covariance A^-1 B A^-1 of an M-estimate, in the scaled variables.
 
     A = sum psi'(r_i) J_i J_i^T and B = sum psi(r_i)^2 J_i J_i^T, each from the Hessian of the
     moment objective with the samples weighted by psi'(r) and by psi(r)^2: for a weighted mean of
     squares with weights g, sum(g) H_g / 2 = sum g J J^T up to terms in the curvature of r.
+    Along a direction the data barely determine those curvature terms can outweigh J J^T and
+    leave B indefinite; B is then taken proportional to A, B = A sum psi^2 / sum psi' N / (N - 9)
+    (Huber's covariance of an M-estimate for residuals alike in spread), and `form` says so.
     """
     loss = problem.loss
     parts = []
     for weight in (loss.slope, lambda r: (loss.weight(r) * r) ** 2):
         moments = problem.weighted_moments(theta, weight)
-        parts.append(0.5 * moments.weight_sum * scaled_hessian(moments, theta))
-    return parts[0], parts[1]
+        parts.append(
+            (moments.weight_sum, 0.5 * moments.weight_sum * scaled_hessian(moments, theta))
+        )
+    (slopes, bread), (squares, meat) = parts
+    basis = gauge_basis(problem.moments)
+    values = np.linalg.eigvalsh(basis.T @ (0.5 * (meat + meat.T)) @ basis)
+    if values[0] >= -MEAT_TOLERANCE * max(values[-1], 0.0):
+        return bread, meat, "sandwich"
+    n = problem.samples.shape[0]
+    ratio = squares / slopes * n / max(n - 9, 1) if slopes > 0 else np.inf
+    return bread, ratio * bread, "huber"
 
 
 def joint_gap(problem: Problem, theta, errors) -> dict:

@@ -47,6 +47,11 @@ if TYPE_CHECKING:
     from ..drift.temperature import TemperatureCalibrationResult
 
 TEMPERATURE_MODELS = ("common", "per-axis")
+#: The flags of the library's overrides of a quality check.
+OVERRIDE_FLAGS = {
+    "require_identifiable": "--allow-unidentifiable",
+    "allow_unconverged": "--allow-unconverged",
+}
 #: Defaults of the staged cycle (the library's `nlpcal.calibration.CYCLES_DEFAULT`, ...).
 CYCLES_DEFAULT = 500
 RTOL_DEFAULT = 1e-9
@@ -287,10 +292,12 @@ def _run_calibrate(args) -> int:
         progress("")
         if failure.result is not None:
             say(failure.result.table())
-        if failure.status != "Not_Identifiable":
+        flags = [OVERRIDE_FLAGS[name] for name in failure.overrides if name in OVERRIDE_FLAGS]
+        if not flags:
             raise
         raise QualityError(
-            f"{failure} --allow-unidentifiable writes the result anyway, with this warning.",
+            f"{failure.reason.rstrip('.')}. {' '.join(flags)} writes the result anyway, with "
+            f"{'these warnings' if len(flags) > 1 else 'this warning'}.",
             failure.status,
             result=failure.result,
         ) from None

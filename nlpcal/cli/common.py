@@ -422,6 +422,9 @@ def check_plot(args) -> None:
     from ..io import check_output_path
     from ..plots import require_matplotlib
 
-    check_output_path(getattr(args, "plot", None))
+    check_output_path(
+        getattr(args, "plot", None),
+        *(getattr(args, name, None) for name in ("log", "params", "drift", "output")),
+    )
     if getattr(args, "plot", None):
         require_matplotlib()

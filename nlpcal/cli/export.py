@@ -76,7 +76,7 @@ def run(args) -> int:
     from ..formats import export
     from ..io import check_output_path, write_text_atomic
 
-    check_output_path(args.output)
+    check_output_path(args.output, args.params)
     written = export(
         load_parameters(args.params),
         args.fmt,

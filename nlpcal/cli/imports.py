@@ -51,7 +51,7 @@ def run(args) -> int:
     from ..formats import import_file
     from ..io import check_output_path
 
-    check_output_path(args.output)
+    check_output_path(args.output, args.file)
     result, notes = import_file(
         args.file, args.fmt, unit=args.unit, field=args.reference_field, instance=args.instance
     )

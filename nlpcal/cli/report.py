@@ -15,6 +15,7 @@ import sys
 
 from .apply import add_temperature_arguments, correction_for
 from .common import (
+    LOG_HELP,
     add_command,
     add_log_arguments,
     add_reference_arguments,
@@ -40,7 +41,7 @@ def register(sub):
     parser.add_argument(
         "params", metavar="PARAMS.json", help="the parameters written by 'nlpcal calibrate'"
     )
-    parser.add_argument("log", metavar="LOG", help="the log: a delimited text file, or - for stdin")
+    parser.add_argument("log", metavar="LOG", help=LOG_HELP)
     add_log_arguments(parser, "the column names, else the unit of the calibrated log")
     add_temperature_arguments(parser)
     add_reference_arguments(parser)
@@ -55,7 +56,7 @@ def run(args) -> int:
     from ..io import check_output_path, read_table, write_text_atomic
     from ..report import report
 
-    check_output_path(args.output)
+    check_output_path(args.output, args.params, args.log, args.drift)
     table = read_table(args.log, header=args.header)
     correction = correction_for(args, table, require_temperature=True)
     log = read_log_for(table, correction, **log_options(args))

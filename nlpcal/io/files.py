@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import glob
 import hashlib
 import json
 import math
@@ -56,13 +57,26 @@ def check_output_path(path, *inputs) -> None:
         raise InputError(f"{path}: the folder {directory} does not exist")
     if path.is_dir():
         raise InputError(f"{path}: is a directory, expected a file name")
+    if not path.exists():
+        return
     for source in inputs:
-        readable = source and str(source) != "-" and path.exists() and Path(source).exists()
-        if readable and os.path.samefile(path, source):
+        if any(os.path.samefile(path, item) for item in _input_files(source)):
             raise InputError(
                 f"{path}: is also an input; writing it would replace the data being read, so "
                 f"choose another output name"
             )
+
+
+def _input_files(source) -> list:
+    """The existing files an input names: itself, the files of a folder, or a glob's matches."""
+    if not source or str(source) == "-":
+        return []
+    text = str(source)
+    if Path(text).is_dir():
+        return [p for p in Path(text).iterdir() if p.is_file()]
+    if Path(text).exists():
+        return [Path(text)]
+    return [Path(p) for p in glob.glob(text, recursive=True) if Path(p).is_file()]
 
 
 #: Error numbers of a write that failed after its path was accepted (exit status 1); any other
