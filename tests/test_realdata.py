@@ -7,7 +7,8 @@ import pandas as pd
 import pytest
 
 from nlpcal import calibrate
-from nlpcal.errors import SolveError
+from nlpcal.calibration import calibrate_log
+from nlpcal.errors import QualityError, SolveError
 from nlpcal.io import read_log
 
 
@@ -137,3 +138,20 @@ def test_the_joint_solve_on_the_upright_log_blames_the_coverage(real_data, tmp_p
     assert code == 1
     assert "of 26 direction bins, a cap of the sphere" in captured.err
     assert "rotate the sensor through more attitudes" in captured.err
+
+
+@pytest.mark.parametrize("loss", ["huber", "cauchy"])
+@pytest.mark.parametrize("method", ["staged", "joint"])
+def test_robust_fits_of_messy_logs_report_a_true_covariance_or_fail(real_data, loss, method):
+    # Residuals thousands of nT wide and a poorly covered sphere: the sandwich's meat from the
+    # weighted moments is not positive there, and must not reach a result as negative variances.
+    for name in ("MPU6050RM3100_derived.csv", "MPU6500RM3100_derived.csv"):
+        log = read_log(real_data / "rasteiro_robot_multisensor" / name)
+        try:
+            result = calibrate_log(log, method=method, loss=loss, allow_unconverged=True)
+        except QualityError as failure:
+            assert "do not determine" in failure.reason
+            continue
+        covariance = np.asarray(result.covariance)
+        assert np.linalg.eigvalsh(covariance)[0] >= -1e-9 * np.abs(covariance).max()
+        assert all(np.isfinite(v) and v > 0 for v in result.standard_errors.values())
