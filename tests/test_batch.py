@@ -102,6 +102,7 @@ def test_one_bad_log_never_stops_the_others(fleet, tmp_path, capsys):
     assert "five" not in by_log.loc["sensor_text.csv", "message"]
     assert "non-numeric" in by_log.loc["sensor_text.csv", "message"]
     assert sorted(p.name for p in out_dir.iterdir()) == [
+        "batch.json",
         "sensor_0.params.json",
         "sensor_1.params.json",
         "sensor_2.params.json",
@@ -136,6 +137,47 @@ def test_a_rerun_skips_logs_whose_output_is_newer_unless_forced(fleet, tmp_path)
         "quality-failed": 1,  # the turntable log: its samples lie in one plane
         "solve-failed": 1,  # the joint solve fails where the staged cycle is not determined
     }
+
+
+def test_a_rerun_with_other_options_does_every_log_again(fleet, tmp_path):
+    out_dir = tmp_path / "out"
+    first = calibrate_many(fleet, out_dir, options={"method": "joint"})
+    assert first.counts()["ok"] == 3
+    again = calibrate_many(
+        fleet, out_dir, options={"method": "joint"}, read_options={"reference_field": 50000.0}
+    )
+    assert all(r["action"] == "run" for r in again.rows)
+    result = nlpcal.CalibrationResult.load(out_dir / "sensor_0.params.json")
+    assert result.reference["mode"] == "constant"  # not the first run's parameters
+    same = calibrate_many(
+        fleet, out_dir, options={"method": "joint"}, read_options={"reference_field": 50000.0}
+    )
+    skipped = [r for r in same.rows if r["action"] == "skipped"]
+    assert len(skipped) == 3 and all(r["status"] == "ok" for r in skipped)
+
+
+def test_a_log_that_fails_now_loses_the_output_an_earlier_run_wrote(fleet, tmp_path):
+    out_dir = tmp_path / "out"
+    calibrate_many(fleet, out_dir, options={"method": "joint"})
+    assert (out_dir / "sensor_1.params.json").exists()
+    (fleet / "sensor_1.csv").write_text("bx,by,bz\n1,2,3\n")  # the log is replaced by a bad one
+    again = calibrate_many(fleet, out_dir, options={"method": "joint"})
+    row = next(r for r in again.rows if r["log"].endswith("sensor_1.csv"))
+    assert row["status"] == "bad-input" and not (out_dir / "sensor_1.params.json").exists()
+    third = calibrate_many(fleet, out_dir, options={"method": "joint"})
+    row = next(r for r in third.rows if r["log"].endswith("sensor_1.csv"))
+    assert row["status"] == "bad-input" and row["action"] == "run"
+
+
+def test_a_broken_batch_record_means_every_log_again(fleet, tmp_path):
+    out_dir = tmp_path / "out"
+    calibrate_many(fleet, out_dir, options={"method": "joint"})
+    (out_dir / "batch.json").write_text('{"format": "nlpcal-batch", "outputs": [1]}')
+    again = calibrate_many(fleet, out_dir, options={"method": "joint"})
+    assert all(r["action"] == "run" for r in again.rows)
+    assert again.notes and "every log is done again" in again.notes[0]
+    record = json.loads((out_dir / "batch.json").read_text())
+    assert record["format_version"] == 1 and len(record["outputs"]) == 3
 
 
 def test_a_fleet_on_dask_threads_gives_the_same_summary(fleet, tmp_path):
@@ -221,3 +263,26 @@ def test_a_reference_and_loss_reach_every_log(fleet, tmp_path):
     document = json.loads((tmp_path / "out" / "sensor_1.params.json").read_text())
     assert document["reference"] == {"mode": "constant", "field": PAPER_FIELD}
     assert document["robust"]["loss"] == "huber"
+
+
+def test_batch_calibrate_takes_the_quality_overrides_of_calibrate(fleet, tmp_path, capsys):
+    out_dir = tmp_path / "out"
+    flat = fleet / "sensor_flat.csv"
+    code, _, _ = run(capsys, "batch", "calibrate", flat, "--out-dir", out_dir, "--method", "joint")
+    assert code == 1 and not (out_dir / "sensor_flat.params.json").exists()
+    code, _, err = run(
+        capsys,
+        "batch",
+        "calibrate",
+        flat,
+        "--out-dir",
+        out_dir,
+        "--method",
+        "joint",
+        "--allow-unidentifiable",
+        "--threads",
+        "1",
+    )
+    assert code == 0 and (out_dir / "sensor_flat.params.json").exists()
+    summary = pd.read_csv(out_dir / "summary.csv")
+    assert "lie in one plane" in summary.loc[0, "warnings"]

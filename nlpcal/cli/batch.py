@@ -24,6 +24,7 @@ from .common import (
     log_options,
     progress,
     warn,
+    warning,
 )
 
 #: Options of `nlpcal calibrate` that concern one log's output, not taken by `batch calibrate`.
@@ -46,7 +47,8 @@ def register(sub):
         description="Calibrate or correct many logs (a glob pattern, a folder or a list of "
         "files), on Dask with --scheduler. One output file per log in --out-dir, and "
         "DIR/summary.csv with one row per log and its status; one bad log never stops the "
-        "others, and a log whose output is newer than the log is skipped unless --force.",
+        "others, and a log whose output is newer than the log and was written with the same "
+        "options is skipped unless --force.",
     )
     actions = parser.add_subparsers(dest="batch_command", metavar="ACTION", parser_class=Parser)
     actions.required = True
@@ -98,7 +100,8 @@ def _add_batch_arguments(parser) -> None:
     parser.add_argument(
         "--force",
         action="store_true",
-        help="redo logs whose output is newer than the log (skipped by default)",
+        help="redo logs whose output is up to date (newer than the log, written with the same "
+        "options; skipped by default)",
     )
 
 
@@ -175,6 +178,8 @@ def _progress(verb: str):
 def _finish(report, verb: str, started: float) -> int:
     """Say what the batch did on stderr; the exit status."""
     progress("")
+    for note in report.notes:
+        warning(note)
     counts = report.counts()
     done = sum(counts.values())
     skipped = sum(row.get("action") == "skipped" for row in report.rows)
@@ -204,6 +209,8 @@ def run_batch_calibrate(args) -> int:
         "loss": args.loss,
         "loss_scale": args.loss_scale,
         "allow_unconverged": args.allow_unconverged,
+        "require_identifiable": not args.allow_unidentifiable,
+        "threads": args.threads,
     }
     report = calibrate_many(
         _sources(args.logs),

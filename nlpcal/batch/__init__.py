@@ -12,8 +12,10 @@ of the summary with its status and the reason, and never stops the others. `summ
 output folder has one row per log, in the order of the logs, written when the run ends (also when
 it is interrupted, with the logs done so far).
 
-A log whose output file is newer than the log (and than its parameters, for `apply_many`) is not
-done again unless `force`: its row is rebuilt from that output file. On a cluster each worker
+A log whose output file is newer than the log (and than its parameters, for `apply_many`) and was
+written with the same options (`nlpcal.batch.ledger`, `DIR/batch.json`) is not done again unless
+`force`: its row is rebuilt from that output file. A log that fails loses the output an earlier
+run wrote for it. On a cluster each worker
 process imports nlpcal once and builds each CasADi problem once (`nlpcal.nlp.solver`), so the
 cost of a small log is its reading, its solves and its writing.
 
@@ -26,32 +28,42 @@ Statuses and the exit status `nlpcal calibrate` or `nlpcal apply` would have giv
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
-from . import cluster
-from .calibration import CalibrationResult, calibrate_log
-from .correction import (
-    OUTLIER_COLUMN,
-    TOTAL_COLUMN,
-    Correction,
-    load_parameters,
-    outliers,
-    read_log_for,
+from .. import cluster
+from ..calibration import CalibrationResult
+from ..correction import load_parameters
+from ..errors import InputError
+from ..io import write_csv_atomic
+from ..io.sources import COMPRESSED_SUFFIXES, is_parquet, log_paths
+from ..models.zhou2010 import PARAMETER_NAMES
+from .ledger import FILE as LEDGER
+from .ledger import Ledger, digest
+from .tasks import (
+    STATUSES,
+    WARNING_SEPARATOR,
+    ApplyTask,
+    CalibrateTask,
+    calibration_row,
+    failure,
+    status_row,
 )
-from .drift.fit import DriftFit
-from .errors import InputError, QualityError, SolveError, WriteError
-from .io import read_log, read_table, write_bytes_atomic, write_csv_atomic, write_table
-from .io.sources import COMPRESSED_SUFFIXES, is_parquet, log_paths, write_parquet
-from .models.zhou2010 import PARAMETER_NAMES
-from .statistics import field_statistics
 
-#: Status of a log -> the exit status of the single command.
-STATUSES = {"ok": 0, "quality-failed": 1, "solve-failed": 1, "bad-input": 2, "error": 1}
+__all__ = [
+    "APPLY_COLUMNS",
+    "CALIBRATION_COLUMNS",
+    "STATUSES",
+    "WARNING_SEPARATOR",
+    "BatchReport",
+    "apply_many",
+    "calibrate_many",
+    "failure",
+    "output_names",
+]
+
 SUMMARY = "summary.csv"
 PARAMS_SUFFIX = ".params.json"
 CORRECTED_TAG = ".corrected"
@@ -92,8 +104,6 @@ APPLY_COLUMNS = (
     "seconds",
 )
 INTEGER_COLUMNS = {"exit_status", "n_samples", "outliers"}
-#: Joins the warnings of a log in one cell.
-WARNING_SEPARATOR = " | "
 
 
 @dataclass
@@ -106,6 +116,7 @@ class BatchReport:
     columns: tuple = CALIBRATION_COLUMNS
     interrupted: bool = False
     total: int = 0
+    notes: list = field(default_factory=list)
 
     def counts(self) -> dict:
         """How many logs ended in each status."""
@@ -165,145 +176,6 @@ def _common_parts(parts_list) -> tuple:
     return tuple(common)
 
 
-def failure(exc: BaseException) -> tuple:
-    """(status, message) of a log whose task raised `exc`."""
-    message = " ".join(str(exc).split()) or type(exc).__name__
-    if isinstance(exc, QualityError):  # without the Python keywords that would override it
-        return "quality-failed", " ".join(exc.reason.split())
-    if isinstance(exc, SolveError):
-        status = f" (IPOPT status: {exc.status})" if exc.status else ""
-        return "solve-failed", message + status
-    if isinstance(exc, WriteError):
-        return "error", message
-    if isinstance(exc, InputError):
-        return "bad-input", message
-    if isinstance(exc, OSError):
-        where = f"{exc.filename}: " if exc.filename else ""
-        return "bad-input", f"{where}{exc.strerror or message}"
-    if isinstance(exc, (MemoryError, RecursionError)):
-        return "bad-input", f"the input is too large to process ({type(exc).__name__})"
-    return "error", f"{type(exc).__name__}: {message} (a defect of nlpcal, or the worker died)"
-
-
-def _status(row: dict, status: str, message: str = "") -> dict:
-    row.update(status=status, exit_status=STATUSES[status], message=message)
-    return row
-
-
-def calibration_row(result: CalibrationResult) -> dict:
-    """The summary columns a calibration result fills."""
-    errors = result.standard_errors or {}
-    row: dict = {}
-    for name in PARAMETER_NAMES:
-        row[name] = result.parameters[name]
-        row[f"{name}_se"] = errors.get(name)
-    coverage = result.identifiability.get("coverage", {})
-    row.update(
-        std_measured=result.statistics[0]["std"] if result.statistics else None,
-        std_corrected=result.statistics[-1]["std"] if result.statistics else None,
-        coverage_fraction=coverage.get("fraction"),
-        warnings=WARNING_SEPARATOR.join(result.warnings),
-        unit=result.unit,
-        n_samples=result.n_samples,
-    )
-    return row
-
-
-@dataclass(frozen=True)
-class CalibrateTask:
-    """Calibrate one log and write its parameters: what a worker runs for each log.
-
-    read_options : keyword arguments of `nlpcal.io.read_log`.
-    options : keyword arguments of `nlpcal.calibration.calibrate_log`.
-    """
-
-    read_options: dict = field(default_factory=dict)
-    options: dict = field(default_factory=dict)
-
-    def __call__(self, job: tuple) -> dict:
-        log_path, output = job
-        started = time.perf_counter()
-        row: dict = {"log": str(log_path), "action": "run"}
-        try:
-            log = read_log(log_path, **self.read_options)
-            result = calibrate_log(log, **self.options)
-            row.update(calibration_row(result))
-            row["warnings"] = WARNING_SEPARATOR.join(
-                [*getattr(log, "warnings", []), *result.warnings]
-            )
-            result.save(output)
-            row["output"] = str(output)
-            _status(row, "ok")
-        except Exception as exc:
-            if isinstance(exc, QualityError) and isinstance(exc.result, CalibrationResult):
-                row.update(calibration_row(exc.result))
-            _status(row, *failure(exc))
-        row["seconds"] = time.perf_counter() - started
-        return row
-
-
-@dataclass(frozen=True)
-class ApplyTask:
-    """Correct one log and write it: what a worker runs for each log of `apply_many`."""
-
-    read_options: dict = field(default_factory=dict)
-    flag_outliers: bool = False
-    drift: str | None = None
-    temperature_column: str | None = None
-
-    def __call__(self, job: tuple) -> dict:
-        log_path, params_path, output = job
-        started = time.perf_counter()
-        row: dict = {"log": str(log_path), "params": str(params_path or ""), "action": "run"}
-        try:
-            if params_path and not Path(params_path).exists():
-                raise InputError(
-                    f"no parameters for this log: {params_path} does not exist (its "
-                    f"calibration failed, or it was not calibrated)"
-                )
-            parameters = load_parameters(params_path) if params_path else None
-            table = read_table(log_path, header=self.read_options.get("header"), text=True)
-            correction = Correction.plan(
-                parameters,
-                DriftFit.load(self.drift) if self.drift else None,
-                self.temperature_column,
-                log_columns=table.columns,
-            )
-            log = read_log_for(table, correction, **self.read_options)
-            corrected = correction.apply(log)
-            extra = {}
-            if self.flag_outliers:
-                extra[OUTLIER_COLUMN] = flags = outliers(correction, corrected)
-                row["outliers"] = int(flags.sum())
-            frame = log.written_back(corrected, TOTAL_COLUMN, extra)
-            if is_parquet(log_path):
-                write_bytes_atomic(output, write_parquet(frame))
-            else:  # in the layout of the log, as `nlpcal apply` writes it
-                write_table(frame, log.layout, output)
-            row.update(
-                output=str(output),
-                n_samples=log.n,
-                std_measured=field_statistics(log.samples)["std"],
-                std_corrected=float(np.std(np.linalg.norm(corrected, axis=1))),
-                warnings=WARNING_SEPARATOR.join([*log.warnings, *log.notes, *correction.notes]),
-                unit=log.base_unit,
-            )
-            _status(row, "ok")
-        except Exception as exc:
-            _status(row, *failure(exc))
-        row["seconds"] = time.perf_counter() - started
-        return row
-
-
-def _newer(output: Path, *inputs) -> bool:
-    """Whether `output` exists and is newer than every input file."""
-    try:
-        written = output.stat().st_mtime
-        return all(written > Path(p).stat().st_mtime for p in inputs if p)
-    except OSError:
-        return False
-
-
 def _out_dir(out_dir) -> Path:
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
@@ -315,16 +187,23 @@ def _out_dir(out_dir) -> Path:
     return out_dir
 
 
-def _run(jobs, task, reused, out_dir: Path, columns, scheduler, workers, progress) -> BatchReport:
-    """Run `task` on every job not in `reused` (log -> its row), write the summary."""
+def _run(jobs, task, reused, ledger: Ledger, key: str, columns, scheduler, workers, progress):
+    """Run `task` on every job (log, ..., output) not in `reused` (log -> its row); write the
+    summary and the ledger."""
     rows = dict(reused)
     todo = [job for job in jobs if str(job[0]) not in rows]
-    report = BatchReport([], out_dir / SUMMARY, columns, total=len(jobs))
+    report = BatchReport([], ledger.path.parent / SUMMARY, columns, total=len(jobs))
+    if ledger.note:
+        report.notes.append(ledger.note)
 
     def finished(job, row):
         if isinstance(row, BaseException):
-            row = _status({"log": str(job[0]), "action": "run"}, *failure(row))
+            row = status_row({"log": str(job[0]), "action": "run"}, *failure(row))
         rows[str(job[0])] = row
+        if row["status"] == "ok":
+            ledger.written(job[-1], key)
+        else:
+            ledger.failed(job[-1])
         if progress is not None:
             progress(len(rows), len(jobs), row)
 
@@ -337,6 +216,7 @@ def _run(jobs, task, reused, out_dir: Path, columns, scheduler, workers, progres
     finally:
         report.rows = [rows[str(job[0])] for job in jobs if str(job[0]) in rows]
         write_csv_atomic(report.summary, report.table())
+        ledger.save()
     return report
 
 
@@ -365,17 +245,19 @@ def calibrate_many(
     paths = _paths(source, out_dir)
     names = output_names(paths)
     jobs = [(path, out_dir / f"{names[path]}{PARAMS_SUFFIX}") for path in paths]
+    task = CalibrateTask(dict(read_options or {}), dict(options or {}))
+    key = digest("calibrate", read_options=task.read_options, options=task.options)
+    ledger = Ledger(out_dir)
     reused = {}
     for path, output in jobs:
-        if not force and _newer(output, path):
+        if not force and ledger.current(output, key, path):
             try:
                 result = CalibrationResult.load(output)
             except InputError:
                 continue  # an unreadable output is made again
             row = {"log": str(path), **calibration_row(result), "output": str(output)}
-            reused[str(path)] = _status({**row, "action": "skipped", "seconds": 0.0}, "ok")
-    task = CalibrateTask(dict(read_options or {}), dict(options or {}))
-    return _run(jobs, task, reused, out_dir, CALIBRATION_COLUMNS, scheduler, workers, progress)
+            reused[str(path)] = status_row({**row, "action": "skipped", "seconds": 0.0}, "ok")
+    return _run(jobs, task, reused, ledger, key, CALIBRATION_COLUMNS, scheduler, workers, progress)
 
 
 def apply_many(
@@ -411,13 +293,22 @@ def apply_many(
             params = Path(parameters) / f"{names[path]}{PARAMS_SUFFIX}"
         suffix = ".parquet" if is_parquet(path) else ".csv"
         jobs.append((path, params, out_dir / f"{names[path]}{CORRECTED_TAG}{suffix}"))
+    task = ApplyTask(dict(read_options or {}), flag_outliers, drift, temperature_column)
+    key = digest(
+        "apply",
+        read_options=task.read_options,
+        parameters=str(parameters),
+        flag_outliers=flag_outliers,
+        drift=str(drift),
+        temperature_column=temperature_column,
+    )
+    ledger = Ledger(out_dir)
     reused = {}
     for path, params, output in jobs:
-        if not force and _newer(output, path, params, drift):
+        if not force and ledger.current(output, key, path, params, drift):
             row = {"log": str(path), "params": str(params or ""), "output": str(output)}
-            reused[str(path)] = _status({**row, "action": "skipped", "seconds": 0.0}, "ok")
-    task = ApplyTask(dict(read_options or {}), flag_outliers, drift, temperature_column)
-    return _run(jobs, task, reused, out_dir, APPLY_COLUMNS, scheduler, workers, progress)
+            reused[str(path)] = status_row({**row, "action": "skipped", "seconds": 0.0}, "ok")
+    return _run(jobs, task, reused, ledger, key, APPLY_COLUMNS, scheduler, workers, progress)
 
 
 def _paths(source, out_dir: Path) -> list:
@@ -430,7 +321,11 @@ def _paths(source, out_dir: Path) -> list:
         for p in paths
         if not (
             p.resolve().parent == out
-            and (p.name == SUMMARY or CORRECTED_TAG in p.name or p.name.endswith(PARAMS_SUFFIX))
+            and (
+                p.name in (SUMMARY, LEDGER)
+                or CORRECTED_TAG in p.name
+                or p.name.endswith(PARAMS_SUFFIX)
+            )
         )
     ]
     if not paths:
