@@ -225,6 +225,22 @@ def test_turns_about_one_axis_never_give_a_result(method, reference, axis, half_
         assert set(flat["parameters"]) <= set(info.value.result.identifiability["not_identifiable"])
 
 
+@pytest.mark.parametrize("tilt_deg", [1.0, 2.0])
+def test_a_few_degrees_of_tilt_are_not_a_result_either(tilt_deg):
+    # Turns about z with tilts of a degree or two: the Hessian is just regular, but the estimates
+    # of the z parameters lie many standard errors from the truth (bias, not noise).
+    rng = np.random.default_rng(8)
+    samples, _ = make_log(
+        n=3000, noise=2.5, seed=9, directions=band_directions(3000, rng, tilt_deg)
+    )
+    with pytest.raises(QualityError) as info:
+        calibrate(samples, method="joint")
+    assert "lie nearly in one plane" in str(info.value)
+    flat = info.value.result.identifiability["flatness"]
+    assert flat["planar"] and not flat["within_noise"]
+    assert {"s_z", "alpha_deg", "beta_deg"} <= set(flat["parameters"])
+
+
 def test_a_narrow_band_of_tilts_is_not_taken_for_a_plane():
     rng = np.random.default_rng(8)
     samples, _ = make_log(n=3000, noise=1.0, seed=9, directions=band_directions(3000, rng, 20))

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters, correct
+from ..robust import robust_std
 
 #: The 26 directions of a cube's faces, edges and corners: the bins of `direction_coverage`.
 _BIN_DIRECTIONS = np.array(
@@ -24,11 +25,17 @@ _BIN_DIRECTIONS = np.array(
 _BIN_DIRECTIONS /= np.linalg.norm(_BIN_DIRECTIONS, axis=1, keepdims=True)
 #: Fewer bins than this fraction are reported as poor attitude coverage.
 COVERAGE_WARN = 0.5
-#: Samples whose cloud is thinner than this many residual standard deviations across its flattest
+#: Samples whose cloud is thinner than this many noise standard deviations across its flattest
 #: direction lie in one plane within the noise: the attitudes were turns about one axis only.
 PLANAR_NOISE = 5.0
-#: ... or thinner than this fraction of the cloud's radius, whatever the noise (noise-free logs).
-PLANAR_RELATIVE = 1e-3
+#: A cloud thinner than this fraction of its extent along the plane lies nearly in one plane:
+#: turns about one axis with tilts of a few degrees (+/-3 deg of tilt give about 0.04). The
+#: parameters of the axes along the normal are then so weakly determined that the quadratic
+#: standard errors no longer describe them (estimates 4-10 standard errors off at +/-1.5 to 1
+#: deg of tilt, none of it noise), so they count as not determined.
+NEARLY_PLANAR = 0.05
+#: Leading rows whose successive differences tell the noise across the plane.
+HEAD_ROWS = 1024
 #: A sensor axis whose share of the plane's normal exceeds this is one the plane leaves blind.
 PLANAR_AXIS_SHARE = 0.2
 #: The sensor axes each parameter involves (alpha couples x and z, beta y and z, gamma x and y).
@@ -73,23 +80,33 @@ def flatness(samples, noise: float) -> dict:
     Turns about one axis put the field on one circle, and an affine image of a circle is a planar
     ellipse: a whole family of ellipsoids passes through it, so the offset, scale and angles of the
     axes along the plane's normal are not determined, whatever the solver returns (the spread of
-    |B1| even shrinks as the blind axis is scaled towards zero). `noise` is the residual standard
-    deviation of the fit [field unit].
+    |B1| even shrinks as the blind axis is scaled towards zero). The cloud lies in one plane when
+    its thickness is within PLANAR_NOISE noise levels, and nearly in one when it is below
+    NEARLY_PLANAR of its extent. The noise level is the smaller of `noise` (the residual standard
+    deviation of the fit, which model misfit inflates) [field unit] and the noise of successive
+    samples across the plane (1.4826 MAD of their differences / sqrt 2: a log in time order).
 
-    Returns the out-of-plane standard deviation and the in-plane one [field unit], the unit normal
-    in sensor axes, whether the samples are planar, and the parameters the plane leaves blind.
+    Returns the out-of-plane and in-plane standard deviations [field unit], the unit normal in
+    sensor axes, whether the samples are planar (or nearly), and the parameters the plane leaves
+    blind.
     """
     sub = subsample(samples)
     centred = sub - sub.mean(axis=0)
     values, vectors = np.linalg.eigh(centred.T @ centred / max(sub.shape[0], 1))
     thickness, extent = np.sqrt(np.clip(values[[0, 2]], 0.0, None))
     normal = vectors[:, 0] * (1.0 if vectors[np.argmax(np.abs(vectors[:, 0])), 0] > 0 else -1.0)
-    planar = bool(thickness <= max(PLANAR_NOISE * noise, PLANAR_RELATIVE * extent))
+    across = np.diff(np.asarray(samples[:HEAD_ROWS], dtype=float) @ normal)
+    successive = robust_std(across) / np.sqrt(2.0) if across.size > 8 else np.inf
+    level = min(noise, successive)
+    within_noise = bool(thickness <= PLANAR_NOISE * level)
+    planar = within_noise or bool(thickness < NEARLY_PLANAR * extent)
     blind_axes = {axis for axis, share in zip("xyz", np.abs(normal)) if share > PLANAR_AXIS_SHARE}
     return {
         "planar": planar,
+        "within_noise": within_noise,
         "out_of_plane_std": float(thickness),
         "in_plane_std": float(extent),
+        "noise_std": float(level),
         "normal": [float(v) for v in normal],
         "parameters": [n for n in PARAMETER_NAMES if blind_axes & set(_AXES_OF[n])]
         if planar
@@ -100,13 +117,24 @@ def flatness(samples, noise: float) -> dict:
 def planar_message(flat: dict, unit: str) -> str:
     """Why a planar log cannot be calibrated, and what would help: one sentence."""
     normal = ", ".join(f"{v:+.2f}" for v in flat["normal"])
+    thickness, extent = flat["out_of_plane_std"], flat["in_plane_std"]
+    if flat.get("within_noise", True):
+        how = "lie in one plane"
+        why = (
+            "the sensor was turned about one axis only, and a whole family of ellipsoids "
+            "passes through one circle of directions"
+        )
+    else:
+        how = "lie nearly in one plane"
+        why = (
+            "the sensor was turned about one axis with a few degrees of tilt at most, and a "
+            "whole family of ellipsoids fits so thin a band of directions almost equally well"
+        )
     return (
-        f"the samples lie in one plane (their spread across it is {flat['out_of_plane_std']:.3g} "
-        f"{unit}, along it {flat['in_plane_std']:.3g} {unit}; normal ({normal}) in sensor axes): "
-        f"the sensor was turned about one axis only, and a whole family of ellipsoids passes "
-        f"through one circle of directions, so the data do not determine "
-        f"{', '.join(flat['parameters'])}; rotate the sensor through more attitudes, tilting it "
-        f"out of that plane"
+        f"the samples {how} (their spread across it is {thickness:.3g} {unit}, "
+        f"{thickness / extent:.1%} of that along it; normal ({normal}) in sensor axes): {why}, "
+        f"so the data do not determine {', '.join(flat['parameters'])}; rotate the sensor "
+        f"through more attitudes, tilting it out of that plane"
     )
 
 
