@@ -1,4 +1,4 @@
-"""Regenerate the figures and tables of docs/comparison.md (issue 3) with one command:
+"""Regenerate the figures and tables of docs/comparison.md with one command:
 
     python docs/comparison.py            # rewrite the figures and the generated blocks
     python docs/comparison.py --check    # compare the tables (wall times aside); exit 1 on drift

@@ -63,6 +63,10 @@ def scheduler(spec=None, workers: int | None = None):
 
     workers : worker processes of "local" or "processes" (default: one per core).
     """
+    if workers is not None and (
+        isinstance(workers, bool) or int(workers) != workers or workers < 1
+    ):
+        raise InputError(f"workers must be a whole number of at least 1, got {workers!r}")
     if spec is None:
         yield None
         return
@@ -121,6 +125,8 @@ def blas_one_thread() -> None:
 def _connect(distributed, address: str):
     """A Client of a running scheduler, or InputError saying why there is none."""
     is_file = address.endswith(".json") or Path(address).is_file()
+    if is_file and not Path(address).is_file():  # Dask would wait for it to appear
+        raise InputError(f"{address}: no such scheduler file")
     try:
         if is_file:
             return distributed.Client(scheduler_file=address, timeout=CONNECT_TIMEOUT_S)

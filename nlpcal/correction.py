@@ -137,7 +137,7 @@ class Correction:
 
     def apply(self, log: Log) -> np.ndarray:
         """Corrected samples of the log. [base unit]"""
-        units.check_compatible(self.unit, log.base_unit, "the log")
+        units.check_compatible(self.unit, log.base_unit, "the log", "the calibration")
         if self.temperature_column is None:
             if self.parameters is None:
                 raise InputError("nothing to apply: give parameters or a drift file")

@@ -89,11 +89,15 @@ def from_base(values, unit: str):
     return values if factor == 1.0 else values / factor
 
 
-def check_compatible(unit: str, other: str, what: str = "the reference") -> None:
-    """Counts and field units do not mix: both "raw" or neither."""
+def check_compatible(
+    unit: str, other: str, what: str = "the reference", against: str = "the samples"
+) -> None:
+    """Counts and field units do not mix: both "raw" or neither (`what` is in `other`,
+    `against` in `unit`)."""
     if (unit == "raw") != (other == "raw"):
+        verb = "are" if against.endswith("s") else "is"
         raise InputError(
-            f"{what} is in {other!r} but the samples are in {unit!r}; counts (raw) "
+            f"{what} is in {other!r} but {against} {verb} in {unit!r}; counts (raw) "
             f"and field units cannot be converted into each other"
         )
 

@@ -1,4 +1,4 @@
-"""Issue 3: staged cycle vs joint IPOPT vs the paper's conjugate gradient, attitude sets, CLI.
+"""Staged cycle vs joint IPOPT vs the paper's conjugate gradient, attitude sets, CLI.
 
 The Table 1 rows of fixed cases are compared with tests/expected/table1_*.json within the
 tolerance documented in tests/regenerate_expected.py (1e-3 nT + 1e-7 relative); the files are

@@ -207,7 +207,7 @@ def test_attitude_warns_near_vertical():
 
 @pytest.mark.parametrize("seed", [11, 12, 13])
 def test_turn_mode_meets_done_when_accuracy(seed):
-    """Issue 7 'Done when': 48 turn samples, 2000 random attitudes with |pitch| <= 85 deg.
+    """48 turn samples, 2000 random attitudes with |pitch| <= 85 deg.
 
     Roll within +-0.15 deg where |pitch| <= 60 deg, pitch within +-0.15 deg, heading within
     +-0.5 deg and heading RMS <= 0.1 deg (the paper's Table 2 claims).

@@ -262,3 +262,19 @@ def test_csv_in_blocks_reads_like_read_log(tmp_path, spiky_log):
     assert "dropped 1 row(s)" in " ".join(lazy.notes)
     with dask.config.set(scheduler="threads"), pytest.raises(nlpcal.InputError, match="my_uT"):
         read_lazy_log(pattern, block_bytes=20_000, reference_column="proton_nT")
+
+
+def test_a_scheduler_that_cannot_start_is_bad_usage_at_once(tmp_path, capsys):
+    samples, _ = make_log(n=300, noise=1.0, seed=3)
+    path = tmp_path / "log.csv"
+    pd.DataFrame(samples, columns=["bx", "by", "bz"]).to_csv(path, index=False)
+    missing = tmp_path / "no" / "scheduler.json"  # dask.distributed would wait for it forever
+    for argv in (
+        ("--scheduler", missing),
+        ("--scheduler", "local", "--workers", "0"),
+        ("--scheduler", "processes", "--workers", "-1"),
+    ):
+        code, out, err = run(capsys, "calibrate", path, *argv)
+        assert code == 2 and out == "" and "Traceback" not in err, (argv, err)
+    code, _, err = run(capsys, "calibrate", path, "--workers", "2", "--method", "joint")
+    assert code == 0 and "--workers only sizes --scheduler" in err

@@ -252,6 +252,10 @@ def _run_calibrate(args) -> int:
         warning(
             f"{', '.join(staged_only)} only steer the staged cycle; the joint solve ignores them"
         )
+    if args.loss_scale is not None and args.loss == "l2":
+        warning("--loss-scale only scales a robust loss (--loss huber or cauchy); ignored")
+    if args.workers is not None and not args.scheduler:
+        warning("--workers only sizes --scheduler local or processes; ignored")
     started = time.perf_counter()
     extra = [args.temperature_column] if args.temperature_column else []
     progress(f"reading {args.log} ...")

@@ -1,4 +1,4 @@
-"""Staged cycle vs joint IPOPT vs the paper's conjugate gradient, on one log (issue 3).
+"""Staged cycle vs joint IPOPT vs the paper's conjugate gradient, on one log.
 
 Section 4 of [1] argues that solving the nine parameters of Eq. 4 at once converges badly (mixed
 units and magnitudes make the stopping rule of its conjugate gradient hard to set) and that
@@ -49,7 +49,7 @@ from .analysis import (
 )
 from .conjugate_gradient import CGOptions, run_cg_joint, run_cg_staged
 
-#: Keys of compare.json that hold Table 1 rows (issue 3; keep exactly).
+#: Keys of compare.json that hold Table 1 rows (a contract: keep exactly).
 ROW_KEYS = ("staged", "joint", "cg_joint", "cg_staged")
 #: The statistics every row carries.
 ROW_FIELDS = ("max", "min", "mean", "std", "range", "objective", "iterations", "wall_s")
