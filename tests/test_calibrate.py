@@ -406,7 +406,7 @@ def test_a_failure_blames_the_coverage_only_when_it_is_to_blame(noisy, monkeypat
     with pytest.raises(SolveError) as info:
         calibrate(noisy, method="joint")
     assert "rotate the sensor" not in str(info.value)
-    assert "coverage is not the cause" in str(info.value)
+    assert "coverage is not the likely cause; try --method staged" in str(info.value)
 
 
 @pytest.mark.parametrize("reference", [None, PAPER_FIELD])

@@ -966,3 +966,13 @@ def test_free_rotation_improves_heading_on_broad(broad_log, tmp_path, capsys):
     # as shipped: no gain, and no marked loss either
     assert shipped_after["slow"] < shipped_before["slow"] + 0.8
     assert shipped_after["all"] < shipped_before["all"] + 1.0
+
+
+def test_free_rotation_mode_points_at_a_turn_column_it_was_not_given(tmp_path, capsys):
+    out = tmp_path / "sim"
+    assert main(["simulate", "--preset", "qiu2017", "-o", str(out), "-n", "50", "-q"]) == 0
+    capsys.readouterr()
+    code = main(["compass", "calibrate", str(out / "turns.csv"), "-o", str(tmp_path / "c.json")])
+    err = capsys.readouterr().err
+    assert code == 0 and "warning: no --turn-column" in err
+    assert "--turn-column turn selects turn mode" in err

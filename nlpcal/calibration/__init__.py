@@ -83,8 +83,6 @@ def calibrate(
     progress : None, or called with (cycle, Table 1 row) after every staged cycle.
     threads : threads of the passes over the data (default: the cores available to the process,
         its CPU affinity within its cgroup's quota); BLAS is held to one thread meanwhile.
-    threads : threads of the passes over the data (default: the cores available to the process,
-        its CPU affinity within its cgroup's quota); BLAS is held to one thread meanwhile.
     require_identifiable : raise QualityError (holding the result) when the data leave parameters
         undetermined (a direction along which |B1| does not change, or a standard error above
         `diagnostics.UNDETERMINED`: 10 % of the field, 0.1, 10 deg); False returns the result
@@ -145,7 +143,7 @@ def calibrate(
                 theta, stop_reason = step.theta, "solved"
                 hs = scaled_hessian(problem.moments, theta, step)
         except SolveError as failure:
-            raise explain_failure(problem, failure, units.base_unit(unit)) from None
+            raise explain_failure(problem, failure, method, units.base_unit(unit)) from None
         final = rows[-1]
         errors, identifiability, covariance = uncertainty(
             problem, final["objective"], hs, final["residual_lag1_autocorrelation"], theta

@@ -219,11 +219,14 @@ def exact_optimum_shift(problem: Problem, theta, hs: np.ndarray, errors) -> floa
     return float(np.max(np.abs(shift) / np.where(sd > 0, sd, np.inf)))
 
 
-def explain_failure(problem: Problem, failure: SolveError, unit: str = "nT") -> SolveError:
+def explain_failure(
+    problem: Problem, failure: SolveError, method: str | None, unit: str = "nT"
+) -> SolveError:
     """Say which parameters the data do not determine, when IPOPT fails; blame the attitude
     coverage only when it is to blame.
 
-    The Hessian is taken where the failing solve started (failure.result).
+    The Hessian is taken where the failing solve started (failure.result). `method` is the one
+    that failed, whose alternative is suggested (None: no suggestion).
     """
     theta = failure.result
     if theta is None or not np.all(np.isfinite(theta)):
@@ -251,8 +254,9 @@ def explain_failure(problem: Problem, failure: SolveError, unit: str = "nT") -> 
         )
     if not weak:
         return SolveError(
-            f"{failure}: the attitudes determine every parameter, so the coverage is not the "
-            f"cause; try the other method (--method joint or staged)",
+            f"{failure}: where the solve started, the attitudes determine every parameter, so "
+            f"the coverage is not the likely cause"
+            + (f"; try --method {'staged' if method == 'joint' else 'joint'}" if method else ""),
             failure.status,
             result=theta,
         )

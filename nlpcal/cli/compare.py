@@ -132,6 +132,8 @@ def run(args) -> int:
     for message in result.warnings:
         warning(message)
     emit_json(result.to_dict(), args.output)
+    if args.output:
+        warn(f"wrote {args.output}")
     if png is not None:
         write_bytes_atomic(args.plot, png)
         warn(f"wrote {args.plot}")

@@ -249,9 +249,16 @@ def run_calibrate(args) -> int:
     )
     report_log(log)
     if not args.turn_column:
-        warn(
+        turns = [str(c) for c in log.frame.columns if "turn" in str(c).lower()]
+        hint = (
+            f"; the log has a column '{turns[0]}': --turn-column {turns[0]} selects turn mode, "
+            f"the paper's protocol"
+            if turns
+            else ""
+        )
+        (warning if turns else warn)(
             "no --turn-column: free-rotation mode (the sensor pair's orientation relative to the "
-            "housing cannot be found; attitudes refer to the accelerometer's axes)"
+            f"housing cannot be found; attitudes refer to the accelerometer's axes){hint}"
         )
     with solver_log():
         result = calibrate_sensor_log(
@@ -263,6 +270,8 @@ def run_calibrate(args) -> int:
     for message in result.warnings:
         warning(message)
     emit_json(result.to_dict(), args.output)
+    if args.output:
+        warn(f"wrote {args.output}")
     for sensor in (result.magnetometer, result.accelerometer):
         angles = sensor.to_dict()["mounting_deg"]
         warn(
@@ -349,5 +358,7 @@ def run_evaluate(args) -> int:
     if stats["rows_skipped"]:
         warn(f"skipped {stats['rows_skipped']} row(s) without finite estimated and true angles")
     emit_json(stats, args.output)
+    if args.output:
+        warn(f"wrote {args.output}")
     say(format_evaluation(stats))
     return 0

@@ -116,4 +116,6 @@ def run_fit(args) -> int:
     for message in fit.warnings:
         warning(message)
     emit_json(fit.to_dict(), args.output)
+    if args.output:
+        warn(f"wrote {args.output}")
     return 0

@@ -220,7 +220,7 @@ def compare(
             start = joint_start(moments)
             joint_step, joint_rows, joint_stages = run_joint(problem, start)  # the CG's start
         except SolveError as failure:
-            raise explain_failure(problem, failure) from None
+            raise explain_failure(problem, failure, None) from None
         joint_theta = joint_step.theta
         joint = joint_rows[-1]
         joint["status"] = joint_stages[-1]["status"]
