@@ -278,3 +278,21 @@ def test_a_scheduler_that_cannot_start_is_bad_usage_at_once(tmp_path, capsys):
         assert code == 2 and out == "" and "Traceback" not in err, (argv, err)
     code, _, err = run(capsys, "calibrate", path, "--workers", "2", "--method", "joint")
     assert code == 0 and "--workers only sizes --scheduler" in err
+
+
+def test_the_exact_objective_at_many_points_takes_one_pass(spiky_log):
+    from nlpcal.statistics import exact_objectives, field_statistics
+
+    rng = np.random.default_rng(4)
+    truth = np.array([-71.55, 188.13, 116.29, 0.0072, -0.0024, -0.0049, -0.0408, 0.0225, -0.0047])
+    thetas = [truth + rng.normal(0.0, [1.0] * 3 + [1e-4] * 3 + [1e-4] * 3) for _ in range(18)]
+    for reference in (None, PAPER_FIELD, np.full(len(spiky_log), PAPER_FIELD)):
+        expected = [field_statistics(spiky_log, t, reference)["objective"] for t in thetas]
+        np.testing.assert_allclose(exact_objectives(spiky_log, thetas, reference), expected)
+        with dask.config.set(scheduler="sync"):
+            lazy = passes.LazySamples(da.from_array(spiky_log, chunks=(7_000, 3)))
+            lazy.survey()
+            before = lazy.passes
+            values = exact_objectives(lazy, thetas, reference)
+        assert lazy.passes == before + 1
+        np.testing.assert_allclose(values, expected, rtol=1e-9)

@@ -17,7 +17,7 @@ from ..moments import Moments
 from ..nlp import blocks
 from ..nlp.blocks import block_step, objective_function, pack, variable_scale
 from ..robust import robust_std
-from ..statistics import field_statistics
+from ..statistics import exact_objectives, field_statistics
 from .coverage import COVERAGE_WARN, direction_coverage, flatness, planar_message
 from .problem import Problem
 
@@ -197,19 +197,19 @@ def residual_spread(problem: Problem, theta) -> dict:
 def exact_optimum_shift(problem: Problem, theta, hs: np.ndarray, errors) -> float | None:
     """How far the exact optimum lies from `theta`, in standard errors (largest over parameters).
 
-    One Newton step on the exact per-sample objective: its gradient by central differences
-    (18 passes over the data), the Hessian of the moment objective. Without a reference the step
-    stays in the gauge's null space.
+    One Newton step on the exact per-sample objective: its gradient by central differences (the
+    18 objectives in one pass over the data), the Hessian of the moment objective. Without a
+    reference the step stays in the gauge's null space.
     """
     if errors is None:
         return None
     scale = variable_scale(problem.moments.frame.radius)
     h = 1e-3  # in scaled variables: 1e-6 of the field for offsets, 1e-6 for scales, 1e-5 rad
-
-    def exact(x):
-        return field_statistics(problem.samples, theta + scale * x, problem.reference)["objective"]
-
-    grad = np.array([(exact(h * e) - exact(-h * e)) / (2 * h) for e in np.eye(9)])
+    steps = [sign * h * e for e in np.eye(9) for sign in (1.0, -1.0)]
+    values = exact_objectives(
+        problem.samples, [theta + scale * x for x in steps], problem.reference
+    )
+    grad = (values[0::2] - values[1::2]) / (2 * h)
     basis = gauge_basis(problem.moments)
     reduced = basis.T @ hs @ basis
     step = -basis @ np.linalg.solve(0.5 * (reduced + reduced.T), basis.T @ grad)
