@@ -27,7 +27,15 @@ from .. import passes, units, validation
 from ..errors import InputError
 from ..geomagnetic import ReferenceModel
 from . import sources
-from .logs import Log, reference_unit, sensor_unit, unit_check
+from .logs import (
+    Log,
+    constant_reference,
+    model_reference,
+    one_reference,
+    reference_unit,
+    sensor_unit,
+    unit_check,
+)
 from .rows import QUOTED_ROWS, RowScreen
 from .tables import column_name, log_files, named, numeric_columns, resolve_columns, unreadable
 
@@ -243,9 +251,7 @@ def read_lazy_log(
     are left out). A per-sample geomagnetic reference and extra columns (temperatures) need the
     log in memory (`read_log`).
     """
-    given = [reference_column, reference_field, reference_model]
-    if sum(value is not None for value in given) > 1:
-        raise InputError("give one reference: a column, a field or a geomagnetic model")
+    one_reference(reference_column, reference_field, reference_model)
     if extra_columns or (
         reference_model is not None
         and (reference_model.numeric_columns() or reference_model.time_column)
@@ -292,29 +298,17 @@ def read_lazy_log(
     )
     samples.passes += 1
     samples.timings.append(("read", time.perf_counter() - started))
-    reference, model = None, None
+    reference: passes.LazySamples | float | None = None
+    model = None
     if name is not None:
         reference = passes.LazySamples(table[:, 3], None if survey is None else survey.columns(3))
     passes.survey_together(samples, reference)
     if name is not None:
         reference = validation.reference(reference, samples.n, f"the reference column {name!r}")
     elif reference_model is not None:
-        if unit == "raw":
-            raise InputError(
-                "a geomagnetic model gives the field in nT, and raw counts cannot be compared "
-                "with it; give the log's unit (--unit)"
-            )
-        reference, model = reference_model.field({}, None)
-        notes.append(
-            f"reference field {model['total_nT']:.1f} nT from {model['name']} "
-            f"({model['package']} {model['package_version']})"
-        )
+        reference, model = model_reference(reference_model, unit, notes)
     elif reference_field is not None:
-        ref_unit = reference_field_unit or unit
-        units.check_compatible(unit, ref_unit)
-        reference = units.to_base(
-            validation.number(reference_field, "the reference field", positive=True), ref_unit
-        )
+        reference = constant_reference(reference_field, reference_field_unit, unit)
     blocks = len(samples.block_offsets())
     what = "Parquet row groups" if all(part.parquet for part in files) else "blocks"
     notes.append(f"the log stays in its files: {blocks} {what} read in every pass")

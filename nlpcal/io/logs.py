@@ -202,6 +202,36 @@ def screened(table: Table, wanted: list, drop_invalid: bool, notes: list, frame=
     return numeric.values[keep], kept, numeric.dropped + int((~keep).sum())
 
 
+def one_reference(column, field, model) -> None:
+    """InputError unless at most one of a reference column, field and model is given."""
+    if sum(value is not None for value in (column, field, model)) > 1:
+        raise InputError("give one reference: a column, a field or a geomagnetic model")
+
+
+def constant_reference(field, field_unit: str | None, unit: str) -> float:
+    """A known field magnitude in `field_unit` (default the log's `unit`), in the base unit."""
+    ref_unit = field_unit or unit
+    units.check_compatible(unit, ref_unit)
+    return units.to_base(validation.number(field, "the reference field", positive=True), ref_unit)
+
+
+def model_reference(model: ReferenceModel, unit: str, notes: list, columns=None, times=None):
+    """(reference [nT], the record of its source) from a geomagnetic model: constant, or per
+    sample from position `columns` and `times`; a note says the constant's value and source."""
+    if unit == "raw":
+        raise InputError(
+            "a geomagnetic model gives the field in nT, and raw counts cannot be compared "
+            "with it; give the log's unit (--unit)"
+        )
+    reference, source = model.field(columns or {}, times)
+    if np.ndim(reference) == 0:
+        notes.append(
+            f"reference field {source['total_nT']:.1f} nT from {source['name']} "
+            f"({source['package']} {source['package_version']})"
+        )
+    return reference, source
+
+
 def read_log(
     path,
     columns=None,
@@ -235,9 +265,7 @@ def read_log(
     header : force (True) or deny (False) a header row; None detects it.
     text : keep the table's cells as text (for writing the log back unchanged).
     """
-    given = [reference_column, reference_field, reference_model]
-    if sum(value is not None for value in given) > 1:
-        raise InputError("give one reference: a column, a field or a geomagnetic model")
+    one_reference(reference_column, reference_field, reference_model)
     notes: list = []
     model_columns = reference_model.numeric_columns() if reference_model else []
     time_column = reference_model.time_column if reference_model else None
@@ -300,28 +328,13 @@ def read_log(
             ref_unit,
         )
     elif reference_model is not None:
-        if unit == "raw":
-            raise InputError(
-                "a geomagnetic model gives the field in nT, and raw counts cannot be compared "
-                "with it; give the log's unit (--unit)"
-            )
         found = {c: extras[resolved[c]] for c in model_columns}
         times = None
         if time_column:
             times = (values[:, -1] * 1e9).astype("int64").astype("datetime64[ns]")
-        reference, source_of_reference = reference_model.field(found, times)
-        if np.ndim(reference) == 0:
-            notes.append(
-                f"reference field {source_of_reference['total_nT']:.1f} nT from "
-                f"{source_of_reference['name']} ({source_of_reference['package']} "
-                f"{source_of_reference['package_version']})"
-            )
+        reference, source_of_reference = model_reference(reference_model, unit, notes, found, times)
     elif reference_field is not None:
-        ref_unit = reference_field_unit or unit
-        units.check_compatible(unit, ref_unit)
-        reference = units.to_base(
-            validation.number(reference_field, "the reference field", positive=True), ref_unit
-        )
+        reference = constant_reference(reference_field, reference_field_unit, unit)
     return Log(
         path=source,
         columns=list(chosen),
