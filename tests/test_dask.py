@@ -296,3 +296,29 @@ def test_the_exact_objective_at_many_points_takes_one_pass(spiky_log):
             values = exact_objectives(lazy, thetas, reference)
         assert lazy.passes == before + 1
         np.testing.assert_allclose(values, expected, rtol=1e-9)
+
+
+def test_a_bad_value_on_dask_is_placed_as_the_reader_in_memory_places_it(tmp_path):
+    pytest.importorskip("pyarrow")
+    from nlpcal.errors import InputError
+    from nlpcal.io import read_log
+    from nlpcal.io.lazy import read_lazy_log
+
+    samples, _ = make_log(n=30_000, noise=1.0, seed=5)
+    frame = pd.DataFrame(samples, columns=["bx", "by", "bz"])
+    frame.loc[23_456, "by"] = np.nan
+    parquet = tmp_path / "log.parquet"
+    frame.to_parquet(parquet, index=False, row_group_size=10_000)
+    text = tmp_path / "log.csv"
+    frame.to_csv(text, index=False)
+    with pytest.raises(InputError) as memory:
+        read_log(parquet)
+    assert "data row 23457" in str(memory.value)
+    with dask.config.set(scheduler="sync"):
+        with pytest.raises(InputError) as lazy:
+            read_lazy_log(parquet)
+        assert "data row 23457" in str(lazy.value)
+        with pytest.raises(InputError) as blocks:
+            read_lazy_log(text, block_bytes=100_000)
+    message = str(blocks.value)
+    assert "rows counted from the block's start" in message and "data row 23457" not in message

@@ -65,14 +65,15 @@ def field_samples(values):
 
 
 def _table_of(spec):
-    """The table of one block: ("parquet", path, row group, columns, None) gives a pyarrow Table;
-    ("text", name, bytes, file, first block?) a DataFrame in the file's layout."""
-    kind, name, where, extra, first = spec
+    """The table of one block: ("parquet", path, row group, columns, its first row in the file)
+    gives a pyarrow Table; ("text", name, bytes, file, block number in the file) a DataFrame in
+    the file's layout."""
+    kind, name, where, extra, number = spec
     if kind == "parquet":
         return sources.parquet_row_group(name, where, extra)
     layout, columns = extra.layout, list(extra.preview.columns)
     options = layout.pandas_options()
-    if not first:  # the header row and comment lines are in the first block only
+    if number:  # the header row and comment lines are in the first block only
         options.update(header=None, names=columns if layout.header else None)
     try:
         frame = pd.read_csv(io.BytesIO(where), engine="c", **options)
@@ -113,17 +114,26 @@ def _finite_block(table, wanted, factors):
 def _block(spec, wanted, factors, drop_invalid: bool) -> tuple:
     """(values in the base unit, rows read, rows with a missing or non-numeric value, the
     RowScreen) of one block."""
-    kind, name, where, extra, _ = spec
+    kind, name, where, extra, number = spec
     table = _table_of(spec)
     values = _finite_block(table, wanted, factors)
     rows = table.num_rows if hasattr(table, "num_rows") else len(table)
     invalid = 0
     if values is None:  # numeric_columns says where a bad value is, or drops its row
-        frame = sources.arrow_frame(table) if kind == "parquet" else table
-        source = f"{name} (row group {where})" if kind == "parquet" else name
-        decimal = "." if kind == "parquet" else extra.layout.decimal
+        if kind == "parquet":  # rows counted from the file's first, as read_log counts them
+            frame, source, first_row = sources.arrow_frame(table), name, number
+            decimal = "."
+        else:  # a CSV block does not know how many rows came before it
+            frame, first_row, decimal = table, 0, extra.layout.decimal
+            source = f"{name} (its block {number + 1}, rows counted from the block's start)"
+            source = name if number == 0 else source
         numeric = numeric_columns(
-            frame, wanted, drop_invalid=drop_invalid, source=source, decimal=decimal
+            frame,
+            wanted,
+            drop_invalid=drop_invalid,
+            source=source,
+            decimal=decimal,
+            first_row=first_row,
         )
         values, invalid = numeric.values * factors, numeric.dropped
     screen = RowScreen(drop_repeats=drop_invalid)
@@ -153,8 +163,10 @@ def _specs(files, block_bytes: int) -> list:
     specs: list = []
     for part in files:
         if part.parquet:
+            first = 0
             for index, rows in enumerate(sources.parquet_row_groups(part.source)):
-                specs.append((("parquet", part.name, index, None, None), rows))
+                specs.append((("parquet", part.name, index, None, first), rows))
+                first += rows
             continue
         layout = part.layout
         whole = layout.compression or layout.encoding not in SPLITTABLE
@@ -166,7 +178,7 @@ def _specs(files, block_bytes: int) -> list:
             sample=False,
         )
         for k, block in enumerate(blocks[0]):
-            specs.append((("text", part.name, block, part, k == 0), None))
+            specs.append((("text", part.name, block, part, k), None))
     return specs
 
 

@@ -276,10 +276,12 @@ def numeric_columns(
     drop_invalid: bool = False,
     source: str = "log",
     decimal: str = ".",
+    first_row: int = 0,
 ) -> NumericColumns:
     """Take `columns` as a float array; non-numeric, empty or non-finite cells are errors.
 
-    With drop_invalid, such rows are dropped instead and counted.
+    With drop_invalid, such rows are dropped instead and counted. `first_row`: the data rows of
+    the source before the frame's first (for the row number in a message).
     """
     data = np.empty((len(frame), len(columns)))
     for k, name in enumerate(columns):
@@ -290,7 +292,7 @@ def numeric_columns(
         first = int(np.flatnonzero(~valid)[0])
         raise InputError(
             f"{source}: {bad} row(s) have a missing, non-numeric or non-finite value in "
-            f"{', '.join(columns)} (first at data row {first + 1}); fix them or pass "
+            f"{', '.join(columns)} (first at data row {first_row + first + 1}); fix them or pass "
             f"--drop-invalid"
         )
     return NumericColumns(values=data[valid], kept=valid, dropped=bad)
