@@ -429,7 +429,8 @@ def test_low_memory_refuses_a_ragged_row_like_the_default_reader(tmp_path):
     path.write_text("\n".join(lines) + "\n")
     for extra in ([], ["--low-memory"]):
         status, _, err = run(["calibrate", path, "--method", "joint", *extra])
-        assert status == 2 and "Expected 3 fields" in err and len(err.splitlines()) == 1
+        assert status == 2 and "has 4 fields where the lines before have 3" in err
+        assert len(err.splitlines()) == 1
 
 
 def test_written_json_is_strict(documents, tmp_path):

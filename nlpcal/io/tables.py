@@ -106,8 +106,19 @@ def _frame(name: str, source, layout: Layout, *, text: bool = False, **more) -> 
     return named(frame, layout), engine
 
 
+_RAGGED = re.compile(r"Expected (\d+) fields in line (\d+), saw (\d+)")
+
+
 def unreadable(name: str, layout: Layout, exc: Exception) -> InputError:
     """The one-sentence error of a text log that pandas' parser refuses."""
+    ragged = _RAGGED.search(str(exc))
+    if ragged:
+        expected, line, saw = ragged.groups()
+        return InputError(
+            f"{name}: line {line} has {saw} fields where the lines before have {expected} "
+            f"(read as a {layout.describe()} text log); fix or remove that line, since "
+            f"--drop-invalid drops rows with missing or non-numeric values, not ragged lines"
+        )
     return InputError(f"{name}: cannot be read as a {layout.describe()} text log ({_message(exc)})")
 
 
