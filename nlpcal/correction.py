@@ -30,6 +30,8 @@ TOTAL_COLUMN = "b_total"
 OUTLIER_COLUMN = "outlier"
 #: Note when a log's temperatures lie further than this outside the fitted range. [degC]
 EXTRAPOLATION_NOTE_DEGC = 1.0
+#: References further apart than this fraction are named when a log is compared with one. [1]
+REFERENCE_MISMATCH = 0.005
 #: Without a robust loss scale, a corrected sample is an outlier beyond this many robust standard
 #: deviations of the residuals (1.4826 MAD; a Gaussian exceeds 4 once in 16 000 samples). [1]
 OUTLIER_ROBUST_STDS = 4.0
@@ -181,6 +183,19 @@ def read_log_for(path, correction: Correction, *, reference_column=None, **kw) -
     )
 
 
+def _compare_references(correction: Correction, mean: float, unit: str) -> None:
+    """A note when the log's reference [unit] is not the one the calibration was made against:
+    the corrected |B1| follows the calibration's, and the RMSE then holds the difference."""
+    made = getattr(correction.parameters, "reference", None) or {}
+    calibrated = made.get("field", made.get("field_mean"))
+    if calibrated and abs(mean / calibrated - 1.0) > REFERENCE_MISMATCH:
+        correction.notes.append(
+            f"the calibration was made against a reference of {calibrated:.6g} {unit}, and the "
+            f"log's reference averages {mean:.6g} {unit} ({abs(mean / calibrated - 1):.1%} "
+            f"apart): the corrected row's RMSE includes that difference"
+        )
+
+
 def statistics_rows(log: Log, correction: Correction | None = None) -> tuple:
     """Table 1 rows of a log: measured, corrected (with parameters), corrected with temperature;
     with the log's reference every row carries the RMSE of Eq. 10 (Liu et al. 2022).
@@ -190,6 +205,9 @@ def statistics_rows(log: Log, correction: Correction | None = None) -> tuple:
     reference = log.reference
     rows = [{"label": "measured", **field_statistics(log.samples)}]
     if correction is not None and correction.parameters is not None:
+        if reference is not None:
+            mean = float(np.mean(np.asarray(reference, dtype=float)))
+            _compare_references(correction, mean, log.base_unit)
         params = correction.parameters.model  # the nine parameters (at t0 with a model)
         rows.append({"label": "corrected", **field_statistics(log.samples, params.theta)})
         if reference is not None:

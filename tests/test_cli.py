@@ -408,3 +408,21 @@ def test_no_command_writes_over_one_of_its_inputs(log_csv, tmp_path, capsys):
         code, out, err = run(capsys, *argv)
         assert code == 2 and "is also an input" in err, (argv, err)
         assert {p: p.read_bytes() for p in before} == before, argv
+
+
+def test_stats_says_when_the_reference_is_not_the_calibrations(log_csv, tmp_path, capsys):
+    params = tmp_path / "p.json"
+    argv = ("calibrate", log_csv, "--method", "joint", "--reference-field", PAPER_FIELD)
+    assert run(capsys, *argv, "-o", params)[0] == 0
+    code, _, err = run(
+        capsys, "stats", log_csv, "--params", params, "--reference-column", "proton_nT"
+    )
+    assert code == 0 and "the calibration was made against" not in err
+    other = tmp_path / "other.csv"
+    frame = pd.read_csv(log_csv)
+    frame["proton_nT"] = PAPER_FIELD * 1.02
+    frame.to_csv(other, index=False)
+    code, _, err = run(
+        capsys, "stats", other, "--params", params, "--reference-column", "proton_nT"
+    )
+    assert code == 0 and "(2.0% apart): the corrected row's RMSE includes that difference" in err
