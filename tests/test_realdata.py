@@ -140,12 +140,11 @@ def test_the_joint_solve_on_the_upright_log_blames_the_coverage(real_data, tmp_p
     assert "rotate the sensor through more attitudes" in captured.err
 
 
-@pytest.mark.parametrize("loss", ["huber", "cauchy"])
-@pytest.mark.parametrize("method", ["staged", "joint"])
+@pytest.mark.parametrize(("method", "loss"), [("staged", "huber"), ("joint", "cauchy")])
 def test_robust_fits_of_messy_logs_report_a_true_covariance_or_fail(real_data, loss, method):
     # Residuals thousands of nT wide and a poorly covered sphere: the sandwich's meat from the
     # weighted moments is not positive there, and must not reach a result as negative variances.
-    for name in ("MPU6050RM3100_derived.csv", "MPU6500RM3100_derived.csv"):
+    for name in ("MPU6050RM3100_derived.csv",):
         log = read_log(real_data / "rasteiro_robot_multisensor" / name)
         try:
             result = calibrate_log(log, method=method, loss=loss, allow_unconverged=True)
