@@ -86,6 +86,15 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _command_parser(parser: argparse.ArgumentParser, argv) -> argparse.ArgumentParser:
+    """The parser of the innermost subcommand named in argv."""
+    for token in sys.argv[1:] if argv is None else argv:
+        choices = [a.choices for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+        if choices and str(token) in choices[0]:
+            parser = choices[0][str(token)]
+    return parser
+
+
 class Terminated(KeyboardInterrupt):
     """SIGTERM, raised where the program is, so that a write under way cleans up after itself."""
 
@@ -98,7 +107,9 @@ def main(argv=None) -> int:
     """Run the command line; returns the exit status instead of exiting."""
     parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args, unknown = parser.parse_known_args(argv)
+        if unknown:  # said by the (sub)command they were given to, which points to its help
+            _command_parser(parser, argv).error(f"unrecognized arguments: {' '.join(unknown)}")
     except UsageError as exc:
         print(f"{exc}\n(see '{exc.prog} --help')", file=sys.stderr)
         return 2
