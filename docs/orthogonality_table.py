@@ -133,11 +133,13 @@ def render(page: str) -> str:
 
 
 def write_figure() -> None:
-    from nlpcal.cli.orthogonality import render_map_png, write_bytes_atomic
+    from nlpcal.io import write_bytes_atomic
+    from nlpcal.plots import orthogonality_map_png
 
     angles = (0.1, 0.1, 0.1)
     theta, phi, error = ortho.error_map(angles, FIELD, step_deg=1.0)
-    png = render_map_png(angles, FIELD, theta, phi, error, ortho.worst_case(angles, FIELD), dpi=80)
+    worst = ortho.worst_case(angles, FIELD)
+    png = orthogonality_map_png(angles, FIELD, theta, phi, error, worst, dpi=80)
     FIGURE.parent.mkdir(exist_ok=True)
     write_bytes_atomic(FIGURE, png)
     print(f"wrote {FIGURE.relative_to(HERE.parent)} ({len(png) // 1024} kB)", file=sys.stderr)

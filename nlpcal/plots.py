@@ -28,13 +28,16 @@ def require_matplotlib(three_d: bool = False) -> None:
         raise InputError(f"the figure needs matplotlib; {PLOT_HINT}") from None
 
 
-def _png(figure, dpi: int) -> bytes:
+def _png(figure, dpi: int, *, palette: bool = True) -> bytes:
     """The figure as a PNG with a 256-colour palette (a third of the bytes of full colour for
-    these line plots; Pillow comes with matplotlib)."""
+    line plots; Pillow comes with matplotlib), or in full colour when `palette` is False: a
+    continuous colour scale would be cut into bands."""
     from PIL import Image
 
     buffer = io.BytesIO()
     figure.savefig(buffer, format="png", dpi=dpi)
+    if not palette:
+        return buffer.getvalue()
     image = Image.open(io.BytesIO(buffer.getvalue())).convert("RGB")
     out = io.BytesIO()
     palette = image.quantize(colors=256, method=Image.Quantize.MEDIANCUT)
@@ -251,7 +254,7 @@ def orthogonality_map_png(
         rf"$|B|$ = {field_nT:g} nT"
     )
     figure.colorbar(mesh, ax=plane, label=r"$\Delta B = |B'| - |B|$ [nT]")
-    return _png(figure, dpi)
+    return _png(figure, dpi, palette=False)
 
 
 # --- a calibration at a glance: before and after, residuals, directions, cycles --------------

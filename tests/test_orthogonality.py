@@ -445,6 +445,9 @@ def test_cli_map_csv_and_png(tmp_path, capsys):
     )
     assert code == 0
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size < 200_000
+    from PIL import Image
+
+    assert Image.open(png).mode in ("RGB", "RGBA")  # a colour scale is not cut into 256 bands
     table = pd.read_csv(csv)
     assert list(table.columns) == ["theta_deg", "phi_deg", "delta_B_nT"]
     assert len(table) == 180 * 91
