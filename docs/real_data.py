@@ -274,7 +274,8 @@ def summary(rows) -> str:
     return (
         f"{len(calibrated)} of {len(rows)} logs calibrate (exit 0), {len(within)} of them with a "
         f"corrected std within {TOLERANCE:.0%} of the free ellipsoid fit; "
-        f"{len(failed)} fail the quality check (exit 1): {', '.join(failed) or 'none'}."
+        f"{len(failed)} {'fails' if len(failed) == 1 else 'fail'} the quality check (exit 1): "
+        f"{', '.join(failed) or 'none'}."
     )
 
 
