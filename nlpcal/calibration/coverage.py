@@ -132,7 +132,8 @@ def planar_message(flat: dict, unit: str) -> str:
         )
     return (
         f"the samples {how} (their spread across it is {thickness:.3g} {unit}, "
-        f"{thickness / extent:.1%} of that along it; normal ({normal}) in sensor axes): {why}, "
+        f"{100 * thickness / extent:.2g} % of that along it; normal ({normal}) in sensor axes): "
+        f"{why}, "
         f"so the data do not determine {', '.join(flat['parameters'])}; rotate the sensor "
         f"through more attitudes, tilting it out of that plane"
     )
