@@ -40,8 +40,8 @@ def _png(figure, dpi: int, *, palette: bool = True) -> bytes:
         return buffer.getvalue()
     image = Image.open(io.BytesIO(buffer.getvalue())).convert("RGB")
     out = io.BytesIO()
-    palette = image.quantize(colors=256, method=Image.Quantize.MEDIANCUT)
-    palette.save(out, "PNG", optimize=True, dpi=(dpi, dpi))  # the dpi stays in the pHYs chunk
+    quantized = image.quantize(colors=256, method=Image.Quantize.MEDIANCUT)
+    quantized.save(out, "PNG", optimize=True, dpi=(dpi, dpi))  # the dpi stays in the pHYs chunk
     return out.getvalue()
 
 

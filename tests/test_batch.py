@@ -286,3 +286,39 @@ def test_batch_calibrate_takes_the_quality_overrides_of_calibrate(fleet, tmp_pat
     assert code == 0 and (out_dir / "sensor_flat.params.json").exists()
     summary = pd.read_csv(out_dir / "summary.csv")
     assert "lie in one plane" in summary.loc[0, "warnings"]
+
+
+def test_an_interrupted_rerun_leaves_no_output_marked_with_options_it_was_not_made_with(
+    fleet, tmp_path
+):
+    out_dir = tmp_path / "out"
+    calibrate_many(fleet, out_dir, options={"method": "joint"})
+
+    def interrupt(done, total, row):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):  # the first log is redone with staged, then Ctrl-C
+        calibrate_many(fleet, out_dir, options={"method": "staged"}, progress=interrupt)
+    staged = nlpcal.CalibrationResult.load(out_dir / "sensor_0.params.json")
+    assert staged.method == "staged"
+    # the outputs the interrupted run meant to redo lost their entries before it started; the
+    # one it rewrote is marked with its own options
+    record = json.loads((out_dir / "batch.json").read_text())["outputs"]
+    assert list(record) == ["sensor_0.params.json"]
+    again = calibrate_many(fleet, out_dir, options={"method": "joint"})
+    assert all(r["action"] == "run" for r in again.rows)
+    assert nlpcal.CalibrationResult.load(out_dir / "sensor_0.params.json").method == "joint"
+
+
+def test_an_output_counts_for_the_log_that_wrote_it_only(tmp_path):
+    out_dir = tmp_path / "out"
+    for k, folder in enumerate(("one", "two")):
+        (tmp_path / folder).mkdir()
+        write(tmp_path / folder / "sensor.csv", make_log(n=800, noise=1.0, seed=40 + k)[0])
+    os.utime(tmp_path / "two" / "sensor.csv", (1e9, 1e9))  # older than any output (cp -p)
+    first = calibrate_many(tmp_path / "one", out_dir, options={"method": "joint"})
+    second = calibrate_many(tmp_path / "two", out_dir, options={"method": "joint"})
+    assert second.rows[0]["action"] == "run"
+    assert second.rows[0]["z_x"] != first.rows[0]["z_x"]
+    threads = calibrate_many(tmp_path / "two", out_dir, options={"method": "joint", "threads": 1})
+    assert threads.rows[0]["action"] == "skipped"  # threads do not change a result

@@ -187,21 +187,22 @@ def _out_dir(out_dir) -> Path:
     return out_dir
 
 
-def _run(jobs, task, reused, ledger: Ledger, key: str, columns, scheduler, workers, progress):
+def _run(jobs, task, reused, ledger: Ledger, keys: dict, columns, scheduler, workers, progress):
     """Run `task` on every job (log, ..., output) not in `reused` (log -> its row); write the
-    summary and the ledger."""
+    summary and the ledger (`keys`: log -> the digest of what makes its output)."""
     rows = dict(reused)
     todo = [job for job in jobs if str(job[0]) not in rows]
     report = BatchReport([], ledger.path.parent / SUMMARY, columns, total=len(jobs))
     if ledger.note:
         report.notes.append(ledger.note)
+    ledger.redoing(job[-1] for job in todo)
 
     def finished(job, row):
         if isinstance(row, BaseException):
             row = status_row({"log": str(job[0]), "action": "run"}, *failure(row))
         rows[str(job[0])] = row
         if row["status"] == "ok":
-            ledger.written(job[-1], key)
+            ledger.written(job[-1], keys[str(job[0])])
         else:
             ledger.failed(job[-1])
         if progress is not None:
@@ -246,18 +247,21 @@ def calibrate_many(
     names = output_names(paths)
     jobs = [(path, out_dir / f"{names[path]}{PARAMS_SUFFIX}") for path in paths]
     task = CalibrateTask(dict(read_options or {}), dict(options or {}))
-    key = digest("calibrate", read_options=task.read_options, options=task.options)
+    keys = {
+        str(path): digest("calibrate", path, read_options=task.read_options, options=task.options)
+        for path in paths
+    }
     ledger = Ledger(out_dir)
     reused = {}
     for path, output in jobs:
-        if not force and ledger.current(output, key, path):
+        if not force and ledger.current(output, keys[str(path)], path):
             try:
                 result = CalibrationResult.load(output)
             except InputError:
                 continue  # an unreadable output is made again
             row = {"log": str(path), **calibration_row(result), "output": str(output)}
             reused[str(path)] = status_row({**row, "action": "skipped", "seconds": 0.0}, "ok")
-    return _run(jobs, task, reused, ledger, key, CALIBRATION_COLUMNS, scheduler, workers, progress)
+    return _run(jobs, task, reused, ledger, keys, CALIBRATION_COLUMNS, scheduler, workers, progress)
 
 
 def apply_many(
@@ -294,21 +298,25 @@ def apply_many(
         suffix = ".parquet" if is_parquet(path) else ".csv"
         jobs.append((path, params, out_dir / f"{names[path]}{CORRECTED_TAG}{suffix}"))
     task = ApplyTask(dict(read_options or {}), flag_outliers, drift, temperature_column)
-    key = digest(
-        "apply",
-        read_options=task.read_options,
-        parameters=str(parameters),
-        flag_outliers=flag_outliers,
-        drift=str(drift),
-        temperature_column=temperature_column,
-    )
+    keys = {
+        str(path): digest(
+            "apply",
+            path,
+            read_options=task.read_options,
+            parameters=str(Path(params).resolve()) if params else None,
+            flag_outliers=flag_outliers,
+            drift=str(Path(drift).resolve()) if drift else None,
+            temperature_column=temperature_column,
+        )
+        for path, params, _ in jobs
+    }
     ledger = Ledger(out_dir)
     reused = {}
     for path, params, output in jobs:
-        if not force and ledger.current(output, key, path, params, drift):
+        if not force and ledger.current(output, keys[str(path)], path, params, drift):
             row = {"log": str(path), "params": str(params or ""), "output": str(output)}
             reused[str(path)] = status_row({**row, "action": "skipped", "seconds": 0.0}, "ok")
-    return _run(jobs, task, reused, ledger, key, APPLY_COLUMNS, scheduler, workers, progress)
+    return _run(jobs, task, reused, ledger, keys, APPLY_COLUMNS, scheduler, workers, progress)
 
 
 def _paths(source, out_dir: Path) -> list:

@@ -8,10 +8,13 @@ it (the reading options, the calibration or correction options, and which comman
      "outputs": {"sensor_0.params.json": "3f1c...", ...}}
 
 A rerun skips a log when its output is newer than the log (and than its parameters and drift
-files) and was written with the same options; with other options it is done again. A log whose
-run fails loses its old output, so that the folder never holds a result its summary disowns. The
-file is written when a run ends, also when it is interrupted; an output written by a run killed
-before then has no entry, and is made again.
+files) and was written from that log (its resolved path is part of the digest) with the same
+options; otherwise it is done again. Options that do not change a result (threads, the memory
+map of --low-memory) are left out of the digest. A log whose run fails loses its old output, so
+that the folder never holds a result its summary disowns. Before a run starts, the outputs it
+is about to redo lose their entries (the file is saved then), and the file is saved again when
+the run ends, also when it is interrupted: an output rewritten by a run killed midway has no
+entry, and is made again.
 """
 
 from __future__ import annotations
@@ -28,9 +31,21 @@ FORMAT = "nlpcal-batch"
 FORMAT_VERSION = 1
 
 
-def digest(command: str, **options) -> str:
-    """A digest of a command and its options (any JSON-able values; others by their text)."""
-    text = json.dumps({"command": command, **options}, sort_keys=True, default=str)
+#: Options that do not change a result: left out of the digest.
+NEUTRAL = ("threads", "low_memory")
+
+
+def digest(command: str, log, **options) -> str:
+    """A digest of a command, the log it reads (its resolved path) and its options (dicts of
+    JSON-able values; others by their text), less the NEUTRAL ones."""
+    settled = {
+        name: {k: v for k, v in value.items() if k not in NEUTRAL}
+        if isinstance(value, dict)
+        else value
+        for name, value in options.items()
+    }
+    document = {"command": command, "log": str(Path(log).resolve()), **settled}
+    text = json.dumps(document, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()
 
 
@@ -60,6 +75,13 @@ class Ledger:
 
     def written(self, output: Path, key: str) -> None:
         self.outputs[Path(output).name] = key
+
+    def redoing(self, outputs) -> None:
+        """Forget the outputs a run is about to redo, and save: until each is written again it
+        is not current, whatever happens to the run."""
+        for output in outputs:
+            self.outputs.pop(Path(output).name, None)
+        self.save()
 
     def failed(self, output: Path) -> None:
         """Forget an output whose log failed now, and remove the file an earlier run left."""
