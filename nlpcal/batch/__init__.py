@@ -38,7 +38,8 @@ from ..calibration import CalibrationResult
 from ..correction import load_parameters
 from ..errors import InputError
 from ..io import write_csv_atomic
-from ..io.sources import COMPRESSED_SUFFIXES, is_parquet, log_paths
+from ..io.files import COMPRESSED_SUFFIXES
+from ..io.sources import is_parquet, log_paths
 from ..models.zhou2010 import PARAMETER_NAMES
 from .ledger import FILE as LEDGER
 from .ledger import Ledger, digest

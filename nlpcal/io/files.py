@@ -46,6 +46,13 @@ def json_text(document) -> str:
     return json.dumps(plain(document), indent=2, allow_nan=False) + "\n"
 
 
+PARQUET_SUFFIXES = (".parquet", ".parq", ".pq")
+#: Files of a folder taken as a log's files: CSV and other delimited text, compressed or not,
+#: and Parquet.
+TEXT_SUFFIXES = (".csv", ".txt", ".tsv", ".dat")
+COMPRESSED_SUFFIXES = (".gz", ".bz2", ".xz", ".zip", ".zst")
+
+
 def check_output_path(path, *inputs) -> None:
     """Fail before any work when an output's folder does not exist, the path is a folder, or it
     is one of the `inputs` (writing there would replace the data being read)."""
@@ -67,13 +74,22 @@ def check_output_path(path, *inputs) -> None:
             )
 
 
+def is_log_file(path: Path) -> bool:
+    """Whether a file in a folder looks like a log (by its suffixes)."""
+    suffixes = [s.lower() for s in path.suffixes]
+    if suffixes and suffixes[-1] in COMPRESSED_SUFFIXES:
+        suffixes = suffixes[:-1]
+    return bool(suffixes) and suffixes[-1] in TEXT_SUFFIXES + PARQUET_SUFFIXES
+
+
 def _input_files(source) -> list:
-    """The existing files an input names: itself, the files of a folder, or a glob's matches."""
+    """The existing files an input names: itself, the log files of a folder (`is_log_file`), or
+    a glob's matches."""
     if not source or str(source) == "-":
         return []
     text = str(source)
     if Path(text).is_dir():
-        return [p for p in Path(text).iterdir() if p.is_file()]
+        return [p for p in Path(text).iterdir() if p.is_file() and is_log_file(p)]
     if Path(text).exists():
         return [Path(text)]
     return [Path(p) for p in glob.glob(text, recursive=True) if Path(p).is_file()]

@@ -16,13 +16,13 @@ from pathlib import Path
 import pandas as pd
 
 from ..errors import InputError
-from .files import existing_file
+from .files import (
+    PARQUET_SUFFIXES,
+    TEXT_SUFFIXES,
+    existing_file,
+    is_log_file,
+)
 
-PARQUET_SUFFIXES = (".parquet", ".parq", ".pq")
-#: Files of a folder taken as a log's files: CSV and other delimited text, compressed or not,
-#: and Parquet.
-TEXT_SUFFIXES = (".csv", ".txt", ".tsv", ".dat")
-COMPRESSED_SUFFIXES = (".gz", ".bz2", ".xz", ".zip", ".zst")
 #: The leading (and trailing) bytes of every Parquet file.
 PARQUET_MAGIC = b"PAR1"
 INSTALL_PARQUET = "reading Parquet needs pyarrow: pip install 'nlpcal[parquet]' (or 'nlpcal[dask]')"
@@ -34,14 +34,6 @@ def is_pattern(source) -> bool:
     if Path(text).is_file():  # a file whose name has brackets is that file
         return False
     return any(ch in text for ch in "*?[") or Path(text).is_dir()
-
-
-def is_log_file(path: Path) -> bool:
-    """Whether a file in a folder looks like a log (by its suffixes)."""
-    suffixes = [s.lower() for s in path.suffixes]
-    if suffixes and suffixes[-1] in COMPRESSED_SUFFIXES:
-        suffixes = suffixes[:-1]
-    return bool(suffixes) and suffixes[-1] in TEXT_SUFFIXES + PARQUET_SUFFIXES
 
 
 def log_paths(source) -> list:
