@@ -8,7 +8,7 @@ import pytest
 
 import nlpcal
 from nlpcal import CalibrationResult, calibrate
-from nlpcal.calibration.coverage import PLANAR_NOISE
+from nlpcal.calibration.coverage import PLANAR_NOISE, flatness
 from nlpcal.errors import InputError, QualityError, SolveError
 from nlpcal.nlp import blocks
 from nlpcal.nlp.solver import SolveOutcome
@@ -239,6 +239,25 @@ def test_a_few_degrees_of_tilt_are_not_a_result_either(tilt_deg):
     flat = info.value.result.identifiability["flatness"]
     assert flat["planar"] and not flat["within_noise"]
     assert {"s_z", "alpha_deg", "beta_deg"} <= set(flat["parameters"])
+    kept = calibrate(samples, method="joint", require_identifiable=False)
+    assert kept.standard_errors is None and kept.covariance is None  # none that would hold
+    # a known field magnitude holds the blind axis: the result and its standard errors stand,
+    # unless the Hessian's own rule finds a direction the data do not determine
+    try:
+        held = calibrate(samples, method="joint", reference_field=PAPER_FIELD)
+    except QualityError as failure:
+        assert "plane" not in failure.reason and tilt_deg < 2.0
+    else:
+        assert not held.identifiability["flatness"]["planar"]
+        for name in ("alpha_deg", "beta_deg"):
+            gap = abs(held.parameters[name] - PAPER_TRUTH[name]) / held.standard_errors[name]
+            assert gap < 4.0, (name, gap)
+
+
+def test_a_noisy_full_sphere_is_never_taken_for_a_plane():
+    samples, _ = make_log(n=3000, noise=0.12 * PAPER_FIELD, seed=9)
+    flat = flatness(samples, noise=0.12 * PAPER_FIELD)
+    assert not flat["planar"] and flat["out_of_plane_std"] > 0.5 * flat["in_plane_std"]
 
 
 def test_a_narrow_band_of_tilts_is_not_taken_for_a_plane():

@@ -19,7 +19,7 @@ from nlpcal.calibration.problem import Problem
 from nlpcal.cli import main
 from nlpcal.comparison import ROW_FIELDS, ROW_KEYS, CompareSettings, compare
 from nlpcal.comparison.conjugate_gradient import CGOptions, conjugate_gradient, run_cg_joint
-from nlpcal.errors import InputError, SolveError
+from nlpcal.errors import InputError, QualityError, SolveError
 from nlpcal.moments import accumulate
 from nlpcal.nlp.blocks import block_step
 from nlpcal.simulation import ATTITUDES, simulate, world_field
@@ -405,3 +405,21 @@ def test_with_a_reference_the_staged_objective_never_increases():
     objectives = [row["objective"] for row in result.statistics]
     for before, after in zip(objectives, objectives[1:]):
         assert after <= before * (1 + 1e-9), objectives
+
+
+def test_compare_refuses_a_log_turned_about_one_axis(tmp_path, capsys):
+    from synthetic import band_directions, make_log
+
+    rng = np.random.default_rng(8)
+    samples, _ = make_log(n=2000, noise=2.5, seed=9, directions=band_directions(2000, rng, 2.0))
+    with pytest.raises(QualityError) as info:
+        compare(samples)
+    assert "lie nearly in one plane" in info.value.reason
+    assert info.value.overrides == {"require_identifiable": False}
+    path = tmp_path / "band.csv"
+    lines = ["bx,by,bz"] + [",".join(f"{v:.4f}" for v in row) for row in samples]
+    path.write_text("\n".join(lines) + "\n")
+    status = main(["compare", str(path)])
+    err = capsys.readouterr().err
+    assert status == 1 and "lie nearly in one plane" in err
+    assert "require_identifiable" not in err  # a Python keyword, not a flag

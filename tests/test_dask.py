@@ -321,4 +321,4 @@ def test_a_bad_value_on_dask_is_placed_as_the_reader_in_memory_places_it(tmp_pat
         with pytest.raises(InputError) as blocks:
             read_lazy_log(text, block_bytes=100_000)
     message = str(blocks.value)
-    assert "rows counted from the block's start" in message and "data row 23457" not in message
+    assert "counted from its start" in message and "data row 23457" not in message

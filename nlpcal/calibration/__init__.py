@@ -149,7 +149,7 @@ def calibrate(
             problem, final["objective"], hs, final["residual_lag1_autocorrelation"], theta
         )
         spread = residual_spread(problem, theta)
-        flat = flatness(samples, spread["residual_robust_std"])
+        flat = flatness(samples, spread["residual_robust_std"], problem.reference is not None)
         identifiability["flatness"] = flat
         if flat["planar"]:  # the Hessian at a degenerate optimum can look healthy
             blind = set(flat["parameters"]) | set(identifiability["not_identifiable"])
@@ -204,6 +204,8 @@ def calibrate(
                     f"rtol rule ({rtol:g}) held; its parameters agree with the joint optimum of "
                     f"the same data within {STAGED_GAP_LIMIT:g} standard errors"
                 )
+        if flat["planar"]:  # along the plane's normal no linearisation describes the data
+            errors = covariance = None
         mode = problem.moments.reference
         result = CalibrationResult(
             parameters=Zhou2010Parameters.from_theta(theta).to_dict(),

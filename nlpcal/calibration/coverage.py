@@ -28,12 +28,15 @@ COVERAGE_WARN = 0.5
 #: Samples whose cloud is thinner than this many noise standard deviations across its flattest
 #: direction lie in one plane within the noise: the attitudes were turns about one axis only.
 PLANAR_NOISE = 5.0
-#: A cloud thinner than this fraction of its extent along the plane lies nearly in one plane:
-#: turns about one axis with tilts of a few degrees (+/-3 deg of tilt give about 0.04). The
-#: parameters of the axes along the normal are then so weakly determined that the quadratic
-#: standard errors no longer describe them (estimates 4-10 standard errors off at +/-1.5 to 1
-#: deg of tilt, none of it noise), so they count as not determined.
+#: Without a reference field, a cloud thinner than this fraction of its extent along the plane
+#: lies nearly in one plane: turns about one axis with tilts of a few degrees (+/-3 deg of tilt
+#: give about 0.04). The parameters of the axes along the normal are then so weakly determined
+#: that the quadratic standard errors no longer describe them (estimates 4-10 standard errors
+#: off at +/-1.5 to 1 deg of tilt, none of it noise), so they count as not determined. A known
+#: field magnitude holds them (standard errors that cover the truth down to +/-1.5 deg).
 NEARLY_PLANAR = 0.05
+#: A cloud at least this thick against its extent is never planar, whatever the noise.
+NEVER_PLANAR = 0.2
 #: Leading rows whose successive differences tell the noise across the plane.
 HEAD_ROWS = 1024
 #: A sensor axis whose share of the plane's normal exceeds this is one the plane leaves blind.
@@ -74,17 +77,18 @@ def direction_coverage(samples, theta) -> dict:
     }
 
 
-def flatness(samples, noise: float) -> dict:
+def flatness(samples, noise: float, reference: bool = False) -> dict:
     """How thin the cloud of measured samples is across its flattest direction.
 
     Turns about one axis put the field on one circle, and an affine image of a circle is a planar
     ellipse: a whole family of ellipsoids passes through it, so the offset, scale and angles of the
     axes along the plane's normal are not determined, whatever the solver returns (the spread of
     |B1| even shrinks as the blind axis is scaled towards zero). The cloud lies in one plane when
-    its thickness is within PLANAR_NOISE noise levels, and nearly in one when it is below
-    NEARLY_PLANAR of its extent. The noise level is the smaller of `noise` (the residual standard
-    deviation of the fit, which model misfit inflates) [field unit] and the noise of successive
-    samples across the plane (1.4826 MAD of their differences / sqrt 2: a log in time order).
+    its thickness is within PLANAR_NOISE noise levels (and below NEVER_PLANAR of its extent), and,
+    without a `reference` field, nearly in one when it is below NEARLY_PLANAR of its extent. The
+    noise level is the smaller of `noise` (the residual standard deviation of the fit, which model
+    misfit inflates) [field unit] and the noise of successive samples across the plane (1.4826
+    MAD of their differences / sqrt 2: a log in time order).
 
     Returns the out-of-plane and in-plane standard deviations [field unit], the unit normal in
     sensor axes, whether the samples are planar (or nearly), and the parameters the plane leaves
@@ -98,8 +102,8 @@ def flatness(samples, noise: float) -> dict:
     across = np.diff(np.asarray(samples[:HEAD_ROWS], dtype=float) @ normal)
     successive = robust_std(across) / np.sqrt(2.0) if across.size > 8 else np.inf
     level = min(noise, successive)
-    within_noise = bool(thickness <= PLANAR_NOISE * level)
-    planar = within_noise or bool(thickness < NEARLY_PLANAR * extent)
+    within_noise = bool(thickness <= PLANAR_NOISE * level and thickness < NEVER_PLANAR * extent)
+    planar = within_noise or (not reference and bool(thickness < NEARLY_PLANAR * extent))
     blind_axes = {axis for axis, share in zip("xyz", np.abs(normal)) if share > PLANAR_AXIS_SHARE}
     return {
         "planar": planar,

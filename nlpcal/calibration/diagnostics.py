@@ -231,7 +231,8 @@ def explain_failure(
     theta = failure.result
     if theta is None or not np.all(np.isfinite(theta)):
         return failure
-    flat = flatness(problem.samples, residual_spread(problem, theta)["residual_robust_std"])
+    noise = residual_spread(problem, theta)["residual_robust_std"]
+    flat = flatness(problem.samples, noise, problem.reference is not None)
     if flat["planar"]:
         return SolveError(
             f"{failure}: {planar_message(flat, _unit_word(unit))}", failure.status, result=theta

@@ -123,8 +123,8 @@ def main(argv=None) -> int:
     except InputError as exc:
         print(f"nlpcal {args.command}: error: {exc}", file=sys.stderr)
         return 2
-    except QualityError as exc:
-        print(f"nlpcal {args.command}: quality check failed: {exc}", file=sys.stderr)
+    except QualityError as exc:  # its reason: the Python keywords that override it do not apply
+        print(f"nlpcal {args.command}: quality check failed: {exc.reason}", file=sys.stderr)
         return 1
     except SolveError as exc:
         status = f" (IPOPT status: {exc.status})" if exc.status else ""

@@ -254,7 +254,7 @@ def _run_calibrate(args) -> int:
         )
     if args.loss_scale is not None and args.loss == "l2":
         warning("--loss-scale only scales a robust loss (--loss huber or cauchy); ignored")
-    if args.workers is not None and not args.scheduler:
+    if args.workers is not None and args.scheduler not in ("local", "processes"):
         warning("--workers only sizes --scheduler local or processes; ignored")
     started = time.perf_counter()
     extra = [args.temperature_column] if args.temperature_column else []

@@ -60,6 +60,17 @@ def add_command(sub, name: str, *, help: str, description: str, examples=(), **o
     )
 
 
+def at_least_one(text: str) -> int:
+    """An argparse type: a whole number of at least 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected at least 1, got {value}")
+    return value
+
+
 def add_verbosity(parser) -> None:
     """-v/--verbose and -q/--quiet on a parser and, recursively, on its subcommands; the value
     given anywhere on the command line wins (subcommands leave the default to the top)."""
@@ -306,7 +317,7 @@ def add_threads_argument(parser) -> None:
     """--threads N."""
     parser.add_argument(
         "--threads",
-        type=int,
+        type=at_least_one,
         metavar="N",
         help="threads of the passes over the data (default: the cores available to the "
         "process, within its CPU affinity and cgroup quota)",
@@ -344,7 +355,7 @@ def add_scheduler_arguments(parser) -> None:
     )
     parser.add_argument(
         "--workers",
-        type=int,
+        type=at_least_one,
         metavar="N",
         help="worker processes of --scheduler local or processes (default: one per core)",
     )

@@ -27,7 +27,13 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from .. import chunks, units, validation
-from ..calibration.diagnostics import explain_failure, scaled_hessian, uncertainty
+from ..calibration.coverage import flatness, planar_message
+from ..calibration.diagnostics import (
+    explain_failure,
+    residual_spread,
+    scaled_hessian,
+    uncertainty,
+)
 from ..calibration.joint import joint_start, run_joint
 from ..calibration.problem import Problem
 from ..calibration.staged import StopRule, run_staged
@@ -227,12 +233,20 @@ def compare(
         joint_path = joint_trajectory(joint_step, joint["iterations"], joint["objective"])
         hs = scaled_hessian(moments, joint_theta, joint_step)
         weak = uncertainty(problem, joint["objective"], hs)[1]["not_identifiable"]
+        noise = residual_spread(problem, joint_theta)["residual_robust_std"]
+        flat = flatness(samples, noise, reference is not None)
+        if flat["planar"] and require_identifiable:
+            raise QualityError(
+                f"{planar_message(flat, units.base_unit(unit))}; no method has an optimum to reach",
+                "Not_Identifiable",
+                overrides={"require_identifiable": False},
+            )
         if weak and require_identifiable:
             raise QualityError(
                 f"the data do not determine {', '.join(weak)}, so no method has an optimum to "
-                f"reach; rotate the sensor through more attitudes (require_identifiable=False "
-                f"compares anyway)",
+                f"reach; rotate the sensor through more attitudes",
                 "Not_Identifiable",
+                overrides={"require_identifiable": False},
             )
 
         cg_joint, cg_joint_paths = [], {}

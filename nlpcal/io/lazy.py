@@ -80,8 +80,14 @@ def _table_of(spec):
     except pd.errors.EmptyDataError:
         return pd.DataFrame(columns=columns)
     except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
-        raise unreadable(name, layout, exc) from None
+        raise unreadable(_block_name(name, number), layout, exc) from None
     return named(frame, layout)
+
+
+def _block_name(name: str, number: int) -> str:
+    """A CSV block's name in messages: a block after the first does not know how many lines
+    came before it."""
+    return name if number == 0 else f"{name} (its block {number + 1}, counted from its start)"
 
 
 def _column(table, name):
@@ -125,8 +131,7 @@ def _block(spec, wanted, factors, drop_invalid: bool) -> tuple:
             decimal = "."
         else:  # a CSV block does not know how many rows came before it
             frame, first_row, decimal = table, 0, extra.layout.decimal
-            source = f"{name} (its block {number + 1}, rows counted from the block's start)"
-            source = name if number == 0 else source
+            source = _block_name(name, number)
         numeric = numeric_columns(
             frame,
             wanted,
