@@ -365,3 +365,16 @@ def test_small_numbers_keep_their_digits_in_the_table():
     assert "0.17470" in format_table(rows, "G")
     rows[0].update(mean=49460.0, std=0.99)
     assert "       0.99" in format_table(rows, "nT")
+
+
+def test_a_bad_value_is_placed_alike_in_memory_and_in_chunks(tmp_path):
+    from nlpcal.io import csv_to_memmap
+
+    samples, _ = make_log(n=1000, noise=1.0, seed=42)
+    rows = ["bx,by,bz"] + [",".join(f"{v:.4f}" for v in row) for row in samples]
+    rows[701] = "1,,3"
+    path = tmp_path / "gap.csv"
+    path.write_text("\n".join(rows) + "\n")
+    for read in (lambda: read_log(path), lambda: csv_to_memmap(path, chunk_rows=300)):
+        with pytest.raises(InputError, match="first at data row 701\\)"):
+            read()

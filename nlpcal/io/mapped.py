@@ -86,6 +86,7 @@ def csv_to_memmap(
         part = first
         try:
             for part in files:
+                before = 0  # data rows of this file in the chunks before
                 for chunk in part.chunks(wanted, chunk_rows):
                     numeric = numeric_columns(
                         chunk,
@@ -93,17 +94,17 @@ def csv_to_memmap(
                         drop_invalid=drop_invalid,
                         source=part.name,
                         decimal=part.layout.decimal,
+                        first_row=before,
                     )
+                    before += len(chunk)
                     data_rows = rows + dropped + np.flatnonzero(numeric.kept) + 1
                     keep = screen.keep(numeric.values[:, :3], data_rows)
                     dropped += numeric.dropped + int((~keep).sum())
                     values = numeric.values[keep]
                     rows += values.shape[0]
                     store.write(np.ascontiguousarray(values * factors).tobytes())
-        except InputError as exc:
+        except InputError:
             store.close()
-            if "first at data row" in str(exc):
-                raise InputError(f"{exc} (in the chunk after row {rows + dropped})") from None
             raise
         except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
             store.close()
