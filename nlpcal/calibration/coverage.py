@@ -42,7 +42,8 @@ HEAD_ROWS = 1024
 #: A sensor axis whose share of the plane's normal exceeds this is one the plane leaves blind.
 PLANAR_AXIS_SHARE = 0.2
 #: The sensor axes each parameter involves (alpha couples x and z, beta y and z, gamma x and y).
-_AXES_OF = dict(zip(PARAMETER_NAMES, ("x", "y", "z", "x", "y", "z", "xz", "yz", "xy"), strict=True))
+_AXES_OF = dict(zip(PARAMETER_NAMES, ("x", "y", "z", "x", "y", "z", "xz", "yz", "xy")))
+#: Most rows of the strided subsample the coverage and the flatness are judged on.
 MAX_POINTS = 20000
 
 
