@@ -199,6 +199,7 @@ def _finish(report, verb: str, started: float) -> int:
 def run_batch_calibrate(args) -> int:
     from ..batch import calibrate_many
 
+    calibrate_cli.warn_ignored(args, joint=args.method == "joint")
     started = time.perf_counter()
     options = {
         "method": args.method,

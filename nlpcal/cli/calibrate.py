@@ -238,24 +238,7 @@ def _run_calibrate(args) -> int:
             "the temperature calibration needs --reference-column COL, a reference "
             "magnitude per sample (for example a proton magnetometer)"
         )
-    staged_only = [
-        flag
-        for flag, value in (
-            ("--cycles", args.cycles != CYCLES_DEFAULT),
-            ("--target-std", args.target_std is not None),
-            ("--target-range", args.target_range is not None),
-            ("--rtol", args.rtol != RTOL_DEFAULT),
-        )
-        if value
-    ]
-    if (args.method == "joint" or temperature) and staged_only:
-        warning(
-            f"{', '.join(staged_only)} only steer the staged cycle; the joint solve ignores them"
-        )
-    if args.loss_scale is not None and args.loss == "l2":
-        warning("--loss-scale only scales a robust loss (--loss huber or cauchy); ignored")
-    if args.workers is not None and args.scheduler not in ("local", "processes"):
-        warning("--workers only sizes --scheduler local or processes; ignored")
+    warn_ignored(args, joint=args.method == "joint" or bool(temperature))
     started = time.perf_counter()
     extra = [args.temperature_column] if args.temperature_column else []
     progress(f"reading {args.log} ...")
@@ -327,6 +310,28 @@ def _run_calibrate(args) -> int:
         warn(f"wrote {args.output}")
     write_plot(args, log, result, corrected)
     return 0
+
+
+def warn_ignored(args, joint: bool) -> None:
+    """Warn about the options of `nlpcal calibrate` that this run does not use."""
+    staged_only = [
+        flag
+        for flag, value in (
+            ("--cycles", args.cycles != CYCLES_DEFAULT),
+            ("--target-std", args.target_std is not None),
+            ("--target-range", args.target_range is not None),
+            ("--rtol", args.rtol != RTOL_DEFAULT),
+        )
+        if value
+    ]
+    if joint and staged_only:
+        warning(
+            f"{', '.join(staged_only)} only steer the staged cycle; the joint solve ignores them"
+        )
+    if args.loss_scale is not None and args.loss == "l2":
+        warning("--loss-scale only scales a robust loss (--loss huber or cauchy); ignored")
+    if args.workers is not None and args.scheduler not in ("local", "processes"):
+        warning("--workers only sizes --scheduler local or processes; ignored")
 
 
 def _apply_temperature(result, log, temperature_column):
