@@ -284,13 +284,7 @@ def read_lazy_log(
     notes: list = []
     files = log_files(source, header)
     first = files[0]
-    chosen = resolve_columns(
-        first.preview,
-        columns,
-        header=first.layout.header,
-        decimal=first.layout.decimal,
-        notes=notes,
-    )
+    chosen = first.field_columns(columns, notes)
     unit, how = sensor_unit(chosen, unit, fallback_unit, notes)
     wanted, factors = list(chosen), [units.field_factor(unit)] * 3
     name = None

@@ -15,7 +15,7 @@ import pandas as pd
 from ..errors import InputError
 from .layout import STDIN, Layout
 from .rows import RowScreen
-from .tables import column_name, log_files, numeric_columns, resolve_columns, unreadable
+from .tables import column_name, log_files, numeric_columns, unreadable
 
 
 @dataclass
@@ -70,13 +70,7 @@ def csv_to_memmap(
         files = log_files(spool.name if spool else path, header, STDIN if spool else None)
         first = files[0]
         notes: list = []
-        chosen = resolve_columns(
-            first.preview,
-            columns,
-            header=first.layout.header,
-            decimal=first.layout.decimal,
-            notes=notes,
-        )
+        chosen = first.field_columns(columns, notes)
         wanted = chosen + [column_name(first.preview, c) for c in extra_columns]
         factor = float(scale(chosen) if callable(scale) else scale)
         factors = np.array([factor] * 3 + [1.0] * (len(wanted) - 3))

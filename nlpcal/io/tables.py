@@ -324,6 +324,16 @@ class LogFile:
     preview: pd.DataFrame
     parquet: bool = False
 
+    def field_columns(self, columns, notes: list) -> list:
+        """The three field columns of the file (`resolve_columns` on its first rows)."""
+        return resolve_columns(
+            self.preview,
+            columns,
+            header=self.layout.header,
+            decimal=self.layout.decimal,
+            notes=notes,
+        )
+
     def chunks(self, wanted: list, chunk_rows: int):
         """The `wanted` columns of the file, chunk after chunk, every column checked (ragged
         rows are errors)."""
