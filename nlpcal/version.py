@@ -1,10 +1,4 @@
-"""The version of nlpcal, from the installed package's metadata (pyproject.toml is its source)."""
+"""The version of nlpcal: the one place it is written (pyproject.toml reads it from here), a
+constant so that `nlpcal --version` reads no package metadata."""
 
-from __future__ import annotations
-
-from importlib import metadata
-
-try:
-    __version__ = metadata.version("nlpcal")
-except metadata.PackageNotFoundError:  # a checkout run without installing
-    __version__ = "0+unknown"
+__version__ = "0.1.0"

@@ -430,3 +430,15 @@ def test_stats_says_when_the_reference_is_not_the_calibrations(log_csv, tmp_path
         capsys, "stats", other, "--params", params, "--reference-column", "proton_nT"
     )
     assert code == 0 and "(2.0% apart): the corrected row's RMSE includes that difference" in err
+
+
+def test_the_version_is_written_once():
+    from importlib import metadata
+
+    import nlpcal
+
+    try:
+        installed = metadata.version("nlpcal")
+    except metadata.PackageNotFoundError:
+        pytest.skip("nlpcal is not installed")
+    assert installed == nlpcal.__version__  # pyproject.toml reads it from nlpcal/version.py
