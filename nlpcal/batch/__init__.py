@@ -15,9 +15,9 @@ it is interrupted, with the logs done so far).
 A log whose output file is newer than the log (and than its parameters, for `apply_many`) and was
 written with the same options (`nlpcal.batch.ledger`, `DIR/batch.json`) is not done again unless
 `force`: its row is rebuilt from that output file. A log that fails loses the output an earlier
-run wrote for it. On a cluster each worker
-process imports nlpcal once and builds each CasADi problem once (`nlpcal.nlp.solver`), so the
-cost of a small log is its reading, its solves and its writing.
+run wrote for it. On a cluster each worker process imports nlpcal once and builds each CasADi
+problem once (`nlpcal.nlp.solver`), so the cost of a small log is its reading, its solves and its
+writing.
 
 Statuses and the exit status `nlpcal calibrate` or `nlpcal apply` would have given the log:
 
