@@ -65,10 +65,9 @@ def coverage_centre(samples, frame) -> np.ndarray:
 def direction_coverage(samples, theta) -> dict:
     """How many of 26 direction bins the corrected field B1 visits."""
     b1 = correct(subsample(samples), Zhou2010Parameters.from_theta(theta))
-    nearest = np.argmax(b1 @ _BIN_DIRECTIONS.T, axis=1)
-    visited = np.unique(nearest)
-    covered = int(visited.size)
-    missing = [_BIN_NAMES[k] for k in range(26) if k not in set(visited.tolist())]
+    hits = np.bincount(np.argmax(b1 @ _BIN_DIRECTIONS.T, axis=1), minlength=26)
+    covered = int(np.count_nonzero(hits))
+    missing = [_BIN_NAMES[k] for k in range(26) if not hits[k]]
     missing.sort(key=_bin_order)  # +x, -x, +y, -y, +z, -z, then edges and corners
     return {
         "direction_bins": 26,
@@ -91,18 +90,20 @@ def flatness(samples, noise: float, reference: bool = False) -> dict:
     misfit inflates) [field unit] and the noise of successive samples across the plane (1.4826
     MAD of their differences / sqrt 2: a log in time order).
 
-    Returns the out-of-plane and in-plane standard deviations [field unit], the unit normal in
-    sensor axes, whether the samples are planar (or nearly), and the parameters the plane leaves
-    blind.
+    Returns the out-of-plane and in-plane standard deviations and the noise level judged against
+    [field unit] (the successive samples' only when the residuals' would call the cloud planar),
+    the unit normal in sensor axes, whether the samples are planar (or nearly), and the
+    parameters the plane leaves blind.
     """
     sub = subsample(samples)
     centred = sub - sub.mean(axis=0)
     values, vectors = np.linalg.eigh(centred.T @ centred / max(sub.shape[0], 1))
     thickness, extent = np.sqrt(np.clip(values[[0, 2]], 0.0, None))
     normal = vectors[:, 0] * (1.0 if vectors[np.argmax(np.abs(vectors[:, 0])), 0] > 0 else -1.0)
-    across = np.diff(np.asarray(samples[:HEAD_ROWS], dtype=float) @ normal)
-    successive = robust_std(across) / np.sqrt(2.0) if across.size > 8 else np.inf
-    level = min(noise, successive)
+    level = noise
+    if thickness <= PLANAR_NOISE * noise:  # within the residuals: is it within the sensor noise?
+        across = np.diff(np.asarray(samples[:HEAD_ROWS], dtype=float) @ normal)
+        level = min(noise, robust_std(across) / np.sqrt(2.0) if across.size > 8 else np.inf)
     within_noise = bool(thickness <= PLANAR_NOISE * level and thickness < NEVER_PLANAR * extent)
     planar = within_noise or (not reference and bool(thickness < NEARLY_PLANAR * extent))
     blind_axes = {axis for axis, share in zip("xyz", np.abs(normal)) if share > PLANAR_AXIS_SHARE}

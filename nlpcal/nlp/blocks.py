@@ -253,9 +253,9 @@ def parameters(moments: mom.Moments) -> ca.DM:
     (converting the Gram matrix costs more than an IPOPT iteration) and updated in place: the
     data part never changes, theta_ref and f_ref are set by each solve."""
     if "p" not in moments.cache:
-        moments.cache["p"] = ca.DM(
-            pack(moments, np.zeros(9), variable_scale(moments.frame.radius), 1.0)
-        )
+        values = pack(moments, np.zeros(9), variable_scale(moments.frame.radius), 1.0)
+        # from a list: CasADi converts a numpy array element by element, at twice the cost
+        moments.cache["p"] = ca.DM(ca.Sparsity.dense(values.size, 1), values.tolist())
     return moments.cache["p"]
 
 
