@@ -201,23 +201,11 @@ def run_batch_calibrate(args) -> int:
 
     calibrate_cli.warn_ignored(args, joint=args.method == "joint")
     started = time.perf_counter()
-    options = {
-        "method": args.method,
-        "cycles": args.cycles,
-        "rtol": args.rtol,
-        "target_std": args.target_std,
-        "target_range": args.target_range,
-        "loss": args.loss,
-        "loss_scale": args.loss_scale,
-        "allow_unconverged": args.allow_unconverged,
-        "require_identifiable": not args.allow_unidentifiable,
-        "threads": args.threads,
-    }
     report = calibrate_many(
         _sources(args.logs),
         args.out_dir,
         read_options={**log_options(args), "low_memory": args.low_memory},
-        options=options,
+        options=calibrate_cli.calibration_options(args),
         force=args.force,
         scheduler=args.scheduler,
         workers=args.workers,

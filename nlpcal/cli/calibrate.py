@@ -260,16 +260,7 @@ def _run_calibrate(args) -> int:
             else:
                 result = calibrate_log(
                     log,
-                    method=args.method,
-                    cycles=args.cycles,
-                    rtol=args.rtol,
-                    target_std=args.target_std,
-                    target_range=args.target_range,
-                    loss=args.loss,
-                    loss_scale=args.loss_scale,
-                    require_identifiable=not args.allow_unidentifiable,
-                    allow_unconverged=args.allow_unconverged,
-                    threads=args.threads,
+                    **calibration_options(args),
                     verbose=args.verbose,
                     progress=lambda cycle, row: progress(
                         f"cycle {cycle}: std of |B1| {row['std']:.6g} {log.base_unit}"
@@ -310,6 +301,23 @@ def _run_calibrate(args) -> int:
         warn(f"wrote {args.output}")
     write_plot(args, log, result, corrected)
     return 0
+
+
+def calibration_options(args) -> dict:
+    """The keyword arguments of `nlpcal.calibration.calibrate_log` that the options of
+    `nlpcal calibrate` (and of `nlpcal batch calibrate`) give."""
+    return {
+        "method": args.method,
+        "cycles": args.cycles,
+        "rtol": args.rtol,
+        "target_std": args.target_std,
+        "target_range": args.target_range,
+        "loss": args.loss,
+        "loss_scale": args.loss_scale,
+        "require_identifiable": not args.allow_unidentifiable,
+        "allow_unconverged": args.allow_unconverged,
+        "threads": args.threads,
+    }
 
 
 def warn_ignored(args, joint: bool) -> None:
