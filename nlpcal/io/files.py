@@ -67,7 +67,8 @@ def check_output_path(path, *inputs) -> None:
     if not path.exists():
         return
     for source in inputs:
-        if any(os.path.samefile(path, item) for item in _input_files(source)):
+        files = matching_files(source) if source and str(source) != "-" else []
+        if any(os.path.samefile(path, item) for item in files):
             raise InputError(
                 f"{path}: is also an input; writing it would replace the data being read, so "
                 f"choose another output name"
@@ -82,17 +83,15 @@ def is_log_file(path: Path) -> bool:
     return bool(suffixes) and suffixes[-1] in TEXT_SUFFIXES + PARQUET_SUFFIXES
 
 
-def _input_files(source) -> list:
-    """The existing files an input names: itself, the log files of a folder (`is_log_file`), or
-    a glob's matches."""
-    if not source or str(source) == "-":
-        return []
+def matching_files(source) -> list:
+    """The existing files a log's name stands for, sorted: itself, the log files of a folder
+    (`is_log_file`), or the files a glob pattern matches; none when nothing matches."""
     text = str(source)
     if Path(text).is_dir():
-        return [p for p in Path(text).iterdir() if p.is_file() and is_log_file(p)]
+        return sorted(p for p in Path(text).iterdir() if p.is_file() and is_log_file(p))
     if Path(text).exists():
         return [Path(text)]
-    return [Path(p) for p in glob.glob(text, recursive=True) if Path(p).is_file()]
+    return sorted(Path(p) for p in glob.glob(text, recursive=True) if Path(p).is_file())
 
 
 #: Error numbers of a write that failed after its path was accepted (exit status 1); any other

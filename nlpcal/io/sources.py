@@ -9,7 +9,6 @@ units and validation as CSV (`nlpcal.io.tables` reads the columns it gets from h
 
 from __future__ import annotations
 
-import glob
 import io
 from pathlib import Path
 
@@ -20,7 +19,7 @@ from .files import (
     PARQUET_SUFFIXES,
     TEXT_SUFFIXES,
     existing_file,
-    is_log_file,
+    matching_files,
 )
 
 #: The leading (and trailing) bytes of every Parquet file.
@@ -38,22 +37,20 @@ def is_pattern(source) -> bool:
 
 def log_paths(source) -> list:
     """The files of a log: [source] for one file; the sorted matches of a glob pattern; the
-    sorted log files (`is_log_file`) of a folder. InputError when nothing matches."""
+    sorted log files (`is_log_file`) of a folder (`matching_files`). InputError when nothing
+    matches."""
     text = str(source)
+    found = matching_files(text)
+    if found:
+        return found
     if Path(text).is_dir():
-        found = sorted(p for p in Path(text).iterdir() if p.is_file() and is_log_file(p))
-        if not found:
-            raise InputError(
-                f"{text}: the folder has no CSV or Parquet files "
-                f"({', '.join(TEXT_SUFFIXES + PARQUET_SUFFIXES)})"
-            )
-        return found
+        raise InputError(
+            f"{text}: the folder has no CSV or Parquet files "
+            f"({', '.join(TEXT_SUFFIXES + PARQUET_SUFFIXES)})"
+        )
     if is_pattern(text):
-        found = sorted(Path(p) for p in glob.glob(text, recursive=True) if Path(p).is_file())
-        if not found:
-            raise InputError(f"{text}: no file matches the pattern")
-        return found
-    return [existing_file(text)]
+        raise InputError(f"{text}: no file matches the pattern")
+    return [existing_file(text)]  # which says why the one file named is not there
 
 
 def is_parquet(path) -> bool:
