@@ -20,12 +20,10 @@ import threading
 from concurrent.futures import ThreadPoolExecutor
 from contextvars import ContextVar
 from functools import lru_cache
-from numbers import Integral
 
 from threadpoolctl import ThreadpoolController
 
 from . import validation
-from .errors import InputError
 
 
 def available_cores() -> int:
@@ -74,10 +72,7 @@ def call_threads(threads=None):
     between them gain nothing from BLAS threads, and OpenBLAS threads woken by one of them keep
     spinning into the next pass, taking a core from it. More threads than cores oversubscribe
     them: that is the caller's choice."""
-    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, Integral)):
-        raise InputError(f"threads must be a whole number of at least 1, got {threads!r}")
-    count = None if threads is None else validation.count(threads, "threads")
-    token = _threads.set(count)
+    token = _threads.set(validation.optional_whole(threads, "threads"))
     try:
         with single_blas():
             yield

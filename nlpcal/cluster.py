@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 from pathlib import Path
 
+from . import validation
 from .errors import InputError
 
 #: Scheduler names of `--scheduler`; anything else is the address of a running scheduler.
@@ -63,10 +64,7 @@ def scheduler(spec=None, workers: int | None = None):
 
     workers : worker processes of "local" or "processes" (default: one per core).
     """
-    if workers is not None and (
-        isinstance(workers, bool) or int(workers) != workers or workers < 1
-    ):
-        raise InputError(f"workers must be a whole number of at least 1, got {workers!r}")
+    workers = validation.optional_whole(workers, "workers")
     if spec is None:
         yield None
         return

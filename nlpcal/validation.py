@@ -8,6 +8,7 @@ files are checked field by field with `nlpcal.results.DocumentReader`, which cal
 from __future__ import annotations
 
 import math
+from numbers import Integral
 
 import numpy as np
 
@@ -75,6 +76,16 @@ def count(value, what: str, *, minimum: int = 1) -> int:
     if result < minimum:
         raise InputError(f"{what} must be at least {minimum}, got {result}")
     return result
+
+
+def optional_whole(value, what: str) -> int | None:
+    """None, or a whole number (of an integer type, not a bool) of at least 1: a count of threads
+    or of processes."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, Integral):
+        raise InputError(f"{what} must be a whole number of at least 1, got {value!r}")
+    return count(value, what)
 
 
 def choice(value, what: str, options) -> str:
