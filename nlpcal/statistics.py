@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from .models.zhou2010 import Zhou2010Parameters, correct, correction_matrix_entries
-from .passes import as_rows, reduce, reference_chunk
+from .passes import SURVEY_HEAD, as_rows, reduce, reference_chunk
 
 #: Delta degrees of freedom of the reported std.
 STD_DDOF = 0
@@ -139,6 +139,15 @@ def correction(theta):
     return theta[0:3], np.array(matrix, dtype=float)
 
 
+def shifted_correction(samples, theta) -> tuple:
+    """(offset, M, shift): the correction of Eq. 4 for theta (`correction`), and the shift of
+    the sums of `MagnitudeStats`, the mean |B1| of the first SURVEY_HEAD samples (which a Dask
+    log's survey keeps). [field unit]"""
+    offset, matrix = correction(theta)
+    head = samples[: min(SURVEY_HEAD, samples.shape[0])]
+    return offset, matrix, float(corrected_magnitude(head, offset, matrix).mean())
+
+
 def corrected_magnitude(chunk, offset, matrix) -> np.ndarray:
     """|B1| = |M (B_M - Z_p)| (Eq. 4) of a chunk of raw samples, M upper triangular. [field unit]"""
     (m00, m01, m02), (_, m11, m12), (_, _, m22) = matrix
@@ -202,10 +211,7 @@ def field_statistics(
         "weighted_centre" (sum w |B1| / sum w with the IRLS weights w [field unit]).
     """
     samples = as_rows(samples)
-    offset, matrix = correction(theta)
-    shift = float(
-        corrected_magnitude(samples[: min(1024, samples.shape[0])], offset, matrix).mean()
-    )
+    offset, matrix, shift = shifted_correction(samples, theta)
     work = StatisticsBlock(offset, matrix, shift, chunk_rows, loss, centre)
     total, sums = reduce(samples, reference, work, _merge_statistics, chunk_rows)
     result = total.result()
@@ -245,14 +251,8 @@ def exact_objectives(samples, thetas, reference=None, chunk_rows: int = 16384) -
     """The exact objective (Eq. 8, or its reference variant) at each parameter vector of
     `thetas`, in one pass over the samples (one task per block on a Dask log). [field^2]"""
     samples = as_rows(samples)
-    head = samples[: min(1024, samples.shape[0])]
-    corrections = []
-    for theta in thetas:
-        offset, matrix = correction(theta)
-        corrections.append(
-            (offset, matrix, float(corrected_magnitude(head, offset, matrix).mean()))
-        )
-    work = ObjectivesBlock(tuple(corrections), chunk_rows)
+    corrections = tuple(shifted_correction(samples, theta) for theta in thetas)
+    work = ObjectivesBlock(corrections, chunk_rows)
     totals = reduce(samples, reference, work, _merge_each, chunk_rows)
     return np.array([total.result()["objective"] for total in totals])
 
