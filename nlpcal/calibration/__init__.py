@@ -18,10 +18,11 @@ from ..moments import accumulate
 from ..nlp.blocks import GAUGE
 from ..nlp.solver import IpoptOptions
 from ..robust import TUNING, Loss
-from .coverage import coverage_centre, direction_coverage, flatness
+from .coverage import coverage_centre, direction_coverage
 from .diagnostics import (
     explain_failure,
     joint_gap,
+    problem_flatness,
     residual_spread,
     scaled_hessian,
     uncertainty,
@@ -149,7 +150,7 @@ def calibrate(
             problem, final["objective"], hs, final["residual_lag1_autocorrelation"], theta
         )
         spread = residual_spread(problem, theta)
-        flat = flatness(samples, spread["residual_robust_std"], problem.reference is not None)
+        flat = problem_flatness(problem, theta, spread)
         identifiability["flatness"] = flat
         if flat["planar"]:  # the Hessian at a degenerate optimum can look healthy
             blind = set(flat["parameters"]) | set(identifiability["not_identifiable"])

@@ -194,6 +194,13 @@ def residual_spread(problem: Problem, theta) -> dict:
     return {"residual_std": float(np.std(residuals)), "residual_robust_std": robust_std(residuals)}
 
 
+def problem_flatness(problem: Problem, theta, spread: dict | None = None) -> dict:
+    """`coverage.flatness` of a problem's samples, judged against the robust spread of its
+    residuals at theta (`spread`, from `residual_spread`, when already at hand)."""
+    spread = spread or residual_spread(problem, theta)
+    return flatness(problem.samples, spread["residual_robust_std"], problem.reference is not None)
+
+
 def exact_optimum_shift(problem: Problem, theta, hs: np.ndarray, errors) -> float | None:
     """How far the exact optimum lies from `theta`, in standard errors (largest over parameters).
 
@@ -231,8 +238,7 @@ def explain_failure(
     theta = failure.result
     if theta is None or not np.all(np.isfinite(theta)):
         return failure
-    noise = residual_spread(problem, theta)["residual_robust_std"]
-    flat = flatness(problem.samples, noise, problem.reference is not None)
+    flat = problem_flatness(problem, theta)
     if flat["planar"]:
         return SolveError(
             f"{failure}: {planar_message(flat, _unit_word(unit))}", failure.status, result=theta

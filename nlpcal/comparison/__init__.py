@@ -27,10 +27,10 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from .. import chunks, units, validation
-from ..calibration.coverage import flatness, planar_message
+from ..calibration.coverage import planar_message
 from ..calibration.diagnostics import (
     explain_failure,
-    residual_spread,
+    problem_flatness,
     scaled_hessian,
     uncertainty,
 )
@@ -233,8 +233,7 @@ def compare(
         joint_path = joint_trajectory(joint_step, joint["iterations"], joint["objective"])
         hs = scaled_hessian(moments, joint_theta, joint_step)
         weak = uncertainty(problem, joint["objective"], hs)[1]["not_identifiable"]
-        noise = residual_spread(problem, joint_theta)["residual_robust_std"]
-        flat = flatness(samples, noise, reference is not None)
+        flat = problem_flatness(problem, joint_theta)
         if flat["planar"] and require_identifiable:
             raise QualityError(
                 f"{planar_message(flat, units.base_unit(unit))}; no method has an optimum to reach",
