@@ -245,7 +245,11 @@ def test_failed_solve_exits_1_and_keeps_the_old_output(tmp_path, capsys, log_csv
 
     def failing(*args, **kwargs):
         return SolveOutcome(
-            x=np.zeros(9), f=2.0, status="Restoration_Failed", success=False, iterations=3
+            x=np.zeros(len(kwargs["x0"])),
+            f=2.0,
+            status="Restoration_Failed",
+            success=False,
+            iterations=3,
         )
 
     monkeypatch.setattr(problems, "solve", failing)
