@@ -7,6 +7,8 @@ References
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from .. import chunks, passes, units, validation
@@ -15,8 +17,7 @@ from ..io.lazy import field_samples
 from ..io.logs import Log
 from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
 from ..moments import accumulate
-from ..nlp.blocks import GAUGE
-from ..nlp.solver import IpoptOptions
+from ..nlp.blocks import GAUGE, OPTIONS
 from ..robust import TUNING, Loss
 from .coverage import coverage_centre, direction_coverage
 from .diagnostics import (
@@ -126,7 +127,7 @@ def calibrate(
             reference=reference,
             moments=moments,
             loss=chosen_loss,
-            ipopt=IpoptOptions(print_level=5) if verbose else IpoptOptions(),
+            ipopt=replace(OPTIONS, print_level=5) if verbose else OPTIONS,
         )
         try:
             if method == "staged":

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..models.zhou2010 import Zhou2010Parameters
 from ..moments import Moments, accumulate
-from ..nlp.blocks import objective_function, pack, parameters, summary_function
+from ..nlp.blocks import OPTIONS, objective_function, pack, parameters, summary_function
 from ..nlp.solver import IpoptOptions
 from ..passes import reduce
 from ..robust import MAD_SAMPLES, Loss
@@ -56,7 +56,7 @@ class Problem:
     reweights: int = 0
     weighted_at: np.ndarray | None = None  # the estimate the current weights were taken at
     frozen: bool = False  # the weights stay as they are (a comparison of solvers on them)
-    ipopt: IpoptOptions = IpoptOptions()
+    ipopt: IpoptOptions = OPTIONS
 
     def __post_init__(self):
         self.scale_given = self.loss.scale is not None

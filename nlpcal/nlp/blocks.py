@@ -71,6 +71,13 @@ def variable_scale(radius: float) -> np.ndarray:
     return np.array([1e-3 * radius] * 3 + [1e-3] * 3 + [1e-2] * 3)
 
 
+#: IPOPT settings of the block problems. Their variables and objective are scaled to order one,
+#: so a gradient of 1e-8 moves no parameter by more than ~1e-8 sqrt(N) of its standard errors
+#: (1e-4 at N = 1e8); tighter, IPOPT chases the rounding of the moment objective through many
+#: line-search steps (a quarter of the staged cycle's iterations on a 1 nT log).
+OPTIONS = IpoptOptions(tol=1e-8)
+
+
 @dataclass(frozen=True)
 class Symbols:
     theta_ref: ca.MX
@@ -178,7 +185,7 @@ class BlockProblem:
 @problem(
     "zhou2010.block", examples=[(b, r) for b in BLOCKS for r in ("none", "constant", "series")]
 )
-def block_problem(block: str, reference: str, options: IpoptOptions = IpoptOptions()):
+def block_problem(block: str, reference: str, options: IpoptOptions = OPTIONS):
     """The problem of one block (stage or joint) for one kind of reference.
 
     Built on first use and cached for the life of the process.
@@ -294,7 +301,7 @@ def block_step(
     moments: mom.Moments,
     block: str,
     theta,
-    options: IpoptOptions = IpoptOptions(),
+    options: IpoptOptions = OPTIONS,
     stationary: float = STATIONARY_RTOL,
 ) -> Step:
     """Minimise over one block of theta from `theta`, the other blocks held fixed.
