@@ -166,9 +166,7 @@ def joint_gap(problem: Problem, theta, errors) -> dict:
     status of the joint solve.
     """
     try:
-        step = block_step(
-            problem.moments, "joint", theta, stationary=blocks.resolution(problem.moments)
-        )
+        step = block_step(problem.moments, "joint", theta)
     except SolveError as failure:
         return {"status": failure.status, "max_gap_in_standard_errors": None}
     staged = Zhou2010Parameters.from_theta(theta).as_vector()

@@ -8,8 +8,8 @@ Start: the algebraic ellipsoid fit (`algebraic_start`), else offsets at the cent
 fitted to the raw samples, angles zero, and scales zero (Eq. 8) or the common scale that maps the
 sphere radius onto the reference field. A start whose Newton step is shorter than
 `nlpcal.nlp.blocks.STATIONARY_SE` standard errors is the optimum to the resolution of the data
-and is not handed to IPOPT (status At_Stationary_Point): on a near-spherical log the algebraic
-fit often is.
+and is not handed to IPOPT: the Newton step finishes it (status At_Stationary_Point). On a
+near-spherical log the algebraic fit often is.
 
 References
 ----------
@@ -25,7 +25,7 @@ import numpy as np
 
 from ..models.zhou2010 import from_correction
 from ..moments import PSI_EXPONENTS
-from ..nlp.blocks import block_step, resolution, variable_scale
+from ..nlp.blocks import block_step, variable_scale
 
 
 @cache
@@ -117,13 +117,12 @@ def run_joint(problem, start=None):
         start = algebraic_start(problem.moments)
     if start is None:
         start = joint_start(problem.moments)
-    stationary = resolution(problem.moments)
-    step = block_step(problem.moments, "joint", start, problem.ipopt, stationary=stationary)
+    step = block_step(problem.moments, "joint", start, problem.ipopt)
     records = [(step, "joint")]
     scale = variable_scale(problem.moments.frame.radius)
     for _ in range(MAX_REWEIGHTS if problem.loss.robust else 0):
         changed = problem.reweight(step.theta)
-        new = block_step(problem.moments, "joint", step.theta, problem.ipopt, stationary=stationary)
+        new = block_step(problem.moments, "joint", step.theta, problem.ipopt)
         move = float(np.max(np.abs(new.theta - step.theta) / scale))
         step = new
         records.append((step, "joint (reweighted)"))

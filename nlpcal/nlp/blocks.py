@@ -29,6 +29,7 @@ References
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import cache, cached_property
 
 import casadi as ca
 import numpy as np
@@ -71,11 +72,15 @@ def variable_scale(radius: float) -> np.ndarray:
     return np.array([1e-3 * radius] * 3 + [1e-3] * 3 + [1e-2] * 3)
 
 
-#: IPOPT settings of the block problems. Their variables and objective are scaled to order one,
-#: so a gradient of 1e-8 moves no parameter by more than ~1e-8 sqrt(N) of its standard errors
-#: (1e-4 at N = 1e8); tighter, IPOPT chases the rounding of the moment objective through many
-#: line-search steps (a quarter of the staged cycle's iterations on a 1 nT log).
-OPTIONS = IpoptOptions(tol=1e-8)
+#: IPOPT settings of the block problems. Their variables and objective are scaled to order one
+#: (the Hessian's eigenvalues in x are 1e2-1e5 on a well-covered log), so a gradient of 1e-6
+#: leaves every parameter within ~1e-6 sqrt(N / eigenvalue) of its standard errors of the block's
+#: optimum (1e-3 at N = 1e8), and `block_step` finishes every solve with a Newton step. Near the
+#: optimum the gradient of the moment objective carries rounding noise of 1e-6 to 1e-4 (its
+#: value cancels from O(1) terms down to the variance of |B1| / L^2): two iterations in a row
+#: below 1e-4 then count as solved, where IPOPT's defaults chased that noise through long line
+#: searches (half the iterations of the staged cycle on a 1 nT log).
+OPTIONS = IpoptOptions(tol=1e-6, acceptable_tol=1e-4, acceptable_iter=2)
 
 
 @dataclass(frozen=True)
@@ -171,13 +176,25 @@ class BlockProblem:
     def free(self) -> list:
         return list(BLOCKS[self.block])
 
+    @cached_property
+    def functions(self) -> dict:
+        """The objective, its gradient and the Hessian of the Lagrangian IPOPT evaluates."""
+        return {
+            name: self.solver.get_function(name) for name in ("nlp_f", "nlp_grad_f", "nlp_hess_l")
+        }
+
     def objective(self, x, p) -> float:
         """f(theta_ref + var_scale * x) / f_ref, the scaled objective."""
-        return float(self.solver.get_function("nlp_f")(x, p))
+        return float(self.functions["nlp_f"](x, p))
+
+    def gradient(self, x, p) -> tuple[float, np.ndarray]:
+        """The scaled objective and its gradient in x."""
+        f_value, gradient = self.functions["nlp_grad_f"](x, p)
+        return float(f_value), np.asarray(gradient, dtype=float).ravel()
 
     def hessian(self, x, p) -> np.ndarray:
         """Hessian of the scaled objective in x (the constraint is linear)."""
-        upper = self.solver.get_function("nlp_hess_l")(x, p, 1.0, np.zeros(int(self.has_gauge)))
+        upper = self.functions["nlp_hess_l"](x, p, 1.0, np.zeros(int(self.has_gauge)))
         upper = np.asarray(ca.DM(upper).full())
         return upper + np.triu(upper, 1).T
 
@@ -215,10 +232,13 @@ class Step:
     p: ca.DM  # the parameter vector the problem was solved with
     x: np.ndarray  # the scaled variables of `theta` in this problem
     hess: np.ndarray | None = field(default=None, repr=False)
-    newton_decrease: float | None = None  # [field^2], what a Newton step from the start promised
+    # [field^2], what a Newton step from the start promised, when it was taken instead of IPOPT
+    newton_decrease: float | None = None
 
     def objective_hessian(self) -> np.ndarray:
-        """Hessian of the scaled objective f / f_ref in x at `x`, evaluated once."""
+        """Hessian of the scaled objective f / f_ref in x at `x`, evaluated once (for a start at
+        its optimum, at the start: the Newton step from it is shorter than STATIONARY_SE
+        standard errors, over which the Hessian changes by far less than its own precision)."""
         if self.hess is None:
             self.hess = self.problem.hessian(self.x, self.p)
         return self.hess
@@ -232,12 +252,11 @@ class Step:
         return self.outcome.status
 
 
-#: A block whose Newton step from its start would lower the objective by less than this fraction
-#: is at its optimum already: it is not handed to IPOPT (whose tolerance is of this order). [1]
+#: The smallest Newton decrease, as a fraction of the objective, that float64 moments resolve. [1]
 STATIONARY_RTOL = 1e-12
-#: A joint solve whose Newton step from its start would move the parameters by less than this
-#: many standard errors starts at its optimum to the resolution of the data (`resolution`).
-#: [standard errors]
+#: A block whose Newton step from its start would move the parameters by less than this many
+#: standard errors starts at its optimum to the resolution of the data (`resolution`): the
+#: Newton step, not IPOPT, finishes it. [standard errors]
 STATIONARY_SE = 0.01
 
 
@@ -266,35 +285,65 @@ def parameters(moments: mom.Moments) -> ca.DM:
     return moments.cache["p"]
 
 
-def gauge_basis(free) -> np.ndarray:
-    """Orthonormal basis of the scaled variables of the parameters `free` (indices into theta)
-    that the gauge s_x + s_y + s_z = 0 leaves free (every scale has the same variable scale)."""
+@cache
+def _gauge_basis(free: tuple) -> np.ndarray:
     normal = np.array([1.0 if i in SCALE_INDICES else 0.0 for i in free])
     return np.linalg.svd(normal[None, :])[2][1:].T
 
 
-def _newton_decrease(problem: BlockProblem, gradient, h: np.ndarray) -> float:
-    """The decrease of the scaled objective that one Newton step promises (gradient and Hessian h
-    where it starts), on the gauge's null space when the block has one; inf when the Hessian
-    there is not positive."""
+def gauge_basis(free) -> np.ndarray:
+    """Orthonormal basis of the scaled variables of the parameters `free` (indices into theta)
+    that the gauge s_x + s_y + s_z = 0 leaves free (every scale has the same variable scale)."""
+    return _gauge_basis(tuple(free)).copy()
+
+
+def _newton_step(problem: BlockProblem, gradient, h: np.ndarray) -> tuple[float, np.ndarray]:
+    """One Newton step of the scaled objective (gradient and Hessian h where it starts), on the
+    gauge's null space when the block has one: (the decrease it promises, the step in x).
+    The decrease is inf, and the step zero, when the Hessian there is not positive."""
     g = np.asarray(gradient, dtype=float).ravel()
     if problem.has_gauge:
-        basis = gauge_basis(problem.free)
+        basis = _gauge_basis(BLOCKS[problem.block])
         g, h = basis.T @ g, basis.T @ h @ basis
     try:
         factor = np.linalg.cholesky(0.5 * (h + h.T))
     except np.linalg.LinAlgError:
-        return np.inf
-    half = np.linalg.solve(factor, g)
-    return 0.5 * float(half @ half)
+        return np.inf, np.zeros(len(problem.free))
+    half = np.linalg.solve(factor, g)  # H^-1 = L^-T L^-1
+    step = -np.linalg.solve(factor.T, half)
+    return 0.5 * float(half @ half), basis @ step if problem.has_gauge else step
 
 
-def _settled(problem: BlockProblem, x, p, moments: mom.Moments) -> bool:
-    """Whether the block at scaled variables x is at its optimum to the resolution of the data:
-    a Newton step from x would move it by less than STATIONARY_SE standard errors."""
-    f_value, gradient = problem.solver.get_function("nlp_grad_f")(x, p)
-    decrease = _newton_decrease(problem, gradient, problem.hessian(x, p))
-    return decrease <= resolution(moments) * float(f_value)
+@dataclass(frozen=True)
+class _Newton:
+    """One Newton step of a block's scaled objective from x: where it lands and what it promised."""
+
+    x: np.ndarray  # the point it was taken from
+    f: float  # the scaled objective at x
+    hess: np.ndarray  # its Hessian at x
+    decrease: float  # the decrease the step promises (scaled objective)
+    step: np.ndarray
+
+    @classmethod
+    def at(cls, problem: BlockProblem, x, p, value_and_gradient=None) -> _Newton:
+        """The step from x (the scaled objective and its gradient there, if already at hand)."""
+        f_value, gradient = value_and_gradient or problem.gradient(x, p)
+        hess = problem.hessian(x, p)
+        decrease, step = _newton_step(problem, gradient, hess)
+        return cls(np.asarray(x, dtype=float), f_value, hess, decrease, step)
+
+    def within(self, moments: mom.Moments, threshold: float | None = None) -> bool:
+        """Whether x is the block's optimum to the resolution of the data: the step is shorter
+        than STATIONARY_SE standard errors (or promises less than `threshold` of f)."""
+        limit = resolution(moments) if threshold is None else threshold
+        return self.decrease <= limit * self.f
+
+    def taken(self, problem: BlockProblem, p) -> tuple[np.ndarray, float]:
+        """(x, scaled f) after the step, or before it where rounding says it does not lower f.
+        From within the resolution the step lands on the optimum to the square of its length."""
+        x = self.x + self.step
+        f_value = problem.objective(x, p)
+        return (x, f_value) if f_value <= self.f else (self.x, self.f)
 
 
 def block_step(
@@ -302,14 +351,15 @@ def block_step(
     block: str,
     theta,
     options: IpoptOptions = OPTIONS,
-    stationary: float = STATIONARY_RTOL,
+    stationary: float | None = None,
 ) -> Step:
     """Minimise over one block of theta from `theta`, the other blocks held fixed.
 
     Raises SolveError when IPOPT fails; a solve that ends above its start (it should not) keeps
     the start, so a stage never makes the objective worse. A block already at its optimum (a
-    Newton step would gain less than the fraction `stationary` of the objective, see
-    `resolution`) is not re-solved.
+    Newton step would gain less than the fraction `stationary` of the objective, by default
+    `resolution`: a step shorter than STATIONARY_SE standard errors) is not handed to IPOPT;
+    the Newton step finishes it (status At_Stationary_Point, zero iterations).
     """
     problem = block_problem(block, moments.reference, options)
     theta = np.asarray(theta, dtype=float)
@@ -319,46 +369,70 @@ def block_step(
     p[p.numel() - 1] = 1.0
     free = problem.free
     zero = np.zeros(len(free))
-    f_value, gradient = problem.solver.get_function("nlp_grad_f")(zero, p)
-    f_start = float(f_value)
-    if f_start <= PRECISION_FLOOR * moments.length**2:
+    f_start, gradient = problem.gradient(zero, p)
+    floor = PRECISION_FLOOR * moments.length**2
+    if abs(f_start) <= floor:
         # Noise-free data at their optimum: nothing left that float64 moments can resolve.
         outcome = SolveOutcome(
             x=zero, f=1.0, status="At_Precision_Floor", success=True, iterations=0
         )
         return Step(theta, outcome, f_start, f_start, 1.0, problem, ca.DM(p), outcome.x)
-    hess = problem.hessian(zero, p)
-    decrease = _newton_decrease(problem, gradient, hess)
-    if decrease <= stationary * f_start:
+    start = _Newton.at(problem, zero, p, (f_start, gradient))
+    if start.within(moments, stationary):
+        x, f_end = start.taken(problem, p)  # f_ref = 1 here: [field^2]
         outcome = SolveOutcome(
-            x=zero, f=1.0, status="At_Stationary_Point", success=True, iterations=0
+            x=x, f=f_end, status="At_Stationary_Point", success=True, iterations=0
         )
-        return Step(theta, outcome, f_start, f_start, 1.0, problem, ca.DM(p), zero, hess, decrease)
+        step = _step(theta, var_scale, outcome, f_start, 1.0, problem, ca.DM(p), start.hess)
+        step.newton_decrease = start.decrease  # f_ref = 1: [field^2]
+        return step
     f_ref = max(f_start, SCALE_FLOOR * moments.length**2)
     p[p.numel() - 1] = f_ref
     p = ca.DM(p)  # the step keeps its own copy: the cached vector changes with the next solve
     bounds = {"lbg": 0.0, "ubg": 0.0} if problem.has_gauge else {}
     outcome = solve(problem.solver, x0=zero, p=p, **bounds)
-    # Below PRECISION_FLOOR the gradient of the moment objective is rounding noise; above it, on
-    # low-noise data (0.01 nT in 50 000 nT), the objective still rounds at 1e-7 to 1e-5 of
-    # itself. IPOPT cannot meet its tolerance in that noise: it then reports a step below machine
-    # precision, or runs out of iterations, depending on the rounding of the BLAS kernel that
-    # summed the moments. Its last point is the block's optimum to the resolution of the data
-    # when a Newton step from it would move the block by less than STATIONARY_SE standard errors.
+    # IPOPT's answer is checked, and finished, by a Newton step from it. Its tolerance (OPTIONS)
+    # leaves it within a small fraction of a standard error; the Newton step from there lands on
+    # the block's optimum to the square of that. Below PRECISION_FLOOR the gradient of the moment
+    # objective is rounding noise, and above it, on low-noise data (0.01 nT in 50 000 nT), the
+    # objective still rounds at 1e-7 to 1e-5 of itself: IPOPT may then report a step below
+    # machine precision, or run out of iterations, depending on the rounding of the BLAS kernel
+    # that summed the moments. Its answer is the block's optimum to the resolution of the data
+    # all the same when the Newton step from it is shorter than STATIONARY_SE standard errors.
+    # A negative objective (a variance) is not a floor: the series of `nlp.objective` does not
+    # hold where the solve went, which happens when the data leave directions undetermined.
+    end = _Newton.at(problem, outcome.x, p)
     f_end = outcome.f * f_ref
-    at_floor = (f_end <= f_start and f_end <= PRECISION_FLOOR * moments.length**2) or (
-        not outcome.success and _settled(problem, outcome.x, p, moments)
-    )
-    if at_floor and not outcome.success:
+    settled = f_end > 0 and end.within(moments)
+    at_floor = abs(f_end) <= floor and f_end <= f_start
+    if f_end < -floor and outcome.success:
+        outcome = replace(outcome, status="Negative_Objective", success=False)
+    if not outcome.success and (settled or at_floor):
         outcome = replace(outcome, status="At_Precision_Floor", success=True)
     if not outcome.success:
         raise SolveError(
             f"IPOPT did not solve the {block} problem", outcome.status, result=theta
         )  # the start, where the data's null directions show
+    x, f_scaled = end.taken(problem, p)
+    outcome = replace(outcome, x=x, f=f_scaled)
     if outcome.f * f_ref > f_start + 1e-12 * f_ref:
         return Step(theta, outcome, f_start, f_start, f_ref, problem, p, zero)
+    return _step(theta, var_scale, outcome, f_start, f_ref, problem, p, end.hess)
+
+
+def _step(theta, var_scale, outcome, f_start, f_ref, problem, p, hess) -> Step:
+    """The Step of a block solve that ended at `outcome.x` (scaled objective `outcome.f`), with
+    the Hessian of the last Newton check, taken within a hundredth of a standard error of it."""
     step = np.zeros(9)
-    step[free] = outcome.x
+    step[problem.free] = outcome.x
     return Step(
-        theta + var_scale * step, outcome, f_start, outcome.f * f_ref, f_ref, problem, p, outcome.x
+        theta + var_scale * step,
+        outcome,
+        f_start,
+        outcome.f * f_ref,
+        f_ref,
+        problem,
+        p,
+        outcome.x,
+        hess,
     )
