@@ -49,7 +49,7 @@ def scaled_hessian(moments: Moments, theta, step=None) -> np.ndarray:
     From the joint problem's own Hessian when `step` is its solve, else from the full objective.
     """
     scale = variable_scale(moments.frame.radius)
-    if step is not None and step.problem.block == "joint":
+    if step is not None and step.block == "joint":
         return step.f_ref * step.objective_hessian()
     p = pack(moments, theta, scale, 1.0)
     hess = np.asarray(objective_function(moments.reference)(theta, p)[2], dtype=float)

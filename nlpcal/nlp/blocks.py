@@ -29,7 +29,7 @@ References
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from functools import cache, cached_property
+from functools import cache
 
 import casadi as ca
 import numpy as np
@@ -164,39 +164,28 @@ def summary_function(reference: str) -> ca.Function:
     )
 
 
+@problem("zhou2010.value", examples=[("none",), ("constant",), ("series",)])
+def value_function(reference: str) -> ca.Function:
+    """f(theta, p) [field^2] alone: where a Newton step lands, is the objective lower?"""
+    s = _symbols(reference)
+    theta = ca.MX.sym("theta", 9)
+    f = objective_expression(theta, s.gram, s.centre, s.length, reference)
+    return ca.Function(f"value_{reference}", [theta, s.data], [f], ["theta", "p"], ["f"])
+
+
+def has_gauge(block: str, reference: str) -> bool:
+    """Whether the block's problem carries the gauge s_x + s_y + s_z = 0 (no reference, and the
+    block frees the scales)."""
+    return reference == "none" and any(i in SCALE_INDICES for i in BLOCKS[block])
+
+
 @dataclass(frozen=True)
 class BlockProblem:
-    """One block's `nlpsol` and the functions IPOPT built with it (objective, Hessian)."""
+    """One block's `nlpsol`."""
 
     block: str
     solver: ca.Function
     has_gauge: bool
-
-    @property
-    def free(self) -> list:
-        return list(BLOCKS[self.block])
-
-    @cached_property
-    def functions(self) -> dict:
-        """The objective, its gradient and the Hessian of the Lagrangian IPOPT evaluates."""
-        return {
-            name: self.solver.get_function(name) for name in ("nlp_f", "nlp_grad_f", "nlp_hess_l")
-        }
-
-    def objective(self, x, p) -> float:
-        """f(theta_ref + var_scale * x) / f_ref, the scaled objective."""
-        return float(self.functions["nlp_f"](x, p))
-
-    def gradient(self, x, p) -> tuple[float, np.ndarray]:
-        """The scaled objective and its gradient in x."""
-        f_value, gradient = self.functions["nlp_grad_f"](x, p)
-        return float(f_value), np.asarray(gradient, dtype=float).ravel()
-
-    def hessian(self, x, p) -> np.ndarray:
-        """Hessian of the scaled objective in x (the constraint is linear)."""
-        upper = self.functions["nlp_hess_l"](x, p, 1.0, np.zeros(int(self.has_gauge)))
-        upper = np.asarray(ca.DM(upper).full())
-        return upper + np.triu(upper, 1).T
 
 
 @problem(
@@ -213,10 +202,10 @@ def block_problem(block: str, reference: str, options: IpoptOptions = OPTIONS):
     parts = [x[free.index(i)] if i in free else ca.MX(0) for i in range(9)]
     theta = s.theta_ref + s.var_scale * ca.vertcat(*parts)
     f = objective_expression(theta, s.gram, s.centre, s.length, reference)
-    has_gauge = reference == "none" and any(i in SCALE_INDICES for i in free)
-    g = ca.sum1(theta[3:6]) if has_gauge else None
+    gauge = has_gauge(block, reference)
+    g = ca.sum1(theta[3:6]) if gauge else None
     solver = build_nlpsol(f"nlpcal_{block}_{reference}", x, f / s.f_ref, s.data, g, options)
-    return BlockProblem(block, solver, has_gauge)
+    return BlockProblem(block, solver, gauge)
 
 
 @dataclass
@@ -228,19 +217,19 @@ class Step:
     f_start: float  # [field^2]
     f_end: float  # [field^2], the moment objective at `theta`
     f_ref: float  # [field^2], the objective scale the problem was solved with
-    problem: BlockProblem
+    block: str
     p: ca.DM  # the parameter vector the problem was solved with
     x: np.ndarray  # the scaled variables of `theta` in this problem
-    hess: np.ndarray | None = field(default=None, repr=False)
+    # Hessian of the scaled objective f / f_ref in x, from the last Newton check: at `x`, or
+    # within STATIONARY_SE standard errors of it, over which it changes by far less than its
+    # own precision
+    hess: np.ndarray = field(repr=False)
     # [field^2], what a Newton step from the start promised, when it was taken instead of IPOPT
     newton_decrease: float | None = None
+    problem: BlockProblem | None = None  # the IPOPT problem, when IPOPT ran
 
     def objective_hessian(self) -> np.ndarray:
-        """Hessian of the scaled objective f / f_ref in x at `x`, evaluated once (for a start at
-        its optimum, at the start: the Newton step from it is shorter than STATIONARY_SE
-        standard errors, over which the Hessian changes by far less than its own precision)."""
-        if self.hess is None:
-            self.hess = self.problem.hessian(self.x, self.p)
+        """Hessian of the scaled objective f / f_ref in x at `x`."""
         return self.hess
 
     @property
@@ -297,53 +286,73 @@ def gauge_basis(free) -> np.ndarray:
     return _gauge_basis(tuple(free)).copy()
 
 
-def _newton_step(problem: BlockProblem, gradient, h: np.ndarray) -> tuple[float, np.ndarray]:
-    """One Newton step of the scaled objective (gradient and Hessian h where it starts), on the
-    gauge's null space when the block has one: (the decrease it promises, the step in x).
-    The decrease is inf, and the step zero, when the Hessian there is not positive."""
-    g = np.asarray(gradient, dtype=float).ravel()
-    if problem.has_gauge:
-        basis = _gauge_basis(BLOCKS[problem.block])
+def _newton_step(block: str, gauge: bool, g: np.ndarray, h: np.ndarray):
+    """One Newton step of the objective over a block (gradient g and Hessian h in its scaled
+    variables), on the gauge's null space when the block has one: (the decrease it promises,
+    the step). The decrease is inf, and the step zero, when the Hessian is not positive."""
+    if gauge:
+        basis = _gauge_basis(BLOCKS[block])
         g, h = basis.T @ g, basis.T @ h @ basis
     try:
         factor = np.linalg.cholesky(0.5 * (h + h.T))
     except np.linalg.LinAlgError:
-        return np.inf, np.zeros(len(problem.free))
+        return np.inf, np.zeros(len(BLOCKS[block]))
     half = np.linalg.solve(factor, g)  # H^-1 = L^-T L^-1
     step = -np.linalg.solve(factor.T, half)
-    return 0.5 * float(half @ half), basis @ step if problem.has_gauge else step
+    return 0.5 * float(half @ half), basis @ step if gauge else step
 
 
 @dataclass(frozen=True)
 class _Newton:
-    """One Newton step of a block's scaled objective from x: where it lands and what it promised."""
+    """One Newton step over a block from theta_ref + var_scale * x (x the block's scaled
+    variables), from the objective's exact gradient and Hessian (`objective_function`).
 
-    x: np.ndarray  # the point it was taken from
-    f: float  # the scaled objective at x
-    hess: np.ndarray  # its Hessian at x
-    decrease: float  # the decrease the step promises (scaled objective)
+    The objective and the decrease are in field^2, the gradient and Hessian per unit of x.
+    """
+
+    moments: mom.Moments
+    block: str
+    theta_ref: np.ndarray
+    x: np.ndarray
+    f: float
+    hess: np.ndarray
+    decrease: float
     step: np.ndarray
 
     @classmethod
-    def at(cls, problem: BlockProblem, x, p, value_and_gradient=None) -> _Newton:
-        """The step from x (the scaled objective and its gradient there, if already at hand)."""
-        f_value, gradient = value_and_gradient or problem.gradient(x, p)
-        hess = problem.hessian(x, p)
-        decrease, step = _newton_step(problem, gradient, hess)
-        return cls(np.asarray(x, dtype=float), f_value, hess, decrease, step)
+    def at(cls, moments: mom.Moments, block: str, theta_ref, x, p) -> _Newton:
+        free = list(BLOCKS[block])
+        scale = variable_scale(moments.frame.radius)[free]
+        theta = _theta(moments, block, theta_ref, x)
+        f_value, gradient, hess = objective_function(moments.reference)(theta, p)
+        g = scale * np.asarray(gradient, dtype=float).ravel()[free]
+        h = scale[:, None] * np.asarray(hess, dtype=float)[np.ix_(free, free)] * scale[None, :]
+        decrease, step = _newton_step(block, has_gauge(block, moments.reference), g, h)
+        return cls(
+            moments, block, theta_ref, np.asarray(x, dtype=float), float(f_value), h, decrease, step
+        )
 
-    def within(self, moments: mom.Moments, threshold: float | None = None) -> bool:
+    def within(self, threshold: float | None = None) -> bool:
         """Whether x is the block's optimum to the resolution of the data: the step is shorter
         than STATIONARY_SE standard errors (or promises less than `threshold` of f)."""
-        limit = resolution(moments) if threshold is None else threshold
+        limit = resolution(self.moments) if threshold is None else threshold
         return self.decrease <= limit * self.f
 
-    def taken(self, problem: BlockProblem, p) -> tuple[np.ndarray, float]:
-        """(x, scaled f) after the step, or before it where rounding says it does not lower f.
-        From within the resolution the step lands on the optimum to the square of its length."""
+    def taken(self, p) -> tuple[np.ndarray, float]:
+        """(x, f [field^2]) after the step, or before it where rounding says it does not lower
+        f. From within the resolution the step lands on the optimum to the square of its
+        length."""
         x = self.x + self.step
-        f_value = problem.objective(x, p)
+        theta = _theta(self.moments, self.block, self.theta_ref, x)
+        f_value = float(value_function(self.moments.reference)(theta, p))
         return (x, f_value) if f_value <= self.f else (self.x, self.f)
+
+
+def _theta(moments: mom.Moments, block: str, theta_ref, x) -> np.ndarray:
+    """theta_ref + var_scale * x, x the scaled variables of the block."""
+    step = np.zeros(9)
+    step[list(BLOCKS[block])] = x
+    return np.asarray(theta_ref, dtype=float) + variable_scale(moments.frame.radius) * step
 
 
 def block_step(
@@ -358,34 +367,33 @@ def block_step(
     Raises SolveError when IPOPT fails; a solve that ends above its start (it should not) keeps
     the start, so a stage never makes the objective worse. A block already at its optimum (a
     Newton step would gain less than the fraction `stationary` of the objective, by default
-    `resolution`: a step shorter than STATIONARY_SE standard errors) is not handed to IPOPT;
-    the Newton step finishes it (status At_Stationary_Point, zero iterations).
+    `resolution`: a step shorter than STATIONARY_SE standard errors) is not handed to IPOPT
+    (whose problem is then not even built): the Newton step finishes it (status
+    At_Stationary_Point, zero iterations).
     """
-    problem = block_problem(block, moments.reference, options)
     theta = np.asarray(theta, dtype=float)
-    var_scale = variable_scale(moments.frame.radius)
     p = parameters(moments)
     p[0:9] = ca.DM(theta)
     p[p.numel() - 1] = 1.0
-    free = problem.free
-    zero = np.zeros(len(free))
-    f_start, gradient = problem.gradient(zero, p)
+    zero = np.zeros(len(BLOCKS[block]))
+    start = _Newton.at(moments, block, theta, zero, p)
+    f_start = start.f
     floor = PRECISION_FLOOR * moments.length**2
     if abs(f_start) <= floor:
         # Noise-free data at their optimum: nothing left that float64 moments can resolve.
         outcome = SolveOutcome(
-            x=zero, f=1.0, status="At_Precision_Floor", success=True, iterations=0
+            x=zero, f=f_start, status="At_Precision_Floor", success=True, iterations=0
         )
-        return Step(theta, outcome, f_start, f_start, 1.0, problem, ca.DM(p), outcome.x)
-    start = _Newton.at(problem, zero, p, (f_start, gradient))
-    if start.within(moments, stationary):
-        x, f_end = start.taken(problem, p)  # f_ref = 1 here: [field^2]
+        return _step(moments, block, theta, outcome, f_start, 1.0, ca.DM(p), start.hess)
+    if start.within(stationary):
+        x, f_end = start.taken(p)
         outcome = SolveOutcome(
             x=x, f=f_end, status="At_Stationary_Point", success=True, iterations=0
         )
-        step = _step(theta, var_scale, outcome, f_start, 1.0, problem, ca.DM(p), start.hess)
-        step.newton_decrease = start.decrease  # f_ref = 1: [field^2]
+        step = _step(moments, block, theta, outcome, f_start, 1.0, ca.DM(p), start.hess)
+        step.newton_decrease = start.decrease
         return step
+    problem = block_problem(block, moments.reference, options)
     f_ref = max(f_start, SCALE_FLOOR * moments.length**2)
     p[p.numel() - 1] = f_ref
     p = ca.DM(p)  # the step keeps its own copy: the cached vector changes with the next solve
@@ -401,11 +409,10 @@ def block_step(
     # all the same when the Newton step from it is shorter than STATIONARY_SE standard errors.
     # A negative objective (a variance) is not a floor: the series of `nlp.objective` does not
     # hold where the solve went, which happens when the data leave directions undetermined.
-    end = _Newton.at(problem, outcome.x, p)
-    f_end = outcome.f * f_ref
-    settled = f_end > 0 and end.within(moments)
-    at_floor = abs(f_end) <= floor and f_end <= f_start
-    if f_end < -floor and outcome.success:
+    end = _Newton.at(moments, block, theta, outcome.x, p)
+    settled = end.f > 0 and end.within()
+    at_floor = abs(end.f) <= floor and end.f <= f_start
+    if end.f < -floor and outcome.success:
         outcome = replace(outcome, status="Negative_Objective", success=False)
     if not outcome.success and (settled or at_floor):
         outcome = replace(outcome, status="At_Precision_Floor", success=True)
@@ -413,26 +420,26 @@ def block_step(
         raise SolveError(
             f"IPOPT did not solve the {block} problem", outcome.status, result=theta
         )  # the start, where the data's null directions show
-    x, f_scaled = end.taken(problem, p)
-    outcome = replace(outcome, x=x, f=f_scaled)
-    if outcome.f * f_ref > f_start + 1e-12 * f_ref:
-        return Step(theta, outcome, f_start, f_start, f_ref, problem, p, zero)
-    return _step(theta, var_scale, outcome, f_start, f_ref, problem, p, end.hess)
+    x, f_end = end.taken(p)
+    if f_end > f_start + 1e-12 * f_ref:
+        outcome = replace(outcome, x=zero, f=f_start / f_ref)
+        return _step(moments, block, theta, outcome, f_start, f_ref, p, start.hess / f_ref, problem)
+    outcome = replace(outcome, x=x, f=f_end / f_ref)
+    return _step(moments, block, theta, outcome, f_start, f_ref, p, end.hess / f_ref, problem)
 
 
-def _step(theta, var_scale, outcome, f_start, f_ref, problem, p, hess) -> Step:
-    """The Step of a block solve that ended at `outcome.x` (scaled objective `outcome.f`), with
-    the Hessian of the last Newton check, taken within a hundredth of a standard error of it."""
-    step = np.zeros(9)
-    step[problem.free] = outcome.x
+def _step(moments, block, theta_ref, outcome, f_start, f_ref, p, hess, problem=None) -> Step:
+    """The Step of a block solve from theta_ref that ended at `outcome.x` (scaled objective
+    `outcome.f`), with the Hessian of the scaled objective from the last Newton check."""
     return Step(
-        theta + var_scale * step,
-        outcome,
-        f_start,
-        outcome.f * f_ref,
-        f_ref,
-        problem,
-        p,
-        outcome.x,
-        hess,
+        theta=_theta(moments, block, theta_ref, outcome.x),
+        outcome=outcome,
+        f_start=f_start,
+        f_end=outcome.f * f_ref,
+        f_ref=f_ref,
+        block=block,
+        p=p,
+        x=outcome.x,
+        hess=hess,
+        problem=problem,
     )
