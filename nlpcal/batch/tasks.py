@@ -37,7 +37,7 @@ def failure(exc: BaseException) -> tuple:
     if isinstance(exc, QualityError):  # without the Python keywords that would override it
         return "quality-failed", " ".join(exc.reason.split())
     if isinstance(exc, SolveError):
-        status = f" (IPOPT status: {exc.status})" if exc.status else ""
+        status = f" (solver status: {exc.status})" if exc.status else ""
         return "solve-failed", message + status
     if isinstance(exc, WriteError):
         return "error", message

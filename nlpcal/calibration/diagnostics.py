@@ -50,7 +50,7 @@ def scaled_hessian(moments: Moments, theta, step=None) -> np.ndarray:
     """
     scale = variable_scale(moments.frame.radius)
     if step is not None and step.block == "joint":
-        return step.f_ref * step.objective_hessian()
+        return step.f_ref * step.hess
     p = pack(moments, theta, scale, 1.0)
     hess = np.asarray(objective_function(moments.reference)(theta, p)[2], dtype=float)
     return scale[:, None] * hess * scale[None, :]

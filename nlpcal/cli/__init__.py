@@ -127,7 +127,7 @@ def main(argv=None) -> int:
         print(f"nlpcal {args.command}: quality check failed: {exc.reason}", file=sys.stderr)
         return 1
     except SolveError as exc:
-        status = f" (IPOPT status: {exc.status})" if exc.status else ""
+        status = f" (solver status: {exc.status})" if exc.status else ""
         print(f"nlpcal {args.command}: solve failed: {exc}{status}", file=sys.stderr)
         return 1
     except WriteError as exc:

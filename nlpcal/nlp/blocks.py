@@ -72,14 +72,12 @@ def variable_scale(radius: float) -> np.ndarray:
     return np.array([1e-3 * radius] * 3 + [1e-3] * 3 + [1e-2] * 3)
 
 
-#: IPOPT settings of the block problems. Their variables and objective are scaled to order one
-#: (the Hessian's eigenvalues in x are 1e2-1e5 on a well-covered log), so a gradient of 1e-6
-#: leaves every parameter within ~1e-6 sqrt(N / eigenvalue) of its standard errors of the block's
-#: optimum (1e-3 at N = 1e8), and `block_step` finishes every solve with a Newton step. Near the
-#: optimum the gradient of the moment objective carries rounding noise of 1e-6 to 1e-4 (its
-#: value cancels from O(1) terms down to the variance of |B1| / L^2): two iterations in a row
-#: below 1e-4 then count as solved, where IPOPT's defaults chased that noise through long line
-#: searches (half the iterations of the staged cycle on a 1 nT log).
+#: IPOPT settings of the block problems: a scaled gradient of 1e-6, or two iterations in a row
+#: below 1e-4. The objective is scaled by its value where the solve starts, so this tolerance is
+#: relative to that value, not to the optimum's: Newton steps with the exact Hessian finish
+#: every answer to the resolution of the data (`block_step`), whatever IPOPT stopped at. Tighter
+#: settings had IPOPT chase the rounding noise of the moment objective's gradient near the
+#: optimum through long line searches (half the iterations of the staged cycle on a 1 nT log).
 OPTIONS = IpoptOptions(tol=1e-6, acceptable_tol=1e-4, acceptable_iter=2)
 
 
@@ -220,17 +218,13 @@ class Step:
     block: str
     p: ca.DM  # the parameter vector the problem was solved with
     x: np.ndarray  # the scaled variables of `theta` in this problem
-    # Hessian of the scaled objective f / f_ref in x, from the last Newton check: at `x`, or
-    # within STATIONARY_SE standard errors of it, over which it changes by far less than its
-    # own precision
+    # Hessian of the scaled objective f / f_ref in x, from the last Newton check: at `x`, or at
+    # the point whose Newton step, within STATIONARY_SE standard errors, landed on `x` (over
+    # which the Hessian changes by far less than its own precision)
     hess: np.ndarray = field(repr=False)
     # [field^2], what a Newton step from the start promised, when it was taken instead of IPOPT
     newton_decrease: float | None = None
     problem: BlockProblem | None = None  # the IPOPT problem, when IPOPT ran
-
-    def objective_hessian(self) -> np.ndarray:
-        """Hessian of the scaled objective f / f_ref in x at `x`."""
-        return self.hess
 
     @property
     def iterations(self) -> int:
@@ -338,14 +332,39 @@ class _Newton:
         limit = resolution(self.moments) if threshold is None else threshold
         return self.decrease <= limit * self.f
 
-    def taken(self, p) -> tuple[np.ndarray, float]:
-        """(x, f [field^2]) after the step, or before it where rounding says it does not lower
-        f. From within the resolution the step lands on the optimum to the square of its
-        length."""
+    def taken(self, p) -> _Newton:
+        """Where the step lands: x + step with f there (the Hessian and decrease are still the
+        ones at x), or this point itself where the step is no finishing one (longer than
+        FINISHING_STEP: a jump along a direction the data hardly determine) or f does not
+        decrease (rounding, or a Hessian that is not positive). From within the resolution the
+        step lands on the optimum to the square of its length in standard errors."""
+        if not np.max(np.abs(self.step)) <= FINISHING_STEP or not np.any(self.step):
+            return self
         x = self.x + self.step
         theta = _theta(self.moments, self.block, self.theta_ref, x)
         f_value = float(value_function(self.moments.reference)(theta, p))
-        return (x, f_value) if f_value <= self.f else (self.x, self.f)
+        return replace(self, x=x, f=f_value) if f_value <= self.f else self
+
+    def finished(self, p) -> _Newton:
+        """Newton steps from here until one is within the resolution, which is taken: every
+        IPOPT answer is finished this way, since IPOPT's tolerance is relative to the objective
+        where its solve started (far above the optimum's from a poor start). A step that is not
+        a finishing one (longer than FINISHING_STEP in the scaled variables, or not lowering f)
+        stops the steps short of the resolution."""
+        current = self
+        for _ in range(FINISHING_STEPS):
+            after = current.taken(p)
+            if current.within() or after is current:
+                return after
+            current = _Newton.at(self.moments, self.block, self.theta_ref, after.x, p)
+        return current
+
+
+#: The most Newton steps that finish an IPOPT answer (each squares its distance to the optimum).
+FINISHING_STEPS = 4
+#: The longest finishing step, in the scaled variables (1e-3 of the field for an offset, 1e-3 for
+#: a scale, 1e-2 rad for an angle): a longer one is not a finish but a jump on a flat objective.
+FINISHING_STEP = 1.0
 
 
 def _theta(moments: mom.Moments, block: str, theta_ref, x) -> np.ndarray:
@@ -364,12 +383,16 @@ def block_step(
 ) -> Step:
     """Minimise over one block of theta from `theta`, the other blocks held fixed.
 
-    Raises SolveError when IPOPT fails; a solve that ends above its start (it should not) keeps
-    the start, so a stage never makes the objective worse. A block already at its optimum (a
-    Newton step would gain less than the fraction `stationary` of the objective, by default
-    `resolution`: a step shorter than STATIONARY_SE standard errors) is not handed to IPOPT
-    (whose problem is then not even built): the Newton step finishes it (status
-    At_Stationary_Point, zero iterations).
+    A block already at its optimum (a Newton step would gain less than the fraction
+    `stationary` of the objective, by default `resolution`: a step shorter than STATIONARY_SE
+    standard errors) is not handed to IPOPT, whose problem is then not even built: the Newton
+    step finishes it (status At_Stationary_Point, zero iterations). Otherwise IPOPT solves it
+    and Newton steps finish IPOPT's answer (`_Newton.finished`). Statuses besides IPOPT's:
+    At_Precision_Floor (noise-free data, the objective below what float64 moments resolve) and
+    At_Data_Resolution (IPOPT gave up, whatever its reason, where Newton steps reach the
+    resolution). Raises SolveError when IPOPT fails otherwise, or when the objective goes
+    negative (status Negative_Objective). A solve that ends above its start, and not within the
+    resolution, keeps the start: a stage never makes the objective worse.
     """
     theta = np.asarray(theta, dtype=float)
     p = parameters(moments)
@@ -386,9 +409,9 @@ def block_step(
         )
         return _step(moments, block, theta, outcome, f_start, 1.0, ca.DM(p), start.hess)
     if start.within(stationary):
-        x, f_end = start.taken(p)
+        landed = start.taken(p)
         outcome = SolveOutcome(
-            x=x, f=f_end, status="At_Stationary_Point", success=True, iterations=0
+            x=landed.x, f=landed.f, status="At_Stationary_Point", success=True, iterations=0
         )
         step = _step(moments, block, theta, outcome, f_start, 1.0, ca.DM(p), start.hess)
         step.newton_decrease = start.decrease
@@ -399,32 +422,39 @@ def block_step(
     p = ca.DM(p)  # the step keeps its own copy: the cached vector changes with the next solve
     bounds = {"lbg": 0.0, "ubg": 0.0} if problem.has_gauge else {}
     outcome = solve(problem.solver, x0=zero, p=p, **bounds)
-    # IPOPT's answer is checked, and finished, by a Newton step from it. Its tolerance (OPTIONS)
-    # leaves it within a small fraction of a standard error; the Newton step from there lands on
-    # the block's optimum to the square of that. Below PRECISION_FLOOR the gradient of the moment
-    # objective is rounding noise, and above it, on low-noise data (0.01 nT in 50 000 nT), the
-    # objective still rounds at 1e-7 to 1e-5 of itself: IPOPT may then report a step below
-    # machine precision, or run out of iterations, depending on the rounding of the BLAS kernel
-    # that summed the moments. Its answer is the block's optimum to the resolution of the data
-    # all the same when the Newton step from it is shorter than STATIONARY_SE standard errors.
-    # A negative objective (a variance) is not a floor: the series of `nlp.objective` does not
-    # hold where the solve went, which happens when the data leave directions undetermined.
+    # A negative objective (a variance) means the series of `nlp.objective` does not hold where
+    # the solve went, which happens when the data leave directions undetermined.
     end = _Newton.at(moments, block, theta, outcome.x, p)
-    settled = end.f > 0 and end.within()
-    at_floor = abs(end.f) <= floor and end.f <= f_start
-    if end.f < -floor and outcome.success:
-        outcome = replace(outcome, status="Negative_Objective", success=False)
-    if not outcome.success and (settled or at_floor):
-        outcome = replace(outcome, status="At_Precision_Floor", success=True)
+    if end.f < -floor:
+        raise SolveError(
+            f"the {block} problem's objective, a variance, went negative: the data do not hold "
+            "the solve where its moment series is valid",
+            "Negative_Objective",
+            result=theta,
+        )
+    # Below PRECISION_FLOOR the gradient of the moment objective is rounding noise; above it, on
+    # low-noise data (0.01 nT in 50 000 nT), the objective still rounds at 1e-7 to 1e-5 of
+    # itself. IPOPT may then report a step below machine precision, or run out of iterations, or
+    # fail otherwise, depending on the rounding of the BLAS kernel that summed the moments: its
+    # last point is solved all the same when the Newton steps from it reach the resolution.
+    if abs(end.f) <= floor and end.f <= f_start:
+        if not outcome.success:
+            outcome = replace(outcome, status="At_Precision_Floor", success=True)
+    else:
+        end = end.finished(p)
+        if not outcome.success and end.within():
+            outcome = replace(outcome, status="At_Data_Resolution", success=True)
     if not outcome.success:
         raise SolveError(
             f"IPOPT did not solve the {block} problem", outcome.status, result=theta
         )  # the start, where the data's null directions show
-    x, f_end = end.taken(p)
-    if f_end > f_start + 1e-12 * f_ref:
+    # A stage never makes the objective worse, unless the difference is rounding: an answer the
+    # Newton steps place within the resolution of the block's optimum is better than a start
+    # that was not (else the start would not have been solved).
+    if end.f > f_start + 1e-12 * f_ref and not end.within():
         outcome = replace(outcome, x=zero, f=f_start / f_ref)
         return _step(moments, block, theta, outcome, f_start, f_ref, p, start.hess / f_ref, problem)
-    outcome = replace(outcome, x=x, f=f_end / f_ref)
+    outcome = replace(outcome, x=end.x, f=end.f / f_ref)
     return _step(moments, block, theta, outcome, f_start, f_ref, p, end.hess / f_ref, problem)
 
 
