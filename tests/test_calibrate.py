@@ -11,7 +11,7 @@ import nlpcal
 from nlpcal import CalibrationResult, calibrate
 from nlpcal.calibration.coverage import PLANAR_NOISE, flatness
 from nlpcal.errors import InputError, QualityError, SolveError
-from nlpcal.nlp import blocks
+from nlpcal.nlp import steps
 from nlpcal.nlp.solver import SolveOutcome
 from synthetic import (
     PAPER_FIELD,
@@ -329,7 +329,7 @@ def test_bad_options(noisy):
 
 
 def test_ipopt_failure_is_surfaced(noisy, monkeypatch):
-    from nlpcal.nlp import blocks as problems
+    from nlpcal.nlp import steps as problems
     from nlpcal.nlp.solver import SolveOutcome
 
     def failing(*args, **kwargs):
@@ -386,7 +386,7 @@ def test_a_stage_that_ends_below_the_precision_floor_is_solved(monkeypatch):
 
     samples, _ = make_log(n=600, noise=0.0, seed=2)
     moments = accumulate(samples, PAPER_FIELD)
-    floor = blocks.PRECISION_FLOOR * moments.length**2
+    floor = steps.PRECISION_FLOOR * moments.length**2
     truth = np.concatenate(
         [
             [PAPER_TRUTH[f"z_{a}"] for a in "xyz"],
@@ -406,13 +406,13 @@ def test_a_stage_that_ends_below_the_precision_floor_is_solved(monkeypatch):
             iterations=200,
         )
 
-    monkeypatch.setattr(blocks, "solve", run_out_of_iterations)
-    step = blocks.block_step(moments, "scale", start)
+    monkeypatch.setattr(steps, "solve", run_out_of_iterations)
+    step = steps.block_step(moments, "scale", start)
     assert step.f_start > floor and step.f_end <= floor
     assert step.status == "At_Precision_Floor"
     # Above the floor the same answer is a failure.
     with pytest.raises(SolveError):
-        blocks.block_step(moments, "scale", truth + np.r_[0, 0, 0, 1e-5, 0, 0, 0, 0, 0])
+        steps.block_step(moments, "scale", truth + np.r_[0, 0, 0, 1e-5, 0, 0, 0, 0, 0])
 
 
 @pytest.mark.parametrize("noise", [0.01, 0.02])
@@ -444,24 +444,24 @@ def test_ipopt_giving_up_where_newton_steps_reach_the_resolution_is_solved(statu
 
     samples, _ = make_log(n=2000, noise=0.01, seed=1)
     moments = accumulate(samples, None)
-    real_solve = blocks.solve
+    real_solve = steps.solve
 
     def gave_up(solver, **kwargs):  # IPOPT's own answer, reported as a failure
         return replace(real_solve(solver, **kwargs), status=status, success=False)
 
-    monkeypatch.setattr(blocks, "solve", gave_up)
-    step = blocks.block_step(moments, "orthogonal", np.zeros(9))
+    monkeypatch.setattr(steps, "solve", gave_up)
+    step = steps.block_step(moments, "orthogonal", np.zeros(9))
     assert step.status == "At_Data_Resolution" and step.f_end < step.f_start
-    solved = blocks.block_step(moments, "orthogonal", step.theta)  # already at its optimum
+    solved = steps.block_step(moments, "orthogonal", step.theta)  # already at its optimum
     assert solved.status == "At_Stationary_Point"
     np.testing.assert_allclose(solved.theta, step.theta, rtol=0, atol=1e-9)
 
     def gave_up_at_the_start(solver, **kwargs):
         return replace(real_solve(solver, **kwargs), x=kwargs["x0"], status=status, success=False)
 
-    monkeypatch.setattr(blocks, "solve", gave_up_at_the_start)
+    monkeypatch.setattr(steps, "solve", gave_up_at_the_start)
     with pytest.raises(SolveError) as info:
-        blocks.block_step(moments, "orthogonal", np.zeros(9))
+        steps.block_step(moments, "orthogonal", np.zeros(9))
     assert info.value.status == status
 
 
@@ -486,7 +486,7 @@ def test_a_failure_blames_the_coverage_only_when_it_is_to_blame(noisy, monkeypat
             iterations=3,
         )
 
-    monkeypatch.setattr(blocks, "solve", failing)
+    monkeypatch.setattr(steps, "solve", failing)
     monkeypatch.setattr("nlpcal.calibration.joint.algebraic_start", lambda moments: None)
     with pytest.raises(SolveError) as info:
         calibrate(noisy, method="joint")
@@ -577,7 +577,7 @@ def test_a_start_not_re_solved_is_within_a_hundredth_of_a_standard_error(noisy, 
     from nlpcal.moments import accumulate
 
     moments = accumulate(noisy, reference)
-    forced = blocks.block_step(moments, "joint", algebraic_start(moments), stationary=0.0)
+    forced = steps.block_step(moments, "joint", algebraic_start(moments), stationary=0.0)
     assert forced.iterations > 0
     solved = Zhou2010Parameters.from_theta(forced.theta).to_dict()
     for name, error in result.standard_errors.items():

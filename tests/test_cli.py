@@ -238,7 +238,7 @@ def test_apply_and_stats_errors(tmp_path, capsys, log_csv):
 
 
 def test_failed_solve_exits_1_and_keeps_the_old_output(tmp_path, capsys, log_csv, monkeypatch):
-    from nlpcal.nlp import blocks as problems
+    from nlpcal.nlp import steps as problems
     from nlpcal.nlp.solver import SolveOutcome
 
     out_path = write(tmp_path, "p.json", "previous result\n")

@@ -21,7 +21,7 @@ from nlpcal.comparison import ROW_FIELDS, ROW_KEYS, CompareSettings, compare
 from nlpcal.comparison.conjugate_gradient import CGOptions, conjugate_gradient, run_cg_joint
 from nlpcal.errors import InputError, QualityError, SolveError
 from nlpcal.moments import accumulate
-from nlpcal.nlp.blocks import block_step
+from nlpcal.nlp.steps import block_step
 from nlpcal.simulation import ATTITUDES, simulate, world_field
 
 HERE = Path(__file__).resolve().parent

@@ -15,7 +15,8 @@ from ..errors import SolveError
 from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
 from ..moments import Moments
 from ..nlp import blocks
-from ..nlp.blocks import block_step, objective_function, pack, variable_scale
+from ..nlp.blocks import objective_function, pack, variable_scale
+from ..nlp.steps import block_step
 from ..robust import robust_std
 from ..statistics import exact_objectives, field_statistics
 from .coverage import COVERAGE_WARN, direction_coverage, flatness, planar_message

@@ -7,7 +7,7 @@ every variable to order one, and IPOPT uses the exact Hessian of the moment obje
 Start: the algebraic ellipsoid fit (`algebraic_start`), else offsets at the centre of a sphere
 fitted to the raw samples, angles zero, and scales zero (Eq. 8) or the common scale that maps the
 sphere radius onto the reference field. A start whose Newton step is shorter than
-`nlpcal.nlp.blocks.STATIONARY_SE` standard errors is the optimum to the resolution of the data
+`nlpcal.nlp.steps.STATIONARY_SE` standard errors is the optimum to the resolution of the data
 and is not handed to IPOPT: the Newton step finishes it (status At_Stationary_Point). On a
 near-spherical log the algebraic fit often is.
 
@@ -25,7 +25,8 @@ import numpy as np
 
 from ..models.zhou2010 import from_correction
 from ..moments import PSI_EXPONENTS
-from ..nlp.blocks import block_step, variable_scale
+from ..nlp.blocks import variable_scale
+from ..nlp.steps import block_step
 
 
 @cache
@@ -108,7 +109,7 @@ def run_joint(problem, start=None):
     start : the first solve's start (internal units); default the algebraic ellipsoid fit
         (`algebraic_start`), else the sphere fit (`joint_start`).
 
-    Returns (step, rows, stages): the `nlpcal.nlp.blocks.Step` of the last solve, the measured
+    Returns (step, rows, stages): the `nlpcal.nlp.steps.Step` of the last solve, the measured
     and the joint Table 1 rows, and the record of every solve.
     """
     rows = [problem.measured_row()]

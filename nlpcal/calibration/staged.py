@@ -21,7 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..nlp.blocks import STAGE_ORDER, block_step
+from ..nlp.blocks import STAGE_ORDER
+from ..nlp.steps import block_step
 
 #: Default most cycles: every real log tried needs fewer than 200 (`docs/real-data.md`). [1]
 CYCLES_DEFAULT = 500

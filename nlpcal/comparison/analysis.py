@@ -38,7 +38,7 @@ def thin(trajectory: dict, points: int = TRAJECTORY_POINTS) -> dict:
 
 
 def joint_trajectory(step, iterations: int, f_end: float) -> dict:
-    """The objective at every IPOPT iteration of the joint solve `step` (`nlpcal.problems.Step`).
+    """The objective at every IPOPT iteration of the joint solve `step` (`nlpcal.nlp.steps.Step`).
 
     IPOPT records the objective of its problem, f / f_ref, in the solver's statistics. When they
     cannot be read, the start and the end of the solve are returned.

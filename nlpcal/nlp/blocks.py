@@ -16,7 +16,8 @@ frame, the reference scale, theta_ref (which holds the blocks that stay fixed) a
 block's `nlpsol` is built once per process and serves that stage in every cycle, for every log.
 The problems are MX graphs: a small SX function maps theta to the coefficients of u and u^2
 (`nlpcal.objective.coefficient_function`), and the Gram matrix enters through two dense matrix
-products, so that building a problem takes milliseconds.
+products, so that building a problem takes milliseconds. Solving one block, with the Newton
+checks around IPOPT: `nlpcal.nlp.steps`.
 
 Without a reference field, Eq. 8 shrinks as all (1 + s) grow together; the gauge
 s_x + s_y + s_z = 0 (an equality constraint in every problem that frees s) removes that direction.
@@ -28,16 +29,15 @@ References
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 from functools import cache
 
 import casadi as ca
 import numpy as np
 
 from .. import moments as mom
-from ..errors import SolveError
 from .objective import magnitude_summary_expression, objective_expression
-from .solver import IpoptOptions, SolveOutcome, build_nlpsol, problem, solve
+from .solver import IpoptOptions, build_nlpsol, problem
 
 #: Indices of theta freed by each problem, in the paper's stage order.
 BLOCKS = {
@@ -59,14 +59,6 @@ GAUGE = {
 }
 
 
-#: Objective values below this fraction of L^2 (a spread of 1e-8 L, 5e-4 nT in 50 000 nT)
-#: are at the resolution of the float64 moments; a block starting there is not re-solved.
-PRECISION_FLOOR = 1e-16
-#: The objective is divided by its start value, but never by less than this fraction of L^2, so
-#: that rounding noise in tiny objectives (noise-free data) is not blown up into the gradient.
-SCALE_FLOOR = 1e-14
-
-
 def variable_scale(radius: float) -> np.ndarray:
     """Typical size of each parameter: offsets 1e-3 of the field, scales 1e-3, angles 1e-2 rad."""
     return np.array([1e-3 * radius] * 3 + [1e-3] * 3 + [1e-2] * 3)
@@ -75,9 +67,9 @@ def variable_scale(radius: float) -> np.ndarray:
 #: IPOPT settings of the block problems: a scaled gradient of 1e-6, or two iterations in a row
 #: below 1e-4. The objective is scaled by its value where the solve starts, so this tolerance is
 #: relative to that value, not to the optimum's: Newton steps with the exact Hessian finish
-#: every answer to the resolution of the data (`block_step`), whatever IPOPT stopped at. Tighter
-#: settings had IPOPT chase the rounding noise of the moment objective's gradient near the
-#: optimum through long line searches (half the iterations of the staged cycle on a 1 nT log).
+#: every answer to the resolution of the data (`nlpcal.nlp.steps`), whatever IPOPT stopped at.
+#: Tighter settings had IPOPT chase the rounding noise of the moment objective's gradient near
+#: the optimum through long line searches (half the iterations of the staged cycle on a 1 nT log).
 OPTIONS = IpoptOptions(tol=1e-6, acceptable_tol=1e-4, acceptable_iter=2)
 
 
@@ -206,57 +198,6 @@ def block_problem(block: str, reference: str, options: IpoptOptions = OPTIONS):
     return BlockProblem(block, solver, gauge)
 
 
-@dataclass
-class Step:
-    """What one block solve did: the new parameters and the objective before and after."""
-
-    theta: np.ndarray
-    outcome: SolveOutcome
-    f_start: float  # [field^2]
-    f_end: float  # [field^2], the moment objective at `theta`
-    f_ref: float  # [field^2], the objective scale the problem was solved with
-    block: str
-    p: ca.DM  # the parameter vector the problem was solved with
-    x: np.ndarray  # the scaled variables of `theta` in this problem
-    # Hessian of the scaled objective f / f_ref in x, from the last Newton check: at `x`, or at
-    # the point whose Newton step, within STATIONARY_SE standard errors, landed on `x` (over
-    # which the Hessian changes by far less than its own precision)
-    hess: np.ndarray = field(repr=False)
-    # [field^2], what a Newton step from the start promised, when it was taken instead of IPOPT
-    newton_decrease: float | None = None
-    problem: BlockProblem | None = None  # the IPOPT problem, when IPOPT ran
-
-    @property
-    def iterations(self) -> int:
-        return self.outcome.iterations
-
-    @property
-    def status(self) -> str:
-        return self.outcome.status
-
-
-#: The smallest Newton decrease, as a fraction of the objective, that float64 moments resolve. [1]
-STATIONARY_RTOL = 1e-12
-#: A block whose Newton step from its start would move the parameters by less than this many
-#: standard errors starts at its optimum to the resolution of the data (`resolution`): the
-#: Newton step, not IPOPT, finishes it. [standard errors]
-STATIONARY_SE = 0.01
-
-
-def resolution(moments: mom.Moments, standard_errors: float = STATIONARY_SE) -> float:
-    """The Newton decrease, as a fraction of the objective, of a step `standard_errors` long.
-
-    With the covariance C = (2 f / N) H^-1 of a least-squares estimate (f the mean squared
-    residual, H its Hessian), a Newton step delta = H^-1 g is sqrt(delta^T C^-1 delta) =
-    sqrt(N d / f) standard errors long, d = g^T H^-1 g / 2 the decrease it promises; that length
-    bounds the move of every parameter in its own standard errors. So the step is shorter than
-    s standard errors when d / f <= s^2 / N. Above N = s^2 / STATIONARY_RTOL (1e8 samples for
-    s = 0.01) the precision of f, not the data, sets the limit: steps up to
-    s sqrt(N / 1e8) standard errors are then below what the float64 moments resolve.
-    """
-    return max(STATIONARY_RTOL, standard_errors**2 / moments.n)
-
-
 def parameters(moments: mom.Moments) -> ca.DM:
     """The problems' parameter vector for these moments (`Symbols.data`), built once per moments
     (converting the Gram matrix costs more than an IPOPT iteration) and updated in place: the
@@ -278,198 +219,3 @@ def gauge_basis(free) -> np.ndarray:
     """Orthonormal basis of the scaled variables of the parameters `free` (indices into theta)
     that the gauge s_x + s_y + s_z = 0 leaves free (every scale has the same variable scale)."""
     return _gauge_basis(tuple(free)).copy()
-
-
-def _newton_step(block: str, gauge: bool, g: np.ndarray, h: np.ndarray):
-    """One Newton step of the objective over a block (gradient g and Hessian h in its scaled
-    variables), on the gauge's null space when the block has one: (the decrease it promises,
-    the step). The decrease is inf, and the step zero, when the Hessian is not positive."""
-    if gauge:
-        basis = _gauge_basis(BLOCKS[block])
-        g, h = basis.T @ g, basis.T @ h @ basis
-    try:
-        factor = np.linalg.cholesky(0.5 * (h + h.T))
-    except np.linalg.LinAlgError:
-        return np.inf, np.zeros(len(BLOCKS[block]))
-    half = np.linalg.solve(factor, g)  # H^-1 = L^-T L^-1
-    step = -np.linalg.solve(factor.T, half)
-    return 0.5 * float(half @ half), basis @ step if gauge else step
-
-
-@dataclass(frozen=True)
-class _Newton:
-    """One Newton step over a block from theta_ref + var_scale * x (x the block's scaled
-    variables), from the objective's exact gradient and Hessian (`objective_function`).
-
-    The objective and the decrease are in field^2, the gradient and Hessian per unit of x.
-    """
-
-    moments: mom.Moments
-    block: str
-    theta_ref: np.ndarray
-    x: np.ndarray
-    f: float
-    hess: np.ndarray
-    decrease: float
-    step: np.ndarray
-
-    @classmethod
-    def at(cls, moments: mom.Moments, block: str, theta_ref, x, p) -> _Newton:
-        free = list(BLOCKS[block])
-        scale = variable_scale(moments.frame.radius)[free]
-        theta = _theta(moments, block, theta_ref, x)
-        f_value, gradient, hess = objective_function(moments.reference)(theta, p)
-        g = scale * np.asarray(gradient, dtype=float).ravel()[free]
-        h = scale[:, None] * np.asarray(hess, dtype=float)[np.ix_(free, free)] * scale[None, :]
-        decrease, step = _newton_step(block, has_gauge(block, moments.reference), g, h)
-        return cls(
-            moments, block, theta_ref, np.asarray(x, dtype=float), float(f_value), h, decrease, step
-        )
-
-    def within(self, threshold: float | None = None) -> bool:
-        """Whether x is the block's optimum to the resolution of the data: the step is shorter
-        than STATIONARY_SE standard errors (or promises less than `threshold` of f)."""
-        limit = resolution(self.moments) if threshold is None else threshold
-        return self.decrease <= limit * self.f
-
-    def taken(self, p) -> _Newton:
-        """Where the step lands: x + step with f there (the Hessian and decrease are still the
-        ones at x), or this point itself where the step is no finishing one (longer than
-        FINISHING_STEP: a jump along a direction the data hardly determine) or f does not
-        decrease (rounding, or a Hessian that is not positive). From within the resolution the
-        step lands on the optimum to the square of its length in standard errors."""
-        if not np.max(np.abs(self.step)) <= FINISHING_STEP or not np.any(self.step):
-            return self
-        x = self.x + self.step
-        theta = _theta(self.moments, self.block, self.theta_ref, x)
-        f_value = float(value_function(self.moments.reference)(theta, p))
-        return replace(self, x=x, f=f_value) if f_value <= self.f else self
-
-    def finished(self, p) -> _Newton:
-        """Newton steps from here until one is within the resolution, which is taken: every
-        IPOPT answer is finished this way, since IPOPT's tolerance is relative to the objective
-        where its solve started (far above the optimum's from a poor start). A step that is not
-        a finishing one (longer than FINISHING_STEP in the scaled variables, or not lowering f)
-        stops the steps short of the resolution."""
-        current = self
-        for _ in range(FINISHING_STEPS):
-            after = current.taken(p)
-            if current.within() or after is current:
-                return after
-            current = _Newton.at(self.moments, self.block, self.theta_ref, after.x, p)
-        return current
-
-
-#: The most Newton steps that finish an IPOPT answer (each squares its distance to the optimum).
-FINISHING_STEPS = 4
-#: The longest finishing step, in the scaled variables (1e-3 of the field for an offset, 1e-3 for
-#: a scale, 1e-2 rad for an angle): a longer one is not a finish but a jump on a flat objective.
-FINISHING_STEP = 1.0
-
-
-def _theta(moments: mom.Moments, block: str, theta_ref, x) -> np.ndarray:
-    """theta_ref + var_scale * x, x the scaled variables of the block."""
-    step = np.zeros(9)
-    step[list(BLOCKS[block])] = x
-    return np.asarray(theta_ref, dtype=float) + variable_scale(moments.frame.radius) * step
-
-
-def block_step(
-    moments: mom.Moments,
-    block: str,
-    theta,
-    options: IpoptOptions = OPTIONS,
-    stationary: float | None = None,
-) -> Step:
-    """Minimise over one block of theta from `theta`, the other blocks held fixed.
-
-    A block already at its optimum (a Newton step would gain less than the fraction
-    `stationary` of the objective, by default `resolution`: a step shorter than STATIONARY_SE
-    standard errors) is not handed to IPOPT, whose problem is then not even built: the Newton
-    step finishes it (status At_Stationary_Point, zero iterations). Otherwise IPOPT solves it
-    and Newton steps finish IPOPT's answer (`_Newton.finished`). Statuses besides IPOPT's:
-    At_Precision_Floor (noise-free data, the objective below what float64 moments resolve) and
-    At_Data_Resolution (IPOPT gave up, whatever its reason, where Newton steps reach the
-    resolution). Raises SolveError when IPOPT fails otherwise, or when the objective goes
-    negative (status Negative_Objective). A solve that ends above its start, and not within the
-    resolution, keeps the start: a stage never makes the objective worse.
-    """
-    theta = np.asarray(theta, dtype=float)
-    p = parameters(moments)
-    p[0:9] = ca.DM(theta)
-    p[p.numel() - 1] = 1.0
-    zero = np.zeros(len(BLOCKS[block]))
-    start = _Newton.at(moments, block, theta, zero, p)
-    f_start = start.f
-    floor = PRECISION_FLOOR * moments.length**2
-    if abs(f_start) <= floor:
-        # Noise-free data at their optimum: nothing left that float64 moments can resolve.
-        outcome = SolveOutcome(
-            x=zero, f=f_start, status="At_Precision_Floor", success=True, iterations=0
-        )
-        return _step(moments, block, theta, outcome, f_start, 1.0, ca.DM(p), start.hess)
-    if start.within(stationary):
-        landed = start.taken(p)
-        outcome = SolveOutcome(
-            x=landed.x, f=landed.f, status="At_Stationary_Point", success=True, iterations=0
-        )
-        step = _step(moments, block, theta, outcome, f_start, 1.0, ca.DM(p), start.hess)
-        step.newton_decrease = start.decrease
-        return step
-    problem = block_problem(block, moments.reference, options)
-    f_ref = max(f_start, SCALE_FLOOR * moments.length**2)
-    p[p.numel() - 1] = f_ref
-    p = ca.DM(p)  # the step keeps its own copy: the cached vector changes with the next solve
-    bounds = {"lbg": 0.0, "ubg": 0.0} if problem.has_gauge else {}
-    outcome = solve(problem.solver, x0=zero, p=p, **bounds)
-    # A negative objective (a variance) means the series of `nlp.objective` does not hold where
-    # the solve went, which happens when the data leave directions undetermined.
-    end = _Newton.at(moments, block, theta, outcome.x, p)
-    if end.f < -floor:
-        raise SolveError(
-            f"the {block} problem's objective, a variance, went negative: the data do not hold "
-            "the solve where its moment series is valid",
-            "Negative_Objective",
-            result=theta,
-        )
-    # Below PRECISION_FLOOR the gradient of the moment objective is rounding noise; above it, on
-    # low-noise data (0.01 nT in 50 000 nT), the objective still rounds at 1e-7 to 1e-5 of
-    # itself. IPOPT may then report a step below machine precision, or run out of iterations, or
-    # fail otherwise, depending on the rounding of the BLAS kernel that summed the moments: its
-    # last point is solved all the same when the Newton steps from it reach the resolution.
-    if abs(end.f) <= floor and end.f <= f_start:
-        if not outcome.success:
-            outcome = replace(outcome, status="At_Precision_Floor", success=True)
-    else:
-        end = end.finished(p)
-        if not outcome.success and end.within():
-            outcome = replace(outcome, status="At_Data_Resolution", success=True)
-    if not outcome.success:
-        raise SolveError(
-            f"IPOPT did not solve the {block} problem", outcome.status, result=theta
-        )  # the start, where the data's null directions show
-    # A stage never makes the objective worse, unless the difference is rounding: an answer the
-    # Newton steps place within the resolution of the block's optimum is better than a start
-    # that was not (else the start would not have been solved).
-    if end.f > f_start + 1e-12 * f_ref and not end.within():
-        outcome = replace(outcome, x=zero, f=f_start / f_ref)
-        return _step(moments, block, theta, outcome, f_start, f_ref, p, start.hess / f_ref, problem)
-    outcome = replace(outcome, x=end.x, f=end.f / f_ref)
-    return _step(moments, block, theta, outcome, f_start, f_ref, p, end.hess / f_ref, problem)
-
-
-def _step(moments, block, theta_ref, outcome, f_start, f_ref, p, hess, problem=None) -> Step:
-    """The Step of a block solve from theta_ref that ended at `outcome.x` (scaled objective
-    `outcome.f`), with the Hessian of the scaled objective from the last Newton check."""
-    return Step(
-        theta=_theta(moments, block, theta_ref, outcome.x),
-        outcome=outcome,
-        f_start=f_start,
-        f_end=outcome.f * f_ref,
-        f_ref=f_ref,
-        block=block,
-        p=p,
-        x=outcome.x,
-        hess=hess,
-        problem=problem,
-    )
