@@ -415,13 +415,13 @@ def test_a_stage_that_ends_below_the_precision_floor_is_solved(monkeypatch):
         steps.block_step(moments, "scale", truth + np.r_[0, 0, 0, 1e-5, 0, 0, 0, 0, 0])
 
 
-@pytest.mark.parametrize("noise", [0.01, 0.02])
+@pytest.mark.parametrize("noise", [0.01, 0.02, 0.05, 0.2])
 @pytest.mark.parametrize("with_reference", [False, True])
 def test_low_noise_logs_calibrate_with_the_staged_cycle(noise, with_reference):
-    # A fluxgate's 0.01-0.02 nT in 49 500 nT: the moment objective rounds at 1e-7 to 1e-5 of
+    # A fluxgate's 0.01-0.2 nT in 49 500 nT: the moment objective rounds at 1e-7 to 1e-5 of
     # itself near the optimum. With IPOPT's tolerance below that noise the staged cycle failed
-    # on half of such logs (IPOPT lost in its line search); the cycle has to reach the joint
-    # optimum (the quality check).
+    # on 33 of 50 such simulated logs (IPOPT lost in its line search); the cycle has to reach
+    # the joint optimum (the quality check).
     reference = {"reference_field": PAPER_FIELD} if with_reference else {}
     for seed in range(3):
         samples, _ = make_log(n=2000, noise=noise, seed=seed)
