@@ -245,8 +245,8 @@ def block_step(
     end = _Newton.at(moments, block, theta, outcome.x, p)
     if end.f < -floor:
         raise SolveError(
-            f"the {block} problem's objective, a variance, went negative: the data do not hold "
-            "the solve where its moment series is valid",
+            f"the {block} problem's objective, a variance, went negative where the solve ended: "
+            "its moment series does not hold there",
             "Negative_Objective",
             result=theta,
         )
