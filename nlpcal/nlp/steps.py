@@ -57,7 +57,6 @@ class Step:
     f_end: float  # [field^2], the moment objective at `theta`
     f_ref: float  # [field^2], the objective scale the problem was solved with
     block: str
-    p: ca.DM  # the parameter vector the problem was solved with
     x: np.ndarray  # the scaled variables of `theta` in this problem
     # Hessian of the scaled objective f / f_ref in x, from the last Newton check: at `x`, or at
     # the point whose Newton step, within STATIONARY_SE standard errors, landed on `x` (over
@@ -213,9 +212,7 @@ def block_step(
     resolution, keeps the start: a stage never makes the objective worse.
     """
     theta = np.asarray(theta, dtype=float)
-    p = parameters(moments)
-    p[0:9] = ca.DM(theta)
-    p[p.numel() - 1] = 1.0
+    p = parameters(moments)  # the Newton checks read its data part; IPOPT's part is set below
     zero = np.zeros(len(BLOCKS[block]))
     start = _Newton.at(moments, block, theta, zero, p)
     f_start = start.f
@@ -225,19 +222,19 @@ def block_step(
         outcome = SolveOutcome(
             x=zero, f=f_start, status="At_Precision_Floor", success=True, iterations=0
         )
-        return _step(moments, block, theta, outcome, f_start, 1.0, ca.DM(p), start.hess)
+        return _step(moments, block, theta, outcome, f_start, 1.0, start.hess)
     if start.within(stationary):
         landed = start.taken(p)
         outcome = SolveOutcome(
             x=landed.x, f=landed.f, status="At_Stationary_Point", success=True, iterations=0
         )
-        step = _step(moments, block, theta, outcome, f_start, 1.0, ca.DM(p), start.hess)
+        step = _step(moments, block, theta, outcome, f_start, 1.0, start.hess)
         step.newton_decrease = start.decrease
         return step
     problem = block_problem(block, moments.reference, options)
     f_ref = max(f_start, SCALE_FLOOR * moments.length**2)
+    p[0:9] = ca.DM(theta)  # theta_ref: the blocks held fixed, and where x = 0
     p[p.numel() - 1] = f_ref
-    p = ca.DM(p)  # the step keeps its own copy: the cached vector changes with the next solve
     bounds = {"lbg": 0.0, "ubg": 0.0} if problem.has_gauge else {}
     outcome = solve(problem.solver, x0=zero, p=p, **bounds)
     # A negative objective (a variance) means the series of `nlp.objective` does not hold where
@@ -271,12 +268,12 @@ def block_step(
     # that was not (else the start would not have been solved).
     if end.f > f_start + 1e-12 * f_ref and not end.within():
         outcome = replace(outcome, x=zero, f=f_start / f_ref)
-        return _step(moments, block, theta, outcome, f_start, f_ref, p, start.hess / f_ref, problem)
+        return _step(moments, block, theta, outcome, f_start, f_ref, start.hess / f_ref, problem)
     outcome = replace(outcome, x=end.x, f=end.f / f_ref)
-    return _step(moments, block, theta, outcome, f_start, f_ref, p, end.hess / f_ref, problem)
+    return _step(moments, block, theta, outcome, f_start, f_ref, end.hess / f_ref, problem)
 
 
-def _step(moments, block, theta_ref, outcome, f_start, f_ref, p, hess, problem=None) -> Step:
+def _step(moments, block, theta_ref, outcome, f_start, f_ref, hess, problem=None) -> Step:
     """The Step of a block solve from theta_ref that ended at `outcome.x` (scaled objective
     `outcome.f`), with the Hessian of the scaled objective from the last Newton check."""
     return Step(
@@ -286,7 +283,6 @@ def _step(moments, block, theta_ref, outcome, f_start, f_ref, p, hess, problem=N
         f_end=outcome.f * f_ref,
         f_ref=f_ref,
         block=block,
-        p=p,
         x=outcome.x,
         hess=hess,
         problem=problem,
