@@ -7,7 +7,7 @@ JSON keys: "staged" (measured row, then one per cycle), "joint" (one row), "cg_j
 conjugate gradient on all nine: paper units, then scaled), "cg_staged" (measured row, then one per
 cycle); every row has max, min, mean, std, range, objective, iterations and wall_s. The Table 1
 layout goes to stderr. Exit status: 0 success (a conjugate gradient that does not converge is a
-finding, reported as a warning), 1 IPOPT failed, 2 bad usage or input (also --plot without
+finding, reported as a warning), 1 the solve failed, 2 bad usage or input (also --plot without
 matplotlib).
 """
 
