@@ -228,9 +228,7 @@ def block_step(
         outcome = SolveOutcome(
             x=landed.x, f=landed.f, status="At_Stationary_Point", success=True, iterations=0
         )
-        step = _step(moments, block, theta, outcome, f_start, 1.0, start.hess)
-        step.newton_decrease = start.decrease
-        return step
+        return _step(moments, block, theta, outcome, f_start, 1.0, start.hess, start.decrease)
     problem = block_problem(block, moments.reference, options)
     f_ref = max(f_start, SCALE_FLOOR * moments.length**2)
     p[0:9] = ca.DM(theta)  # theta_ref: the blocks held fixed, and where x = 0
@@ -268,12 +266,16 @@ def block_step(
     # that was not (else the start would not have been solved).
     if end.f > f_start + 1e-12 * f_ref and not end.within():
         outcome = replace(outcome, x=zero, f=f_start / f_ref)
-        return _step(moments, block, theta, outcome, f_start, f_ref, start.hess / f_ref, problem)
+        return _step(
+            moments, block, theta, outcome, f_start, f_ref, start.hess / f_ref, problem=problem
+        )
     outcome = replace(outcome, x=end.x, f=end.f / f_ref)
-    return _step(moments, block, theta, outcome, f_start, f_ref, end.hess / f_ref, problem)
+    return _step(moments, block, theta, outcome, f_start, f_ref, end.hess / f_ref, problem=problem)
 
 
-def _step(moments, block, theta_ref, outcome, f_start, f_ref, hess, problem=None) -> Step:
+def _step(
+    moments, block, theta_ref, outcome, f_start, f_ref, hess, newton_decrease=None, problem=None
+) -> Step:
     """The Step of a block solve from theta_ref that ended at `outcome.x` (scaled objective
     `outcome.f`), with the Hessian of the scaled objective from the last Newton check."""
     return Step(
@@ -285,5 +287,6 @@ def _step(moments, block, theta_ref, outcome, f_start, f_ref, hess, problem=None
         block=block,
         x=outcome.x,
         hess=hess,
+        newton_decrease=newton_decrease,
         problem=problem,
     )
