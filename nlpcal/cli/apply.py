@@ -15,9 +15,11 @@ prints the paper's three rows. Parameters with a "temperature_model" object (fro
 from __future__ import annotations
 
 from .common import (
+    CALIBRATED_LOG_UNIT,
     LOG_HELP,
     add_command,
     add_log_arguments,
+    add_params_argument,
     add_plot_argument,
     add_reference_model_arguments,
     check_plot,
@@ -37,6 +39,15 @@ OUTLIER_COLUMN = "outlier"
 def register(sub):
     _register_apply(sub)
     _register_stats(sub)
+
+
+def add_correction_arguments(parser):
+    """PARAMS.json, the LOG to correct with it and how to read that log, and the temperature
+    options: the arguments of every command that corrects a log."""
+    add_params_argument(parser)
+    parser.add_argument("log", metavar="LOG", help=LOG_HELP)
+    add_log_arguments(parser, CALIBRATED_LOG_UNIT)
+    add_temperature_arguments(parser)
 
 
 def add_temperature_arguments(parser):
@@ -71,12 +82,7 @@ passes through unchanged, character for character. Rows reading exactly (0, 0, 0
             "nlpcal apply params.json log.csv --drift drift.json --temperature-column temp_c",
         ),
     )
-    parser.add_argument(
-        "params", metavar="PARAMS.json", help="the parameters written by 'nlpcal calibrate'"
-    )
-    parser.add_argument("log", metavar="LOG", help=LOG_HELP)
-    add_log_arguments(parser, "the column names, else the unit of the calibrated log")
-    add_temperature_arguments(parser)
+    add_correction_arguments(parser)
     parser.add_argument(
         "--flag-outliers",
         action="store_true",
@@ -159,7 +165,7 @@ the reference (Eq. 10 of Liu et al. 2022).""",
         ),
     )
     parser.add_argument("log", metavar="LOG", help=LOG_HELP)
-    add_log_arguments(parser, "the column names, else the unit of the calibrated log")
+    add_log_arguments(parser, CALIBRATED_LOG_UNIT)
     parser.add_argument(
         "--params",
         metavar="PARAMS.json",

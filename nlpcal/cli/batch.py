@@ -17,6 +17,7 @@ import time
 
 from . import calibrate as calibrate_cli
 from .common import (
+    CALIBRATED_LOG_UNIT,
     Parser,
     add_command,
     add_log_arguments,
@@ -145,7 +146,7 @@ std_measured, std_corrected, outliers, warnings, message, unit, action, seconds.
     )
     parser.add_argument("params", metavar="PARAMS", help="a parameters file, or a folder of them")
     _add_batch_arguments(parser)
-    add_log_arguments(parser, "the column names, else the unit of the calibrated log")
+    add_log_arguments(parser, CALIBRATED_LOG_UNIT)
     parser.add_argument(
         "--flag-outliers",
         action="store_true",

@@ -399,6 +399,17 @@ def emit_csv(frame, output, float_format: str | None = None) -> None:
         frame.to_csv(sys.stdout, index=False, float_format=float_format)
 
 
+#: Where the unit of a log read with a calibration comes from by default (`add_log_arguments`).
+CALIBRATED_LOG_UNIT = "the column names, else the unit of the calibrated log"
+
+
+def add_params_argument(parser) -> None:
+    """The PARAMS.json argument of a command that reads a calibration."""
+    parser.add_argument(
+        "params", metavar="PARAMS.json", help="the parameters written by 'nlpcal calibrate'"
+    )
+
+
 #: The help of a LOG argument.
 LOG_HELP = (
     "the log: a delimited text file (comma, semicolon, tab or whitespace), a Parquet file, a "

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import sys
 
-from .common import FIELD_UNITS, add_command, say, tell
+from .common import FIELD_UNITS, add_command, add_params_argument, say, tell
 
 FORMATS = ("matlab", "matrix", "ardupilot", "px4", "c-header")  # nlpcal.formats.FORMATS
 
@@ -32,9 +32,7 @@ def register(sub):
             "nlpcal export params.json --format matlab --unit uT",
         ),
     )
-    parser.add_argument(
-        "params", metavar="PARAMS.json", help="the parameters written by 'nlpcal calibrate'"
-    )
+    add_params_argument(parser)
     add_format_arguments(
         parser,
         "unit of the offsets and field in matlab, matrix and c-header (default: the unit of the "

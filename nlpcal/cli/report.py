@@ -13,11 +13,9 @@ from __future__ import annotations
 
 import sys
 
-from .apply import add_temperature_arguments, correction_for
+from .apply import add_correction_arguments, correction_for
 from .common import (
-    LOG_HELP,
     add_command,
-    add_log_arguments,
     add_reference_arguments,
     log_options,
     report_log,
@@ -38,12 +36,7 @@ def register(sub):
             "--date 2026-05-01 -o report.html",
         ),
     )
-    parser.add_argument(
-        "params", metavar="PARAMS.json", help="the parameters written by 'nlpcal calibrate'"
-    )
-    parser.add_argument("log", metavar="LOG", help=LOG_HELP)
-    add_log_arguments(parser, "the column names, else the unit of the calibrated log")
-    add_temperature_arguments(parser)
+    add_correction_arguments(parser)
     add_reference_arguments(parser)
     parser.add_argument(
         "-o", "--output", required=True, metavar="REPORT.html", help="write the report here"
