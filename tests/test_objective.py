@@ -78,3 +78,57 @@ def test_problem_size_does_not_depend_on_the_number_of_samples():
 def test_layouts_hold_the_distinct_features():
     assert mom.layout(False).size == 46  # monomials of degree <= 4, a times degree <= 2, a^2
     assert mom.layout(True).size == 58
+
+
+@pytest.mark.parametrize("kind", ["none", "constant", "series"])
+def test_closed_form_derivatives_equal_automatic_differentiation(kind):
+    # The objective's gradient and Hessian come from the chain rule through the moments
+    # (nlpcal.nlp.objective.objective_derivatives); CasADi's AD of the objective is the check.
+    import casadi as ca
+
+    from nlpcal.nlp.objective import objective_expression
+
+    rng = np.random.default_rng(11)
+    samples, _ = make_log(n=600, noise=2.0, seed=12)
+    moments = mom.accumulate(samples, _reference(kind, len(samples), rng))
+    symbols = problems._symbols(moments.reference)
+    theta = ca.MX.sym("theta", 9)
+    f = objective_expression(theta, symbols.gram, symbols.centre, symbols.length, kind)
+    hess, grad = ca.hessian(f, theta)
+    by_ad = ca.Function("by_ad", [theta, symbols.data], [f, grad, hess])
+    p = problems.parameter_values(moments)
+    for point in (np.zeros(9), THETA_TRUE, NEAR):
+        expected = [np.asarray(v, dtype=float) for v in by_ad(point, p)]
+        closed = problems.evaluate(problems.objective_function, moments, point)
+        for got, want in zip(closed, expected):
+            np.testing.assert_allclose(np.reshape(got, want.shape), want, rtol=1e-9, atol=0)
+        np.testing.assert_array_equal(closed[2], closed[2].T)
+
+
+def test_an_evaluation_in_place_equals_the_function_call():
+    import threading
+
+    samples, _ = make_log(n=400, noise=1.0, seed=13)
+    moments = mom.accumulate(samples, PAPER_FIELD)
+    p = problems.parameter_values(moments)
+    function = problems.summary_function(moments.reference)
+    expected = [float(v) for v in function(NEAR, p)]
+    assert list(problems.evaluate(problems.summary_function, moments, NEAR)) == expected
+    # shared between threads, one evaluation at a time
+    results = []
+
+    def evaluate_many(theta):
+        results.extend(
+            problems.evaluate(problems.value_function, moments, theta) for _ in range(200)
+        )
+
+    threads = [threading.Thread(target=evaluate_many, args=(t,)) for t in (NEAR, THETA_TRUE)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    values = {float(function(t, p)[0]) for t in (NEAR, THETA_TRUE)}
+    assert {r[0] for r in results} == values and len(results) == 400
+    evaluation = problems._evaluation(problems.value_function, moments.reference)
+    with pytest.raises(ValueError, match="parameters"):
+        evaluation(NEAR, p[:-1])

@@ -15,7 +15,7 @@ from ..errors import SolveError
 from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
 from ..moments import Moments
 from ..nlp import blocks
-from ..nlp.blocks import objective_function, pack, variable_scale
+from ..nlp.blocks import evaluate, objective_function, variable_scale
 from ..nlp.steps import block_step
 from ..robust import robust_std
 from ..statistics import exact_objectives, field_statistics
@@ -52,8 +52,7 @@ def scaled_hessian(moments: Moments, theta, step=None) -> np.ndarray:
     scale = variable_scale(moments.frame.radius)
     if step is not None and step.block == "joint":
         return step.f_ref * step.hess
-    p = pack(moments, theta, scale, 1.0)
-    hess = np.asarray(objective_function(moments.reference)(theta, p)[2], dtype=float)
+    hess = evaluate(objective_function, moments, theta)[2]
     return scale[:, None] * hess * scale[None, :]
 
 

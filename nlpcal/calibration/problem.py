@@ -17,7 +17,7 @@ import numpy as np
 
 from ..models.zhou2010 import Zhou2010Parameters
 from ..moments import Moments, accumulate
-from ..nlp.blocks import OPTIONS, objective_function, pack, parameters, summary_function
+from ..nlp.blocks import OPTIONS, evaluate, summary_function, value_function
 from ..nlp.solver import IpoptOptions
 from ..passes import reduce
 from ..robust import MAD_SAMPLES, Loss
@@ -78,8 +78,7 @@ class Problem:
         (`series`, evaluated here when not given) and the exact per-sample one."""
         stats = self.statistics(theta)
         if series is None or self.loss.robust:
-            p = pack(self.moments, theta, np.ones(9), 1.0)
-            series = float(objective_function(self.moments.reference)(theta, p)[0])
+            (series,) = evaluate(value_function, self.moments, theta)
         exact = stats["objective"] if not self.loss.robust else self._weighted_objective(theta)
         stats["series_rel_error"] = abs(series - exact) / exact if exact > 0 else 0.0
         stats["parameters"] = Zhou2010Parameters.from_theta(theta).to_dict()
@@ -90,10 +89,7 @@ class Problem:
         max, min and range (they need a pass over the data); None where the expansion behind it
         does not hold (the spread of |B1| above MOMENT_ROW_SPREAD of its mean, as in the first
         cycles of a log whose offsets exceed the field)."""
-        f, mean, variance, spread = (
-            float(v)
-            for v in summary_function(self.moments.reference)(theta, parameters(self.moments))
-        )
+        f, mean, variance, spread = evaluate(summary_function, self.moments, theta)
         if not spread <= MOMENT_ROW_SPREAD:
             return None
         return {

@@ -36,8 +36,12 @@ import casadi as ca
 import numpy as np
 
 from .. import moments as mom
-from .objective import magnitude_summary_expression, objective_expression
-from .solver import IpoptOptions, build_nlpsol, problem
+from .objective import (
+    magnitude_summary_expression,
+    objective_derivatives,
+    objective_expression,
+)
+from .solver import Evaluation, IpoptOptions, build_nlpsol, problem
 
 #: Indices of theta freed by each problem, in the paper's stage order.
 BLOCKS = {
@@ -127,8 +131,7 @@ def objective_function(reference: str) -> ca.Function:
     """
     s = _symbols(reference)
     theta = ca.MX.sym("theta", 9)
-    f = objective_expression(theta, s.gram, s.centre, s.length, reference)
-    hess, grad = ca.hessian(f, theta)
+    f, grad, hess = objective_derivatives(theta, s.gram, s.centre, s.length, reference)
     return ca.Function(
         f"f_{reference}", [theta, s.data], [f, grad, hess], ["theta", "p"], ["f", "grad", "hess"]
     )
@@ -198,15 +201,34 @@ def block_problem(block: str, reference: str, options: IpoptOptions = OPTIONS):
     return BlockProblem(block, solver, gauge)
 
 
+def parameter_values(moments: mom.Moments) -> np.ndarray:
+    """The problems' parameter vector for these moments as numbers (`pack`), once per moments."""
+    if "p values" not in moments.cache:
+        values = pack(moments, np.zeros(9), variable_scale(moments.frame.radius), 1.0)
+        moments.cache["p values"] = values
+    return moments.cache["p values"]
+
+
 def parameters(moments: mom.Moments) -> ca.DM:
     """The problems' parameter vector for these moments (`Symbols.data`), built once per moments
     (converting the Gram matrix costs more than an IPOPT iteration) and updated in place: the
     data part never changes, theta_ref and f_ref are set by each solve."""
     if "p" not in moments.cache:
-        values = pack(moments, np.zeros(9), variable_scale(moments.frame.radius), 1.0)
+        values = parameter_values(moments)
         # from a list: CasADi converts a numpy array element by element, at twice the cost
         moments.cache["p"] = ca.DM(ca.Sparsity.dense(values.size, 1), values.tolist())
     return moments.cache["p"]
+
+
+def evaluate(builder, moments: mom.Moments, theta) -> tuple:
+    """`builder(moments.reference)` (`objective_function`, `value_function`, `summary_function`)
+    at theta on these moments, evaluated in place (`Evaluation`): its results as numbers."""
+    return _evaluation(builder, moments.reference)(theta, parameter_values(moments))
+
+
+@cache
+def _evaluation(builder, reference: str) -> Evaluation:
+    return Evaluation(builder(reference))
 
 
 @cache

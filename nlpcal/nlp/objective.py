@@ -97,6 +97,29 @@ def coefficient_function(varying_gamma: bool) -> ca.Function:
     return ca.Function("u_coefficients", [theta, centre, length], [U, P])
 
 
+@problem("zhou2010.coefficient_derivatives", examples=[(False,), (True,)])
+def coefficient_derivative_functions(varying_gamma: bool) -> tuple[ca.Function, ca.Function]:
+    """Two small SX functions for the exact derivatives of the objective (`objective_derivatives`):
+
+    (theta, centre, L) -> (U, P, dU/dtheta, dP/dtheta), the coefficients and their Jacobians;
+    (theta, centre, L, wU, wP) -> the Hessian in theta of wU . U + wP . P.
+    """
+    theta, centre, length = ca.SX.sym("theta", 9), ca.SX.sym("centre", 3), ca.SX.sym("L")
+    U, P = feature_coefficients(u_coefficients(theta, centre, length), mom.layout(varying_gamma))
+    jacobians = ca.Function(
+        "u_jacobians",
+        [theta, centre, length],
+        [U, P, ca.densify(ca.jacobian(U, theta)), ca.densify(ca.jacobian(P, theta))],
+    )
+    wU, wP = ca.SX.sym("wU", U.numel()), ca.SX.sym("wP", P.numel())
+    curvature = ca.Function(
+        "u_curvature",
+        [theta, centre, length, wU, wP],
+        [ca.densify(ca.hessian(ca.dot(wU, U) + ca.dot(wP, P), theta)[0])],
+    )
+    return jacobians, curvature
+
+
 def power_moments(U, P, gram, layout: mom.Layout):
     """m_1..m_4, the weighted means of u^k, from U, P and the Gram matrix (exact polynomials).
 
@@ -158,6 +181,62 @@ def objective_expression(theta, gram, centre, length, reference: str):
     U, P = coefficient_function(layout.varying_gamma)(theta, centre, length)
     m = power_moments(U, P, gram, layout)
     return spread_objective(m, length) if reference == "none" else reference_objective(m, length)
+
+
+@problem("zhou2010.moment_objective", examples=[("none",), ("constant",)])
+def moment_objective_function(reference: str) -> ca.Function:
+    """(m_1..m_4, L) -> (f [field^2], df/dm, d2f/dm2): the objective as a function of the power
+    moments of u, Eq. 8 in [1] for "none", the reference objective otherwise."""
+    m, length = ca.SX.sym("m", 4), ca.SX.sym("L")
+    moments = (m[0], m[1], m[2], m[3])
+    f = (
+        spread_objective(moments, length)
+        if reference == "none"
+        else reference_objective(moments, length)
+    )
+    hess, grad = ca.hessian(f, m)
+    return ca.Function("f_of_moments", [m, length], [f, grad, ca.densify(hess)])
+
+
+def objective_derivatives(theta, gram, centre, length, reference: str):
+    """(f, grad f, Hessian of f) in theta [field^2 per internal unit^k], in closed form.
+
+    With D the 9 x 4 Jacobian of the power moments m = (U.G_1, P.G_1, P^T G U, P^T G P) and
+    the derivatives f_k, f_kl of f in m (`moment_objective_function`), the chain rule gives
+
+        grad f = D f_m
+        H f    = D f_mm D^T + f_3 (J_P^T G J_U + J_U^T G J_P) + 2 f_4 J_P^T G J_P
+                 + Hessian of (wU . U + wP . P),  wU = f_1 G_1 + f_3 G P,
+                                                  wP = f_2 G_1 + f_3 G U + 2 f_4 G P
+
+    (J_U, J_P the Jacobians of U and P in theta, G symmetric): a handful of products with the
+    Gram matrix, where automatic differentiation of `objective_expression` through them costs
+    ten times more on every Newton check.
+    """
+    layout = mom.layout(reference == "series")
+    jacobians, curvature = coefficient_derivative_functions(layout.varying_gamma)
+    U, P, JU, JP = jacobians(theta, centre, length)
+    first = gram[:, layout.one]
+    GU, GP, GJP = ca.mtimes(gram, U), ca.mtimes(gram, P), ca.mtimes(gram, JP)
+    m = ca.vertcat(ca.dot(U, first), ca.dot(P, first), ca.dot(GP, U), ca.dot(GP, P))
+    kind = "none" if reference == "none" else "constant"  # the series has the constant's form
+    f, fm, fmm = moment_objective_function(kind)(m, length)
+    D = ca.horzcat(
+        ca.mtimes(JU.T, first),
+        ca.mtimes(JP.T, first),
+        ca.mtimes(JP.T, GU) + ca.mtimes(JU.T, GP),
+        2 * ca.mtimes(JP.T, GP),
+    )
+    cross = ca.mtimes(JU.T, GJP)
+    weights_u = fm[0] * first + fm[2] * GP
+    weights_p = fm[1] * first + fm[2] * GU + 2 * fm[3] * GP
+    hess = (
+        ca.mtimes([D, fmm, D.T])
+        + fm[2] * (cross + cross.T)
+        + 2 * fm[3] * ca.mtimes(JP.T, GJP)
+        + curvature(theta, centre, length, weights_u, weights_p)
+    )
+    return f, ca.mtimes(D, fm), 0.5 * (hess + hess.T)  # symmetric to the last bit
 
 
 def magnitude_summary_expression(theta, gram, centre, length, reference: str):

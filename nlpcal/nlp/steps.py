@@ -30,6 +30,7 @@ from .blocks import (
     OPTIONS,
     BlockProblem,
     block_problem,
+    evaluate,
     gauge_basis,
     has_gauge,
     objective_function,
@@ -131,17 +132,16 @@ class _Newton:
     step: np.ndarray
 
     @classmethod
-    def at(cls, moments: mom.Moments, block: str, theta_ref, x, p) -> _Newton:
+    def at(cls, moments: mom.Moments, block: str, theta_ref, x) -> _Newton:
         free = list(BLOCKS[block])
         scale = variable_scale(moments.frame.radius)[free]
         theta = _theta(moments, block, theta_ref, x)
-        f_value, gradient, hess = objective_function(moments.reference)(theta, p)
-        g = scale * np.asarray(gradient, dtype=float).ravel()[free]
-        h = scale[:, None] * np.asarray(hess, dtype=float)[np.ix_(free, free)] * scale[None, :]
+        f_value, gradient, hess = evaluate(objective_function, moments, theta)
+        g = scale * gradient[free]
+        h = scale[:, None] * hess[np.ix_(free, free)] * scale[None, :]
         decrease, step = _newton_step(block, has_gauge(block, moments.reference), g, h)
-        return cls(
-            moments, block, theta_ref, np.asarray(x, dtype=float), float(f_value), h, decrease, step
-        )
+        x = np.asarray(x, dtype=float)
+        return cls(moments, block, theta_ref, x, f_value, h, decrease, step)
 
     def within(self, threshold: float | None = None) -> bool:
         """Whether x is the block's optimum to the resolution of the data: the step is shorter
@@ -149,7 +149,7 @@ class _Newton:
         limit = resolution(self.moments) if threshold is None else threshold
         return self.decrease <= limit * self.f
 
-    def taken(self, p) -> _Newton:
+    def taken(self) -> _Newton:
         """Where the step lands: x + step with f there (the Hessian and decrease are still the
         ones at x), or this point itself where the step is no finishing one (longer than
         FINISHING_STEP: a jump along a direction the data hardly determine) or f does not
@@ -159,10 +159,10 @@ class _Newton:
             return self
         x = self.x + self.step
         theta = _theta(self.moments, self.block, self.theta_ref, x)
-        f_value = float(value_function(self.moments.reference)(theta, p))
+        (f_value,) = evaluate(value_function, self.moments, theta)
         return replace(self, x=x, f=f_value) if f_value <= self.f else self
 
-    def finished(self, p) -> _Newton:
+    def finished(self) -> _Newton:
         """Newton steps from here until one is within the resolution, which is taken: every
         IPOPT answer is finished this way, since IPOPT's tolerance is relative to the objective
         where its solve started (far above the optimum's from a poor start). A step that is not
@@ -170,10 +170,10 @@ class _Newton:
         stops the steps short of the resolution."""
         current = self
         for _ in range(FINISHING_STEPS):
-            after = current.taken(p)
+            after = current.taken()
             if current.within() or after is current:
                 return after
-            current = _Newton.at(self.moments, self.block, self.theta_ref, after.x, p)
+            current = _Newton.at(self.moments, self.block, self.theta_ref, after.x)
         return current
 
 
@@ -212,9 +212,8 @@ def block_step(
     resolution, keeps the start: a stage never makes the objective worse.
     """
     theta = np.asarray(theta, dtype=float)
-    p = parameters(moments)  # the Newton checks read its data part; IPOPT's part is set below
     zero = np.zeros(len(BLOCKS[block]))
-    start = _Newton.at(moments, block, theta, zero, p)
+    start = _Newton.at(moments, block, theta, zero)
     f_start = start.f
     floor = PRECISION_FLOOR * moments.length**2
     if abs(f_start) <= floor:
@@ -224,12 +223,13 @@ def block_step(
         )
         return _step(moments, block, theta, outcome, f_start, 1.0, start.hess)
     if start.within(stationary):
-        landed = start.taken(p)
+        landed = start.taken()
         outcome = SolveOutcome(
             x=landed.x, f=landed.f, status="At_Stationary_Point", success=True, iterations=0
         )
         return _step(moments, block, theta, outcome, f_start, 1.0, start.hess, start.decrease)
     problem = block_problem(block, moments.reference, options)
+    p = parameters(moments)
     f_ref = max(f_start, SCALE_FLOOR * moments.length**2)
     p[0:9] = ca.DM(theta)  # theta_ref: the blocks held fixed, and where x = 0
     p[p.numel() - 1] = f_ref
@@ -237,7 +237,7 @@ def block_step(
     outcome = solve(problem.solver, x0=zero, p=p, **bounds)
     # A negative objective (a variance) means the series of `nlp.objective` does not hold where
     # the solve went, which happens when the data leave directions undetermined.
-    end = _Newton.at(moments, block, theta, outcome.x, p)
+    end = _Newton.at(moments, block, theta, outcome.x)
     if end.f < -floor:
         raise SolveError(
             f"the {block} problem's objective, a variance, went negative where the solve ended: "
@@ -254,7 +254,7 @@ def block_step(
         if not outcome.success:
             outcome = replace(outcome, status="At_Precision_Floor", success=True)
     else:
-        end = end.finished(p)
+        end = end.finished()
         if not outcome.success and end.within():
             outcome = replace(outcome, status="At_Data_Resolution", success=True)
     if not outcome.success:
