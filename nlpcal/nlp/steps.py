@@ -203,8 +203,9 @@ def block_step(
     A block already at its optimum (a Newton step would gain less than the fraction
     `stationary` of the objective, by default `resolution`: a step shorter than STATIONARY_SE
     standard errors) is not handed to IPOPT, whose problem is then not even built: the Newton
-    step finishes it (status At_Stationary_Point, zero iterations). Otherwise IPOPT solves it
-    and Newton steps finish IPOPT's answer (`_Newton.finished`). Statuses besides IPOPT's:
+    step finishes it (status At_Stationary_Point, zero iterations). Otherwise IPOPT solves it,
+    from where that Newton step lands if it is a finishing one (`_Newton.taken`), and Newton
+    steps finish IPOPT's answer (`_Newton.finished`). Statuses besides IPOPT's:
     At_Precision_Floor (noise-free data, the objective below what float64 moments resolve) and
     At_Data_Resolution (IPOPT gave up, whatever its reason, where Newton steps reach the
     resolution). Raises SolveError when IPOPT fails otherwise, or when the objective goes
@@ -234,7 +235,9 @@ def block_step(
     p[0:9] = ca.DM(theta)  # theta_ref: the blocks held fixed, and where x = 0
     p[p.numel() - 1] = f_ref
     bounds = {"lbg": 0.0, "ubg": 0.0} if problem.has_gauge else {}
-    outcome = solve(problem.solver, x0=zero, p=p, **bounds)
+    # IPOPT starts where the start's Newton step lands when that step is a finishing one (a
+    # warm start: IPOPT checks it, and iterates from it unless it meets IPOPT's tolerance).
+    outcome = solve(problem.solver, x0=start.taken().x, p=p, **bounds)
     # A negative objective (a variance) means the series of `nlp.objective` does not hold where
     # the solve went, which happens when the data leave directions undetermined.
     end = _Newton.at(moments, block, theta, outcome.x)
