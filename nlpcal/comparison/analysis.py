@@ -40,18 +40,15 @@ def thin(trajectory: dict, points: int = TRAJECTORY_POINTS) -> dict:
 def joint_trajectory(step, iterations: int, f_end: float) -> dict:
     """The objective at every IPOPT iteration of the joint solve `step` (`nlpcal.nlp.steps.Step`).
 
-    IPOPT records the objective of its problem, f / f_ref, in the solver's statistics. When they
-    cannot be read, the start and the end of the solve are returned.
+    IPOPT records the objective of its problem, f / f_ref, at every iteration (`SolveOutcome.
+    objectives`). Without that record (no IPOPT call: a start at its optimum), the start and the
+    end of the solve are returned.
     """
     f_start = float(getattr(step, "f_start", f_end))
-    try:
-        stats = step.problem.solver.stats()
-        scaled = [float(v) for v in stats["iterations"]["obj"]]
-        if len(scaled) != iterations + 1:
-            raise ValueError("iteration record does not match the solve")
-        objective = [v * float(step.f_ref) for v in scaled]
-    except Exception:
+    scaled = step.outcome.objectives
+    if len(scaled) != iterations + 1:
         return {"iterations": [0, iterations], "objective": [f_start, f_end]}
+    objective = [v * float(step.f_ref) for v in scaled]
     return {"iterations": list(range(len(objective))), "objective": objective}
 
 

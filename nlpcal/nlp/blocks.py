@@ -202,21 +202,12 @@ def block_problem(block: str, reference: str, options: IpoptOptions = OPTIONS):
 
 
 def parameter_values(moments: mom.Moments) -> np.ndarray:
-    """The problems' parameter vector for these moments as numbers (`pack`), once per moments."""
-    if "p values" not in moments.cache:
-        values = pack(moments, np.zeros(9), variable_scale(moments.frame.radius), 1.0)
-        moments.cache["p values"] = values
-    return moments.cache["p values"]
-
-
-def parameters(moments: mom.Moments) -> ca.DM:
-    """The problems' parameter vector for these moments (`Symbols.data`), built once per moments
-    (converting the Gram matrix costs more than an IPOPT iteration) and updated in place: the
-    data part never changes, theta_ref and f_ref are set by each solve."""
+    """The problems' parameter vector for these moments (`pack`, theta_ref = 0, f_ref = 1), built
+    once per moments: what the functions of theta (`evaluate`) read."""
     if "p" not in moments.cache:
-        values = parameter_values(moments)
-        # from a list: CasADi converts a numpy array element by element, at twice the cost
-        moments.cache["p"] = ca.DM(ca.Sparsity.dense(values.size, 1), values.tolist())
+        values = pack(moments, np.zeros(9), variable_scale(moments.frame.radius), 1.0)
+        values.flags.writeable = False
+        moments.cache["p"] = values
     return moments.cache["p"]
 
 

@@ -152,7 +152,8 @@ class SolveOutcome:
     status: str
     success: bool
     iterations: int
-    lam_x: np.ndarray | None = None
+    # IPOPT's objective at its start and after each iteration (of its problem, as scaled there)
+    objectives: tuple = ()
 
     def record(self) -> dict:
         """IPOPT's status and iteration count, for a result document."""
@@ -165,21 +166,52 @@ class SolveOutcome:
         return self
 
 
-def solve(solver, *, x0, p, lbx=-np.inf, ubx=np.inf, lbg=None, ubg=None) -> SolveOutcome:
-    """Solve a built `nlpsol` and read back IPOPT's status and iteration count."""
-    args = {"x0": x0, "p": p, "lbx": lbx, "ubx": ubx}
-    if lbg is not None:
-        args["lbg"] = lbg
-        args["ubg"] = ubg
+class _InPlace:
+    """The arrays a built `nlpsol` reads its arguments from and writes its results to
+    (`Function.buffer`), kept on the solver: no conversion of the parameters (the Gram matrix
+    of the moment problems, 2 139 numbers) on every solve."""
+
+    def __init__(self, solver):
+        self.buffer, self.evaluate = solver.buffer()  # the buffer must outlive evaluate
+        self.arguments = {
+            name: np.zeros(solver.nnz_in(i)) for i, name in enumerate(solver.name_in())
+        }
+        self.results = {
+            name: np.zeros(solver.nnz_out(i)) for i, name in enumerate(solver.name_out())
+        }
+        for i, values in enumerate(self.arguments.values()):
+            _bind(self.buffer.set_arg, i, values)
+        for i, values in enumerate(self.results.values()):
+            _bind(self.buffer.set_res, i, values)
+
+
+def _in_place(solver) -> _InPlace:
+    if getattr(solver, "_nlpcal_in_place", None) is None:
+        solver._nlpcal_in_place = _InPlace(solver)
+    return solver._nlpcal_in_place
+
+
+def solve(solver, *, x0, p, lbx=-np.inf, ubx=np.inf, lbg=-np.inf, ubg=np.inf) -> SolveOutcome:
+    """Solve a built `nlpsol` and read back IPOPT's status and iteration count.
+
+    x0, p and the bounds are numbers or arrays (a bound may be one number for all).
+    """
     with SOLVE_LOCK:
-        out = solver(**args)
-        stats = solver.stats()
+        run = _in_place(solver)
+        given = {"x0": x0, "p": p, "lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg}
+        for name, values in given.items():
+            run.arguments[name][:] = np.ravel(np.asarray(values, dtype=float), order="F")
+        run.arguments["lam_x0"][:] = 0.0
+        run.arguments["lam_g0"][:] = 0.0
+        run.evaluate()
+        stats = run.buffer.stats()
+        x, f = run.results["x"].copy(), float(run.results["f"][0])
     status = str(stats.get("return_status", "unknown"))
     return SolveOutcome(
-        x=np.asarray(out["x"], dtype=float).ravel(),
-        f=float(out["f"]),
+        x=x,
+        f=f,
         status=status,
         success=bool(stats.get("success", False)) or status in SUCCESS_STATUSES,
         iterations=int(stats.get("iter_count", 0)),
-        lam_x=np.asarray(out["lam_x"], dtype=float).ravel(),
+        objectives=tuple(float(v) for v in stats.get("iterations", {}).get("obj", ())),
     )

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
-import casadi as ca
 import numpy as np
 
 from .. import moments as mom
@@ -34,7 +33,7 @@ from .blocks import (
     gauge_basis,
     has_gauge,
     objective_function,
-    parameters,
+    parameter_values,
     value_function,
     variable_scale,
 )
@@ -230,10 +229,10 @@ def block_step(
         )
         return _step(moments, block, theta, outcome, f_start, 1.0, start.hess, start.decrease)
     problem = block_problem(block, moments.reference, options)
-    p = parameters(moments)
     f_ref = max(f_start, SCALE_FLOOR * moments.length**2)
-    p[0:9] = ca.DM(theta)  # theta_ref: the blocks held fixed, and where x = 0
-    p[p.numel() - 1] = f_ref
+    p = parameter_values(moments).copy()
+    p[0:9] = theta  # theta_ref: the blocks held fixed, and where x = 0
+    p[-1] = f_ref
     bounds = {"lbg": 0.0, "ubg": 0.0} if problem.has_gauge else {}
     # IPOPT starts where the start's Newton step lands when that step is a finishing one (a
     # warm start: IPOPT checks it, and iterates from it unless it meets IPOPT's tolerance).
