@@ -213,8 +213,20 @@ def parameter_values(moments: mom.Moments) -> np.ndarray:
 
 def evaluate(builder, moments: mom.Moments, theta) -> tuple:
     """`builder(moments.reference)` (`objective_function`, `value_function`, `summary_function`)
-    at theta on these moments, evaluated in place (`Evaluation`): its results as numbers."""
-    return _evaluation(builder, moments.reference)(theta, parameter_values(moments))
+    at theta on these moments, evaluated in place (`Evaluation`): its results as numbers, the
+    arrays read-only. The latest result of each builder is kept: a stage starts where the
+    previous one was last checked."""
+    theta = np.asarray(theta, dtype=float)
+    key = ("latest", builder.__name__)
+    latest = moments.cache.get(key)
+    if latest is not None and np.array_equal(latest[0], theta):
+        return latest[1]
+    results = _evaluation(builder, moments.reference)(theta, parameter_values(moments))
+    for value in results:
+        if isinstance(value, np.ndarray):
+            value.flags.writeable = False
+    moments.cache[key] = (theta.copy(), results)
+    return results
 
 
 @cache
