@@ -446,3 +446,33 @@ def test_the_version_is_written_once():
     except metadata.PackageNotFoundError:
         pytest.skip("nlpcal is not installed")
     assert installed == nlpcal.__version__  # pyproject.toml reads it from nlpcal/version.py
+
+
+def test_sigterm_during_an_ipopt_solve_is_a_termination():
+    # CasADi checks for signals while IPOPT runs; the one it catches must come back as the
+    # command line's Terminated (exit 143, "terminated"), not as an internal error.
+    import os
+    import signal
+    import threading
+
+    import casadi as ca
+
+    from nlpcal.cli import Terminated, _terminate
+    from nlpcal.nlp.solver import IpoptOptions, build_nlpsol, solve
+
+    n = 400
+    x, p = ca.SX.sym("x", n), ca.SX.sym("p")
+    rosenbrock = 100 * ca.sum1((x[1:] - x[:-1] ** 2) ** 2) + ca.sum1((1 - x) ** 2) + p
+    options = IpoptOptions(
+        tol=1e-300, max_iter=10**6, extra=(("hessian_approximation", "limited-memory"),)
+    )
+    solver = build_nlpsol("slow", x, rosenbrock, p, options=options)
+    previous = signal.signal(signal.SIGTERM, _terminate)
+    timer = threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGTERM))
+    try:
+        timer.start()
+        with pytest.raises(Terminated):
+            solve(solver, x0=np.full(n, -1.2), p=0.0)
+    finally:
+        timer.cancel()
+        signal.signal(signal.SIGTERM, previous)

@@ -13,6 +13,7 @@ import argparse
 import os
 import signal
 import sys
+import threading
 
 from ..errors import InputError, QualityError, SolveError, WriteError
 from ..version import __version__
@@ -99,7 +100,13 @@ class Terminated(KeyboardInterrupt):
     """SIGTERM, raised where the program is, so that a write under way cleans up after itself."""
 
 
+#: Set by SIGTERM: an interruption CasADi caught during a solve may reach main as a plain
+#: KeyboardInterrupt (`nlpcal.nlp.solver`), and it is then this termination.
+_TERMINATION = threading.Event()
+
+
 def _terminate(signum, frame):
+    _TERMINATION.set()
     raise Terminated
 
 
@@ -116,6 +123,7 @@ def main(argv=None) -> int:
     except SystemExit as exc:  # --help and --version
         return int(exc.code or 0)
     set_verbosity(args)
+    _TERMINATION.clear()
     previous = signal.getsignal(signal.SIGTERM)
     in_main_thread = _set_signal(signal.SIGTERM, _terminate)
     try:
@@ -138,9 +146,12 @@ def main(argv=None) -> int:
         print(f"nlpcal {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:
-        what = "terminated" if isinstance(exc, Terminated) else "interrupted"
-        print(f"nlpcal {args.command}: {what}", file=sys.stderr)
-        return 143 if isinstance(exc, Terminated) else 130
+        terminated = isinstance(exc, Terminated) or _TERMINATION.is_set()
+        print(
+            f"nlpcal {args.command}: {'terminated' if terminated else 'interrupted'}",
+            file=sys.stderr,
+        )
+        return 143 if terminated else 130
     except (MemoryError, RecursionError) as exc:
         print(
             f"nlpcal {args.command}: error: the input is too large or too deeply nested to "

@@ -108,8 +108,24 @@ class Evaluation:
         with self._lock:
             self._x[:] = x
             _bind(self._buffer.set_arg, 1, p)
-            self._evaluate()
+            _run(self._evaluate)
             return tuple(_read(r, shape) for r, shape in zip(self._results, self._shapes))
+
+
+def _run(evaluate) -> None:
+    """Run a FunctionBuffer's evaluation. CasADi checks for signals during a solve (Ctrl-C, or
+    SIGTERM where the command line turns it into an exception); one handled while it ran comes
+    back wrapped in a SystemError (or, from some places, a RuntimeError naming it) and is raised
+    here as the interruption it is."""
+    try:
+        evaluate()
+    except (SystemError, RuntimeError) as error:
+        cause = error.__cause__ or error.__context__
+        if isinstance(cause, KeyboardInterrupt):
+            raise cause from None
+        if "KeyboardInterrupt" in str(error):
+            raise KeyboardInterrupt(str(error)) from None
+        raise
 
 
 def _bind(bind, i: int, values: np.ndarray) -> None:
@@ -197,15 +213,15 @@ def solve(solver, *, x0, p, lbx=-np.inf, ubx=np.inf, lbg=-np.inf, ubg=np.inf) ->
     x0, p and the bounds are numbers or arrays (a bound may be one number for all).
     """
     with SOLVE_LOCK:
-        run = _in_place(solver)
+        arrays = _in_place(solver)
         given = {"x0": x0, "p": p, "lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg}
         for name, values in given.items():
-            run.arguments[name][:] = np.ravel(np.asarray(values, dtype=float), order="F")
-        run.arguments["lam_x0"][:] = 0.0
-        run.arguments["lam_g0"][:] = 0.0
-        run.evaluate()
-        stats = run.buffer.stats()
-        x, f = run.results["x"].copy(), float(run.results["f"][0])
+            arrays.arguments[name][:] = np.ravel(np.asarray(values, dtype=float), order="F")
+        arrays.arguments["lam_x0"][:] = 0.0
+        arrays.arguments["lam_g0"][:] = 0.0
+        _run(arrays.evaluate)
+        stats = arrays.buffer.stats()
+        x, f = arrays.results["x"].copy(), float(arrays.results["f"][0])
     status = str(stats.get("return_status", "unknown"))
     return SolveOutcome(
         x=x,
