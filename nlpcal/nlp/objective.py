@@ -179,23 +179,46 @@ def objective_expression(theta, gram, centre, length, reference: str):
     """
     layout = mom.layout(reference == "series")
     U, P = coefficient_function(layout.varying_gamma)(theta, centre, length)
-    m = power_moments(U, P, gram, layout)
-    return spread_objective(m, length) if reference == "none" else reference_objective(m, length)
+    m = ca.vertcat(*power_moments(U, P, gram, layout))
+    return moment_objective_function(moment_kind(reference))(m, length)
 
 
-@problem("zhou2010.moment_objective", examples=[("none",), ("constant",)])
-def moment_objective_function(reference: str) -> ca.Function:
-    """(m_1..m_4, L) -> (f [field^2], df/dm, d2f/dm2): the objective as a function of the power
-    moments of u, Eq. 8 in [1] for "none", the reference objective otherwise."""
+def moment_kind(reference: str) -> str:
+    """The form of the objective in the power moments: "none" (Eq. 8) or "constant" (a reference
+    series has the constant's form, its weights being in the moments)."""
+    return "none" if reference == "none" else "constant"
+
+
+@problem(
+    "zhou2010.moment_objective",
+    examples=[(kind, d) for kind in ("none", "constant") for d in (False, True)],
+)
+def moment_objective_function(kind: str, derivatives: bool = False) -> ca.Function:
+    """(m_1..m_4, L) -> f [field^2], and with `derivatives` df/dm and d2f/dm2: the objective as a
+    function of the power moments of u (Eq. 8 in [1] for kind "none", the reference objective
+    for "constant"). A small SX function: the MX problems that call it stay a few nodes, which
+    CasADi builds in milliseconds and differentiates cheaply (its scalar algebra written out in
+    MX took 20-30 ms to build per problem and a third of IPOPT's Hessian evaluations)."""
     m, length = ca.SX.sym("m", 4), ca.SX.sym("L")
     moments = (m[0], m[1], m[2], m[3])
     f = (
         spread_objective(moments, length)
-        if reference == "none"
+        if kind == "none"
         else reference_objective(moments, length)
     )
+    if not derivatives:
+        return ca.Function("f_of_moments", [m, length], [f])
     hess, grad = ca.hessian(f, m)
-    return ca.Function("f_of_moments", [m, length], [f, grad, ca.densify(hess)])
+    return ca.Function("f_of_moments_derivatives", [m, length], [f, grad, ca.densify(hess)])
+
+
+@problem("zhou2010.moment_summary")
+def moment_summary_function() -> ca.Function:
+    """(m_1..m_4, L) -> (mean [field unit], variance [field^2], rho [1]) of |B1| with uniform
+    weights (`magnitude_summary`), a small SX function like `moment_objective_function`."""
+    m, length = ca.SX.sym("m", 4), ca.SX.sym("L")
+    mean, variance, spread = magnitude_summary((m[0], m[1], m[2], m[3]), length)
+    return ca.Function("summary_of_moments", [m, length], [mean, variance, spread])
 
 
 def objective_derivatives(theta, gram, centre, length, reference: str):
@@ -219,8 +242,7 @@ def objective_derivatives(theta, gram, centre, length, reference: str):
     first = gram[:, layout.one]
     GU, GP, GJP = ca.mtimes(gram, U), ca.mtimes(gram, P), ca.mtimes(gram, JP)
     m = ca.vertcat(ca.dot(U, first), ca.dot(P, first), ca.dot(GP, U), ca.dot(GP, P))
-    kind = "none" if reference == "none" else "constant"  # the series has the constant's form
-    f, fm, fmm = moment_objective_function(kind)(m, length)
+    f, fm, fmm = moment_objective_function(moment_kind(reference), True)(m, length)
     D = ca.horzcat(
         ca.mtimes(JU.T, first),
         ca.mtimes(JP.T, first),
@@ -244,4 +266,4 @@ def magnitude_summary_expression(theta, gram, centre, length, reference: str):
     "none" and "constant" (whose weights are uniform). [field unit], [field^2], [1]"""
     layout = mom.layout(reference == "series")
     U, P = coefficient_function(layout.varying_gamma)(theta, centre, length)
-    return magnitude_summary(power_moments(U, P, gram, layout), length)
+    return moment_summary_function()(ca.vertcat(*power_moments(U, P, gram, layout)), length)
