@@ -233,8 +233,8 @@ def objective_derivatives(theta, gram, centre, length, reference: str):
                                                   wP = f_2 G_1 + f_3 G U + 2 f_4 G P
 
     (J_U, J_P the Jacobians of U and P in theta, G symmetric): a handful of products with the
-    Gram matrix, where automatic differentiation of `objective_expression` through them costs
-    ten times more on every Newton check.
+    Gram matrix: 77 operations where automatic differentiation of `objective_expression` took
+    2 070, three to four times the time on every Newton check.
     """
     layout = mom.layout(reference == "series")
     jacobians, curvature = coefficient_derivative_functions(layout.varying_gamma)

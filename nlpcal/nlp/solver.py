@@ -143,8 +143,9 @@ def _read(values: np.ndarray, shape) -> float | np.ndarray:
 
 
 #: One IPOPT solve at a time in a process: IPOPT and its linear solver (MUMPS) are not
-#: thread-safe, and a solver's `stats()` describe its latest call. Threads (a fleet calibrated on
-#: Dask's threads scheduler) still overlap their reading and their data passes.
+#: thread-safe, and a solver's arrays and statistics (`_InPlace`) are those of its latest call.
+#: Threads (a fleet calibrated on Dask's threads scheduler) still overlap their reading and
+#: their data passes.
 SOLVE_LOCK = threading.Lock()
 
 #: IPOPT statuses that count as solved.
