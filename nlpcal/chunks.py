@@ -124,11 +124,12 @@ def single_blas():
 
 
 def map_shares(work, n: int, chunk_rows: int, workers: int | None = None) -> list:
-    """work(start, stop) for every share, in threads, BLAS held to one thread meanwhile; the
-    results in order of the shares."""
+    """work(start, stop) for every share, in threads (the calling thread takes the first share),
+    BLAS held to one thread meanwhile; the results in order of the shares."""
     ranges = shares(n, chunk_rows, workers or thread_count()) or [(0, n)]
     with single_blas():
         if len(ranges) == 1:
             return [work(*ranges[0])]
-        with ThreadPoolExecutor(max_workers=len(ranges)) as pool:
-            return list(pool.map(lambda r: work(*r), ranges))
+        with ThreadPoolExecutor(max_workers=len(ranges) - 1) as pool:
+            others = [pool.submit(work, *r) for r in ranges[1:]]
+            return [work(*ranges[0])] + [future.result() for future in others]
