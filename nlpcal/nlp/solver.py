@@ -76,8 +76,27 @@ def builds() -> int:
     return sum(builder.cache_info().misses for builder, _ in PROBLEMS.values())
 
 
+class _InPlace:
+    """The arrays a built CasADi function reads its arguments from and writes its results to
+    (`Function.buffer`), by name: no conversion of the arguments (the Gram matrix of the moment
+    problems, 2 139 numbers) or results on every call (30-40 us through the Python call)."""
+
+    def __init__(self, function):
+        self.buffer, self.evaluate = function.buffer()  # the buffer must outlive evaluate
+        self.arguments = {
+            name: np.zeros(function.nnz_in(i)) for i, name in enumerate(function.name_in())
+        }
+        self.results = {
+            name: np.zeros(function.nnz_out(i)) for i, name in enumerate(function.name_out())
+        }
+        for i, values in enumerate(self.arguments.values()):
+            _bind(self.buffer.set_arg, i, values)
+        for i, values in enumerate(self.results.values()):
+            _bind(self.buffer.set_res, i, values)
+
+
 class Evaluation:
-    """A built CasADi function f(x, p) evaluated in place on numpy arrays (`Function.buffer`).
+    """A built CasADi function f(x, p) evaluated in place on numpy arrays (`_InPlace`).
 
     For the small functions evaluated many times per log (the Newton checks of every stage): a
     call costs a few microseconds where the Python call converts its arguments and results
@@ -90,26 +109,22 @@ class Evaluation:
             raise ValueError(f"{function.name()} is not a function of (x, p)")
         if not all(function.sparsity_out(i).is_dense() for i in range(function.n_out())):
             raise ValueError(f"{function.name()} has an output that is not dense")
-        self._buffer, self._evaluate = function.buffer()  # the buffer must outlive _evaluate
-        self._x = np.zeros(function.nnz_in(0))
-        self._p_size = function.nnz_in(1)
-        self._results = [np.zeros(function.nnz_out(i)) for i in range(function.n_out())]
+        self._arrays = _InPlace(function)
+        self._x, self._p = self._arrays.arguments.values()
         self._shapes = [function.size_out(i) for i in range(function.n_out())]
-        _bind(self._buffer.set_arg, 0, self._x)
-        for i, result in enumerate(self._results):
-            _bind(self._buffer.set_res, i, result)
         self._lock = threading.Lock()
 
-    def __call__(self, x, p: np.ndarray) -> tuple:
-        """The results at x for the parameters p (read in place: a contiguous float array)."""
-        p = np.ascontiguousarray(p, dtype=float)
-        if p.size != self._p_size:
-            raise ValueError(f"expected {self._p_size} parameters, got {p.size}")
+    def __call__(self, x, p) -> tuple:
+        """The results at x for the parameters p."""
+        p = np.ravel(p)
+        if p.size != self._p.size:
+            raise ValueError(f"expected {self._p.size} parameters, got {p.size}")
         with self._lock:
             self._x[:] = x
-            _bind(self._buffer.set_arg, 1, p)
-            _run(self._evaluate)
-            return tuple(_read(r, shape) for r, shape in zip(self._results, self._shapes))
+            self._p[:] = p
+            _run(self._arrays.evaluate)
+            results = self._arrays.results.values()
+            return tuple(_read(r, shape) for r, shape in zip(results, self._shapes))
 
 
 def _run(evaluate) -> None:
@@ -181,25 +196,6 @@ class SolveOutcome:
         if not self.success:
             raise SolveError(f"IPOPT did not solve the {what}", self.status, self)
         return self
-
-
-class _InPlace:
-    """The arrays a built `nlpsol` reads its arguments from and writes its results to
-    (`Function.buffer`), kept on the solver: no conversion of the parameters (the Gram matrix
-    of the moment problems, 2 139 numbers) on every solve."""
-
-    def __init__(self, solver):
-        self.buffer, self.evaluate = solver.buffer()  # the buffer must outlive evaluate
-        self.arguments = {
-            name: np.zeros(solver.nnz_in(i)) for i, name in enumerate(solver.name_in())
-        }
-        self.results = {
-            name: np.zeros(solver.nnz_out(i)) for i, name in enumerate(solver.name_out())
-        }
-        for i, values in enumerate(self.arguments.values()):
-            _bind(self.buffer.set_arg, i, values)
-        for i, values in enumerate(self.results.values()):
-            _bind(self.buffer.set_res, i, values)
 
 
 def _in_place(solver) -> _InPlace:
