@@ -37,7 +37,7 @@ from .. import cluster
 from ..calibration import CalibrationResult
 from ..correction import load_parameters
 from ..errors import InputError
-from ..io import write_csv_atomic
+from ..io import Outputs
 from ..io.files import COMPRESSED_SUFFIXES
 from ..io.sources import is_parquet, log_paths
 from ..models.zhou2010 import PARAMETER_NAMES
@@ -217,8 +217,9 @@ def _run(jobs, task, reused, ledger: Ledger, keys: dict, columns, scheduler, wor
         raise
     finally:
         report.rows = [rows[str(job[0])] for job in jobs if str(job[0]) in rows]
-        write_csv_atomic(report.summary, report.table())
-        ledger.save()
+        with Outputs() as outputs:  # the summary and the record of the outputs, together
+            outputs.csv(report.summary, report.table())
+            outputs.json(ledger.path, ledger.document())
     return report
 
 

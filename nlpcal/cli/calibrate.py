@@ -31,7 +31,6 @@ from .common import (
     add_scheduler_arguments,
     add_threads_argument,
     check_plot,
-    emit_json,
     log_options,
     progress,
     report_log,
@@ -226,7 +225,7 @@ def _run_calibrate(args) -> int:
     from ..calibration import calibrate_log
     from ..drift.temperature import calibrate_temperature_log
     from ..errors import InputError, QualityError
-    from ..io import check_output_path
+    from ..io import Outputs, check_output_path
 
     check_output_path(args.output, args.log)
     check_plot(args)
@@ -296,10 +295,12 @@ def _run_calibrate(args) -> int:
     corrected = None
     if args.plot and temperature:
         corrected = _apply_temperature(result, log, args.temperature_column)
-    emit_json(result.to_dict(), args.output)
-    if args.output:
-        warn(f"wrote {args.output}")
-    write_plot(args, log, result, corrected)
+    with Outputs() as outputs:
+        outputs.json(args.output, result.to_dict())
+        write_plot(outputs, args, log, result, corrected)
+    for path in (args.output, args.plot):
+        if path:
+            warn(f"wrote {path}")
     return 0
 
 
