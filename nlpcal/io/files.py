@@ -369,8 +369,8 @@ class Outputs:
     def commit(self) -> None:
         """Put every output in place (see the class); nothing is left pending."""
         pending, self._pending = self._pending, []
-        try:
-            for output in pending:
+        try:  # files first: nothing is written through before every file is complete
+            for output in sorted(pending, key=lambda output: isinstance(output, _Passage)):
                 output.complete()
             for output in pending:
                 output.place()
