@@ -446,9 +446,9 @@ def test_a_failed_output_leaves_every_other_as_it_was(
     values = {"d": inputs, "first": first, "bad": bad}
     status = main([part.format(**values) for part in SEVERAL[name]])
     out, err = capsys.readouterr()
-    assert status == 2 and "cannot be written" in err, err
     assert first.read_text() == "previous" and out == ""
     assert sorted(p.name for p in tmp_path.iterdir()) == ["first"]  # no debris, no output
+    assert status == 2 and "cannot be written" in err, err
 
 
 def test_a_folder_preset_writes_all_its_files_or_none(writer, tmp_path, capsys):
