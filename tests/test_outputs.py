@@ -462,6 +462,19 @@ def test_a_folder_preset_writes_all_its_files_or_none(writer, tmp_path, capsys):
     assert sorted(p.name for p in folder.iterdir()) == ["base.csv", "truth.json"]
 
 
+def test_a_failed_batch_log_leaves_a_device_in_place_of_its_output(tmp_path, capsys):
+    # A log that fails loses the output an earlier run wrote; a device there holds none.
+    log = tmp_path / "bad.csv"
+    log.write_text("bx,by,bz\n1,2,3\n")
+    (tmp_path / "out").mkdir()
+    output = tmp_path / "out" / "bad.params.json"
+    device = null_device(output)
+    status = main(["batch", "calibrate", str(log), "--out-dir", str(tmp_path / "out"), "-q"])
+    capsys.readouterr()
+    assert status == 2
+    assert stat.S_ISCHR(os.lstat(output).st_mode) and os.lstat(output).st_rdev == device
+
+
 # --- killed runs, with the named temporary file writer --------------------------------------------
 
 
