@@ -261,7 +261,8 @@ class _Replacement:
                     )
                 else:
                     self.fd = unnamed
-                os.fchmod(self.fd, target.mode)
+                with contextlib.suppress(OSError):  # file systems without permissions
+                    os.fchmod(self.fd, target.mode)
                 _fill(self.fd, write, binary)
                 os.fsync(self.fd)
         except BaseException:
