@@ -512,6 +512,22 @@ def test_simulate_into_head_ends_quietly_with_141(tmp_path):
     assert simulate.returncode == 141 and err == b""
 
 
+def test_a_fifo_whose_reader_leaves_ends_quietly_with_141(tmp_path, capsys):
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    quitter = subprocess.Popen(  # opens the FIFO and closes it without reading
+        [sys.executable, "-c", "import os, sys; os.close(os.open(sys.argv[1], os.O_RDONLY))"]
+        + [str(fifo)]
+    )
+    try:
+        status = main(["simulate", "-n", "20000", "-o", str(fifo)])  # 0.8 MB: more than a pipe
+    finally:
+        quitter.kill()
+        quitter.wait()
+    assert status == 141 and capsys.readouterr().err == ""
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
+
+
 STDOUT_COMMANDS = {
     "calibrate": ["calibrate", LOG, "--method", "joint"],
     "apply": ["apply", PARAMS, LOG],

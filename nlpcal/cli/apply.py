@@ -27,6 +27,7 @@ from .common import (
     log_options,
     report_log,
     tell,
+    tell_written,
     warn,
     write_plot,
 )
@@ -142,8 +143,7 @@ def run_apply(args) -> int:
         write_plot(outputs, args, log, correction.parameters, corrected)
     if args.output:
         warn(f"wrote {len(frame)} corrected rows to {args.output} ({log.layout.describe()})")
-    if args.plot:
-        warn(f"wrote {args.plot}")
+    tell_written(args.plot)
     return 0
 
 

@@ -36,6 +36,7 @@ from .common import (
     report_log,
     say,
     solver_log,
+    tell_written,
     warn,
     warning,
     write_plot,
@@ -298,9 +299,7 @@ def _run_calibrate(args) -> int:
     with Outputs() as outputs:
         outputs.json(args.output, result.to_dict())
         write_plot(outputs, args, log, result, corrected)
-    for path in (args.output, args.plot):
-        if path:
-            warn(f"wrote {path}")
+    tell_written(args.output, args.plot)
     return 0
 
 

@@ -133,6 +133,13 @@ def progress(message: str, done: bool = False) -> None:
     sys.stderr.flush()
 
 
+def tell_written(*paths) -> None:
+    """ "wrote PATH" for each output written to a path (not stdout), silent with -q."""
+    for path in paths:
+        if path and str(path) != "-":
+            warn(f"wrote {path}")
+
+
 def tell(notes) -> None:
     """What the library decided on the user's behalf, one line each on stderr (not with -q)."""
     for note in notes:

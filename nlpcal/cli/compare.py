@@ -25,7 +25,7 @@ from .common import (
     report_log,
     say,
     solver_log,
-    warn,
+    tell_written,
     warning,
 )
 
@@ -134,7 +134,5 @@ def run(args) -> int:
         outputs.json(args.output, result.to_dict())
         if png is not None:
             outputs.bytes(args.plot, png)
-    for path in (args.output, args.plot):
-        if path:
-            warn(f"wrote {path}")
+    tell_written(args.output, args.plot)
     return 0

@@ -133,6 +133,8 @@ class Target:
         device or a FIFO) is opened and written; "descriptor": this process's open file `fd`
         (named through /proc: /dev/stdout, /dev/fd/N) is written, as a shell does; "stdout":
         Python's sys.stdout (an output of "-" or None).
+    path : the file replaced, or the path opened.
+    fd : the descriptor of kind "descriptor".
     mode : the permissions the new file gets: those of the file it replaces, else the usual
         0666 less the umask.
     """
@@ -312,8 +314,8 @@ class _Passage:
             sys.stdout.flush()  # what this process wrote before comes first
             if kind == "descriptor":
                 fd = os.dup(self.target.fd)
-            else:  # never O_CREAT: a device or a FIFO, not a new file
-                fd = os.open(self.target.path, os.O_WRONLY | os.O_NOCTTY)
+            else:  # as a shell's `>`, less O_CREAT: a device or a FIFO, never a new file
+                fd = os.open(self.target.path, os.O_WRONLY | os.O_TRUNC | os.O_NOCTTY)
             try:
                 _fill(fd, self.write, self.binary)
             finally:
