@@ -251,9 +251,7 @@ def estimate(
             # a target stop is the user's request; a cycle that converged by its rtol rule but
             # cannot be checked (no standard errors, no joint optimum) keeps its warning
             if stop_reason == "max_cycles" or (stop_reason == "rtol" and checked):
-                stop_reason = (
-                    stop_reason if stop_reason == "max_cycles" else "above_joint_optimum"
-                )
+                stop_reason = stop_reason if stop_reason == "max_cycles" else "above_joint_optimum"
                 unconverged = message
         elif stop_reason == "max_cycles" and len(rows) > 2:
             warnings.append(

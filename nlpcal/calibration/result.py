@@ -20,6 +20,7 @@ from ..models.zhou2010 import (
     Zhou2010Parameters,
     correct,
     estimated_parameters,
+    is_of_model,
     tied_parameters,
 )
 from ..results import Document, DocumentReader
@@ -85,19 +86,18 @@ def read_covariance(reader: DocumentReader, estimated: list) -> np.ndarray | Non
 def check_model(parameters: dict, model_name: str, scale_known: bool, source: str) -> None:
     """InputError unless the parameters are of the form `model_name`: the ones it does not
     estimate at zero, the ones it ties equal."""
+    if is_of_model(parameters, model_name, scale_known):
+        return
     estimated = estimated_parameters(model_name, scale_known)
     moved = [n for n in PARAMETER_NAMES if n not in estimated and parameters[n] != 0.0]
-    if moved:
-        raise InputError(
-            f"{source}: model {model_name} fixes {', '.join(moved)} at 0, but the parameters "
-            f"give {', '.join(f'{n} = {parameters[n]:g}' for n in moved)}"
-        )
-    for group in tied_parameters(model_name, scale_known):
-        if len({parameters[n] for n in group}) > 1:
-            raise InputError(
-                f"{source}: model {model_name} estimates one common value for {', '.join(group)}, "
-                f"but the parameters differ"
-            )
+    given = ", ".join(f"{n} = {parameters[n]:g}" for n in moved)
+    raise InputError(
+        f"{source}: model {model_name} fixes {', '.join(moved)} at 0, but the parameters give "
+        f"{given}"
+        if moved
+        else f"{source}: model {model_name} estimates one common value for "
+        f"{', '.join(tied_parameters(model_name, scale_known)[0])}, but the parameters differ"
+    )
 
 
 @dataclass

@@ -263,3 +263,20 @@ def tied_parameters(model: str, scale_known: bool) -> list:
         for column in directions.T
         if np.count_nonzero(column) > 1
     ]
+
+
+def is_of_model(parameters: dict, model: str, scale_known: bool) -> bool:
+    """Whether named parameters are of a form: zero where it fixes them, equal (to 1e-12) where
+    it ties them."""
+    estimated = estimated_parameters(model, scale_known)
+    if any(parameters[n] != 0.0 for n in PARAMETER_NAMES if n not in estimated):
+        return False
+    return all(
+        np.allclose([parameters[n] for n in group], parameters[group[0]], rtol=1e-12, atol=1e-15)
+        for group in tied_parameters(model, scale_known)
+    )
+
+
+def smallest_model(parameters: dict, scale_known: bool) -> str:
+    """The smallest form of Eq. 4 that holds the parameters exactly (an imported correction)."""
+    return next(m for m in MODELS if is_of_model(parameters, m, scale_known))
