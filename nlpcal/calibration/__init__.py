@@ -293,7 +293,8 @@ def estimate(
     if require_identifiable and identifiability["not_identifiable"]:
         also = f" Besides, {unconverged[0].lower()}{unconverged[1:]}." if unconverged else ""
         raise QualityError(
-            undetermined_message(point_errors, identifiability, final, mode, base) + also,
+            undetermined_message(point_errors, identifiability, final, mode, base, problem.model)
+            + also,
             "Not_Identifiable",
             result=result,
             overrides={"require_identifiable": False, **overrides},

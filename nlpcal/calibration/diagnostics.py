@@ -251,7 +251,7 @@ def explain_failure(
     identifiability["coverage"] = direction_coverage(problem.samples, theta)
     if not weak and identifiability["coverage"]["fraction"] < COVERAGE_WARN:
         final = field_statistics(problem.samples, theta, problem.reference)
-        help_ = what_would_help(identifiability, final, problem.moments.reference)
+        help_ = what_would_help(identifiability, final, problem.moments.reference, problem.model)
         covered = identifiability["coverage"]["covered"]
         return SolveError(
             f"{failure}: the field directions cover {covered} of 26 direction bins, a cap of the "
@@ -269,7 +269,7 @@ def explain_failure(
             result=theta,
         )
     final = field_statistics(problem.samples, theta, problem.reference)
-    help_ = what_would_help(identifiability, final, problem.moments.reference)
+    help_ = what_would_help(identifiability, final, problem.moments.reference, problem.model)
     help_ = help_ or "rotate the sensor through more attitudes"
     return SolveError(
         f"{failure}: the data do not determine {', '.join(weak)}. {help_[:1].upper()}{help_[1:]}",
@@ -308,8 +308,9 @@ def _judged(errors: dict, limits: dict, names, unit: str, share: float) -> str:
     return "; ".join(parts)
 
 
-def what_would_help(identifiability: dict, final: dict, reference: str) -> str:
-    """What would determine the parameters better, from what limits them here."""
+def what_would_help(identifiability: dict, final: dict, reference: str, model: str = "full") -> str:
+    """What would determine the parameters better, from what limits them here (`model`: the form
+    of Eq. 4 fitted; a smaller one is suggested where the attitudes cover a cap of the sphere)."""
     advice = []
     coverage = identifiability.get("coverage", {})
     missing = coverage.get("missing", [])
@@ -336,10 +337,19 @@ def what_would_help(identifiability: dict, final: dict, reference: str) -> str:
         )
     if reference == "none":
         advice.append("a known field magnitude (--reference-field F) to fix the overall scale")
+    if model != "offset" and (
+        coverage.get("fraction", 1.0) < COVERAGE_WARN or identifiability.get("not_identifiable")
+    ):
+        advice.append(
+            "or a smaller model: --model auto fits the richest the attitudes determine "
+            "(diagonal: offsets and scales; offset: the offsets alone)"
+        )
     return "what would help: " + "; ".join(advice) if advice else ""
 
 
-def undetermined_message(errors, identifiability: dict, final: dict, reference: str, unit):
+def undetermined_message(
+    errors, identifiability: dict, final: dict, reference: str, unit, model: str = "full"
+):
     """Why the data do not determine some parameters, and what would: a few sentences."""
     undetermined = identifiability.get("undetermined", [])
     flat = identifiability.get("flatness", {})
@@ -360,7 +370,7 @@ def undetermined_message(errors, identifiability: dict, final: dict, reference: 
             f"the data do not determine {', '.join(weak)} (|B1| does not change along a "
             f"combination of them)"
         )
-    help_ = what_would_help(identifiability, final, reference)
+    help_ = what_would_help(identifiability, final, reference, model)
     return "; ".join(parts) + (f". {help_[0].upper()}{help_[1:]}." if help_ else ".")
 
 
@@ -379,7 +389,9 @@ def warnings_for(
     if identifiability["not_identifiable"]:
         warnings.append(
             "not identifiable: "
-            + undetermined_message(errors, identifiability, final, reference, unit).rstrip(".")
+            + undetermined_message(
+                errors, identifiability, final, reference, unit, problem.model
+            ).rstrip(".")
         )
     coverage = identifiability["coverage"]
     if coverage["fraction"] < COVERAGE_WARN and not identifiability["not_identifiable"]:
@@ -396,7 +408,7 @@ def warnings_for(
             unit,
             100 * POORLY_DETERMINED[0],
         )
-        help_ = what_would_help(identifiability, final, reference)
+        help_ = what_would_help(identifiability, final, reference, problem.model)
         warnings.append(
             f"poorly determined (standard errors above the limits): {judged}"
             + (f". {help_[0].upper()}{help_[1:]}" if help_ else "")
