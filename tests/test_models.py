@@ -353,3 +353,17 @@ def test_auto_chooses_full_on_full_sphere_real_logs(real_data, tmp_path, capsys,
     code, _, err = _run(capsys, "calibrate", path, *arguments, "--model", "auto", "-o", params)
     assert code == 0, err
     assert json.loads(params.read_text())["model"] == "full"
+
+
+def test_the_report_of_a_restricted_model_marks_what_it_fixes(tmp_path, capsys):
+    samples, _ = _log(DIAGONAL_TRUTH, "sphere", noise=5.0)
+    log = tmp_path / "log.csv"
+    pd.DataFrame(samples, columns=["bx", "by", "bz"]).to_csv(log, index=False)
+    params, report = tmp_path / "params.json", tmp_path / "report.html"
+    assert _run(capsys, "calibrate", log, "--model", "diagonal", "-o", params)[0] == 0
+    code, _, err = _run(capsys, "report", params, log, "-o", report)
+    assert code == 0, err
+    html = report.read_text()
+    assert html.count("fixed (diagonal model)") == 3  # alpha, beta, gamma
+    correlations = html.split("<h2>Correlations</h2>", 1)[1].split("</thead>", 1)[0]
+    assert correlations.count("<th>") == 1 + 6  # the corner and the six estimated parameters
