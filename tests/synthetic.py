@@ -81,28 +81,22 @@ def band_directions(n, rng, tilt_deg):
 
 def tilt_directions(n, rng, max_tilt_deg=20.0, inclination_deg=60.0):
     """Field directions in the sensor frame of a sensor turned to any heading but rolled and
-    pitched by at most `max_tilt_deg` (uniform), in a field `inclination_deg` below the horizon:
-    a vehicle, or a device carried upright."""
-    yaw = rng.uniform(0, 2 * np.pi, n)
+    pitched by at most `max_tilt_deg` (uniform), in a field `inclination_deg` below the horizon
+    (north, east, down): a vehicle, or a device carried upright. The world field is turned into
+    the sensor frame by the heading about z, then the pitch about y, then the roll about x."""
+    heading = rng.uniform(0, 2 * np.pi, n)
     roll, pitch = np.radians(rng.uniform(-max_tilt_deg, max_tilt_deg, (2, n)))
     dip = np.radians(inclination_deg)
-    world = np.array([np.cos(dip), 0.0, np.sin(dip)])  # north, east, down
-    out = np.empty((n, 3))
-    for i in range(n):
-        cy, sy, cp, sp, cr, sr = (
-            np.cos(yaw[i]),
-            np.sin(yaw[i]),
-            np.cos(pitch[i]),
-            np.sin(pitch[i]),
-            np.cos(roll[i]),
-            np.sin(roll[i]),
-        )
-        body_to_world = np.array(
-            [
-                [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-                [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-                [-sp, cp * sr, cp * cr],
-            ]
-        )
-        out[i] = body_to_world.T @ world
-    return out
+    north, down = np.cos(dip), np.sin(dip)
+    v = (np.cos(heading) * north, -np.sin(heading) * north, np.full(n, down))  # heading
+    v = (
+        np.cos(pitch) * v[0] - np.sin(pitch) * v[2],
+        v[1],
+        np.sin(pitch) * v[0] + np.cos(pitch) * v[2],
+    )
+    v = (
+        v[0],
+        np.cos(roll) * v[1] + np.sin(roll) * v[2],
+        -np.sin(roll) * v[1] + np.cos(roll) * v[2],
+    )
+    return np.column_stack(v)
