@@ -98,7 +98,7 @@ def test_the_diagonal_model_recovers_its_parameters(attitudes, method, with_refe
 @pytest.mark.parametrize("attitudes", ["sphere", "tilt"])
 @pytest.mark.parametrize("method", ["staged", "joint"])
 def test_the_offset_model_recovers_offsets_and_with_a_reference_the_common_scale(attitudes, method):
-    truth = {**OFFSET_TRUTH, "s_x": COMMON_SCALE, "s_y": COMMON_SCALE, "s_z": COMMON_SCALE}
+    truth = COMMON_TRUTH
     samples, _ = _log(truth, attitudes, noise=5.0)
     alone = nlpcal.calibrate(samples, method=method, model="offset")
     assert alone.estimated_parameters == ["z_x", "z_y", "z_z"]
@@ -116,18 +116,23 @@ def test_the_offset_model_recovers_offsets_and_with_a_reference_the_common_scale
     assert again.to_dict() == known.to_dict()
 
 
+COMMON_TRUTH = {**OFFSET_TRUTH, "s_x": COMMON_SCALE, "s_y": COMMON_SCALE, "s_z": COMMON_SCALE}
+
+
 @pytest.mark.parametrize("loss", ["huber", "cauchy"])
-def test_restricted_models_take_robust_losses_and_a_reference_series(loss):
-    samples, field = _log(DIAGONAL_TRUTH, "sphere", noise=5.0)
+@pytest.mark.parametrize("model, truth", [("diagonal", DIAGONAL_TRUTH), ("offset", COMMON_TRUTH)])
+def test_restricted_models_take_robust_losses_and_a_reference_series(loss, model, truth):
+    samples, field = _log(truth, "sphere", noise=5.0)
     spikes = np.random.default_rng(3).choice(len(samples), 20, replace=False)
     samples[spikes] += 3000.0  # 1 % of the samples far off
     series = np.linalg.norm(field, axis=1)  # a reference sampled with the log
     for method in ("staged", "joint"):
         result = nlpcal.calibrate(
-            samples, method=method, model="diagonal", loss=loss, reference_field=series
+            samples, method=method, model=model, loss=loss, reference_field=series
         )
         assert result.reference["mode"] == "series" and result.robust["loss"] == loss
-        _assert_recovers(result, DIAGONAL_TRUTH)
+        assert result.model_name == model
+        _assert_recovers(result, truth)
 
 
 def test_a_restricted_model_misses_what_it_fixes():
@@ -367,3 +372,23 @@ def test_the_report_of_a_restricted_model_marks_what_it_fixes(tmp_path, capsys):
     assert html.count("fixed (diagonal model)") == 3  # alpha, beta, gamma
     correlations = html.split("<h2>Correlations</h2>", 1)[1].split("</thead>", 1)[0]
     assert correlations.count("<th>") == 1 + 6  # the corner and the six estimated parameters
+
+
+def test_the_temperature_calibration_takes_no_model(tmp_path, capsys):
+    samples, field = _log(DIAGONAL_TRUTH, "sphere", noise=5.0)
+    log = tmp_path / "log.csv"
+    frame = pd.DataFrame(samples, columns=["bx", "by", "bz"])
+    frame["t"], frame["f"] = np.linspace(10.0, 30.0, len(frame)), np.linalg.norm(field, axis=1)
+    frame.to_csv(log, index=False)
+    code, out, err = _run(
+        capsys,
+        "calibrate",
+        log,
+        "--temperature-column",
+        "t",
+        "--reference-column",
+        "f",
+        "--model",
+        "diagonal",
+    )
+    assert code == 2 and out == "" and "--model" in err and "Traceback" not in err
