@@ -14,7 +14,14 @@ import nlpcal
 from nlpcal.cli import main
 from nlpcal.errors import InputError, QualityError
 from nlpcal.models.zhou2010 import PARAMETER_NAMES
-from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log, tilt_directions, uniform_directions
+from synthetic import (
+    PAPER_FIELD,
+    PAPER_TRUTH,
+    circle_directions,
+    make_log,
+    tilt_directions,
+    uniform_directions,
+)
 
 #: Truths of the restricted forms: offsets alone (one common scale, identified with a
 #: reference), offsets and scales (their sum zero, so that the gauge leaves them as they are).
@@ -392,3 +399,24 @@ def test_the_temperature_calibration_takes_no_model(tmp_path, capsys):
         "diagonal",
     )
     assert code == 2 and out == "" and "--model" in err and "Traceback" not in err
+
+
+def test_auto_fails_where_no_model_is_determined():
+    # Turns about one axis: the field on one circle determines no offset along that axis, in any
+    # model; auto falls to the offset model, whose quality check names z_z alone.
+    samples, _ = make_log(
+        n=2000,
+        noise=1.0,
+        directions=circle_directions(2000, np.random.default_rng(1), [0, 0, 1], 60),
+    )
+    with pytest.raises(QualityError) as failure:
+        nlpcal.calibrate(samples, model="auto")
+    assert failure.value.status == "Not_Identifiable"
+    result = failure.value.result
+    assert result.model_name == "offset"
+    assert result.identifiability["not_identifiable"] == ["z_z"]
+    assert [r["model"] for r in result.model_selection["rejected"]] == [
+        "full",
+        "diagonal",
+        "offset",
+    ]

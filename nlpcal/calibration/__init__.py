@@ -154,20 +154,31 @@ def calibrate(
             model, selection = choose_model(
                 lambda form: estimate(problem_for(form), "joint", rule, base, quality=False)
             )
-        result = estimate(
-            problem_for(model),
-            method,
-            rule,
-            base,
-            progress=progress,
-            require_identifiable=require_identifiable,
-            allow_unconverged=allow_unconverged,
-        )
+        try:
+            result = estimate(
+                problem_for(model),
+                method,
+                rule,
+                base,
+                progress=progress,
+                require_identifiable=require_identifiable,
+                allow_unconverged=allow_unconverged,
+            )
+        except SolveError as failure:  # a QualityError holds the result: it records the choice
+            if selection is not None and isinstance(failure.result, CalibrationResult):
+                record_selection(failure.result, selection)
+            raise
         if selection is not None:
-            result.model_selection = selection
-            if model != "full":
-                result.warnings.insert(0, selection_warning(selection))
+            record_selection(result, selection)
         return result
+
+
+def record_selection(result: CalibrationResult, selection: dict) -> None:
+    """Record how model "auto" chose a result's model; a restricted choice is its first warning
+    (the correction assumes the parameters it fixes)."""
+    result.model_selection = selection
+    if selection["chosen"] != "full":
+        result.warnings.insert(0, selection_warning(selection))
 
 
 def estimate(
@@ -206,11 +217,10 @@ def estimate(
     )
     spread = residual_spread(problem, theta)
     flat = problem_flatness(problem, theta, spread)
+    flat["parameters"] = [n for n in flat["parameters"] if n in problem.estimated]
     identifiability["flatness"] = flat
     if flat["planar"]:  # the Hessian at a degenerate optimum can look healthy
-        blind = (set(flat["parameters"]) & set(problem.estimated)) | set(
-            identifiability["not_identifiable"]
-        )
+        blind = set(flat["parameters"]) | set(identifiability["not_identifiable"])
         identifiability["not_identifiable"] = [n for n in PARAMETER_NAMES if n in blind]
     if identifiability["not_identifiable"]:  # theta is not to be trusted: judge the directions
         centred = np.zeros(9)  # about the fitted sphere's centre, or the samples' mean when the
