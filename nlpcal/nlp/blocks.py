@@ -36,7 +36,7 @@ References
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cache
+from functools import cache, cached_property
 
 import casadi as ca
 import numpy as np
@@ -197,10 +197,10 @@ class Variables:
         frees a scale)."""
         return self.reference == "none" and bool(np.any(self.matrix[SCALE_INDICES, :]))
 
-    @property
+    @cached_property
     def gauge_basis(self) -> np.ndarray:
         """(k, k - 1) orthonormal basis of the x the gauge leaves free (`null_of_gauge`)."""
-        return null_of_gauge(self.matrix)
+        return _read_only(null_of_gauge(self.matrix))
 
     def theta(self, theta_ref, x, var_scale) -> np.ndarray:
         """theta_ref + var_scale * (E x). [internal units]"""
@@ -212,12 +212,19 @@ class Variables:
         e = self.matrix
         return e @ np.linalg.lstsq(e, np.asarray(theta, dtype=float), rcond=None)[0]
 
-    @property
+    @cached_property
     def basis(self) -> np.ndarray:
         """(9, q) orthonormal directions of the scaled theta this problem can move along (the
         gauge's null space without a reference): where its uncertainty lives."""
         directions = self.matrix @ self.gauge_basis if self.gauge else self.matrix
-        return np.linalg.qr(directions)[0] if directions.size else directions
+        return _read_only(np.linalg.qr(directions)[0] if directions.size else directions)
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    """A copy that cannot be changed: a cached property of a `Variables` shared by every solve."""
+    array = np.array(array)
+    array.flags.writeable = False
+    return array
 
 
 @cache
@@ -226,9 +233,7 @@ def variables(block: str, reference: str, model: str = "full") -> Variables:
     directions = model_directions(model, reference != "none")
     inside = np.array([i in BLOCKS[block] for i in range(9)])
     keep = [k for k in range(directions.shape[1]) if not np.any(directions[~inside, k])]
-    matrix = directions[:, keep]
-    matrix.flags.writeable = False
-    return Variables(block, reference, model, matrix)
+    return Variables(block, reference, model, _read_only(directions[:, keep]))
 
 
 @dataclass(frozen=True)
