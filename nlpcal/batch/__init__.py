@@ -68,14 +68,16 @@ __all__ = [
 SUMMARY = "summary.csv"
 PARAMS_SUFFIX = ".params.json"
 CORRECTED_TAG = ".corrected"
-#: Columns of the summary of `calibrate_many`: the nine parameters each followed by its standard
-#: error (_se, empty when the data leave a direction free), the std of |B| measured and
-#: corrected (the first and last Table 1 rows) and the fraction of the 26 direction bins the
-#: corrected field visits.
+#: Columns of the summary of `calibrate_many`: the model that ran (full, diagonal or offset), the
+#: nine parameters each followed by its standard error (_se, empty when the data leave a
+#: direction free; both empty for a parameter the model does not estimate), the std of |B|
+#: measured and corrected (the first and last Table 1 rows) and the fraction of the 26 direction
+#: bins the corrected field visits.
 CALIBRATION_COLUMNS = (
     "log",
     "status",
     "exit_status",
+    "model",
     *[f"{name}{tail}" for name in PARAMETER_NAMES for tail in ("", "_se")],
     "std_measured",
     "std_corrected",
