@@ -1,6 +1,5 @@
 """nlpcal.calibrate: truth recovery, reference modes, the gauge, Table 1 rows and bad input."""
 
-import re
 from dataclasses import replace
 
 import numpy as np
@@ -189,9 +188,7 @@ def test_rotation_about_one_axis_is_reported_as_not_identifiable(method):
     try:
         result = calibrate(samples, method=method, reference_field=PAPER_FIELD)
     except SolveError as failure:
-        assert "do not determine" in str(failure)
-        reason = str(failure).split("do not determine ")[1].split("What would help")[0]
-        named = set(re.findall(r"\b(z_[xyz]|s_[xyz]|alpha_deg|beta_deg|gamma_deg)\b", reason))
+        named = set(failure.identifiability["not_identifiable"])
     else:
         named = set(result.identifiability["not_identifiable"])
         assert any("not identifiable" in w for w in result.warnings)
@@ -212,18 +209,19 @@ def test_turns_about_one_axis_never_give_a_result(method, reference, axis, half_
     samples, _ = make_log(
         n=1200, noise=noise, seed=9, directions=circle_directions(1200, rng, axis, half_angle)
     )
+    # Refused either way: after the solve (QualityError), or when a solve that wandered along
+    # the blind directions failed (SolveError; which problem fails first depends on rounding).
+    # Either refusal says the samples lie in one plane, within the noise (noise-free samples: a
+    # thickness at rounding level, on every BLAS kernel), and names the blind parameters.
     with pytest.raises((QualityError, SolveError)) as info:
         calibrate(samples, method=method, reference_field=reference)
-    assert "the samples lie in one plane" in str(info.value)
+    identifiability = info.value.identifiability
+    flat = identifiability["flatness"]
+    assert flat["planar"] and flat["within_noise"]
+    unit_axis = np.asarray(axis) / np.linalg.norm(axis)
+    assert abs(np.dot(flat["normal"], unit_axis)) == pytest.approx(1.0, abs=1e-3)  # 2.6 deg
+    assert {"z_z", "s_z"} <= set(flat["parameters"]) <= set(identifiability["not_identifiable"])
     assert "tilting it out of that plane" in str(info.value)
-    if isinstance(info.value, QualityError):
-        flat = info.value.result.identifiability["flatness"]
-        assert (
-            flat["planar"]
-            and abs(abs(np.dot(flat["normal"], axis)) - np.linalg.norm(axis))
-            < 1e-6 * np.linalg.norm(axis) + 1e-3
-        )
-        assert set(flat["parameters"]) <= set(info.value.result.identifiability["not_identifiable"])
 
 
 @pytest.mark.parametrize("tilt_deg", [1.0, 2.0])
