@@ -11,6 +11,7 @@ import pytest
 
 import nlpcal
 from nlpcal.nlp.solver import PROBLEMS, builds
+from resolution import assert_same_optimum
 from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log
 
 PACKAGE = Path(nlpcal.__file__).resolve().parent
@@ -140,13 +141,9 @@ def test_the_library_takes_units():
     )
     for result in (in_uT, mixed):
         assert result.unit == "nT"
-        for name, value in in_nT.parameters.items():
-            # each solve ends within 0.01 standard errors of the optimum of its own (rounded)
-            # samples, so two of them agree within 0.02 standard errors
-            se = in_nT.standard_errors[name]
-            assert result.parameters[name] == pytest.approx(value, abs=0.02 * se), name
-            # in nT too; they move with the point by far less than 1e-3 of themselves
-            assert result.standard_errors[name] == pytest.approx(se, rel=1e-3), name
+        assert_same_optimum(result.parameters, in_nT.parameters, in_nT.standard_errors)
+        for name, se in in_nT.standard_errors.items():  # in nT too; they move with the point
+            assert result.standard_errors[name] == pytest.approx(se, rel=1e-3), name  # by 1e-9
     assert in_uT.parameters["z_x"] == pytest.approx(PAPER_TRUTH["z_x"], abs=0.5)
     corrected = in_uT.apply(samples / 1000.0, unit="uT")
     # the same parameters applied to the same samples in another unit: rounding only
