@@ -68,6 +68,7 @@ def fleet(tmp_path):
     return folder
 
 
+@pytest.mark.slow  # end to end, seconds
 def test_one_bad_log_never_stops_the_others(fleet, tmp_path, capsys):
     out_dir = tmp_path / "out"
     code, out, err = run(capsys, "batch", "calibrate", fleet / "*.csv", "--out-dir", out_dir)

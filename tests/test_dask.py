@@ -176,6 +176,7 @@ def run(capsys, *argv):
     return code, out, err
 
 
+@pytest.mark.slow  # end to end, seconds
 def test_calibrate_parquet_files_on_a_cluster_as_in_memory(parquet_log, cluster, tmp_path, capsys):
     memory, lazy = tmp_path / "memory.json", tmp_path / "cluster.json"
     options = ["--reference-column", "proton_nT", "--method", "joint"]
