@@ -173,8 +173,7 @@ def main(argv=None) -> int:
         "--check",
         action="store_true",
         help="compare the page's tables (statistics to their last digit, counts within a few) "
-        "without writing anything; exit 1 "
-        "when they are out of date",
+        "without writing anything; exit 1 when they are out of date",
     )
     args = parser.parse_args(argv)
     FIGURES.mkdir(exist_ok=True)

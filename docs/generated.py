@@ -5,7 +5,7 @@ around it is written by hand and left alone.
 
 `--check` compares a regenerated page with the committed one at the resolution of what is
 printed, not character by character, because the floating-point kernel (the BLAS that sums the
-moments) changes last digits and the stop decisions that compare them (`same_page`):
+moments) changes last digits and the stop decisions that compare them (`differences`):
 
 - the words and the layout must be the same;
 - a statistic (a number with a decimal point or an exponent) must agree within one unit of its
@@ -16,8 +16,9 @@ moments) changes last digits and the stop decisions that compare them (`same_pag
   table column whose header counts them) agrees within the slack of its kind (CYCLE_SLACK,
   ITERATION_SLACK, of the page's count):
   these counts vary with the kernel, since a stop rule compares quantities whose last digits
-  the kernel decides: cycles by a few (221, 216 and 219 staged cycles on the turntable set),
-  IPOPT iterations summed over hundreds of solves by up to about 15 % (369, 372 and 424);
+  the kernel decides: cycles by a few (216 to 222 staged cycles on the turntable set of
+  docs/comparison.md on three kernels), IPOPT iterations summed over hundreds of solves by up
+  to about 15 % (369 to 424);
 - wall times (a table column whose header says wall) are not compared.
 """
 
@@ -128,7 +129,7 @@ def _line_pieces(line: str, header: list | None):
 
 def differences(page: str, updated: str) -> list:
     """The lines of `updated` that differ from `page` beyond the printed resolution, as
-    "line N: was ... now ..."; empty when they agree (`same_page` in the module's docstring)."""
+    "line N: was ... now ..."; empty when they agree (the rules of the module's docstring)."""
     old_lines, new_lines = page.split("\n"), updated.split("\n")
     if len(old_lines) != len(new_lines):
         return [f"{len(new_lines)} lines, the page has {len(old_lines)}"]
