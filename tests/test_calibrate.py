@@ -255,6 +255,23 @@ def test_a_noisy_full_sphere_is_never_taken_for_a_plane():
     assert not flat["planar"] and flat["out_of_plane_std"] > 0.5 * flat["in_plane_std"]
 
 
+@pytest.mark.parametrize("rounding", [0.0, 1e-8, 1e-7])
+def test_a_plane_to_rounding_is_a_plane_whatever_noise_it_is_judged_against(rounding):
+    # Noise-free samples on one circle: their thickness is rounding (0 on one BLAS kernel, 1e-8
+    # of the extent on another), as is their noise. Rounding against rounding decides nothing:
+    # the cloud is planar, even judged against a noise level far below its thickness.
+    rng = np.random.default_rng(8)
+    samples, _ = make_log(
+        n=1200, noise=0.0, seed=9, directions=circle_directions(1200, rng, (1, 2, 2), 60)
+    )
+    normal = flatness(samples, noise=1.0)["normal"]
+    extent = flatness(samples, noise=1.0)["in_plane_std"]
+    wobble = rounding * extent * np.sqrt(2.0) * np.sin(np.arange(len(samples)))  # std: rounding
+    flat = flatness(samples + np.outer(wobble, normal), noise=1e-12, reference=True)
+    assert flat["planar"] and flat["within_noise"], flat["out_of_plane_std"] / extent
+    assert {"z_z", "s_z"} <= set(flat["parameters"])
+
+
 def test_a_narrow_band_of_tilts_is_not_taken_for_a_plane():
     rng = np.random.default_rng(8)
     samples, _ = make_log(n=3000, noise=1.0, seed=9, directions=band_directions(3000, rng, 20))
