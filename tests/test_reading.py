@@ -320,6 +320,7 @@ def test_quiet_and_verbose(tmp_path, capsys):
     assert code == 2 and "not allowed with" in err
 
 
+@pytest.mark.slow  # end to end, seconds
 def test_allow_unidentifiable_writes_the_result_with_its_warning(tmp_path, capsys):
     # The field only ever within 32 deg of -z, with much noise: the offsets trade off against the
     # radius of a far-away sphere, and the staged cycle walks along that valley.

@@ -35,6 +35,7 @@ def params(tmp_path_factory):
     return path
 
 
+@pytest.mark.slow  # end to end, seconds
 def test_calibrate_plot_is_a_lab_notebook_figure(params, tmp_path, capsys):
     pytest.importorskip("matplotlib")
     figure = tmp_path / "fig.png"
@@ -60,6 +61,7 @@ def test_calibrate_plot_is_a_lab_notebook_figure(params, tmp_path, capsys):
     assert _png_size_and_dpi(applied.read_bytes())[2] == pytest.approx(150, abs=1)
 
 
+@pytest.mark.slow  # end to end, seconds
 def test_figure_panels_are_labelled_with_units():
     matplotlib = pytest.importorskip("matplotlib")
     from nlpcal.plots import calibration_png
@@ -88,6 +90,7 @@ def test_figure_panels_are_labelled_with_units():
     assert rows[1]["std"] < rows[0]["std"] / 100 and "rmse" in rows[1]
 
 
+@pytest.mark.slow  # end to end, seconds
 def test_report_is_one_self_contained_html_file(params, tmp_path, capsys):
     out = tmp_path / "report.html"
     code = main(["report", str(params), str(EXAMPLE), "-o", str(out), "--reference-field", "49462"])
@@ -122,6 +125,7 @@ def _browser():
     return None
 
 
+@pytest.mark.slow  # end to end, seconds
 def test_report_renders_in_a_headless_browser(params, tmp_path):
     browser = _browser()
     if browser is None:

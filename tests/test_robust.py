@@ -170,6 +170,7 @@ def test_a_target_stop_is_the_users_but_reports_no_standard_errors(tilted):
     assert any("above the joint optimum" in w for w in result.warnings)
 
 
+@pytest.mark.slow  # end to end, seconds
 def test_cli_staged_unconverged_exits_1_unless_allowed(tilted, tmp_path, capsys):
     path = tmp_path / "tilted.csv"
     pd.DataFrame(tilted, columns=["bx", "by", "bz"]).to_csv(path, index=False)

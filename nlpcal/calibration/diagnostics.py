@@ -234,7 +234,8 @@ def explain_failure(
     coverage only when it is to blame.
 
     The Hessian is taken where the failing solve started (failure.result). `method` is the one
-    that failed, whose alternative is suggested (None: no suggestion).
+    that failed, whose alternative is suggested (None: no suggestion). The error returned carries
+    what was found as its `identifiability` (the parameters not determined, the flatness).
     """
     theta = failure.result
     if theta is None or not np.all(np.isfinite(theta)):
@@ -242,12 +243,16 @@ def explain_failure(
     flat = problem_flatness(problem, theta)
     if flat["planar"]:
         return SolveError(
-            f"{failure}: {planar_message(flat, _unit_word(unit))}", failure.status, result=theta
+            f"{failure}: {planar_message(flat, _unit_word(unit))}",
+            failure.status,
+            result=theta,
+            identifiability={"not_identifiable": flat["parameters"], "flatness": flat},
         )
     hs = scaled_hessian(problem.moments, theta)
     objective = field_statistics(problem.samples, theta, problem.reference)["objective"]
     _, identifiability, _ = uncertainty(problem, objective, hs)
     weak = identifiability["not_identifiable"]
+    identifiability["flatness"] = flat
     identifiability["coverage"] = direction_coverage(problem.samples, theta)
     if not weak and identifiability["coverage"]["fraction"] < COVERAGE_WARN:
         final = field_statistics(problem.samples, theta, problem.reference)
@@ -259,6 +264,7 @@ def explain_failure(
             f"wanders. {help_[:1].upper()}{help_[1:]}",
             failure.status,
             result=theta,
+            identifiability=identifiability,
         )
     if not weak:
         return SolveError(
@@ -267,6 +273,7 @@ def explain_failure(
             + (f"; try --method {'staged' if method == 'joint' else 'joint'}" if method else ""),
             failure.status,
             result=theta,
+            identifiability=identifiability,
         )
     final = field_statistics(problem.samples, theta, problem.reference)
     help_ = what_would_help(identifiability, final, problem.moments.reference, problem.model)
@@ -275,6 +282,7 @@ def explain_failure(
         f"{failure}: the data do not determine {', '.join(weak)}. {help_[:1].upper()}{help_[1:]}",
         failure.status,
         result=theta,
+        identifiability=identifiability,
     )
 
 
