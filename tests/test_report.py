@@ -279,3 +279,29 @@ def test_quiet_silences_messages_but_not_errors(tmp_path, capsys):
     assert "no such file" in capsys.readouterr().err
     assert main(["--version"]) == 0
     assert capsys.readouterr().out.strip() == f"nlpcal {nlpcal.__version__}"
+
+
+def test_the_report_judges_against_the_reference_stored_in_the_parameters(params, tmp_path):
+    """Without a reference option the stored constant reference is used, and said to be; with no
+    reference anywhere the spread of |B| about its mean is shown as that, not as a reference."""
+    stored = tmp_path / "stored.html"
+    assert main(["report", str(params), str(EXAMPLE), "-o", str(stored), "-q"]) == 0
+    text = stored.read_text()
+    assert "the reference stored in the parameters file" in text and "rmse [nT]" in text
+    bare = tmp_path / "bare.json"
+    assert main(["calibrate", str(EXAMPLE), "-o", str(bare), "-q"]) == 0
+    page = tmp_path / "bare.html"
+    assert main(["report", str(bare), str(EXAMPLE), "-o", str(page), "-q"]) == 0
+    text = page.read_text()
+    assert "rmse" not in text and "spread of |B| about its mean" in text
+    assert "Note: no reference field" in text
+
+
+def test_a_long_table_1_is_folded_after_its_first_rows():
+    from nlpcal.report.html import TABLE_ROWS, _folded
+
+    rows = [{"label": f"cycle {k}", "mean": 1.0, "std": 0.1} for k in range(40)]
+    text = _folded(rows, "nT")
+    head, tail = text.split("<details>")
+    assert head.count("<tr>") == TABLE_ROWS + 1 and tail.count("<tr>") == 40 - TABLE_ROWS + 1
+    assert "<details>" not in _folded(rows[:TABLE_ROWS], "nT")
