@@ -7,11 +7,14 @@ state, and returned as PNG bytes for an atomic writer.
 from __future__ import annotations
 
 import io
+import textwrap
 
 import numpy as np
 
 from .errors import InputError
+from .inference import rounded
 from .models import wang2015
+from .models.zhou2010 import PARAMETER_NAMES
 
 PLOT_HINT = "pip install 'nlpcal[plot]'"
 
@@ -294,13 +297,13 @@ def calibration_figure(view, *, dpi: int = 150):
     are thinned until none overlap (`legible_ticks`). Uses the Agg canvas, never pyplot.
     """
     require_matplotlib()
-    from matplotlib import colormaps
+    from matplotlib import colormaps, rc_context
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.colors import Normalize
     from matplotlib.figure import Figure
 
     unit, target = view.unit, view.target
-    with rc_context_style():
+    with rc_context(STYLE):
         figure = Figure(figsize=(15.0, 9.4), dpi=dpi, layout="constrained")
         FigureCanvasAgg(figure)
         grid = figure.add_gridspec(2, 3)
@@ -376,13 +379,6 @@ def calibration_figure(view, *, dpi: int = 150):
     return figure
 
 
-def rc_context_style():
-    """matplotlib's rc_context with nlpcal's STYLE."""
-    from matplotlib import rc_context
-
-    return rc_context(STYLE)
-
-
 def _hammer(directions) -> tuple:
     """(azimuth, elevation) of unit vectors (N, 3) for a Hammer map. [rad]"""
     directions = np.atleast_2d(directions)
@@ -438,9 +434,6 @@ def _cycles_panel(cycles, rows, unit: str) -> None:
 def parameter_lines(result) -> list:
     """Two lines: the offsets, then the scale errors and angles, each rounded by its standard
     error (`nlpcal.inference.rounded`), the poorly determined or undetermined ones marked *."""
-    from .inference import rounded
-    from .models.zhou2010 import PARAMETER_NAMES
-
     errors = result.standard_errors or {}
     block = result.identifiability or {}
     marked = {*block.get("poorly_determined", []), *block.get("not_identifiable", [])}
@@ -460,8 +453,6 @@ def parameter_lines(result) -> list:
 
 def _title(figure, view) -> None:
     """The title: the verdict first, then the parameters and what the figure shows."""
-    import textwrap
-
     lines = []
     result = view.result
     colour = "k"

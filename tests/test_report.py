@@ -155,6 +155,19 @@ def _browser_flags(tmp_path, width: int, height: int) -> list:
     ]
 
 
+def _screenshot(browser, flags, page, shot):
+    """The browser's screenshot of `page` as an image array, checked to be drawn (not blank)."""
+    subprocess.run(
+        [browser, *flags, f"--screenshot={shot}", page.as_uri()],
+        capture_output=True,
+        timeout=120,
+        check=False,
+    )
+    image = pytest.importorskip("matplotlib.image").imread(shot)
+    assert float(np.std(image[..., :3])) > 0.05  # text and figure drawn, not a blank page
+    return image
+
+
 #: Injected into a copy of a report (the report itself has no script): the page-space box of the
 #: verdict banner and of every marked parameter row, written into the DOM for --dump-dom.
 MEASURE = """<script>
@@ -209,16 +222,8 @@ def test_report_of_a_poorly_determined_log_shows_the_verdict_on_the_first_screen
     marked = [row["text"].split()[0] for row in measured["marked"]]
     assert len(marked) == len(poor)  # one marked row per poorly determined parameter
     assert all(row["bottom"] <= screen for row in measured["marked"]), measured["marked"]
-    shot = tmp_path / "shot.png"
-    subprocess.run(
-        [browser, *flags, f"--screenshot={shot}", page.as_uri()],
-        capture_output=True,
-        timeout=120,
-        check=False,
-    )
-    image = pytest.importorskip("matplotlib.image").imread(shot)
+    image = _screenshot(browser, flags, page, tmp_path / "shot.png")
     assert image.shape[:2] == (900, 1400)
-    assert float(np.std(image[..., :3])) > 0.05  # drawn, not a blank page
 
 
 def test_report_renders_in_a_headless_browser(params, tmp_path):
@@ -226,7 +231,6 @@ def test_report_renders_in_a_headless_browser(params, tmp_path):
     pytest.importorskip("matplotlib")
     page = tmp_path / "report.html"
     assert main(["report", str(params), str(EXAMPLE), "-o", str(page), "-q"]) == 0
-    shot = tmp_path / "shot.png"
     flags = _browser_flags(tmp_path, 1200, 1600)
     dom = subprocess.run(
         [browser, *flags, "--dump-dom", page.as_uri()],
@@ -236,15 +240,8 @@ def test_report_renders_in_a_headless_browser(params, tmp_path):
         check=False,
     )
     assert "Correlations" in dom.stdout and "data:image/png;base64," in dom.stdout
-    subprocess.run(
-        [browser, *flags, f"--screenshot={shot}", page.as_uri()],
-        capture_output=True,
-        timeout=120,
-        check=False,
-    )
-    image = pytest.importorskip("matplotlib.image").imread(shot)
+    image = _screenshot(browser, flags, page, tmp_path / "shot.png")
     assert image.shape[0] >= 1600 and image.shape[1] >= 1200
-    assert float(np.std(image[..., :3])) > 0.05  # text and figure drawn, not a blank page
 
 
 def test_covariance_is_stored_and_read_back():
@@ -305,3 +302,19 @@ def test_a_long_table_1_is_folded_after_its_first_rows():
     head, tail = text.split("<details>")
     assert head.count("<tr>") == TABLE_ROWS + 1 and tail.count("<tr>") == 40 - TABLE_ROWS + 1
     assert "<details>" not in _folded(rows[:TABLE_ROWS], "nT")
+
+
+def test_the_report_reads_the_reference_column_the_calibration_used(tmp_path, capsys):
+    from synthetic import PAPER_FIELD, make_log
+
+    samples, _ = make_log(n=1500, noise=1.0, seed=4)
+    field = PAPER_FIELD + np.random.default_rng(4).normal(0.0, 0.5, len(samples))
+    log = tmp_path / "log.csv"
+    np.savetxt(
+        log, np.column_stack([samples, field]), delimiter=",", header="bx,by,bz,F", comments=""
+    )
+    params, page = tmp_path / "p.json", tmp_path / "r.html"
+    assert main(["calibrate", str(log), "--reference-column", "F", "-o", str(params), "-q"]) == 0
+    assert main(["report", str(params), str(log), "-o", str(page)]) == 0
+    assert "reference column 'F'" in capsys.readouterr().err
+    assert "rmse [nT]" in page.read_text() and "F_i, given to this report" in page.read_text()
