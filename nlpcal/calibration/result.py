@@ -157,10 +157,12 @@ class CalibrationResult(Document):
         poorly determined when some standard errors exceed their limits, else ok or warnings."""
         block = self.identifiability or {}
         failures = []
-        if self.solver.get("converged") is False or self.solver.get("success") is False:
+        if self.solver.get("success") is False:
+            failures.append(f"the solver failed ({self.solver.get('status')})")
+        elif self.solver.get("converged") is False:
             failures.append(
-                f"the solve did not converge (stopped on {self.solver.get('stop_reason')!s}, "
-                f"status {self.solver.get('status')!s})"
+                f"not converged: the {self.method} solve stopped on "
+                f"{self.solver.get('stop_reason')}, away from the optimum"
             )
         if block.get("not_identifiable"):
             failures.append(f"the data do not determine {', '.join(block['not_identifiable'])}")
