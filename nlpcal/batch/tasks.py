@@ -56,13 +56,10 @@ def status_row(row: dict, status: str, message: str = "") -> dict:
     """The row with its status and exit status; a calibration's verdict (`nlpcal.verdict`) is
     "failed" unless the status is "ok", and at least "warnings" with warnings in the row."""
     row.update(status=status, exit_status=STATUSES[status], message=message)
-    if "verdict" in row or status != "ok":
-        verdict = row.get("verdict") or "ok"
-        row["verdict"] = (
-            "failed"
-            if status != "ok"
-            else worst(verdict, "warnings" if row.get("warnings") else "ok")
-        )
+    if status != "ok":
+        row["verdict"] = "failed"
+    elif "verdict" in row:  # a calibration's: warnings from reading the log count too
+        row["verdict"] = worst(row["verdict"], "warnings" if row.get("warnings") else "ok")
     return row
 
 
