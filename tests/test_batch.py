@@ -17,6 +17,7 @@ from synthetic import PAPER_FIELD, make_log, planar_directions
 DOCUMENTED = [
     "log",
     "status",
+    "verdict",
     "exit_status",
     "model",
     *[f"{name}{tail}" for name in PARAMETER_NAMES for tail in ("", "_se")],
@@ -101,9 +102,10 @@ def test_one_bad_log_never_stops_the_others(fleet, tmp_path, capsys):
     assert ok["std_measured"] == pytest.approx(result.statistics[0]["std"], rel=1e-15)
     assert ok["std_corrected"] == pytest.approx(result.statistics[-1]["std"], rel=1e-15)
     assert ok["coverage_fraction"] == result.identifiability["coverage"]["fraction"]
-    assert "absolute scale not identifiable" in ok["warnings"] and ok["n_samples"] == 1200
+    assert ok["n_samples"] == 1200 and ok["verdict"] == result.verdict.status
     cone = by_log.loc["sensor_cone.csv"]  # parameters in the summary, but no params.json
     assert "do not determine z_z, s_z" in cone["message"] and np.isfinite(cone["z_x"])
+    assert cone["verdict"] == "failed" and flat["verdict"] == "failed"
     assert "lie in one plane" in flat["message"]
     if flat["status"] == "solve-failed":
         assert "solver status" in flat["message"] and np.isnan(flat["z_x"])

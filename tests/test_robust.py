@@ -181,3 +181,4 @@ def test_cli_staged_unconverged_exits_1_unless_allowed(tilted, tmp_path, capsys)
     assert main(["calibrate", str(path), "--allow-unconverged", "-o", str(out)]) == 0
     doc = json.loads(out.read_text())
     assert doc["standard_errors"] is None and doc["solver"]["stop_reason"] == "max_cycles"
+    assert doc["solver"]["converged"] is False and doc["verdict"]["status"] == "failed"

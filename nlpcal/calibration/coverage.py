@@ -68,10 +68,20 @@ def coverage_centre(samples, frame) -> np.ndarray:
     return np.asarray(frame.centre) if frame.radius <= 3.0 * spread else mean
 
 
+def bin_hits(vectors) -> np.ndarray:
+    """(26,) how many of the vectors (N, 3) fall in each direction bin (`direction_bins`)."""
+    return np.bincount(np.argmax(np.asarray(vectors) @ _BIN_DIRECTIONS.T, axis=1), minlength=26)
+
+
+def direction_bins() -> tuple:
+    """(names, (26, 3) unit vectors) of the 26 direction bins, in `bin_hits` order. [1]"""
+    return list(_BIN_NAMES), _BIN_DIRECTIONS.copy()
+
+
 def direction_coverage(samples, theta) -> dict:
     """How many of 26 direction bins the corrected field B1 visits."""
     b1 = correct(subsample(samples), Zhou2010Parameters.from_theta(theta))
-    hits = np.bincount(np.argmax(b1 @ _BIN_DIRECTIONS.T, axis=1), minlength=26)
+    hits = bin_hits(b1)
     covered = int(np.count_nonzero(hits))
     missing = [_BIN_NAMES[k] for k in range(26) if not hits[k]]
     missing.sort(key=_bin_order)  # +x, -x, +y, -y, +z, -z, then edges and corners

@@ -382,18 +382,25 @@ def undetermined_message(
     return "; ".join(parts) + (f". {help_[0].upper()}{help_[1:]}." if help_ else ".")
 
 
+#: The note on the method of a calibration without a reference field (a result's `notes`, not
+#: its warnings: it says how the problem is posed, not what is wrong with the data).
+GAUGE_NOTE = (
+    "no reference field: the overall scale is fixed by s_x + s_y + s_z = 0 (scale ratios, "
+    "offsets and angles are determined); a reference field fixes it"
+)
+
+
+def notes_for(problem: Problem) -> list:
+    """What the user should know about how the problem was posed (not about the data)."""
+    return [GAUGE_NOTE] if problem.moments.reference == "none" else []
+
+
 def warnings_for(
     problem: Problem, theta, hs, errors, identifiability: dict, final: dict, unit: str = "nT"
 ) -> list:
     """What the data cannot tell, in words (and the exact-optimum check, into identifiability)."""
     warnings = []
     reference = problem.moments.reference
-    if reference == "none":
-        warnings.append(
-            "absolute scale not identifiable without a reference field: the scales "
-            "are fixed by the gauge s_x + s_y + s_z = 0; the scale ratios, offsets "
-            "and angles are determined. Give a reference field for absolute scales."
-        )
     if identifiability["not_identifiable"]:
         warnings.append(
             "not identifiable: "
