@@ -37,7 +37,7 @@ from .. import cluster
 from ..calibration import CalibrationResult
 from ..correction import load_parameters
 from ..errors import InputError
-from ..io import write_csv_atomic
+from ..io import Outputs
 from ..io.files import COMPRESSED_SUFFIXES
 from ..io.sources import is_parquet, log_paths
 from ..models.zhou2010 import PARAMETER_NAMES
@@ -68,14 +68,16 @@ __all__ = [
 SUMMARY = "summary.csv"
 PARAMS_SUFFIX = ".params.json"
 CORRECTED_TAG = ".corrected"
-#: Columns of the summary of `calibrate_many`: the nine parameters each followed by its standard
-#: error (_se, empty when the data leave a direction free), the std of |B| measured and
-#: corrected (the first and last Table 1 rows) and the fraction of the 26 direction bins the
-#: corrected field visits.
+#: Columns of the summary of `calibrate_many`: the model that ran (full, diagonal or offset), the
+#: nine parameters each followed by its standard error (_se, empty when the data leave a
+#: direction free; both empty for a parameter the model does not estimate), the std of |B|
+#: measured and corrected (the first and last Table 1 rows) and the fraction of the 26 direction
+#: bins the corrected field visits.
 CALIBRATION_COLUMNS = (
     "log",
     "status",
     "exit_status",
+    "model",
     *[f"{name}{tail}" for name in PARAMETER_NAMES for tail in ("", "_se")],
     "std_measured",
     "std_corrected",
@@ -217,8 +219,9 @@ def _run(jobs, task, reused, ledger: Ledger, keys: dict, columns, scheduler, wor
         raise
     finally:
         report.rows = [rows[str(job[0])] for job in jobs if str(job[0]) in rows]
-        write_csv_atomic(report.summary, report.table())
-        ledger.save()
+        with Outputs() as outputs:  # the summary and the record of the outputs, together
+            outputs.csv(report.summary, report.table())
+            outputs.json(ledger.path, ledger.document())
     return report
 
 
