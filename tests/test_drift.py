@@ -1115,3 +1115,31 @@ def test_a_drift_file_without_its_diurnal_correction_is_the_papers(tmp_path):
         del document[key]
     older = drift.DriftFit.from_dict(document)
     assert (older.diurnal, older.diurnal_gain, older.diurnal_gain_standard_error) == ("paper", 1, 0)
+
+
+def test_drift_fit_on_the_command_line_takes_the_diurnal_correction(tmp_path, capsys):
+    rng = np.random.default_rng(8)
+    t = np.linspace(6.8, 5.1, 300)
+    proton = FIELD + 4.0 * np.sin(np.linspace(0.0, 0.5 * np.pi, 300)) + rng.normal(0, 3, 300)
+    log = make_log(rng, np.tile(WORLD, (300, 1)), t, proton)
+    path = write(log, tmp_path / "drift.csv")
+    columns = ["--temperature-column", "temperature", "--reference-column", "proton"]
+    fits = {}
+    for diurnal in ("fitted", "paper"):
+        out = tmp_path / f"{diurnal}.json"
+        argv = ["drift", "fit", path, *columns, "--base-temperature", str(T0), "-o", str(out)]
+        assert main([*argv, "--diurnal", diurnal] if diurnal == "paper" else argv) == 0
+        fits[diurnal] = json.loads(out.read_text())
+        library = drift.fit_drift(
+            log[["mag_x", "mag_y", "mag_z"]].to_numpy(),
+            t,
+            log["proton"].to_numpy(),
+            base_temperature=T0,
+            diurnal=diurnal,
+        )
+        assert fits[diurnal]["diurnal"] == diurnal
+        assert fits[diurnal]["a_nT_per_degC"] == pytest.approx(library.a, rel=1e-9)
+    assert "diurnal gain g" in capsys.readouterr().err
+    assert fits["paper"]["diurnal_gain"] == 1.0
+    assert fits["fitted"]["diurnal_gain_standard_error"] > 0
+    assert main(["drift", "fit", path, *columns, "--base-temperature", "7", "--diurnal", "x"]) == 2
