@@ -399,15 +399,24 @@ def undetermined_message(
 
 #: The note on the method of a calibration without a reference field (a result's `notes`, not
 #: its warnings: it says how the problem is posed, not what is wrong with the data).
-GAUGE_NOTE = (
-    "no reference field: the overall scale is fixed by s_x + s_y + s_z = 0 (scale ratios, "
-    "offsets and angles are determined); a reference field fixes it"
-)
+def gauge_note(estimated) -> str:
+    """The note of the gauge s_x + s_y + s_z = 0, naming what a model with the `estimated`
+    parameters still determines without a reference field."""
+    determined = ["scale ratios", "offsets"] + (["angles"] if "alpha_deg" in estimated else [])
+    return (
+        "no reference field: the overall scale is fixed by s_x + s_y + s_z = 0 ("
+        f"{', '.join(determined[:-1])} and {determined[-1]} are determined); a reference field "
+        "fixes it"
+    )
 
 
 def notes_for(problem: Problem) -> list:
-    """What the user should know about how the problem was posed (not about the data)."""
-    return [GAUGE_NOTE] if problem.moments.reference == "none" else []
+    """What the user should know about how the problem was posed (not about the data): the
+    gauge, when there is no reference and the model estimates scales."""
+    estimated = problem.estimated
+    if problem.moments.reference != "none" or "s_x" not in estimated:
+        return []
+    return [gauge_note(estimated)]
 
 
 def warnings_for(
