@@ -9,6 +9,7 @@ route (`nlpcal.models.zhou2010.from_correction`) that `apply` and `stats` use li
 
 from __future__ import annotations
 
+from .. import validation
 from ..calibration.result import CalibrationResult
 from ..errors import InputError
 from ..io.files import existing_file, sha256_file
@@ -87,6 +88,8 @@ def import_file(
     instance : the compass instance (ardupilot 1-3, default 1) or slot (px4 0-3, default 0).
     """
     _check(fmt, unit, instance)
+    if field is not None:
+        field = validation.number(field, "--reference-field", positive=True)
     path = existing_file(path, f"a {fmt} file")
     try:
         text = path.read_text()
@@ -98,6 +101,7 @@ def import_file(
         correction = module.read(text, str(path), instance=chosen)
     else:
         correction = module.read(text, str(path), unit=unit)
+    correction.checked(str(path))
     notes = []
     scaled = None
     if field is not None:
@@ -116,6 +120,8 @@ def import_file(
         sha256=sha256_file(path),
         field_scale=scaled,
     )
+    # Read back as a parameters file is: the plausible ranges of its values are checked there.
+    result = CalibrationResult.from_dict(result.to_dict(), f"{path} (as nine parameters)")
     angle = result.input["rotation_not_carried"]["angle_deg"]
     if angle > ROTATION_NOTE_DEG:
         notes.append(
