@@ -168,12 +168,8 @@ def outliers(correction: Correction, corrected) -> np.ndarray:
 def read_log_for(path, correction: Correction, *, reference_column=None, **kw) -> Log:
     """Read a log to apply `correction` to: its temperature column comes along, and its unit
     defaults to the unit of the log the parameters were estimated from."""
-    extra = [correction.temperature_column] if correction.temperature_column else []
-    if reference_column and reference_column == correction.temperature_column:
-        raise InputError(
-            f"the temperature and reference columns are both "
-            f"{reference_column!r}; they must be different columns"
-        )
+    column = correction.temperature_column
+    extra = {"the temperature column of the calibration": column} if column else {}
     return read_log(
         path,
         reference_column=reference_column,

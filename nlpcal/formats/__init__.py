@@ -58,6 +58,10 @@ def export(
         autopilot formats (default `nlpcal.formats.autopilot.MAX_ROTATION_DEG`). [deg]
     """
     _check(fmt, unit, instance)
+    if max_rotation_deg is not None:
+        max_rotation_deg = validation.number(
+            max_rotation_deg, "--max-rotation-deg", minimum=0.0, maximum=180.0, unit="[deg]"
+        )
     if not isinstance(result, CalibrationResult):
         result = result.calibration  # a temperature calibration: the nine parameters at t0
     correction = AffineCorrection.from_result(result, unit)
