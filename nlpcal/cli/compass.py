@@ -354,7 +354,7 @@ def run_evaluate(args) -> int:
         remove_heading_offset=args.remove_heading_offset,
     )
     stats["input"] = {
-        "file": table.source,
+        "file": "stdin" if str(args.attitude) == "-" else str(args.attitude),
         "truth_columns": list(args.truth_columns),
         "estimate_columns": list(args.estimate_columns),
     }

@@ -297,6 +297,7 @@ def read_log(
         samples = values[:, :3]
     else:
         table = path if isinstance(path, Table) else read_table(path, header=header, text=text)
+        notes.extend(table.notes)
         chosen = resolve_columns(
             table.frame,
             columns,

@@ -13,7 +13,7 @@ from __future__ import annotations
 import io
 import re
 import sys
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -70,6 +70,7 @@ class Table:
     layout: Layout
     engine: str = "c"
     text: bool = False
+    notes: list = field(default_factory=list)
 
     @property
     def columns(self) -> list:
@@ -144,10 +145,11 @@ def read_table(path, *, header: bool | None = None, text: bool = False) -> Table
     """
     # Hook: Parquet files, and the files of a glob pattern or a folder (nlpcal.io.sources).
     if sources.is_pattern(path):
-        paths = sources.log_paths(path)
+        notes: list = []
+        paths = sources.log_paths(path, notes)
         tables = [read_table(p, header=header, text=text) for p in paths]
         frame = sources.concatenated(paths, [table.frame for table in tables])
-        return replace(tables[0], source=str(path), frame=frame)
+        return replace(tables[0], source=str(path), frame=frame, notes=notes)
     if sources.is_parquet(path):
         frame = sources.read_parquet(path)
         if frame.empty:
@@ -348,11 +350,14 @@ class LogFile:
             yield chunk
 
 
-def log_files(path, header: bool | None = None, name: str | None = None) -> list:
-    """The files of a log (one file, a pattern or a folder: `nlpcal.io.sources`), each with its
-    layout and first rows; they must have the same columns."""
+def log_files(
+    path, header: bool | None = None, name: str | None = None, notes: list | None = None
+) -> list:
+    """The files of a log (one file, a pattern or a folder: `nlpcal.io.sources`, which says in
+    `notes` what it left out), each with its layout and first rows; they must have the same
+    columns."""
     found = []
-    for item in [path] if name else sources.log_paths(path):
+    for item in [path] if name else sources.log_paths(path, notes):
         if not name and sources.is_parquet(item):
             columns = sources.parquet_columns(item)
             found.append(LogFile(str(item), item, Layout(), pd.DataFrame(columns=columns), True))
