@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import units
+from . import units, validation
 from .calibration.result import CalibrationResult
 from .drift.evaluation import evaluation_row
 from .drift.fit import DriftFit
@@ -199,6 +199,8 @@ def statistics_rows(log: Log, correction: Correction | None = None) -> tuple:
     Returns (rows, extra columns to print).
     """
     reference = log.reference
+    if reference is not None:  # the check of calibrate: the same unit, the same field
+        validation.reference_scale(reference, validation.mean_magnitude(log.samples))
     rows = [{"label": "measured", **field_statistics(log.samples)}]
     if correction is not None and correction.parameters is not None:
         if reference is not None:

@@ -26,6 +26,7 @@ import numpy as np
 from . import validation
 from .errors import InputError
 from .io.files import existing_file, json_text, write_json_atomic
+from .io.strict import strict
 from .version import __version__
 
 #: Deepest nesting accepted in a document (deeper JSON is refused before it is walked).
@@ -201,15 +202,16 @@ class Document:
     def to_dict(self) -> dict:
         """The document: "format", "format_version", the body and "nlpcal_version"."""
         body = self.body()
-        return {
+        document = {
             "format": self.FORMAT,
             "format_version": self.FORMAT_VERSION,
             **body,
             "nlpcal_version": body.get("nlpcal_version", __version__),
         }
+        return strict(document, f"the {self.WHAT}")
 
     def to_json(self) -> str:
-        """Strict JSON of the document (non-finite numbers written as null)."""
+        """Strict JSON of the document (`to_dict`: finite numbers, no null)."""
         return json_text(self.to_dict())
 
     def save(self, path) -> None:
@@ -282,13 +284,13 @@ def _same(first, second) -> bool:
     return bool(first == second) and type(first) is type(second)
 
 
-def parse_json(text: str, source: str):
+def parse_json(text: str, source: str, what: str = "JSON document"):
     """The parsed JSON of `text`; InputError naming `source` when it is not valid JSON or an
     object repeats a key with different values."""
     try:
         return json.loads(text, object_pairs_hook=partial(distinct, source=source))
     except json.JSONDecodeError as exc:
-        raise InputError(f"{source}: not valid JSON ({exc})") from None
+        raise InputError(f"{source}: not a valid {what} ({exc})") from None
 
 
 def read_json_document(path, what: str = "JSON document"):
@@ -296,7 +298,7 @@ def read_json_document(path, what: str = "JSON document"):
     reads."""
     path = existing_file(path, f"a {what}")
     try:
-        return parse_json(path.read_text(), str(path))
+        return parse_json(path.read_text(), str(path), what)
     except UnicodeDecodeError as exc:
         raise InputError(f"{path}: not a valid {what} ({exc})") from None
     except RecursionError:

@@ -40,6 +40,7 @@ from ..errors import InputError
 from ..io import write_csv_atomic
 from ..io.files import COMPRESSED_SUFFIXES
 from ..io.sources import distinct_files, is_parquet, log_paths
+from ..io.strict import finite_table
 from ..models.zhou2010 import PARAMETER_NAMES
 from .ledger import FILE as LEDGER
 from .ledger import Ledger, digest
@@ -221,7 +222,7 @@ def _run(
         raise
     finally:
         report.rows = [rows[str(job[0])] for job in jobs if str(job[0]) in rows]
-        write_csv_atomic(report.summary, report.table())
+        write_csv_atomic(report.summary, finite_table(report.table(), "the summary", missing=True))
         ledger.save()
     return report
 

@@ -25,6 +25,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from ..io import read_json, write_json_atomic
+from ..io.strict import strict
 
 FILE = "batch.json"
 FORMAT = "nlpcal-batch"
@@ -90,7 +91,7 @@ class Ledger:
 
     def save(self) -> None:
         document = {"format": FORMAT, "format_version": FORMAT_VERSION, "outputs": self.outputs}
-        write_json_atomic(self.path, document)
+        write_json_atomic(self.path, strict(document, "the batch ledger"))
 
 
 def _outputs(document) -> dict:

@@ -379,10 +379,12 @@ def log_options(args) -> dict:
 
 
 def emit_json(document, output) -> None:
-    """JSON to -o (written atomically) or to stdout; strict (no NaN, no Infinity)."""
+    """JSON to -o (written atomically) or to stdout; strict (`nlpcal.io.strict`: finite
+    numbers, no null)."""
     from ..io.files import json_text, write_text_atomic
+    from ..io.strict import strict
 
-    text = json_text(document)
+    text = json_text(strict(document))
     if output:
         write_text_atomic(output, text)
     else:
@@ -390,9 +392,12 @@ def emit_json(document, output) -> None:
 
 
 def emit_csv(frame, output, float_format: str | None = None) -> None:
-    """A table to -o (written atomically) or to stdout; exact values unless float_format."""
+    """A table to -o (written atomically) or to stdout; exact values unless float_format; finite
+    (`nlpcal.io.strict`)."""
     from ..io.files import write_csv_atomic
+    from ..io.strict import finite_table
 
+    finite_table(frame)
     if output:
         write_csv_atomic(output, frame, float_format)
     else:

@@ -318,6 +318,8 @@ def read_log(
         unit, how = sensor_unit(chosen, unit, fallback_unit, notes)
         frame, engine, layout, source = table.frame, table.engine, table.layout, table.source
         samples = values[:, :3] * units.field_factor(unit)
+    if samples.shape[0]:
+        validation.sample_sizes(samples)
     check = unit_check(samples, unit, how)
     warnings = [check] if check else []
     resolved = dict(zip(requested, extra))  # the names asked for -> the log's own names

@@ -24,6 +24,7 @@ from ..errors import InputError
 from . import sources
 from .files import write_text_atomic
 from .layout import Layout, detect_layout, open_source
+from .strict import finite_table
 
 #: What each sensor's axis columns may be called, for `resolve_columns`:
 #: name -> (prefixes, unit suffixes, examples for messages, flag for messages).
@@ -386,8 +387,9 @@ def table_text(frame: pd.DataFrame, layout: Layout) -> str:
 
 
 def write_table(frame: pd.DataFrame, layout: Layout, output=None) -> None:
-    """`table_text` to `output` (written atomically) or to stdout."""
-    text = table_text(frame, layout)
+    """`table_text` to `output` (written atomically) or to stdout; the numbers nlpcal computed
+    finite (`nlpcal.io.strict`)."""
+    text = table_text(finite_table(frame), layout)
     if output:
         write_text_atomic(Path(output), text)
     else:

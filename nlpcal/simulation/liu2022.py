@@ -14,6 +14,7 @@ import pandas as pd
 
 from ..errors import InputError
 from ..io.files import read_json, write_csv_atomic, write_json_atomic
+from ..io.strict import finite_table, strict
 from ..models import liu2022
 from ..models.liu2022 import TemperatureModel, modulus_line
 from ..models.zhou2010 import Zhou2010Parameters
@@ -174,7 +175,7 @@ def write_replica(
         ("sweep.csv", sweep),
     ):
         path = out_dir / name
-        write_csv_atomic(path, frame)
+        write_csv_atomic(path, finite_table(frame))
         written.append(path)
     truth = {
         "description": "replica of Liu et al. (2022): nine parameters at t0 (Eq. 4 of Zhou et al."
@@ -199,7 +200,7 @@ def write_replica(
         },
     }
     path = out_dir / "truth.json"
-    write_json_atomic(path, truth)
+    write_json_atomic(path, strict(truth))
     written.append(path)
     return written
 

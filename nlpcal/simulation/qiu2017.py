@@ -15,6 +15,7 @@ import pandas as pd
 
 from ..errors import InputError
 from ..io.files import write_csv_atomic, write_json_atomic
+from ..io.strict import finite_table, strict
 from ..models import qiu2017 as model
 
 #: Noise of the replica per axis at noise=None: magnetometer [nT], accelerometer [g].
@@ -141,7 +142,7 @@ def write_replica(
     out_dir = Path(out_dir)
     data = replica(seed=seed, noise=noise, n=n)
     paths = [out_dir / "turns.csv", out_dir / "test.csv", out_dir / "truth.json"]
-    write_csv_atomic(paths[0], data["turns"])
-    write_csv_atomic(paths[1], data["test"])
-    write_json_atomic(paths[2], data["truth"])
+    write_csv_atomic(paths[0], finite_table(data["turns"]))
+    write_csv_atomic(paths[1], finite_table(data["test"]))
+    write_json_atomic(paths[2], strict(data["truth"]))
     return paths
