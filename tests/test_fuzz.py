@@ -439,3 +439,483 @@ def test_written_json_is_strict(documents, tmp_path):
     assert run(["calibrate", log, "--method", "joint", "-o", out])[0] == 0
     no_nan(out.read_text())
     assert math.isfinite(json.loads(out.read_text())["parameters"]["z_x"])
+
+
+# --- named regressions of the newer corpus (export, import, report, batch, schedulers, losses) -
+
+
+def write_rows(path: Path, header: str, rows) -> Path:
+    path.write_text(header + "\n" + "\n".join(",".join(repr(float(v)) for v in r) for r in rows))
+    return path
+
+
+@pytest.mark.parametrize("loss", ["huber", "cauchy"])
+@pytest.mark.parametrize("method", ["staged", "joint"])
+def test_a_given_loss_scale_works_in_both_methods(documents, tmp_path, loss, method):
+    log, _ = documents
+    out = tmp_path / "p.json"
+    argv = ["calibrate", log, "--method", method, "--loss", loss, "--loss-scale", "5", "-o", out]
+    status, _, err = run(argv)
+    assert status == 0, err
+    robust = json.loads(out.read_text())["robust"]
+    assert robust["loss"] == loss and robust["scale"] == 5.0 and robust["scale_source"] == "given"
+
+
+def test_a_batch_with_a_given_loss_scale_calibrates_every_log(tmp_path):
+    for seed in (3, 4):
+        good_log(tmp_path, seed=seed).rename(tmp_path / f"log{seed}.csv")
+    out = tmp_path / "out"
+    argv = ["batch", "calibrate", tmp_path / "log*.csv", "--out-dir", out]
+    status, _, err = run([*argv, "--loss", "cauchy", "--loss-scale", "5"])
+    assert status == 0, err
+    import pandas as pd
+
+    assert list(pd.read_csv(out / "summary.csv")["status"]) == ["ok", "ok"]
+
+
+@pytest.mark.parametrize("scale", ["nan", "inf", "-1", "0", "1e-300"])
+def test_a_loss_scale_must_be_finite_positive_and_usable(documents, scale):
+    log, _ = documents
+    status, _, err = run(["calibrate", log, "--loss", "cauchy", "--loss-scale", scale])
+    assert status == 2 and "loss scale" in err
+
+
+@pytest.fixture(scope="module")
+def exported(documents, tmp_path_factory):
+    """A calibration against a reference field, exported in every format."""
+    log, _ = documents
+    folder = tmp_path_factory.mktemp("exported")
+    params = folder / "params.json"
+    assert run(["calibrate", log, "--reference-column", "proton_nT", "-o", params])[0] == 0
+    texts = {}
+    for fmt in ("matlab", "matrix", "ardupilot", "px4", "c-header"):
+        status, out, err = run(["export", params, "--format", fmt])
+        assert status == 0, err
+        texts[fmt] = out
+    return texts
+
+
+def _offset_line(fmt: str) -> str:
+    """A pattern of the first offset of each format (its value is the group)."""
+    return {
+        "matlab": r"b = \[([^ \]]+)",
+        "matrix": r'"b": \[\s*([^,\s]+)',
+        "ardupilot": r"COMPASS_OFS_X,(\S+)",
+        "px4": r"CAL_MAG0_XOFF\t(\S+)",
+        "c-header": r"NLPCAL_B\[3\] = \{([^,]+)",
+    }[fmt]
+
+
+def _with_first_offset(text: str, fmt: str, value: str) -> str:
+    import re
+
+    match = re.search(_offset_line(fmt), text)
+    assert match, (fmt, text)
+    return text[: match.start(1)] + value + text[match.end(1) :]
+
+
+def _import(tmp_path, fmt, text, *extra):
+    source = tmp_path / f"in.{fmt}"
+    source.write_text(text)
+    out = tmp_path / "imported.json"
+    status, _, err = run(["import", source, "--format", fmt, "-o", out, *extra])
+    if status:
+        assert not out.exists()
+    return status, err, out
+
+
+FORMATS = ["matlab", "matrix", "ardupilot", "px4", "c-header"]
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_import_round_trips_every_export(exported, tmp_path, fmt, documents):
+    status, err, out = _import(tmp_path, fmt, exported[fmt])
+    assert status == 0, err
+    assert run(["apply", out, documents[0], "-o", tmp_path / "c.csv"])[0] == 0
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+@pytest.mark.parametrize("value", ["1e300", "-1e300", "1e12"])
+def test_import_refuses_offsets_nlpcal_would_refuse(exported, tmp_path, fmt, value):
+    status, err, _ = _import(tmp_path, fmt, _with_first_offset(exported[fmt], fmt, value))
+    assert status == 2 and ("z_x" in err or "b " in err or "OFF" in err or "OFS" in err), err
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+@pytest.mark.parametrize("value", ["NaN", "nan", "Inf", "-Inf", "INFINITY", "-inf"])
+def test_import_refuses_non_finite_values(exported, tmp_path, fmt, value):
+    status, err, _ = _import(tmp_path, fmt, _with_first_offset(exported[fmt], fmt, value))
+    assert status == 2, err
+
+
+def test_compass_ofs_minus_inf_is_bad_input(tmp_path):
+    status, err, _ = _import(tmp_path, "ardupilot", "COMPASS_OFS_X,-Inf\n")
+    assert status == 2 and "COMPASS_OFS_X" in err
+
+
+def test_c_header_nan_field_is_refused_not_written_as_null(exported, tmp_path):
+    text = exported["c-header"]
+    start = text.index("NLPCAL_FIELD = ") + len("NLPCAL_FIELD = ")
+    text = text[:start] + "NAN" + text[text.index(";", start) :]
+    status, err, _ = _import(tmp_path, "c-header", text)
+    assert status == 2 and "NLPCAL_FIELD" in err
+
+
+@pytest.mark.parametrize("fmt", ["matlab", "ardupilot", "px4"])
+@pytest.mark.parametrize("field", ["nan", "0", "-1", "inf", "1e300"])
+def test_import_refuses_a_bad_reference_field(exported, tmp_path, fmt, field):
+    status, err, _ = _import(tmp_path, fmt, exported[fmt], "--reference-field", field)
+    assert status == 2 and ("reference" in err or "field" in err), err
+
+
+@pytest.mark.parametrize(
+    "fmt, addition, key",
+    [
+        ("matlab", "b = [1 2 3];\n", "'b'"),
+        ("ardupilot", "COMPASS_OFS_X,12.5\n", "COMPASS_OFS_X"),
+        ("px4", "1\t1\tCAL_MAG0_XOFF\t0.125\t9\n", "CAL_MAG0_XOFF"),
+        ("c-header", "static const double NLPCAL_B[3] = {1, 2, 3};\n", "'B'"),
+    ],
+)
+def test_import_refuses_conflicting_repeated_keys(exported, tmp_path, fmt, addition, key):
+    status, err, _ = _import(tmp_path, fmt, exported[fmt] + addition)
+    assert status == 2 and key in err and "twice" in err
+
+
+def test_import_refuses_a_repeated_json_key(exported, tmp_path):
+    text = exported["matrix"].replace('"unit": "nT"', '"unit": "nT", "unit": "uT"', 1)
+    status, err, _ = _import(tmp_path, "matrix", text)
+    assert status == 2 and "'unit'" in err and "twice" in err
+    same = exported["matrix"].replace('"unit": "nT"', '"unit": "nT", "unit": "nT"', 1)
+    assert _import(tmp_path, "matrix", same)[0] == 0  # the same value twice says the same
+
+
+def test_a_params_file_with_a_repeated_key_is_refused(documents, tmp_path):
+    log, made = documents
+    text = json.dumps(made["params"]).replace('"z_x": ', '"z_x": 1.0, "z_x": ', 1)
+    path = tmp_path / "p.json"
+    path.write_text(text)
+    status, _, err = run(["apply", path, log])
+    assert status == 2 and "'z_x'" in err
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-1", "181"])
+def test_export_max_rotation_must_be_finite_and_in_range(exported, tmp_path, documents, value):
+    log, _ = documents
+    params = tmp_path / "p.json"
+    assert run(["calibrate", log, "--method", "joint", "-o", params])[0] == 0
+    status, out, err = run(["export", params, "--format", "px4", "--max-rotation-deg", value])
+    assert status == 2 and "--max-rotation-deg" in err and out == ""
+
+
+@pytest.mark.parametrize(
+    "text", ["junk text", "{}", '{"address": 5}', "[1]", '{"address": "junk"}', ""]
+)
+def test_a_scheduler_file_of_junk_is_bad_input(documents, tmp_path, text):
+    pytest.importorskip("distributed")
+    log, _ = documents
+    scheduler = tmp_path / "scheduler.json"
+    scheduler.write_text(text)
+    status, _, err = run(["calibrate", log, "--scheduler", scheduler])
+    assert status == 2 and "scheduler" in err
+
+
+@pytest.mark.parametrize(
+    "junk",
+    [
+        (2**45).to_bytes(8, "little") + b"junk" * 8,  # a length Dask would try to allocate
+        b"\xff" * 64,
+        b"HTTP/1.1 200 OK\r\nContent-Length: 0\r\n\r\n",
+    ],
+)
+def test_a_server_that_is_not_dask_is_bad_input(documents, monkeypatch, junk):
+    import socket
+    import threading
+    import time
+
+    pytest.importorskip("distributed")
+    from nlpcal import cluster
+
+    log, _ = documents
+    monkeypatch.setattr(cluster, "CONNECT_TIMEOUT_S", 5)
+    server = socket.create_server(("127.0.0.1", 0))
+    server.settimeout(20)  # the thread ends by itself if nothing connects
+
+    def answer():
+        with contextlib.suppress(OSError):
+            while True:
+                connection, _ = server.accept()
+                with connection:
+                    connection.sendall(junk)
+
+    thread = threading.Thread(target=answer, daemon=True)
+    thread.start()
+    started = time.monotonic()
+    try:
+        port = server.getsockname()[1]
+        status, _, err = run(["calibrate", log, "--scheduler", f"tcp://127.0.0.1:{port}"])
+    finally:
+        server.close()
+    assert status == 2 and "no Dask scheduler answers" in err
+    assert time.monotonic() - started < 60
+
+
+@pytest.fixture(scope="module")
+def roles_log(tmp_path_factory):
+    """A log with a column of every kind: field, reference, temperature, place and time."""
+    samples, _ = make_log(n=200, noise=1.0, seed=8)
+    n = len(samples)
+    rows = np.column_stack(
+        [
+            samples,
+            np.full(n, PAPER_FIELD),
+            np.linspace(5.0, 15.0, n),
+            np.full(n, 45.0),
+            np.full(n, 7.0),
+            np.full(n, 100.0),
+            1.7e9 + np.arange(n),
+        ]
+    )
+    folder = tmp_path_factory.mktemp("roles")
+    return write_rows(folder / "roles.csv", "bx,by,bz,proton_nT,temp_c,lat,lon,alt,t", rows)
+
+
+MODEL = ["--reference-model", "igrf"]
+PROTON = ["--reference-column", "proton_nT"]
+
+
+@pytest.mark.parametrize(
+    "options, column, roles",
+    [
+        (["--reference-column", "temp_c", "--temperature-column", "temp_c"], "temp_c", 2),
+        (["--reference-column", "3", "--temperature-column", "proton_nT"], "proton_nT", 2),
+        (["--reference-column", "bx"], "bx", 1),
+        (["--reference-column", "proton_nT", "--temperature-column", "bz"], "bz", 1),
+        (["--columns", "by", "bx", "bz", "--temperature-column", "1", *PROTON], "by", 1),
+        ([*MODEL, "--lat-column", "lat", "--lon-column", "lon", "--time-column", "lat"], "lat", 2),
+        ([*MODEL, "--lat-column", "lat", "--lon-column", "lat", "--time-column", "t"], "lat", 2),
+        ([*MODEL, "--lat-column", "bz", "--lon-column", "lon", "--time-column", "t"], "bz", 1),
+        (
+            [*MODEL, "--lat", "45", "--lon", "7", "--alt-column", "t", "--time-column", "t"],
+            "t",
+            2,
+        ),
+        (
+            [*MODEL, "--lat-column", "lat", "--lon", "7", "--time-column", "t"]
+            + ["--alt-column", "lat"],
+            "lat",
+            2,
+        ),
+    ],
+)
+def test_one_column_cannot_be_two_things(roles_log, options, column, roles):
+    status, _, err = run(["calibrate", roles_log, *options])
+    assert status == 2 and f"'{column}'" in err and "given as both" in err
+    named = [o for o in options if o.endswith("-column")]
+    assert sum(o in err for o in dict.fromkeys(named)) + ("field column" in err) >= 2, err
+    if "--time-column" not in options:
+        assert run(["calibrate", roles_log, *options, "--low-memory"])[0] == 2
+
+
+def test_one_column_cannot_be_two_things_in_drift_stats_and_compass(roles_log, documents):
+    both = ["--temperature-column", "proton_nT", "--reference-column", "proton_nT"]
+    drift = ["drift", "fit", roles_log, *both, "--base-temperature", "20"]
+    status, _, err = run(drift)
+    assert status == 2 and "'proton_nT'" in err
+    status, _, err = run(["stats", roles_log, "--reference-column", "bx"])
+    assert status == 2 and "'bx'" in err
+    truth = ["--truth-columns", "lat", "lon", "lat", "--estimate-columns", "t", "alt", "temp_c"]
+    status, _, err = run(["compass", "evaluate", roles_log, *truth])
+    assert status == 2 and "'lat'" in err
+
+
+def test_report_reads_the_log_from_stdin(documents, tmp_path, monkeypatch):
+    log, made = documents
+    params = made_path(tmp_path, made["params"])
+    stdin = io.TextIOWrapper(io.BytesIO(log.read_bytes()))
+    monkeypatch.setattr("sys.stdin", stdin)
+    status, _, err = run(["report", params, "-", "-o", tmp_path / "r.html"])
+    assert status == 0, err
+    assert "stdin" in (tmp_path / "r.html").read_text()
+
+
+@pytest.fixture
+def folder_of_logs(tmp_path):
+    folder = tmp_path / "logs"
+    folder.mkdir()
+    good_log(tmp_path, n=150, seed=3).rename(folder / "a.csv")
+    good_log(tmp_path, n=150, seed=4).rename(folder / "b.csv")
+    return folder
+
+
+@pytest.mark.parametrize("link", ["symlink", "hardlink"])
+def test_a_file_named_twice_is_read_once(folder_of_logs, tmp_path, link):
+    (os.symlink if link == "symlink" else os.link)(
+        folder_of_logs / "a.csv", folder_of_logs / "c.csv"
+    )
+    out = tmp_path / "p.json"
+    for source in (folder_of_logs / "*.csv", folder_of_logs):
+        status, _, err = run(["calibrate", source, "--method", "joint", "-o", out])
+        assert status == 0 and "c.csv is the same file as" in err and "read once" in err
+        assert json.loads(out.read_text())["n_samples"] == 300
+    status, _, err = run(["calibrate", folder_of_logs / "*.csv", "--low-memory", "-o", out])
+    assert status == 0 and "read once" in err
+    status, _, err = run(["batch", "calibrate", folder_of_logs, "--out-dir", tmp_path / "out"])
+    assert status == 0 and "read once" in err
+    import pandas as pd
+
+    assert len(pd.read_csv(tmp_path / "out" / "summary.csv")) == 2
+
+
+def test_the_same_path_twice_in_a_batch_is_read_once(folder_of_logs, tmp_path):
+    a = folder_of_logs / "a.csv"
+    status, _, err = run(["batch", "calibrate", a, a, "--out-dir", tmp_path / "out"])
+    assert status == 0 and "read once" in err
+
+
+def test_two_files_with_the_same_content_are_refused(folder_of_logs, tmp_path):
+    import shutil
+
+    shutil.copy(folder_of_logs / "a.csv", folder_of_logs / "copy.csv")
+    out = tmp_path / "p.json"
+    out.write_text("previous")
+    for argv in (
+        ["calibrate", folder_of_logs / "*.csv", "-o", out],
+        ["calibrate", folder_of_logs, "--low-memory", "-o", out],
+        ["batch", "calibrate", folder_of_logs, "--out-dir", tmp_path / "out"],
+    ):
+        status, _, err = run(argv)
+        assert status == 2 and "a.csv" in err and "copy.csv" in err and "same content" in err
+    assert out.read_text() == "previous"
+
+
+def test_stats_refuses_a_reference_in_another_unit(documents, tmp_path):
+    log, made = documents
+    samples, _ = make_log(n=200, noise=1.0, seed=9)
+    rows = np.column_stack([samples, np.full(len(samples), PAPER_FIELD / 1000.0)])
+    path = write_rows(tmp_path / "ut.csv", "bx,by,bz,ref", rows)  # ref in uT, log in nT
+    params = made_path(tmp_path, made["params"])
+    for argv in (["stats", path, "--params", params], ["stats", path], ["calibrate", path]):
+        status, _, err = run([*argv, "--reference-column", "ref"])
+        assert status == 2 and "times the mean magnitude" in err
+
+
+@pytest.mark.parametrize("scale", [1e300, 1e-300])
+def test_apply_and_stats_refuse_extreme_magnitudes(documents, tmp_path, scale):
+    log, made = documents
+    samples, _ = make_log(n=200, noise=1.0, seed=5)
+    path = write_rows(tmp_path / "extreme.csv", "bx,by,bz", samples * scale / 5e4)
+    params = made_path(tmp_path, made["params"])
+    out = tmp_path / "c.csv"
+    out.write_text("previous")
+    for argv in (
+        ["apply", params, path, "-o", out],
+        ["stats", path, "--json"],
+        ["stats", path, "--params", params, "--json"],
+    ):
+        status, stdout, err = run(argv)
+        assert status == 2 and stdout == "", err
+    assert out.read_text() == "previous"
+
+
+# --- every document nlpcal writes, nlpcal reads back ---------------------------------------
+
+
+def no_null(text: str) -> None:
+    """Strict JSON without null: a quantity that does not exist is left out."""
+    no_nan(text)
+
+    def walk(value, where="") -> None:
+        assert value is not None, f"null at {where}"
+        if isinstance(value, dict):
+            for key, item in value.items():
+                walk(item, f"{where}.{key}")
+        elif isinstance(value, list):
+            for k, item in enumerate(value):
+                walk(item, f"{where}[{k}]")
+
+    walk(json.loads(text))
+
+
+def read_back(again, written, where: str) -> None:
+    """What nlpcal read back from a document it wrote is what it wrote (derived items written
+    for the reader, such as a compass's compensation angles, may be left out of the reading)."""
+    if isinstance(again, dict):
+        assert isinstance(written, dict), where
+        for key, value in again.items():
+            if key != "nlpcal_version":
+                read_back(value, written[key], f"{where}.{key}")
+    elif isinstance(again, list):
+        assert isinstance(written, list) and len(again) == len(written), where
+        for k, (a, b) in enumerate(zip(again, written)):
+            read_back(a, b, f"{where}[{k}]")
+    else:
+        assert again == written, (where, again, written)
+
+
+def test_every_document_nlpcal_writes_reads_back(documents, tmp_path):
+    from nlpcal.calibration.result import CalibrationResult
+    from nlpcal.comparison import Comparison
+    from nlpcal.compass.result import CompassCalibration
+    from nlpcal.drift.fit import DriftFit
+    from nlpcal.drift.temperature import TemperatureCalibrationResult
+    from nlpcal.formats import AffineCorrection
+    from nlpcal.orthogonality.inversion import Inversion
+
+    log, made = documents
+    params = made_path(tmp_path, made["params"])
+    turns = log.parent / "q" / "turns.csv"
+    kinds = {
+        "params": (CalibrationResult, ["calibrate", log, "--reference-column", "proton_nT"]),
+        "robust": (CalibrationResult, ["calibrate", log, "--loss", "huber", "--loss-scale", "3"]),
+        "moments": (CalibrationResult, ["calibrate", log, "--cycles", "4", "--allow-unconverged"]),
+        "temperature": (
+            TemperatureCalibrationResult,
+            ["calibrate", log, "--reference-column", "proton_nT", "--temperature-column", "temp_c"],
+        ),
+        "drift": (
+            DriftFit,
+            ["drift", "fit", log, "--temperature-column", "temp_c"]
+            + ["--reference-column", "proton_nT", "--base-temperature", "20"],
+        ),
+        "compass": (CompassCalibration, ["compass", "calibrate", turns, "--turn-column", "turn"]),
+        "comparison": (Comparison, ["compare", log, "--cycles", "2", "--cg-max-iter", "20"]),
+        "inversion": (Inversion, ["orthogonality", "invert", log]),
+        "matrix": (AffineCorrection, ["export", params, "--format", "matrix"]),
+        "import": (CalibrationResult, ["import", tmp_path / "matrix.json", "--format", "matrix"]),
+    }
+    for name, (kind, argv) in kinds.items():
+        path = tmp_path / f"{name}.json"
+        status, _, err = run([*argv, "-o", path])
+        assert status == 0, (name, err)
+        text = path.read_text()
+        no_null(text)
+        read_back(json.loads(kind.load(path).to_json()), json.loads(text), name)
+    status, out, _ = run(
+        ["stats", log, "--params", params, "--reference-column", "proton_nT", "--json"]
+    )
+    assert status == 0
+    no_null(out)
+
+
+def test_every_table_nlpcal_writes_reads_back(documents, tmp_path):
+    pytest.importorskip("pyarrow")
+    import pandas as pd
+
+    log, made = documents
+    params = made_path(tmp_path, made["params"])
+    corrected = tmp_path / "c.csv"
+    assert run(["apply", params, log, "-o", corrected])[0] == 0
+    finite_csv(corrected)
+    assert run(["stats", corrected, "--json"])[0] == 0  # read back as a log
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    pd.read_csv(log).to_parquet(logs / "one.parquet")
+    out = tmp_path / "out"
+    status, _, err = run(["batch", "apply", params, logs, "--out-dir", out])
+    assert status == 0, err
+    written = out / "one.corrected.parquet"
+    assert np.isfinite(pd.read_parquet(written).select_dtypes("number").to_numpy()).all()
+    assert run(["stats", written, "--json"])[0] == 0
+    summary = pd.read_csv(out / "summary.csv")
+    assert not np.isinf(summary.select_dtypes("number").to_numpy()).any()

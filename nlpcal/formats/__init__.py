@@ -9,8 +9,8 @@ route (`nlpcal.models.zhou2010.from_correction`) that `apply` and `stats` use li
 
 from __future__ import annotations
 
-from .. import validation
-from ..calibration.result import CalibrationResult
+from .. import units, validation
+from ..calibration.result import FIELD_LIMIT, CalibrationResult
 from ..errors import InputError
 from ..io.files import existing_file, sha256_file
 from . import ardupilot, c_header, matlab, matrix, px4
@@ -109,6 +109,11 @@ def import_file(
     notes = []
     scaled = None
     if field is not None:
+        validation.number(
+            units.to_base(field, correction.unit),
+            f"--reference-field in {units.base_unit(correction.unit)}",
+            maximum=FIELD_LIMIT,
+        )
         if correction.field is not None:
             correction, scaled = correction.rescaled(field)
             notes.append(

@@ -164,6 +164,11 @@ class AffineCorrection(Document):
             params, rotation = from_correction(matrix, units.to_base(self.offsets, self.unit))
         except ValueError as exc:
             raise InputError(str(exc)) from None
+        if not all(np.isfinite(list(params.to_dict().values()))):
+            raise InputError(
+                "the correction matrix A is too far from a calibration (its gains overflow); "
+                "check the file's values and --reference-field"
+            )
         base = units.base_unit(self.unit)
         angle = rotation_angle_deg(rotation)
         reference: dict = {"mode": "none"}
