@@ -3,7 +3,12 @@ output faults. Whatever comes in, nlpcal exits 0, 1 or 2 with a one-sentence mes
 traceback, never changes an existing output when it fails, and writes only finite numbers.
 
 NLPCAL_FUZZ_EXAMPLES sets the number of examples per test (default 25; a corpus run uses
-thousands, and NLPCAL_FUZZ_RANDOM=1 draws new examples each run).
+thousands, and NLPCAL_FUZZ_RANDOM=1 draws new examples each run). The generators cover every
+command: random tables through the older ones; random and mutated documents; exports with random
+options and imports of random or mutated files of every format; random logs as one file, Parquet,
+a pattern or a folder (with links and copies) through calibrate (losses included), apply, stats,
+report and batch; random scheduler files. An output nlpcal writes must be finite, hold no null,
+and read back (`readable`).
 """
 
 from __future__ import annotations
@@ -22,7 +27,7 @@ from nlpcal.cli import main
 from synthetic import PAPER_FIELD, make_log
 
 hypothesis = pytest.importorskip("hypothesis")
-from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import HealthCheck, event, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
 EXAMPLES = int(os.environ.get("NLPCAL_FUZZ_EXAMPLES", "25"))
@@ -171,7 +176,7 @@ def test_random_tables_through_every_command(tmp_path_factory, text, command):
     if status:
         assert output.read_text() == "previous"
     else:
-        no_nan(output.read_text())
+        readable(output)
     assert sorted(p.name for p in folder.iterdir()) == ["log.csv", "out.json"]  # no debris
 
 
@@ -274,7 +279,7 @@ def test_mutated_and_random_documents(documents, tmp_path_factory, data):
     if status:
         assert output.read_text() == "previous"
     else:
-        finite_csv(output)
+        readable(output)
     if kind == "compass":
         return
     status, out, _ = run(
@@ -288,7 +293,7 @@ def test_mutated_and_random_documents(documents, tmp_path_factory, data):
         ]
     )
     if status == 0:
-        no_nan(out)
+        no_null(out)
 
 
 def made_path(folder, document) -> Path:
@@ -919,3 +924,242 @@ def test_every_table_nlpcal_writes_reads_back(documents, tmp_path):
     assert run(["stats", written, "--json"])[0] == 0
     summary = pd.read_csv(out / "summary.csv")
     assert not np.isinf(summary.select_dtypes("number").to_numpy()).any()
+
+
+# --- generators over the newer commands: export, import, report, batch, Parquet, patterns,
+# --- scheduler files, losses ------------------------------------------------------------------
+
+NUMBER_TEXT = st.one_of(
+    st.sampled_from(
+        ["nan", "NaN", "inf", "-Inf", "INFINITY", "1e300", "-1e300", "1e-300", "0", "-0", "1e12"]
+        + ["", "x", "1,5", "0x10", "1e999", "5", "-5", "0.5", "3"]
+    ),
+    st.floats(allow_nan=True, allow_infinity=True).map(repr),
+    st.floats(min_value=-1e4, max_value=1e4).map(repr),
+)
+
+
+def readable(path: Path) -> None:
+    """An output nlpcal wrote is finite, has no null, and nlpcal reads it back."""
+    from nlpcal.calibration.result import CalibrationResult
+    from nlpcal.comparison import Comparison
+    from nlpcal.compass.result import CompassCalibration
+    from nlpcal.drift.fit import DriftFit
+    from nlpcal.drift.temperature import TemperatureCalibrationResult
+    from nlpcal.formats import AffineCorrection
+    from nlpcal.io import read_table
+    from nlpcal.orthogonality.inversion import Inversion
+    from nlpcal.results import load_any
+
+    if path.suffix == ".json":
+        no_null(path.read_text())
+        kinds = (
+            CalibrationResult,
+            TemperatureCalibrationResult,
+            DriftFit,
+            CompassCalibration,
+            Comparison,
+            Inversion,
+            AffineCorrection,
+        )
+        if json.loads(path.read_text()).get("format") != "nlpcal-batch":
+            load_any(path, kinds)
+    elif path.suffix in (".csv", ".parquet"):
+        import pandas as pd
+
+        frame = pd.read_parquet(path) if path.suffix == ".parquet" else pd.read_csv(path)
+        assert not np.isinf(frame.select_dtypes("number").to_numpy(dtype=float)).any()
+        if path.name != "summary.csv":
+            assert np.isfinite(frame.select_dtypes("float").to_numpy(dtype=float)).all()
+        read_table(path)
+
+
+def fuzz_folder(tmp_path_factory) -> tuple:
+    folder = tmp_path_factory.mktemp("fuzz")
+    output = folder / "out"
+    return folder, output
+
+
+@FUZZ
+@given(data=st.data())
+def test_random_exports_and_imports(documents, exported, tmp_path_factory, data):
+    """export with random options, and import of random or mutated files of every format."""
+    import re
+
+    log, made = documents
+    folder = tmp_path_factory.mktemp("formats")
+    fmt = data.draw(st.sampled_from(FORMATS))
+    output = folder / "out.txt"
+    output.write_text("previous")
+    if data.draw(st.booleans()):  # export
+        params = made_path(folder, made[data.draw(st.sampled_from(["params", "temperature"]))])
+        options = []
+        if data.draw(st.booleans()):
+            options += ["--max-rotation-deg", data.draw(NUMBER_TEXT)]
+        if data.draw(st.booleans()):
+            options += ["--unit", data.draw(st.sampled_from(["nT", "uT", "G", "raw"]))]
+        if data.draw(st.booleans()):
+            options += ["--instance", data.draw(st.sampled_from(["0", "1", "2", "3", "4", "x"]))]
+        status, _, _ = run(["export", params, "--format", fmt, *options, "-o", output])
+        event(f"export {fmt}: exit {status}")
+        if status:
+            assert output.read_text() == "previous"
+            return
+        instance = options[options.index("--instance") + 1] if "--instance" in options else None
+        back = folder / "back.json"
+        extra = ["--instance", instance] if instance else []
+        status, _, err = run(["import", output, "--format", fmt, *extra, "-o", back])
+        assert status == 0, err  # what nlpcal exports, nlpcal imports
+        readable(back)
+        return
+    text = exported[fmt]
+    numbers = list(re.finditer(r"-?\d[\d.eE+-]*", text))
+    for _ in range(data.draw(st.integers(0, 3))):
+        match = data.draw(st.sampled_from(numbers))
+        text = text[: match.start()] + data.draw(NUMBER_TEXT) + text[match.end() :]
+        numbers = list(re.finditer(r"-?\d[\d.eE+-]*", text))
+    lines = text.splitlines(keepends=True)
+    if data.draw(st.booleans()):  # a line repeated, changed or not
+        line = data.draw(st.sampled_from(lines))
+        lines.insert(data.draw(st.integers(0, len(lines))), line)
+    if data.draw(st.booleans()):
+        del lines[data.draw(st.integers(0, len(lines) - 1))]
+    if data.draw(st.integers(0, 9)) == 0:
+        lines = [data.draw(st.text(max_size=60))]
+    source = folder / f"in.{fmt}"
+    source.write_text("".join(lines))
+    options = []
+    if data.draw(st.booleans()):
+        options += ["--reference-field", data.draw(NUMBER_TEXT)]
+    status, _, _ = run(["import", source, "--format", fmt, *options, "-o", output])
+    event(f"import {fmt}: exit {status}")
+    if status:
+        assert output.read_text() == "previous"
+    else:
+        readable(output.rename(folder / "imported.json"))
+
+
+LOG_CONTAINERS = ("file", "parquet", "pattern", "folder", "linked", "copies")
+
+
+def _log_source(folder: Path, texts, container: str) -> Path:
+    """The log as one file, a Parquet file, a pattern or a folder of files (with a link to one
+    of them, or a copy)."""
+    logs = folder / "logs"
+    logs.mkdir()
+    paths = []
+    for k, text in enumerate(texts):
+        path = logs / f"part{k}.csv"
+        path.write_text(text)
+        paths.append(path)
+    if container == "parquet":
+        import pandas as pd
+
+        try:
+            frame = pd.read_csv(paths[0])
+            frame.columns = [str(c) for c in frame.columns]
+            frame.to_parquet(logs / "part0.parquet")
+        except Exception:  # a table pandas cannot read or store: keep the CSV
+            return paths[0]
+        paths[0].unlink()
+        return logs / "part0.parquet"
+    if container == "file":
+        return paths[0]
+    if container == "linked":
+        os.symlink(paths[0].name, logs / "link.csv")
+    if container == "copies":
+        (logs / "copy.csv").write_text(texts[0])
+    return logs if container == "folder" else logs / "*.csv"
+
+
+LOG_COMMANDS = [
+    ["calibrate", "{log}", "--method", "joint", "-o", "{out}.json"],
+    ["calibrate", "{log}", "--loss", "{loss}", "--loss-scale", "{scale}", "-o", "{out}.json"],
+    ["calibrate", "{log}", "--method", "joint", "--loss", "{loss}", "-o", "{out}.json"],
+    ["calibrate", "{log}", "--low-memory", "--method", "joint", "-o", "{out}.json"],
+    ["apply", "{params}", "{log}", "-o", "{out}.csv"],
+    ["stats", "{log}", "--params", "{params}", "--json"],
+    ["report", "{params}", "{log}", "-o", "{out}.html"],
+    ["batch", "calibrate", "{log}", "--out-dir", "{out}", "--loss", "{loss}"],
+    ["batch", "apply", "{params}", "{log}", "--out-dir", "{out}"],
+]
+
+
+@FUZZ
+@given(
+    data=st.data(),
+    command=st.sampled_from(LOG_COMMANDS),
+    container=st.sampled_from(LOG_CONTAINERS),
+)
+def test_random_logs_through_patterns_parquet_report_batch_and_losses(
+    documents, tmp_path_factory, data, command, container
+):
+    log, made = documents
+    folder = tmp_path_factory.mktemp("logs")
+    good = log.read_text()
+    other = good_log(folder, seed=7).read_text()
+    texts = [data.draw(st.one_of(st.just(good), st.just(good), tables()))]  # 2 of 3 good
+    if container not in ("file", "parquet"):
+        texts.append(data.draw(st.one_of(st.just(other), st.just(other), tables())))
+    source = _log_source(folder, texts, container)
+    params = made_path(folder, made["params"])
+    out = folder / "out"
+    fields = {
+        "log": source,
+        "params": params,
+        "out": out,
+        "loss": data.draw(st.sampled_from(["l2", "huber", "cauchy"])),
+        "scale": data.draw(NUMBER_TEXT),
+    }
+    argv = [part.format(**fields) for part in command]
+    written = [Path(a) for a in argv if a.startswith(str(out))]
+    for path in written:
+        path.write_text("previous")
+    status, stdout, _ = run(argv)
+    event(f"{argv[0]} {container}: exit {status}")
+    for path in written:
+        if status:
+            assert path.read_text() == "previous"
+        elif path.suffix == ".html":
+            assert "NaN" not in path.read_text() and "inf " not in path.read_text()
+        else:
+            readable(path)
+    if status == 0 and "--json" in argv:
+        no_null(stdout)
+    if argv[0] == "batch" and status in (0, 1) and out.is_dir():
+        for path in out.iterdir():
+            readable(path)
+
+
+SCHEDULER_TEXTS = st.one_of(
+    st.text(max_size=80),
+    JSON_VALUES.map(json.dumps),
+    st.builds(
+        lambda value: json.dumps({"address": value}),
+        st.one_of(
+            JSON_VALUES,
+            st.sampled_from(
+                ["tcp://", "tcp://127.0.0.1:1", "junk://x", "tcp://127.0.0.1:notaport", ""]
+            ),
+        ),
+    ),
+)
+
+
+@FUZZ
+@given(text=SCHEDULER_TEXTS, suffix=st.sampled_from([".json", ".txt"]))
+def test_random_scheduler_files(documents, tmp_path_factory, text, suffix):
+    from unittest import mock
+
+    pytest.importorskip("distributed")
+    from nlpcal import cluster
+
+    log, _ = documents
+    folder = tmp_path_factory.mktemp("scheduler")
+    scheduler = folder / f"scheduler{suffix}"
+    scheduler.write_text(text)
+    output = folder / "p.json"
+    output.write_text("previous")
+    with mock.patch.object(cluster, "CONNECT_TIMEOUT_S", 2):
+        status, _, _ = run(["calibrate", log, "--scheduler", scheduler, "-o", output])
+    assert status == 2 and output.read_text() == "previous"
