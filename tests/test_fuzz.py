@@ -18,6 +18,7 @@ import io
 import json
 import math
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -512,8 +513,6 @@ def _offset_line(fmt: str) -> str:
 
 
 def _with_first_offset(text: str, fmt: str, value: str) -> str:
-    import re
-
     match = re.search(_offset_line(fmt), text)
     assert match, (fmt, text)
     return text[: match.start(1)] + value + text[match.end(1) :]
@@ -984,8 +983,6 @@ def fuzz_folder(tmp_path_factory) -> tuple:
 @given(data=st.data())
 def test_random_exports_and_imports(documents, exported, tmp_path_factory, data):
     """export with random options, and import of random or mutated files of every format."""
-    import re
-
     log, made = documents
     folder = tmp_path_factory.mktemp("formats")
     fmt = data.draw(st.sampled_from(FORMATS))
@@ -1120,8 +1117,9 @@ def test_random_logs_through_patterns_parquet_report_batch_and_losses(
     for path in written:
         if status:
             assert path.read_text() == "previous"
-        elif path.suffix == ".html":
-            assert "NaN" not in path.read_text() and "inf " not in path.read_text()
+        elif path.suffix == ".html":  # no non-finite number in its text (figures aside)
+            text = re.sub(r"base64,[A-Za-z0-9+/=]+", "", path.read_text())
+            assert not re.search(r"\b(nan|inf|infinity)\b", text, re.IGNORECASE)
         else:
             readable(path)
     if status == 0 and "--json" in argv:
