@@ -77,3 +77,26 @@ def band_directions(n, rng, tilt_deg):
     phi = rng.uniform(0, 2 * np.pi, n)
     lift = np.radians(rng.uniform(-tilt_deg, tilt_deg, n))
     return np.column_stack([np.cos(lift) * np.cos(phi), np.cos(lift) * np.sin(phi), np.sin(lift)])
+
+
+def tilt_directions(n, rng, max_tilt_deg=20.0, inclination_deg=60.0):
+    """Field directions in the sensor frame of a sensor turned to any heading but rolled and
+    pitched by at most `max_tilt_deg` (uniform), in a field `inclination_deg` below the horizon
+    (north, east, down): a vehicle, or a device carried upright. The world field is turned into
+    the sensor frame by the heading about z, then the pitch about y, then the roll about x."""
+    heading = rng.uniform(0, 2 * np.pi, n)
+    roll, pitch = np.radians(rng.uniform(-max_tilt_deg, max_tilt_deg, (2, n)))
+    dip = np.radians(inclination_deg)
+    north, down = np.cos(dip), np.sin(dip)
+    v = (np.cos(heading) * north, -np.sin(heading) * north, np.full(n, down))  # heading
+    v = (
+        np.cos(pitch) * v[0] - np.sin(pitch) * v[2],
+        v[1],
+        np.sin(pitch) * v[0] + np.cos(pitch) * v[2],
+    )
+    v = (
+        v[0],
+        np.cos(roll) * v[1] + np.sin(roll) * v[2],
+        -np.sin(roll) * v[1] + np.cos(roll) * v[2],
+    )
+    return np.column_stack(v)

@@ -18,6 +18,7 @@ DOCUMENTED = [
     "log",
     "status",
     "exit_status",
+    "model",
     *[f"{name}{tail}" for name in PARAMETER_NAMES for tail in ("", "_se")],
     "std_measured",
     "std_corrected",

@@ -475,7 +475,7 @@ def test_ipopt_starts_from_the_newton_step_of_the_start(block, monkeypatch):
     samples, _ = make_log(n=2000, noise=1.0, seed=3)
     moments = accumulate(samples, None)
     start = steps.block_step(moments, "joint", np.zeros(9)).theta
-    free = list(steps.BLOCKS[block])
+    free = list(nlpcal.nlp.blocks.BLOCKS[block])
     start[free] += (
         0.45 * np.array([1.0, -1.0, 0.5]) * steps.variable_scale(moments.frame.radius)[free]
     )

@@ -109,8 +109,11 @@ def test_every_problem_is_built_once_and_does_not_grow_with_the_log():
     def run_every_feature(n, seed):
         samples, _ = make_log(n=n, noise=1.0, seed=seed)
         for method in ("staged", "joint"):
-            nlpcal.calibrate(samples, method=method, cycles=5)
-            nlpcal.calibrate(samples, method=method, cycles=5, reference_field=PAPER_FIELD)
+            for model in ("full", "diagonal", "offset"):
+                nlpcal.calibrate(samples, method=method, cycles=5, model=model)
+                nlpcal.calibrate(
+                    samples, method=method, cycles=5, model=model, reference_field=PAPER_FIELD
+                )
         probe = nlpcal.orthogonality.synthetic_rotation((0.07, 0.04, 0.1), n=n, seed=seed)
         nlpcal.invert(probe)
         nlpcal.invert(probe, field_nT=55_000.0)

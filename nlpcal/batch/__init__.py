@@ -37,7 +37,7 @@ from .. import cluster
 from ..calibration import CalibrationResult
 from ..correction import load_parameters
 from ..errors import InputError
-from ..io import write_csv_atomic
+from ..io import Outputs
 from ..io.files import COMPRESSED_SUFFIXES
 from ..io.sources import distinct_files, is_parquet, log_paths
 from ..io.strict import finite_table
@@ -69,14 +69,16 @@ __all__ = [
 SUMMARY = "summary.csv"
 PARAMS_SUFFIX = ".params.json"
 CORRECTED_TAG = ".corrected"
-#: Columns of the summary of `calibrate_many`: the nine parameters each followed by its standard
-#: error (_se, empty when the data leave a direction free), the std of |B| measured and
-#: corrected (the first and last Table 1 rows) and the fraction of the 26 direction bins the
-#: corrected field visits.
+#: Columns of the summary of `calibrate_many`: the model that ran (full, diagonal or offset), the
+#: nine parameters each followed by its standard error (_se, empty when the data leave a
+#: direction free; both empty for a parameter the model does not estimate), the std of |B|
+#: measured and corrected (the first and last Table 1 rows) and the fraction of the 26 direction
+#: bins the corrected field visits.
 CALIBRATION_COLUMNS = (
     "log",
     "status",
     "exit_status",
+    "model",
     *[f"{name}{tail}" for name in PARAMETER_NAMES for tail in ("", "_se")],
     "std_measured",
     "std_corrected",
@@ -222,8 +224,9 @@ def _run(
         raise
     finally:
         report.rows = [rows[str(job[0])] for job in jobs if str(job[0]) in rows]
-        write_csv_atomic(report.summary, finite_table(report.table(), "the summary", missing=True))
-        ledger.save()
+        with Outputs() as outputs:  # the summary and the record of the outputs, together
+            outputs.csv(report.summary, finite_table(report.table(), "the summary", missing=True))
+            outputs.json(ledger.path, ledger.document())
     return report
 
 

@@ -23,7 +23,6 @@ from ..errors import InputError, QualityError, SolveError, WriteError
 from ..io import read_log, read_table, write_bytes_atomic, write_table
 from ..io.sources import is_parquet, write_parquet
 from ..io.strict import finite_table
-from ..models.zhou2010 import PARAMETER_NAMES
 from ..statistics import field_statistics
 
 #: Status of a log -> the exit status of the single command.
@@ -60,8 +59,8 @@ def status_row(row: dict, status: str, message: str = "") -> dict:
 def calibration_row(result: CalibrationResult) -> dict:
     """The summary columns a calibration result fills."""
     errors = result.standard_errors or {}
-    row: dict = {}
-    for name in PARAMETER_NAMES:
+    row: dict = {"model": result.model_name}
+    for name in result.estimated_parameters:  # those the model fixes stay empty
         row[name] = result.parameters[name]
         row[f"{name}_se"] = errors.get(name)
     coverage = result.identifiability.get("coverage", {})

@@ -12,9 +12,7 @@ from __future__ import annotations
 
 import io
 import re
-import sys
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -387,10 +385,6 @@ def table_text(frame: pd.DataFrame, layout: Layout) -> str:
 
 
 def write_table(frame: pd.DataFrame, layout: Layout, output=None) -> None:
-    """`table_text` to `output` (written atomically) or to stdout; the numbers nlpcal computed
-    finite (`nlpcal.io.strict`)."""
-    text = table_text(finite_table(frame), layout)
-    if output:
-        write_text_atomic(Path(output), text)
-    else:
-        sys.stdout.write(text)
+    """`table_text` to `output` or to stdout (`nlpcal.io.files.Outputs`); the numbers nlpcal
+    computed finite (`nlpcal.io.strict`)."""
+    write_text_atomic(output, table_text(finite_table(frame), layout))

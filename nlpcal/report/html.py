@@ -96,7 +96,9 @@ def _parameters(result: CalibrationResult) -> str:
             [
                 f"{SYMBOLS[name]} <code>{name}</code>",
                 _number(result.parameters[name], 10),
-                _number(errors.get(name), 3),
+                _number(errors.get(name), 3)
+                if name not in result.fixed_parameters
+                else f"fixed ({_e(result.model_name)} model)",
                 _e(result.unit if unit == "field" else unit),
                 meaning,
             ]
@@ -126,11 +128,12 @@ def _correlations(result: CalibrationResult) -> str:
         if result.gauge
         else ""
     )
-    head = "".join(f"<th>{SYMBOLS[n]}</th>" for n in PARAMETER_NAMES)
+    names = result.estimated_parameters  # the covariance's (the model may fix some)
+    head = "".join(f"<th>{SYMBOLS[n]}</th>" for n in names)
     body = ""
-    for i, name in enumerate(PARAMETER_NAMES):
+    for i, name in enumerate(names):
         cells = ""
-        for j in range(len(PARAMETER_NAMES)):
+        for j in range(len(names)):
             text, colour = cell(float(matrix[i, j]))
             cells += f'<td class="num" style="background:{colour}">{text}</td>'
         body += f"<tr><th>{SYMBOLS[name]}</th>{cells}</tr>"

@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import InputError
-from ..io.files import read_json, write_csv_atomic, write_json_atomic
+from ..io.files import Outputs, read_json
 from ..io.strict import finite_table, strict
 from ..models import liu2022
 from ..models.liu2022 import TemperatureModel, modulus_line
@@ -167,16 +167,7 @@ def write_replica(
     f_sweep = f0 + _smooth_noise(attitudes, rng, 50, 8.0)
     sweep = log(rot @ world, t_sweep, f_sweep, 2.0)
 
-    written = []
-    for name, frame in (
-        ("base.csv", base),
-        ("drift.csv", drift),
-        ("field.csv", field_log),
-        ("sweep.csv", sweep),
-    ):
-        path = out_dir / name
-        write_csv_atomic(path, finite_table(frame))
-        written.append(path)
+    logs = {"base.csv": base, "drift.csv": drift, "field.csv": field_log, "sweep.csv": sweep}
     truth = {
         "description": "replica of Liu et al. (2022): nine parameters at t0 (Eq. 4 of Zhou et al."
         " 2010) and the temperature factor k(t) of Eq. 9",
@@ -199,10 +190,11 @@ def write_replica(
             f"degC",
         },
     }
-    path = out_dir / "truth.json"
-    write_json_atomic(path, strict(truth))
-    written.append(path)
-    return written
+    with Outputs() as outputs:  # the five files appear together, or none of them
+        for name, frame in logs.items():
+            outputs.csv(out_dir / name, finite_table(frame))
+        outputs.json(out_dir / "truth.json", strict(truth))
+    return [out_dir / name for name in [*logs, "truth.json"]]
 
 
 def replica_truth(path) -> tuple:

@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import InputError
-from ..io.files import write_csv_atomic, write_json_atomic
+from ..io.files import Outputs
 from ..io.strict import finite_table, strict
 from ..models import qiu2017 as model
 
@@ -133,7 +133,7 @@ def replica(*, seed: int = 0, noise: float | None = None, n: int | None = None) 
 def write_replica(
     out_dir, *, seed: int = 0, noise: float | None = None, n: int | None = None
 ) -> list:
-    """Write turns.csv, test.csv and truth.json of `replica` into out_dir (atomically).
+    """Write turns.csv, test.csv and truth.json of `replica` into out_dir (together: `Outputs`).
 
     Returns the paths written. Suggested use:
     nlpcal compass calibrate DIR/turns.csv --mag-columns mx_nT my_nT mz_nT --acc-columns ax_g
@@ -142,7 +142,8 @@ def write_replica(
     out_dir = Path(out_dir)
     data = replica(seed=seed, noise=noise, n=n)
     paths = [out_dir / "turns.csv", out_dir / "test.csv", out_dir / "truth.json"]
-    write_csv_atomic(paths[0], finite_table(data["turns"]))
-    write_csv_atomic(paths[1], finite_table(data["test"]))
-    write_json_atomic(paths[2], strict(data["truth"]))
+    with Outputs() as outputs:  # the three files appear together, or none of them
+        outputs.csv(paths[0], finite_table(data["turns"]))
+        outputs.csv(paths[1], finite_table(data["test"]))
+        outputs.json(paths[2], strict(data["truth"]))
     return paths
