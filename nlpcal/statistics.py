@@ -227,38 +227,74 @@ def field_statistics(
 @dataclass(frozen=True)
 class ObjectivesBlock:
     """The work of one pass that evaluates the exact objective under several corrections: the
-    `MagnitudeStats` of |B1| for each (offset, matrix, shift) of `corrections`."""
+    `MagnitudeStats` of |B1| for each (offset, matrix, shift) of `corrections`, and with a robust
+    `loss` the sums of rho, psi and psi' of the residuals (about `centre` without a reference)."""
 
     corrections: tuple
     chunk_rows: int = 16384
+    loss: Any = None
+    centre: float | None = None
 
     def __call__(self, samples, reference) -> list:
         samples = np.asarray(samples, dtype=float)
-        stats = [MagnitudeStats(shift) for _, _, shift in self.corrections]
+        stats = [(MagnitudeStats(shift), np.zeros(3)) for _, _, shift in self.corrections]
         for start in range(0, samples.shape[0], self.chunk_rows):
             stop = min(start + self.chunk_rows, samples.shape[0])
             chunk, ref = samples[start:stop], reference_chunk(reference, start, stop)
-            for (offset, matrix, _), total in zip(self.corrections, stats):
-                total.add(corrected_magnitude(chunk, offset, matrix), ref)
+            for (offset, matrix, _), (total, sums) in zip(self.corrections, stats):
+                magnitude = corrected_magnitude(chunk, offset, matrix)
+                total.add(magnitude, ref)
+                if self.loss is not None:
+                    r = magnitude - (ref if ref is not None else self.centre)
+                    loss = self.loss
+                    sums += (loss.rho(r).sum(), (loss.weight(r) * r).sum(), loss.slope(r).sum())
         return stats
 
 
 def _merge_each(first: list, second: list) -> list:
-    return [a.merge(b) for a, b in zip(first, second)]
+    return [(a.merge(b), x + y) for (a, x), (b, y) in zip(first, second)]
 
 
-def exact_objectives(samples, thetas, reference=None, chunk_rows: int = 16384) -> np.ndarray:
+def exact_objectives(
+    samples, thetas, reference=None, chunk_rows: int = 16384, loss=None, centre=None
+) -> np.ndarray:
     """The exact objective (Eq. 8, or its reference variant) at each parameter vector of
-    `thetas`, in one pass over the samples (one task per block on a Dask log). [field^2]"""
+    `thetas`, in one pass over the samples (one task per block on a Dask log). [field^2]
+
+    loss, centre : with a robust `nlpcal.robust.Loss` (its scale set), the objective is
+        (2/N) sum rho(r_i) of the residuals r_i = |B1_i| - F_i, which is the mean square for
+        least squares; without a reference r_i = |B1_i| - c, with c one Newton step from `centre`
+        towards the c that minimises it: (2/N) (sum rho - (sum psi)^2 / (2 sum psi')), which for
+        least squares is the variance of |B1| (Eq. 8) exactly.
+    """
     samples = as_rows(samples)
     corrections = tuple(shifted_correction(samples, theta) for theta in thetas)
-    work = ObjectivesBlock(corrections, chunk_rows)
+    robust = loss is not None and loss.robust
+    work = ObjectivesBlock(corrections, chunk_rows, loss if robust else None, centre)
     totals = reduce(samples, reference, work, _merge_each, chunk_rows)
-    return np.array([total.result()["objective"] for total in totals])
+    if not robust:
+        return np.array([total.result()["objective"] for total, _ in totals])
+    values = []
+    for total, (rho, psi, slope) in totals:
+        profiled = 0.0 if reference is not None or not slope > 0 else psi * psi / (2.0 * slope)
+        values.append(2.0 * (rho - profiled) / total.n)
+    return np.array(values)
 
 
-def format_table(rows, unit: str = "nT", extra=()) -> str:
-    """Rows in the layout of Table 1 of [1], as text for a terminal."""
+def shown_rows(count: int, most: int | None) -> list:
+    """Which of `count` rows a summary of at most `most` rows shows (all when `most` is None):
+    the first three, the last two and, between them, a few evenly spaced."""
+    if most is None or count <= most:
+        return list(range(count))
+    head, tail = 3, 2
+    between = np.linspace(head, count - tail - 1, max(most - head - tail, 0) + 2)[1:-1]
+    chosen = {*range(head), *np.round(between).astype(int).tolist(), *range(count - tail, count)}
+    return sorted(chosen)
+
+
+def format_table(rows, unit: str = "nT", extra=(), most: int | None = None) -> str:
+    """Rows in the layout of Table 1 of [1], as text for a terminal; with `most`, at most about
+    that many of them (`shown_rows`), a line saying how many rows each gap leaves out."""
     columns = ["max", "min", "mean", "std", "range", *extra]
     width = max([len("row")] + [len(str(r["label"])) for r in rows])
     header = f"{'row':<{width}}  " + "  ".join(f"{c:>12}" for c in columns)
@@ -272,7 +308,12 @@ def format_table(rows, unit: str = "nT", extra=()) -> str:
     # gauss or uT), so that a spread of 0.003 G does not print as 0.00.
     scale = max([abs(float(r[c])) for r in rows for c in STAT_KEYS if r.get(c)] or [1.0])
     decimals = 2 if scale >= 100 else min(8, 4 - int(np.floor(np.log10(scale))))
-    for row in rows:
+    shown = shown_rows(len(rows), most)
+    for k, index in enumerate(shown):
+        row = rows[index]
+        gap = index - (shown[k - 1] if k else -1) - 1
+        if gap:
+            lines.append(f"{'...':<{width}}  ({gap} row{'s' if gap > 1 else ''} not shown)")
         cells = []
         for c in columns:
             value = row.get(c)

@@ -24,6 +24,10 @@ Statuses and the exit status `nlpcal calibrate` or `nlpcal apply` would have giv
     ok 0, quality-failed 1 (the result fails a quality check; nothing written), solve-failed 1,
     bad-input 2 (the log or the options are unusable), error 1 (an output could not be written,
     the worker died, or a defect of nlpcal)
+
+The summary of `calibrate_many` gives each log's verdict (`nlpcal.verdict`) beside its status: the
+result's own ("ok", "warnings", "poorly_determined") when the status is ok, at least "warnings"
+when the log was read with warnings, and "failed" for every other status.
 """
 
 from __future__ import annotations
@@ -77,6 +81,7 @@ CORRECTED_TAG = ".corrected"
 CALIBRATION_COLUMNS = (
     "log",
     "status",
+    "verdict",
     "exit_status",
     "model",
     *[f"{name}{tail}" for name in PARAMETER_NAMES for tail in ("", "_se")],

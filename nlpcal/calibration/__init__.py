@@ -23,6 +23,7 @@ from .coverage import coverage_centre, direction_coverage
 from .diagnostics import (
     explain_failure,
     joint_gap,
+    notes_for,
     problem_flatness,
     residual_spread,
     scaled_hessian,
@@ -284,6 +285,7 @@ def estimate(
             "success": True,
             "iterations": sum(s["iterations"] for s in stages),
             "stop_reason": stop_reason,
+            "converged": unconverged is None,
             "stages": stages,
         },
         unit=base,
@@ -291,6 +293,7 @@ def estimate(
         covariance=covariance,
         identifiability=identifiability,
         warnings=warnings,
+        notes=notes_for(problem),
         n_samples=int(samples.shape[0]),
         input={"log_unit": base},
         robust=robust,

@@ -25,6 +25,7 @@ from ..models.zhou2010 import (
 )
 from ..results import Document, DocumentReader
 from ..statistics import STD_DDOF, format_table
+from ..verdict import Verdict, judge
 from ..version import __version__
 
 #: Plausible ranges of the parameters read from a document: scale errors keep every gain within
@@ -136,6 +137,9 @@ class CalibrationResult(Document):
     model_name : the form of Eq. 4 estimated (`nlpcal.models.zhou2010.MODELS`), "model" in the
         document: the parameters it does not estimate are fixed at zero (`fixed_parameters`).
     model_selection : how model "auto" chose it (the reason, the richer forms rejected), or None.
+    warnings : what looks wrong with the data or the result, each a sentence.
+    notes : what the user should know about how the problem was posed (the gauge without a
+        reference field), each a sentence: not warnings.
     """
 
     FORMAT = "nlpcal-calibration"
@@ -160,6 +164,7 @@ class CalibrationResult(Document):
     covariance: np.ndarray | None = None
     identifiability: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
+    notes: list = field(default_factory=list)
     n_samples: int = 0
     version: str = __version__
     input: dict = field(default_factory=dict)
@@ -203,8 +208,32 @@ class CalibrationResult(Document):
         """(9, 9) correlation matrix of the parameters, or None without a covariance. [1]"""
         return inference.correlation(self.covariance)
 
-    def table(self) -> str:
-        return format_table(self.statistics, self.unit, extra=("iterations",))
+    def table(self, most: int | None = None) -> str:
+        """Table 1 rows as text; with `most`, the first, a few and the last of them."""
+        return format_table(self.statistics, self.unit, extra=("iterations",), most=most)
+
+    @property
+    def verdict(self) -> Verdict:
+        """The result's verdict (`nlpcal.verdict`): failed when the solve did not converge or
+        the data do not determine some parameters (a result written with an allow flag),
+        poorly determined when some standard errors exceed their limits, else ok or warnings."""
+        block = self.identifiability or {}
+        failures = []
+        if self.solver.get("success") is False:
+            failures.append(f"the solver failed ({self.solver.get('status')})")
+        elif self.solver.get("converged") is False:
+            failures.append(
+                f"not converged: the {self.method} solve stopped on "
+                f"{self.solver.get('stop_reason')}, away from the optimum"
+            )
+        if block.get("not_identifiable"):
+            failures.append(f"the data do not determine {', '.join(block['not_identifiable'])}")
+        poor = block.get("poorly_determined") or []
+        return judge(
+            failures,
+            [f"{', '.join(poor)}: standard errors above their limits"] if poor else [],
+            self.warnings,
+        )
 
     def body(self) -> dict:
         document = {
@@ -221,6 +250,7 @@ class CalibrationResult(Document):
             "standard_errors": self.standard_errors,
             "identifiability": dict(self.identifiability),
             "warnings": list(self.warnings),
+            "notes": list(self.notes),
             "n_samples": self.n_samples,
             "nlpcal_version": self.version,
         }
@@ -273,6 +303,7 @@ class CalibrationResult(Document):
             "covariance": read_covariance(reader, estimated),
             "identifiability": reader.mapping("identifiability", {}),
             "warnings": reader.strings("warnings", []),
+            "notes": reader.strings("notes", []),
             "n_samples": reader.integer("n_samples", 0),
             "version": reader.string("nlpcal_version", "unknown"),
             "input": reader.provenance(

@@ -57,6 +57,8 @@ MODEL_CHOICES = ("full", "diagonal", "offset", "auto")
 #: Defaults of the staged cycle (the library's `nlpcal.calibration.CYCLES_DEFAULT`, ...).
 CYCLES_DEFAULT = 500
 RTOL_DEFAULT = 1e-9
+#: Table 1 rows printed without -v: the measured row, the first cycles, a few, the last two.
+SUMMARY_ROWS = 10
 
 
 def register(sub):
@@ -285,7 +287,8 @@ def _run_calibrate(args) -> int:
     except QualityError as failure:
         progress("")
         if failure.result is not None:
-            say(failure.result.table())
+            say_verdict(failure.result)
+            say(failure.result.table(most=table_rows()))
         flags = [OVERRIDE_FLAGS[name] for name in failure.overrides if name in OVERRIDE_FLAGS]
         if not flags:
             raise
@@ -296,11 +299,12 @@ def _run_calibrate(args) -> int:
             result=failure.result,
         ) from None
     progress("")
+    say_verdict(result)
     warn(
         f"read {log.n} rows in {read_s:.2f} s (pandas {log.engine} engine); calibrated in "
         f"{time.perf_counter() - started:.2f} s"
     )
-    say(result.table())
+    say(result.table(most=table_rows()))
     robust = getattr(result, "robust", {})
     if robust.get("loss", "l2") != "l2":
         warn(
@@ -312,6 +316,8 @@ def _run_calibrate(args) -> int:
         warn(f"model auto chose full: {selection['reason']}")
     for message in result.warnings:
         warning(message)
+    for message in result.notes:
+        warn(f"note: {message}")
     corrected = None
     if args.plot and temperature:
         corrected = _apply_temperature(result, log, args.temperature_column)
@@ -320,6 +326,19 @@ def _run_calibrate(args) -> int:
         write_plot(outputs, args, log, result, corrected)
     tell_written(args.output, args.plot)
     return 0
+
+
+def say_verdict(result) -> None:
+    """The verdict of a result (`nlpcal.verdict`) in one line, before the rest of the summary."""
+    warn(f"verdict: {result.verdict.line()}")
+
+
+def table_rows() -> int | None:
+    """How many Table 1 rows the terminal shows: all with -v, else the first, a few and the
+    last (SUMMARY_ROWS)."""
+    from . import common
+
+    return None if common.VERBOSITY >= 1 else SUMMARY_ROWS
 
 
 def calibration_options(args) -> dict:

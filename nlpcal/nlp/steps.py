@@ -150,15 +150,19 @@ class _Newton:
     def taken(self) -> _Newton:
         """Where the step lands: x + step with f there (the Hessian and decrease are still the
         ones at x), or this point itself where the step is no finishing one (longer than
-        FINISHING_STEP: a jump along a direction the data hardly determine) or f does not
-        decrease (rounding, or a Hessian that is not positive). From within the resolution the
-        step lands on the optimum to the square of its length in standard errors."""
+        FINISHING_STEP: a jump along a direction the data hardly determine) or f rises (by more
+        than the step promised to lower it, or than PRECISION_FLOOR L^2: rounding). From within
+        the resolution the step lands on the optimum to the square of its length in standard
+        errors. A step that promises less than the rounding of f (which is 1e-10 of f on a 1 nT
+        log in 50 000 nT) is taken whichever way the last bits of f fall, so that the BLAS
+        kernel that summed the moments does not decide between two answers."""
         if not np.max(np.abs(self.step)) <= FINISHING_STEP or not np.any(self.step):
             return self
         x = self.x + self.step
         theta = _theta(self.moments, self.free, self.theta_ref, x)
         (f_value,) = evaluate(value_function, self.moments, theta)
-        return replace(self, x=x, f=f_value) if f_value <= self.f else self
+        rounding = min(self.decrease, PRECISION_FLOOR * self.moments.length**2)
+        return replace(self, x=x, f=f_value) if f_value <= self.f + rounding else self
 
     def finished(self) -> _Newton:
         """Newton steps from here until one is within the resolution, which is taken: every
