@@ -342,7 +342,7 @@ COMMANDS = {
     "compass evaluate": (
         [
             *("compass", "evaluate", "{d}/att.csv", "--truth-columns"),
-            *("roll_deg", "pitch_deg", "heading_deg", "-o", "{out}"),
+            *("true_roll_deg", "true_pitch_deg", "true_heading_deg", "-o", "{out}"),
         ],
         "json",
     ),

@@ -22,6 +22,7 @@ from ..drift.fit import DriftFit
 from ..errors import InputError, QualityError, SolveError, WriteError
 from ..io import read_log, read_table, write_bytes_atomic, write_table
 from ..io.sources import is_parquet, write_parquet
+from ..io.strict import finite_table
 from ..statistics import field_statistics
 from ..verdict import worst
 
@@ -150,7 +151,7 @@ class ApplyTask:
                 row["outliers"] = int(flags.sum())
             frame = log.written_back(corrected, TOTAL_COLUMN, extra)
             if is_parquet(log_path):
-                write_bytes_atomic(output, write_parquet(frame))
+                write_bytes_atomic(output, write_parquet(finite_table(frame)))
             else:  # in the layout of the log, as `nlpcal apply` writes it
                 write_table(frame, log.layout, output)
             row.update(

@@ -32,6 +32,10 @@ from ..version import __version__
 #: (0.1, 10); angles within +-89 deg; offsets within 1e9 of the field unit (1 T in nT). [1], [deg]
 SCALE_RANGE = (-0.9, 9.0)
 OFFSET_LIMIT = 1e9
+#: Largest total field a document may name: that of the offsets (1 T in nT). [field unit]
+FIELD_LIMIT = OFFSET_LIMIT
+#: The kinds of reference a calibration has: none (Eq. 8), a constant field or a series.
+REFERENCE_MODES = ("none", "constant", "series")
 
 
 def read_parameters(reader: DocumentReader, key: str = "parameters") -> Zhou2010Parameters:
@@ -51,6 +55,18 @@ def read_parameters(reader: DocumentReader, key: str = "parameters") -> Zhou2010
             for name, (low, high) in limits.items()
         }
     )
+
+
+def read_reference(reader: DocumentReader) -> dict:
+    """The "reference" block: its mode, and the field (or the mean of a series) as a positive
+    number within the plausible range of a field (FIELD_LIMIT). [result unit]"""
+    block = reader.reader("reference", None)
+    if block is None:
+        return {"mode": "none"}
+    block.string("mode", "none", options=REFERENCE_MODES)
+    for name in ("field", "field_mean"):
+        block.number(name, None, positive=True, maximum=FIELD_LIMIT)
+    return dict(block.document)
 
 
 def read_robust(reader: DocumentReader) -> dict:
@@ -264,7 +280,7 @@ class CalibrationResult(Document):
         """The constructor arguments stored in a document (shared with the temperature kind)."""
         errors = reader.reader("standard_errors") if reader.has("standard_errors") else None
         model_name = reader.string("model", "full", options=list(MODELS))
-        reference = reader.mapping("reference", {"mode": "none"})
+        reference = read_reference(reader)
         scale_known = reference.get("mode", "none") != "none"
         estimated = estimated_parameters(model_name, scale_known)
         parameters = read_parameters(reader).to_dict()

@@ -258,7 +258,7 @@ def _run_calibrate(args) -> int:
         )
     warn_ignored(args, joint=args.method == "joint" or bool(temperature))
     started = time.perf_counter()
-    extra = [args.temperature_column] if args.temperature_column else []
+    extra = {"--temperature-column": args.temperature_column} if args.temperature_column else {}
     progress(f"reading {args.log} ...")
     log = _read_for_calibration(args, extra)
     progress("")

@@ -112,7 +112,11 @@ def run_fit(args) -> int:
     from ..io import check_output_path, read_log
 
     check_output_path(args.output, args.log)
-    log = read_log(args.log, **log_options(args), extra_columns=[args.temperature_column])
+    log = read_log(
+        args.log,
+        **log_options(args),
+        extra_columns={"--temperature-column": args.temperature_column},
+    )
     report_log(log)
     fit = fit_drift_log(
         log, args.temperature_column, base_temperature=args.base_temperature, diurnal=args.diurnal

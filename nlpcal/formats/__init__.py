@@ -9,7 +9,8 @@ route (`nlpcal.models.zhou2010.from_correction`) that `apply` and `stats` use li
 
 from __future__ import annotations
 
-from ..calibration.result import CalibrationResult
+from .. import units, validation
+from ..calibration.result import FIELD_LIMIT, CalibrationResult
 from ..errors import InputError
 from ..io.files import existing_file, sha256_file
 from . import ardupilot, c_header, matlab, matrix, px4
@@ -57,6 +58,10 @@ def export(
         autopilot formats (default `nlpcal.formats.autopilot.MAX_ROTATION_DEG`). [deg]
     """
     _check(fmt, unit, instance)
+    if max_rotation_deg is not None:
+        max_rotation_deg = validation.number(
+            max_rotation_deg, "--max-rotation-deg", minimum=0.0, maximum=180.0, unit="[deg]"
+        )
     if not isinstance(result, CalibrationResult):
         result = result.calibration  # a temperature calibration: the nine parameters at t0
     correction = AffineCorrection.from_result(result, unit)
@@ -87,6 +92,8 @@ def import_file(
     instance : the compass instance (ardupilot 1-3, default 1) or slot (px4 0-3, default 0).
     """
     _check(fmt, unit, instance)
+    if field is not None:
+        field = validation.number(field, "--reference-field", positive=True)
     path = existing_file(path, f"a {fmt} file")
     try:
         text = path.read_text()
@@ -98,9 +105,15 @@ def import_file(
         correction = module.read(text, str(path), instance=chosen)
     else:
         correction = module.read(text, str(path), unit=unit)
+    correction.checked(str(path))
     notes = []
     scaled = None
     if field is not None:
+        validation.number(
+            units.to_base(field, correction.unit),
+            f"--reference-field in {units.base_unit(correction.unit)}",
+            maximum=FIELD_LIMIT,
+        )
         if correction.field is not None:
             correction, scaled = correction.rescaled(field)
             notes.append(
@@ -116,6 +129,8 @@ def import_file(
         sha256=sha256_file(path),
         field_scale=scaled,
     )
+    # Read back as a parameters file is: the plausible ranges of its values are checked there.
+    result = CalibrationResult.from_dict(result.to_dict(), f"{path} (as nine parameters)")
     angle = result.input["rotation_not_carried"]["angle_deg"]
     if angle > ROTATION_NOTE_DEG:
         notes.append(

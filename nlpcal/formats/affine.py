@@ -107,6 +107,20 @@ class AffineCorrection(Document):
             source={"nlpcal_version": __version__, **_provenance(result)},
         )
 
+    def checked(self, source: str) -> AffineCorrection:
+        """This correction read from `source`, refused (InputError naming the file and the
+        value) unless A is a finite invertible 3 x 3 matrix, b three finite numbers and the
+        field, when given, a positive finite number; the plausible ranges of the nine
+        parameters are those of a parameters file (`CalibrationResult`), applied on import."""
+        units.field_factor(self.unit)
+        validation.matrix(self.matrix, f"{source}: A", invertible=True)
+        offsets = np.asarray(self.offsets, dtype=float)
+        if offsets.shape != (3,) or not np.isfinite(offsets).all():
+            raise InputError(f"{source}: b must be three finite numbers, got {offsets.tolist()}")
+        if self.field is not None:
+            validation.number(self.field, f"{source}: the expected field", positive=True)
+        return self
+
     def in_unit(self, unit: str) -> AffineCorrection:
         """The same correction with b and the field in `unit` (A is dimensionless)."""
         units.check_compatible(self.unit, unit, f"unit {unit!r}")
@@ -151,6 +165,11 @@ class AffineCorrection(Document):
             params, rotation = from_correction(matrix, units.to_base(self.offsets, self.unit))
         except ValueError as exc:
             raise InputError(str(exc)) from None
+        if not all(np.isfinite(list(params.to_dict().values()))):
+            raise InputError(
+                "the correction matrix A is too far from a calibration (its gains overflow); "
+                "check the file's values and --reference-field"
+            )
         base = units.base_unit(self.unit)
         angle = rotation_angle_deg(rotation)
         reference: dict = {"mode": "none"}

@@ -282,7 +282,7 @@ def read_lazy_log(
     except ImportError:
         raise InputError("a log on a Dask cluster needs dask: pip install 'nlpcal[dask]'") from None
     notes: list = []
-    files = log_files(source, header)
+    files = log_files(source, header, notes=notes)
     first = files[0]
     chosen = first.field_columns(columns, notes)
     unit, how = sensor_unit(chosen, unit, fallback_unit, notes)

@@ -14,6 +14,7 @@ looks wrong in `Log.warnings`.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -269,7 +270,8 @@ def read_log(
     notes: list = []
     model_columns = reference_model.numeric_columns() if reference_model else []
     time_column = reference_model.time_column if reference_model else None
-    extra = [c for c in dict.fromkeys([reference_column, *model_columns, *extra_columns]) if c]
+    roles = column_roles(reference_column, reference_model, extra_columns)
+    extra = list(dict.fromkeys(column for role, column in roles if role != TIME_ROLE))
     requested = list(extra)
     if low_memory and (model_columns or time_column):
         raise InputError(
@@ -286,6 +288,8 @@ def read_log(
             path, columns, extra, header=header, drop_invalid=drop_invalid, scale=scale
         )
         chosen, extra = mapped.columns[:3], mapped.columns[3:]
+        named = dict(zip(requested, extra))
+        distinct_roles(chosen, [(role, named[column]) for role, column in roles])
         unit, how = decided["unit"], decided["how"]
         notes.extend(mapped.notes)
         values, frame, kept, dropped = mapped.values, None, None, mapped.dropped
@@ -293,6 +297,7 @@ def read_log(
         samples = values[:, :3]
     else:
         table = path if isinstance(path, Table) else read_table(path, header=header, text=text)
+        notes.extend(table.notes)
         chosen = resolve_columns(
             table.frame,
             columns,
@@ -300,8 +305,8 @@ def read_log(
             decimal=table.layout.decimal,
             notes=notes,
         )
+        distinct_roles(chosen, [(role, column_name(table.frame, c)) for role, c in roles])
         extra = [column_name(table.frame, c) for c in extra]
-        _check_distinct(chosen, extra)
         checked, times_at = None, []
         if time_column:  # times enter the row checks as Unix seconds
             time_name = column_name(table.frame, time_column)
@@ -313,7 +318,8 @@ def read_log(
         unit, how = sensor_unit(chosen, unit, fallback_unit, notes)
         frame, engine, layout, source = table.frame, table.engine, table.layout, table.source
         samples = values[:, :3] * units.field_factor(unit)
-    _check_distinct(chosen, extra)
+    if samples.shape[0]:
+        validation.sample_sizes(samples)
     check = unit_check(samples, unit, how)
     warnings = [check] if check else []
     resolved = dict(zip(requested, extra))  # the names asked for -> the log's own names
@@ -372,14 +378,42 @@ def unit_check(
     return units.unit_warning(in_unit, unit, how, sensor=sensor, flag=flag, raw_allowed=raw_allowed)
 
 
-def _check_distinct(field_columns, extra_columns) -> None:
-    for name in extra_columns:
-        if name in field_columns:
+#: The role of the column of times, read apart from the numeric columns.
+TIME_ROLE = "--time-column"
+
+
+def column_roles(reference_column=None, reference_model=None, extra_columns=()) -> list:
+    """(role, column) of every column a log is read with besides the field columns: the
+    reference, the position and time columns of a geomagnetic model, and `extra_columns` (a
+    mapping of role to column, say {"--temperature-column": "temp_c"}, or a list)."""
+    if not isinstance(extra_columns, Mapping):
+        extra_columns = {f"extra column {k + 1}": c for k, c in enumerate(extra_columns)}
+    roles = [("--reference-column", reference_column)]
+    if reference_model is not None:
+        roles += [
+            ("--lat-column", reference_model.lat_column),
+            ("--lon-column", reference_model.lon_column),
+            ("--alt-column", reference_model.alt_column),
+            (TIME_ROLE, reference_model.time_column),
+        ]
+    roles += list(extra_columns.items())
+    return [(role, column) for role, column in roles if column is not None]
+
+
+def distinct_roles(field_columns, roles) -> None:
+    """One column, one role: InputError naming the column and both roles when the three field
+    columns and `roles`, pairs of (role, the column's name in the log), name a column twice."""
+    seen: dict = {}
+    for role, name in [
+        *zip(("field column x", "field column y", "field column z"), field_columns),
+        *roles,
+    ]:
+        if name in seen and seen[name] != role:
             raise InputError(
-                f"column {name!r} is one of the field columns "
-                f"({', '.join(field_columns)}); pass the temperature or reference "
-                f"column, or --columns X Y Z"
+                f"column {name!r} is given as both {seen[name]} and {role}; one column cannot be "
+                f"two things: pass another column for one of them"
             )
+        seen.setdefault(name, role)
 
 
 def read_columns(path, columns, *, header: bool | None = None) -> np.ndarray:
@@ -388,3 +422,17 @@ def read_columns(path, columns, *, header: bool | None = None) -> np.ndarray:
     table = path if isinstance(path, Table) else read_table(path, header=header)
     names = [column_name(table.frame, c) for c in columns]
     return np.column_stack([numbers(table.frame[name], table.layout.decimal) for name in names])
+
+
+def read_role_columns(path, groups: Mapping, *, header: bool | None = None) -> list:
+    """`read_columns` of each group of columns in `groups` (a mapping of option to columns, say
+    {"--truth-columns": [...], "--estimate-columns": [...]}), one array each, refusing a column
+    given in two places (`distinct_roles`)."""
+    table = path if isinstance(path, Table) else read_table(path, header=header)
+    roles = [
+        (f"{option} {k + 1}", column_name(table.frame, column))
+        for option, columns in groups.items()
+        for k, column in enumerate(columns)
+    ]
+    distinct_roles((), roles)
+    return [read_columns(table, columns) for columns in groups.values()]
