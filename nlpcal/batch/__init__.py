@@ -70,8 +70,8 @@ PARAMS_SUFFIX = ".params.json"
 CORRECTED_TAG = ".corrected"
 #: Columns of the summary of `calibrate_many`: the nine parameters each followed by its standard
 #: error (_se, empty when the data leave a direction free), the std of |B| measured and
-#: corrected (the first and last Table 1 rows) and the fraction of the 26 direction bins the
-#: corrected field visits.
+#: corrected (the first and last Table 1 rows), the fraction of the 26 direction bins the
+#: corrected field visits, and the unit with where it came from (`nlpcal.units.UNIT_SOURCES`).
 CALIBRATION_COLUMNS = (
     "log",
     "status",
@@ -83,6 +83,7 @@ CALIBRATION_COLUMNS = (
     "warnings",
     "message",
     "unit",
+    "unit_source",
     "n_samples",
     "output",
     "action",

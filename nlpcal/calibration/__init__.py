@@ -14,7 +14,7 @@ import numpy as np
 from .. import chunks, passes, units, validation
 from ..errors import QualityError, SolveError
 from ..io.lazy import field_samples
-from ..io.logs import Log
+from ..io.logs import Log, settle_unit
 from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
 from ..moments import accumulate
 from ..nlp.blocks import GAUGE, OPTIONS
@@ -52,7 +52,7 @@ def calibrate(
     *,
     method: str = "staged",
     reference_field=None,
-    unit: str = "nT",
+    unit: str | None = None,
     reference_unit: str | None = None,
     cycles: int = CYCLES_DEFAULT,
     target_std: float | None = None,
@@ -74,7 +74,10 @@ def calibrate(
     reference_field : None (Eq. 8, absolute scale not identifiable), a number F, or an array of
         N values F_i (for example a proton magnetometer sampled with the log). [reference_unit]
     unit : the unit of the samples: nT, uT, mT, mG, G, T, or raw for counts. The result is in nT
-        (or raw), whatever the unit of the samples.
+        (or raw), whatever the unit of the samples, and records the unit as given
+        (`unit_source` "option"). None assumes nT ("assumed"): when the magnitudes are far from
+        Earth's field in nT, the samples are taken as raw counts and the result is in raw, with
+        the warning (`nlpcal.io.logs.settle_unit`).
     reference_unit : the unit of the reference (default: `unit`).
     cycles : the most staged cycles. target_std, target_range : stop the cycle when |B1| meets
         them [unit]. rtol : stop when a cycle lowers the objective by less than this fraction.
@@ -99,6 +102,9 @@ def calibrate(
     """
     with chunks.call_threads(threads):
         validation.choice(method, "method", METHODS)
+        unit_source = "assumed" if unit is None else "option"
+        unit = "nT" if unit is None else unit
+        units.field_factor(unit)
         cycles = validation.count(cycles, "cycles")
         target_std = validation.optional_number(target_std, "target_std", positive=True)
         target_range = validation.optional_number(target_range, "target_range", positive=True)
@@ -115,6 +121,11 @@ def calibrate(
         samples = validation.samples(samples)
         reference = validation.reference(reference_field, samples.shape[0])
         samples = units.to_base(samples, unit)  # in base units a memory map stays mapped
+        unit_warnings = []
+        if unit_source == "assumed":
+            samples, unit, unit_warning = settle_unit(samples, unit, unit_source)
+            unit_warnings = [unit_warning] if unit_warning else []
+            units.check_compatible(unit, reference_unit or unit)
         reference = units.to_base(reference, reference_unit or unit)
         target_std, target_range = (
             units.to_base(target_std, unit),
@@ -163,7 +174,9 @@ def calibrate(
         else:
             identifiability["coverage"] = direction_coverage(samples, theta)
         base = units.base_unit(unit)
-        warnings = warnings_for(problem, theta, hs, errors, identifiability, final, base)
+        warnings = unit_warnings + warnings_for(
+            problem, theta, hs, errors, identifiability, final, base
+        )
         point_errors = errors  # the standard errors at theta, which the quality check judges
         robust = {**problem.loss.to_dict(), **spread}
         if problem.loss.robust:
@@ -224,6 +237,7 @@ def calibrate(
                 "stages": stages,
             },
             unit=units.base_unit(unit),
+            unit_source=unit_source,
             standard_errors=errors,
             covariance=covariance,
             identifiability=identifiability,
@@ -294,18 +308,32 @@ def calibrate_log(
     """`calibrate` on a log read by `nlpcal.io.read_log` (its reference included).
 
     target_std, target_range, loss_scale : in the unit of the log's field columns.
-    The result records the log (file, columns, unit) under `input`.
+    The result records the log (file, columns, unit and where the unit came from) under
+    `input`, and the reader's warnings (a unit that does not fit the magnitudes) first among its
+    own; so does the result a QualityError holds.
     """
-    result = calibrate(
-        log.samples,
-        unit=log.base_unit,
-        reference_field=log.reference,
-        target_std=units.to_base(target_std, log.unit),
-        target_range=units.to_base(target_range, log.unit),
-        loss_scale=units.to_base(loss_scale, log.unit),
-        **options,
-    )
+    try:
+        result = calibrate(
+            log.samples,
+            unit=log.base_unit,
+            reference_field=log.reference,
+            target_std=units.to_base(target_std, log.unit),
+            target_range=units.to_base(target_range, log.unit),
+            loss_scale=units.to_base(loss_scale, log.unit),
+            **options,
+        )
+    except QualityError as failure:
+        if isinstance(failure.result, CalibrationResult):
+            _record_log(failure.result, log)
+        raise
+    return _record_log(result, log)
+
+
+def _record_log(result: CalibrationResult, log: Log) -> CalibrationResult:
+    """`result` with the provenance of `log`: its metadata, its unit's source, its warnings."""
     result.input = log.metadata()
+    result.unit_source = log.unit_source
+    result.warnings = [*log.warnings, *(w for w in result.warnings if w not in log.warnings)]
     if log.reference_column:
         result.reference["column"] = log.reference_column
     if log.reference_source:

@@ -292,7 +292,8 @@ def _run_calibrate(args) -> int:
             f"{robust['downweighted']} of {log.n} samples down-weighted"
         )
     for message in result.warnings:
-        warning(message)
+        if message not in log.warnings:  # said when the log was read
+            warning(message)
     corrected = None
     if args.plot and temperature:
         corrected = _apply_temperature(result, log, args.temperature_column)

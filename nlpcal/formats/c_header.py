@@ -14,7 +14,7 @@ import numpy as np
 
 from .. import units
 from ..errors import InputError
-from .affine import MODEL, AffineCorrection, Export
+from .affine import MODEL, AffineCorrection, Export, read_unit_source
 
 _UNIT = re.compile(r"b and B1 in (\S+?)[,;]")
 _ARRAY = re.compile(r"NLPCAL_(A|B|FIELD)\b[^=]*=\s*(\{.*?\}\s*\}|\{.*?\}|[-+0-9.eE]+)", re.DOTALL)
@@ -48,7 +48,7 @@ def write(correction: AffineCorrection) -> Export:
 def read(text: str, source: str, unit: str | None = None) -> AffineCorrection:
     """NLPCAL_A, NLPCAL_B (and NLPCAL_FIELD) of a header written by `write`."""
     written = _UNIT.search(text)
-    unit = unit or (written.group(1) if written else "nT")
+    given, unit = unit, unit or (written.group(1) if written else "nT")
     units.field_factor(unit)
     code = re.sub(r"/\*.*?\*/", " ", text, flags=re.DOTALL)
     found = {name: body for name, body in _ARRAY.findall(code)}
@@ -70,5 +70,9 @@ def read(text: str, source: str, unit: str | None = None) -> AffineCorrection:
         offsets=values["B"],
         unit=unit,
         field=field,
-        source={"file": source, "format": "c-header"},
+        source={
+            "file": source,
+            "format": "c-header",
+            "unit_source": read_unit_source(given, written),
+        },
     )

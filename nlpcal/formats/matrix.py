@@ -16,7 +16,7 @@ import json
 
 from ..errors import InputError
 from ..io.files import json_text
-from .affine import AffineCorrection, Export
+from .affine import AffineCorrection, Export, read_unit_source
 
 
 def write(correction: AffineCorrection) -> Export:
@@ -30,7 +30,13 @@ def read(text: str, source: str, unit: str | None = None) -> AffineCorrection:
     except (json.JSONDecodeError, RecursionError) as exc:
         raise InputError(f"{source}: not valid JSON ({exc})") from None
     correction = AffineCorrection.from_dict(document, source)
-    correction.source = {"file": source, "format": "matrix", "written_by": correction.source}
+    stated = isinstance(document, dict) and "unit" in document
+    correction.source = {
+        "file": source,
+        "format": "matrix",
+        "written_by": correction.source,
+        "unit_source": read_unit_source(unit, stated),
+    }
     if unit and unit != correction.unit:
         if isinstance(document, dict) and "unit" in document:
             raise InputError(
