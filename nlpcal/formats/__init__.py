@@ -37,6 +37,8 @@ def _check(fmt: str, unit, instance) -> None:
         raise InputError(f"{fmt} parameters are in {fixed}; --unit applies to the other formats")
     if fmt not in AUTOPILOTS and instance is not None:
         raise InputError(f"--instance applies to ardupilot and px4, not to {fmt}")
+    if fmt in AUTOPILOTS and instance is not None:
+        FORMATS[fmt].names(instance)  # InputError for an instance the system does not have
 
 
 def export(
@@ -60,6 +62,7 @@ def export(
     if not isinstance(result, CalibrationResult):
         result = result.calibration  # a temperature calibration: the nine parameters at t0
     target = FORMATS[fmt].UNIT if fmt in AUTOPILOTS else unit or result.log_unit
+    notes = scale_notes(result, target)
     correction = AffineCorrection.from_result(result, None if fmt in AUTOPILOTS else unit)
     if fmt in AUTOPILOTS:
         module = FORMATS[fmt]
@@ -68,7 +71,7 @@ def export(
     else:
         written = FORMATS[fmt].write(correction)
         written.rotation_deg = rotation_angle_deg(correction.polar()[0])
-    written.notes[:0] = scale_notes(result, target)  # after the format's own checks of usage
+    written.notes[:0] = notes
     return written
 
 
