@@ -77,3 +77,21 @@ def band_directions(n, rng, tilt_deg):
     phi = rng.uniform(0, 2 * np.pi, n)
     lift = np.radians(rng.uniform(-tilt_deg, tilt_deg, n))
     return np.column_stack([np.cos(lift) * np.cos(phi), np.cos(lift) * np.sin(phi), np.sin(lift)])
+
+
+def tilted_directions(n, rng, max_tilt_deg=20.0, dip_deg=60.0):
+    """Field directions seen by a sensor at any heading, roll and pitch each uniform within
+    +-max_tilt_deg, in a field of `dip_deg` inclination (north-east-down world frame)."""
+    heading = rng.uniform(0, 2 * np.pi, n)
+    pitch, roll = np.radians(max_tilt_deg) * rng.uniform(-1, 1, (2, n))
+    dip = np.radians(dip_deg)
+    world = np.array([np.cos(dip), 0.0, np.sin(dip)])
+    # about z (heading), then y (pitch), then x (roll): passive rotations of the field vector
+    c, s = np.cos(heading), np.sin(heading)
+    v = np.column_stack(
+        [c * world[0] - s * world[1], s * world[0] + c * world[1], world[2] + 0 * c]
+    )
+    c, s = np.cos(pitch), np.sin(pitch)
+    v = np.column_stack([c * v[:, 0] + s * v[:, 2], v[:, 1], -s * v[:, 0] + c * v[:, 2]])
+    c, s = np.cos(roll), np.sin(roll)
+    return np.column_stack([v[:, 0], c * v[:, 1] - s * v[:, 2], s * v[:, 1] + c * v[:, 2]])

@@ -33,15 +33,15 @@ from .diagnostics import (
 from .joint import run_joint
 from .problem import Problem
 from .result import CalibrationResult
-from .staged import CYCLES_DEFAULT, StopRule, run_staged
+from .staged import CYCLES_DEFAULT, RTOL_DEFAULT, StopRule, run_staged
 
 METHODS = ("staged", "joint")
-#: Default relative improvement below which the staged cycle stops. [1]
-RTOL_DEFAULT = 1e-9
 #: A staged result further than this many standard errors from the joint optimum of the same
 #: objective is not reported as an optimum (a bias of 0.2 standard errors adds 4 % to the
 #: mean squared error). [1]
 STAGED_GAP_LIMIT = 0.2
+#: Why a staged cycle stopped without its rtol rule holding.
+UNCONVERGED = ("max_cycles", "predicted_unconverged")
 #: Least squares warns when the standard deviation of the residuals exceeds their robust one
 #: (1.4826 MAD) by this factor: Gaussian residuals give 1. [1]
 HEAVY_TAIL_RATIO = 1.5
@@ -147,6 +147,7 @@ def calibrate(
                     target_std=target_std,
                     target_range=target_range,
                     rtol=rtol,
+                    predict=not allow_unconverged,  # the user asked to run to the limit
                     every_row_exact=False,
                 )
                 theta, rows, stages, stop_reason = run_staged(problem, rule, progress)
@@ -202,22 +203,28 @@ def calibrate(
             distance = gap["max_gap_in_standard_errors"]
             checked = "objective_joint" in gap and distance is not None
             if not checked or distance > STAGED_GAP_LIMIT:
-                message = staged_message(stop_reason, cycles, gap)
+                message = staged_message(stop_reason, cycles, gap, stages[-1])
                 warnings.append(message)
                 identifiability["standard_errors_at_joint_optimum"] = errors
                 errors = covariance = None  # they describe an optimum, not this point
                 # a target stop is the user's request; a cycle that converged by its rtol rule but
                 # cannot be checked (no standard errors, no joint optimum) keeps its warning
-                if stop_reason == "max_cycles" or (stop_reason == "rtol" and checked):
+                if stop_reason in UNCONVERGED or (stop_reason == "rtol" and checked):
                     stop_reason = (
-                        stop_reason if stop_reason == "max_cycles" else "above_joint_optimum"
+                        stop_reason if stop_reason in UNCONVERGED else "above_joint_optimum"
                     )
                     unconverged = message
-            elif stop_reason == "max_cycles" and len(rows) > 2:
+            elif stop_reason in UNCONVERGED and len(rows) > 2:
+                when = (
+                    f"at the maximum of {cycles} cycles"
+                    if stop_reason == "max_cycles"
+                    else f"after {len(rows) - 1} cycles, predicting that it could not meet it "
+                    f"within {cycles}"
+                )
                 warnings.append(
-                    f"the staged cycle stopped at the maximum of {cycles} cycles before its "
-                    f"rtol rule ({rtol:g}) held; its parameters agree with the joint optimum of "
-                    f"the same data within {STAGED_GAP_LIMIT:g} standard errors"
+                    f"the staged cycle stopped {when} before its rtol rule ({rtol:g}) held; its "
+                    f"parameters agree with the joint optimum of the same data within "
+                    f"{STAGED_GAP_LIMIT:g} standard errors"
                 )
         if flat["planar"]:  # along the plane's normal no linearisation describes the data
             errors = covariance = None
@@ -266,13 +273,27 @@ def calibrate(
         return result
 
 
-def staged_message(stop_reason: str, cycles: int, gap: dict) -> str:
-    """Why a staged result is not at the optimum, with both objectives and what to do."""
-    why = (
-        f"the staged cycle stopped at its limit of {cycles} cycles"
-        if stop_reason == "max_cycles"
-        else f"the staged cycle stopped on its {stop_reason} rule"
-    )
+def staged_message(stop_reason: str, cycles: int, gap: dict, last: dict | None = None) -> str:
+    """Why a staged result is not at the optimum, with both objectives and what to do.
+
+    last : the record of the last stage (its predicted cycles when the cycle stopped early).
+    """
+    if stop_reason == "predicted_unconverged" and last is not None:
+        done = last["cycle"]
+        why = (
+            f"the staged cycle stopped after {done} cycles, predicting from its rate of "
+            f"convergence (each cycle's improvement {last['convergence_rate']:.4g} times the one "
+            f"before) that its rtol rule would need about {last['predicted_cycles']} cycles, "
+            f"more than its limit of {cycles}"
+        )
+        advice = "use --method joint, or --allow-unconverged to run to the limit"
+    else:
+        why = (
+            f"the staged cycle stopped at its limit of {cycles} cycles"
+            if stop_reason == "max_cycles"
+            else f"the staged cycle stopped on its {stop_reason} rule"
+        )
+        advice = "use --method joint, or more --cycles"
     distance = gap.get("max_gap_in_standard_errors")
     if "objective_joint" not in gap:
         return (
@@ -291,9 +312,8 @@ def staged_message(stop_reason: str, cycles: int, gap: dict) -> str:
         else f"; its parameters lie up to {distance:.3g} standard errors from that optimum"
     )
     return (
-        f"{why} with objective {gap['objective_staged']:.6g}, above the joint optimum "
-        f"{gap['objective_joint']:.6g} of the same data{where}; use --method joint, or more "
-        f"--cycles"
+        f"{why}; its objective {gap['objective_staged']:.6g} lies above the joint optimum "
+        f"{gap['objective_joint']:.6g} of the same data{where}; {advice}"
     )
 
 

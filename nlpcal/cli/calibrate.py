@@ -21,6 +21,7 @@ from __future__ import annotations
 import time
 from typing import TYPE_CHECKING
 
+from ..defaults import CYCLES_DEFAULT, RTOL_DEFAULT
 from .common import (
     LOG_HELP,
     add_command,
@@ -52,9 +53,6 @@ OVERRIDE_FLAGS = {
     "require_identifiable": "--allow-unidentifiable",
     "allow_unconverged": "--allow-unconverged",
 }
-#: Defaults of the staged cycle (the library's `nlpcal.calibration.CYCLES_DEFAULT`, ...).
-CYCLES_DEFAULT = 500
-RTOL_DEFAULT = 1e-9
 
 
 def register(sub):
