@@ -45,6 +45,8 @@ BOUND_ACTIVE_REL_TOL = 1e-3
 #: noise when the smaller one holds; offsets and scale errors left in the data raise the ratio to
 #: their size over the noise (150 for 100 nT offsets in 1 nT of noise). [1]
 UNEXPLAINED_RATIO = 3.0
+#: Residuals below this fraction of the field are rounding, not misfit, whatever their ratio. [1]
+UNEXPLAINED_FLOOR = 1e-9
 
 
 @dataclass
@@ -264,8 +266,9 @@ def _unexplained(samples, moments, reference, rms_angles: float) -> str | None:
     """
     theta = algebraic_start(moments)
     theta = joint_start(moments) if theta is None else theta
-    noise = math.sqrt(field_statistics(samples, theta, reference)["objective"])
-    if not rms_angles > UNEXPLAINED_RATIO * noise:
+    full = field_statistics(samples, theta, reference)
+    noise = math.sqrt(full["objective"])
+    if not rms_angles > UNEXPLAINED_RATIO * max(noise, UNEXPLAINED_FLOOR * full["mean"]):
         return None
     offsets, scales = theta[0:3], theta[3:6]
     spread = "scale errors" if reference is not None else "differences of the axes' scales"
