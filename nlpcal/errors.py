@@ -13,12 +13,15 @@ class SolveError(NlpcalError, RuntimeError):
     """IPOPT did not solve a problem; the command line exits with status 1.
 
     `status` holds IPOPT's return status (for example "Maximum_Iterations_Exceeded").
+    `identifiability` holds what the diagnosis of the failure found, in the keys of a
+    calibration result's identifiability block ("not_identifiable", "flatness"), or None.
     """
 
-    def __init__(self, message: str, status: str = "", result=None):
+    def __init__(self, message: str, status: str = "", result=None, identifiability=None):
         super().__init__(message)
         self.status = status
         self.result = result
+        self.identifiability = identifiability
 
 
 class QualityError(SolveError):
@@ -28,7 +31,7 @@ class QualityError(SolveError):
 
     `overrides` are the keyword arguments that would return the result anyway (for example
     {"require_identifiable": False, "allow_unconverged": True}); the message names them, and
-    `reason` is the message without them.
+    `reason` is the message without them. `identifiability` is the result's, when it has one.
     """
 
     def __init__(self, message: str, status: str = "", result=None, overrides=None):
@@ -37,7 +40,7 @@ class QualityError(SolveError):
         if self.overrides:
             given = ", ".join(f"{name}={value!r}" for name, value in self.overrides.items())
             message = f"{message} ({given} returns it anyway)"
-        super().__init__(message, status, result)
+        super().__init__(message, status, result, getattr(result, "identifiability", None))
 
 
 class WriteError(NlpcalError, OSError):

@@ -156,3 +156,15 @@ def estimate(
 def information_from_hessian(hessian, n: int) -> np.ndarray:
     """J^T J of the residuals from the Hessian H of their mean square: N H / 2."""
     return 0.5 * n * np.asarray(hessian, dtype=float)
+
+
+def rounded(value: float, error: float | None, digits: int = 6) -> tuple:
+    """(value, error) as text, rounded by the standard error: two significant digits of the
+    error and the value to the same decimal (-71.518015 +/- 0.0417 -> "-71.518", "0.042"); with
+    no usable error, the value to `digits` significant digits and the error as "-"."""
+    if error is None or not np.isfinite(error) or error <= 0:
+        return f"{value:.{digits}g}", "-"
+    decimals = 1 - int(np.floor(np.log10(error)))
+    if decimals > 0:
+        return f"{value:.{decimals}f}", f"{error:.{decimals}f}"
+    return f"{round(value, decimals):.0f}", f"{round(error, decimals):.0f}"

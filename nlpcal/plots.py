@@ -7,11 +7,14 @@ state, and returned as PNG bytes for an atomic writer.
 from __future__ import annotations
 
 import io
+import textwrap
 
 import numpy as np
 
 from .errors import InputError
+from .inference import rounded
 from .models import wang2015
+from .models.zhou2010 import PARAMETER_NAMES
 
 PLOT_HINT = "pip install 'nlpcal[plot]'"
 
@@ -261,101 +264,244 @@ def orthogonality_map_png(
 
 #: Most points drawn on the direction map (a strided subsample of longer logs).
 MAP_SAMPLES = 20000
+#: Most tick labels on an axis of the calibration figure, before `legible_ticks` thins them.
+MAX_TICKS = 7
+#: Space kept between neighbouring tick labels. [px]
+TICK_GAP_PX = 4.0
+#: Colour of the verdict in the figure's title, by status (`nlpcal.verdict.STATUSES`).
+VERDICT_COLOURS = {
+    "ok": "#1d7a2e",
+    "warnings": "#a86400",
+    "poorly_determined": "#b00020",
+    "failed": "#b00020",
+}
+#: The parameter names in the figure's title.
+SHORT_NAMES = {"alpha_deg": "alpha", "beta_deg": "beta", "gamma_deg": "gamma"}
 
 
 def calibration_png(view, *, dpi: int = 150) -> bytes:
-    """PNG of a log before and after its correction (a `nlpcal.report.CalibrationView`).
+    """PNG of `calibration_figure` (a log before and after its correction)."""
+    return _png(calibration_figure(view, dpi=dpi), dpi)
 
-    (a) |B_M| and |B1| against the sample index, with the reference F; (b) the objective and std
-    of |B1| per staged cycle (when the view has cycles); (c) and (d) histograms of |B| - F before
-    and after; (e) the direction of B1 in the sensor frame on an equal-area (Hammer) map,
-    coloured by |B1| - F, which shows the attitudes the log covers.
+
+def calibration_figure(view, *, dpi: int = 150):
+    """The figure of a log before and after its correction (a `nlpcal.report.CalibrationView`).
+
+    Title: the verdict and the nine parameters rounded by their standard errors (poorly
+    determined ones marked). (a) |B_M| and |B1| against time (the log's time column) or the sample
+    index, with the reference F when there is one; (b) the std of |B1| per staged cycle (when the
+    view has cycles), with sqrt(objective) and the objective axis when a reference makes them
+    differ; (c) and (d) histograms of |B| - F before and after (|B| - its mean without a
+    reference); (e) the direction of B1 in the sensor frame on an equal-area (Hammer) map,
+    coloured by its residual, with the 26 direction bins marked visited or missing. Tick labels
+    are thinned until none overlap (`legible_ticks`). Uses the Agg canvas, never pyplot.
     """
     require_matplotlib()
-    from matplotlib import colormaps
+    from matplotlib import colormaps, rc_context
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.colors import Normalize
     from matplotlib.figure import Figure
 
     unit, target = view.unit, view.target
-    figure = Figure(figsize=(15.0, 8.6), dpi=dpi, layout="constrained")
-    FigureCanvasAgg(figure)
-    grid = figure.add_gridspec(2, 3)
-    stride = max(1, -(-view.n // PLOT_SAMPLES))
-    index = np.arange(0, view.n, stride)
-    top = (grid[0, :2] if view.cycles else grid[0, :]).subgridspec(2, 1, hspace=0.0)
-    series = figure.add_subplot(top[0])
-    zoom = figure.add_subplot(top[1], sharex=series)
-    for axes, values, colour, label in (
-        (series, view.before, "0.45", "measured |B_M|"),
-        (zoom, view.after, "C0", "corrected |B1|"),
-    ):
-        axes.plot(index, values[::stride], lw=0.7, color=colour, label=label)
-        axes.plot(index, target[::stride], "--", lw=1.0, color="k", label=view.target_label)
-        axes.set_ylabel(f"{label.split()[-1]} [{unit}]")
-        axes.legend(loc="upper right", fontsize=8, ncol=2)
-        axes.grid(alpha=0.3)
-    series.tick_params(labelbottom=False)
-    for axes in (series, zoom):
-        axes.ticklabel_format(axis="y", useOffset=False, style="plain")
-    zoom.set_xlabel("sample index")
-    series.set_title("(a) total field before (top) and after (bottom) the correction")
+    with rc_context(STYLE):
+        figure = Figure(figsize=(15.0, 9.4), dpi=dpi, layout="constrained")
+        FigureCanvasAgg(figure)
+        grid = figure.add_gridspec(2, 3)
+        stride = max(1, -(-view.n // PLOT_SAMPLES))
+        if view.time is not None:
+            x, x_label = view.time[::stride], "time since the first sample [s]"
+        else:
+            x, x_label = np.arange(0, view.n, stride), "sample index"
+        top = (grid[0, :2] if view.cycles else grid[0, :]).subgridspec(2, 1, hspace=0.0)
+        series = figure.add_subplot(top[0])
+        zoom = figure.add_subplot(top[1], sharex=series)
+        for axes, values, colour, label in (
+            (series, view.before, "0.45", "measured |B_M|"),
+            (zoom, view.after, "C0", "corrected |B1|"),
+        ):
+            axes.plot(x, values[::stride], lw=0.7, color=colour, label=label)
+            if target is not None:
+                axes.plot(x, target[::stride], "--", lw=1.0, color="k", label=view.target_label)
+            axes.set_ylabel(f"{label.split()[-1]} [{unit}]")
+            axes.legend(loc="upper right", fontsize=8, ncol=2)
+            axes.grid(alpha=0.3)
+            axes.ticklabel_format(axis="y", useOffset=False, style="plain")
+        series.tick_params(labelbottom=False)
+        zoom.set_xlabel(x_label)
+        series.set_title("(a) total field before (top) and after (bottom) the correction")
 
-    if view.cycles:
-        cycles = figure.add_subplot(grid[0, 2])
-        number = np.arange(len(view.cycles))
-        rms = np.sqrt([row["objective"] for row in view.cycles])
-        std = np.array([row["std"] for row in view.cycles], dtype=float)
-        cycles.semilogy(number, std, "o-", color="C0", ms=4, label="std of |B1|")
-        if not np.allclose(rms, std, rtol=1e-6):
-            cycles.semilogy(number, rms, "s--", color="C3", ms=4, label="sqrt(objective)")
-        cycles.set_xlabel("staged cycle (0: measured)")
-        cycles.set_ylabel(f"std of |B1|, sqrt(objective) [{unit}]")
+        if view.cycles:
+            _cycles_panel(figure.add_subplot(grid[0, 2]), view.cycles, unit)
+
+        against = "F" if target is not None else "its mean"
+        for column, (label, magnitude, colour) in enumerate(
+            (("(c) before: |B_M|", view.before, "0.45"), ("(d) after: |B1|", view.after, "C0"))
+        ):
+            residual = view.residuals(magnitude)
+            axes = figure.add_subplot(grid[1, column])
+            axes.hist(residual, bins=60, color=colour, alpha=0.85)
+            axes.set_xlabel(f"|B| − {view.target_label} [{unit}]")
+            axes.set_ylabel("samples")
+            mean = f", mean {np.mean(residual):+.3g}" if target is not None else ""
+            axes.set_title(
+                f"{label} − {against}: std {np.std(residual):.3g}{mean} {unit}", fontsize=10
+            )
+            axes.grid(alpha=0.3)
+
+        sky = figure.add_subplot(grid[1, 2], projection="hammer")
+        residual_after = view.residuals(view.after)
+        step = max(1, -(-view.n // MAP_SAMPLES))
+        d = view.directions[::step]
+        limit = float(np.percentile(np.abs(residual_after), 99)) or 1.0
+        azimuth, elevation = _hammer(d)
+        points = sky.scatter(
+            azimuth,
+            elevation,
+            c=residual_after[::step],
+            s=4,
+            cmap=colormaps["RdBu_r"],
+            norm=Normalize(-limit, limit),
+            rasterized=True,
+        )
+        _bins_on(sky, view.bins)
+        sky.grid(alpha=0.4)
+        sky.set_xticks(np.radians([-120, -60, 0, 60, 120]))
+        sky.set_yticks(np.radians([-60, -30, 0, 30, 60]))
+        sky.tick_params(labelsize=7)
+        where = f", {view.covered} of 26 bins visited" if view.bins else ""
+        sky.set_title(f"(e) direction of B1 in the sensor frame{where}", fontsize=10)
+        sky.set_xlabel("azimuth atan2(y, x), elevation asin(z / |B1|) [deg]", fontsize=8)
+        figure.colorbar(
+            points, ax=sky, shrink=0.7, pad=0.02, label=f"|B1| − {view.target_label} [{unit}]"
+        )
+        _title(figure, view)
+        legible_ticks(figure)
+    return figure
+
+
+def _hammer(directions) -> tuple:
+    """(azimuth, elevation) of unit vectors (N, 3) for a Hammer map. [rad]"""
+    directions = np.atleast_2d(directions)
+    return (
+        np.arctan2(directions[:, 1], directions[:, 0]),
+        np.arcsin(np.clip(directions[:, 2], -1, 1)),
+    )
+
+
+def _bins_on(sky, bins) -> None:
+    """The 26 direction bins on the map: visited as open circles, missing as red crosses with
+    their names."""
+    if not bins:
+        return
+    visited = np.array([vector for _, vector, seen in bins if seen]).reshape(-1, 3)
+    missing = [(name, vector) for name, vector, seen in bins if not seen]
+    sky.plot(*_hammer(visited), "o", mfc="none", mec="k", ms=7, label="bin visited")
+    if missing:
+        where = np.array([vector for _, vector in missing])
+        sky.plot(*_hammer(where), "x", color="#b00020", ms=9, mew=2.0, label="bin missing")
+        for (name, _), lon, lat in zip(missing, *_hammer(where)):
+            sky.annotate(
+                name,
+                (lon, lat),
+                xytext=(4, 3),
+                textcoords="offset points",
+                fontsize=7,
+                color="#b00020",
+            )
+    sky.legend(loc="lower center", bbox_to_anchor=(0.5, -0.32), ncol=2, fontsize=8)
+
+
+def _cycles_panel(cycles, rows, unit: str) -> None:
+    """(b): the std of |B1| per staged cycle; sqrt(objective) and the objective axis only when a
+    reference makes the objective differ from the variance."""
+    number = np.arange(len(rows))
+    rms = np.sqrt([row["objective"] for row in rows])
+    std = np.array([row["std"] for row in rows], dtype=float)
+    cycles.semilogy(number, std, "o-", color="C0", ms=4, label="std of |B1|")
+    if not np.allclose(rms, std, rtol=1e-6):
+        cycles.semilogy(number, rms, "s--", color="C3", ms=4, label="sqrt(objective)")
         objective = cycles.secondary_yaxis("right", functions=(np.square, np.sqrt))
         objective.set_ylabel(f"objective [{unit}$^2$]")
-        cycles.set_title("(b) convergence of the staged cycle")
-        cycles.legend(loc="upper right", fontsize=8)
-        cycles.grid(alpha=0.3, which="both")
+        cycles.set_ylabel(f"std of |B1|, sqrt(objective) [{unit}]")
+    else:
+        cycles.set_ylabel(f"std of |B1| [{unit}]")
+    cycles.set_xlabel("staged cycle (0: measured)")
+    cycles.set_title("(b) convergence of the staged cycle")
+    cycles.legend(loc="upper right", fontsize=8)
+    cycles.grid(alpha=0.3, which="both")
 
-    residual_before, residual_after = view.before - target, view.after - target
-    for column, (label, residual, colour) in enumerate(
-        (("(c) before: |B_M|", residual_before, "0.45"), ("(d) after: |B1|", residual_after, "C0"))
-    ):
-        axes = figure.add_subplot(grid[1, column])
-        axes.hist(residual, bins=60, color=colour, alpha=0.85)
-        axes.set_xlabel(f"|B| − {view.target_label} [{unit}]")
-        axes.set_ylabel("samples")
-        axes.set_title(
-            f"{label} − {view.target_label}: std {np.std(residual):.3g}, "
-            f"mean {np.mean(residual):+.3g} {unit}",
-            fontsize=10,
+
+def parameter_lines(result) -> list:
+    """Two lines: the offsets, then the scale errors and angles, each rounded by its standard
+    error (`nlpcal.inference.rounded`), the poorly determined or undetermined ones marked *."""
+    errors = result.standard_errors or {}
+    block = result.identifiability or {}
+    marked = {*block.get("poorly_determined", []), *block.get("not_identifiable", [])}
+    parts = []
+    for k, name in enumerate(PARAMETER_NAMES):
+        value, error = rounded(result.parameters[name], errors.get(name))
+        tail = f" {result.unit}" if k == 2 else " deg" if k == 8 else ""
+        text = (
+            f"{SHORT_NAMES.get(name, name)} {value} ± {error}"
+            if error != "-"
+            else (f"{SHORT_NAMES.get(name, name)} {value}")
         )
-        axes.grid(alpha=0.3)
+        parts.append(text + ("*" if name in marked else "") + tail)
+    note = "   (* poorly determined)" if marked else ""
+    return [",  ".join(parts[:3]) + note, ",  ".join(parts[3:])]
 
-    sky = figure.add_subplot(grid[1, 2], projection="hammer")
-    step = max(1, -(-view.n // MAP_SAMPLES))
-    d = view.directions[::step]
-    limit = float(np.percentile(np.abs(residual_after), 99)) or 1.0
-    points = sky.scatter(
-        np.arctan2(d[:, 1], d[:, 0]),
-        np.arcsin(np.clip(d[:, 2], -1, 1)),
-        c=residual_after[::step],
-        s=4,
-        cmap=colormaps["RdBu_r"],
-        norm=Normalize(-limit, limit),
-        rasterized=True,
-    )
-    sky.grid(alpha=0.4)
-    sky.set_xticks(np.radians([-120, -60, 0, 60, 120]))
-    sky.set_yticks(np.radians([-60, -30, 0, 30, 60]))
-    sky.tick_params(labelsize=7)
-    covered = view.coverage
-    where = f", {covered['covered']} of 26 bins" if covered else ""
-    sky.set_title(f"(e) direction of B1 in the sensor frame{where}", fontsize=10)
-    sky.set_xlabel("azimuth atan2(y, x), elevation asin(z / |B1|) [deg]", fontsize=8)
-    figure.colorbar(
-        points, ax=sky, shrink=0.7, pad=0.02, label=f"|B1| − {view.target_label} [{unit}]"
-    )
+
+def _title(figure, view) -> None:
+    """The title: the verdict first, then the parameters and what the figure shows."""
+    lines = []
+    result = view.result
+    colour = "k"
+    if result is not None and getattr(result, "verdict", None) is not None:
+        verdict = result.verdict
+        lines.append(textwrap.shorten(f"verdict: {verdict.line()}", 170, placeholder=" ..."))
+        lines.extend(parameter_lines(result))
+        colour = VERDICT_COLOURS[verdict.status]
     if view.title:
-        figure.suptitle(view.title, fontsize=11)
-    return _png(figure, dpi)
+        lines.append(view.title)
+    if lines:
+        figure.suptitle("\n".join(lines), fontsize=11, color=colour)
+
+
+def _overlaps(labels, renderer, horizontal: bool) -> bool:
+    """Whether any two neighbouring tick labels (closer than TICK_GAP_PX) overlap."""
+    boxes = sorted(
+        (t.get_window_extent(renderer) for t in labels if t.get_visible() and t.get_text()),
+        key=lambda b: b.x0 if horizontal else b.y0,
+    )
+    if horizontal:
+        return any(a.x1 + TICK_GAP_PX > b.x0 for a, b in zip(boxes, boxes[1:]))
+    return any(a.y1 + TICK_GAP_PX > b.y0 for a, b in zip(boxes, boxes[1:]))
+
+
+def legible_ticks(figure, most: int = MAX_TICKS) -> None:
+    """At most `most` ticks on each linear axis of the figure, fewer until no two tick labels
+    overlap at the figure's size (MaxNLocator; the labels are measured on the drawn canvas)."""
+    from matplotlib.ticker import MaxNLocator
+
+    axes_list = [
+        a for a in figure.axes if a.name == "rectilinear" and a.get_label() != "<colorbar>"
+    ]
+    bins = {}
+    for axes in axes_list:
+        for axis in (axes.xaxis, axes.yaxis):
+            if axis.get_scale() == "linear":
+                bins[axis] = most
+                axis.set_major_locator(MaxNLocator(nbins=most, steps=[1, 2, 2.5, 5, 10]))
+    for _ in range(most):
+        figure.canvas.draw()
+        renderer = figure.canvas.get_renderer()
+        crowded = [
+            axis
+            for axis in bins
+            if bins[axis] > 2 and _overlaps(axis.get_ticklabels(), renderer, axis.axis_name == "x")
+        ]
+        if not crowded:
+            return
+        for axis in crowded:
+            bins[axis] -= 1
+            axis.set_major_locator(MaxNLocator(nbins=bins[axis], steps=[1, 2, 2.5, 5, 10]))

@@ -5,7 +5,9 @@ Every result type is a dataclass that derives from `Document` and names its kind
     FORMAT = "nlpcal-calibration"     the discriminator written as "format"
     FORMAT_VERSION = 1                written as "format_version"
 
-and implements `body()` (the document without the envelope) and `from_body(reader)`. The base
+and implements `body()` (the document without the envelope) and `from_body(reader)`; a kind
+with a notion of quality also has a `verdict` property (`nlpcal.verdict`), written right after the
+envelope as "verdict" and recomputed, never read, when the document is loaded. The base
 gives every kind the same verbs: `to_dict`, `to_json`, `save`, and `from_dict`, `from_json`,
 `load`. Reading goes through a `DocumentReader`, which checks each field's type, shape, finiteness
 and range and turns any malformed document into an `InputError` that names the file and the
@@ -25,6 +27,7 @@ import numpy as np
 from . import validation
 from .errors import InputError
 from .io.files import json_text, read_json, write_json_atomic
+from .verdict import Verdict
 from .version import __version__
 
 #: Deepest nesting accepted in a document (deeper JSON is refused before it is walked).
@@ -191,6 +194,12 @@ class Document:
     def body(self) -> dict:
         raise NotImplementedError
 
+    @property
+    def verdict(self) -> Verdict | None:
+        """What the result is worth (`nlpcal.verdict.judge` of its quality fields), or None for
+        a kind without a notion of quality."""
+        return None
+
     @classmethod
     def from_body(cls, reader: DocumentReader):
         raise NotImplementedError
@@ -198,11 +207,14 @@ class Document:
     # -- writing -----------------------------------------------------------------------------
 
     def to_dict(self) -> dict:
-        """The document: "format", "format_version", the body and "nlpcal_version"."""
+        """The document: "format", "format_version", "verdict" (kinds with one), the body and
+        "nlpcal_version"."""
         body = self.body()
+        verdict = self.verdict
         return {
             "format": self.FORMAT,
             "format_version": self.FORMAT_VERSION,
+            **({} if verdict is None else {"verdict": verdict.to_dict()}),
             **body,
             "nlpcal_version": body.get("nlpcal_version", __version__),
         }

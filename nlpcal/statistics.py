@@ -257,8 +257,20 @@ def exact_objectives(samples, thetas, reference=None, chunk_rows: int = 16384) -
     return np.array([total.result()["objective"] for total in totals])
 
 
-def format_table(rows, unit: str = "nT", extra=()) -> str:
-    """Rows in the layout of Table 1 of [1], as text for a terminal."""
+def shown_rows(count: int, most: int | None) -> list:
+    """Which of `count` rows a summary of at most `most` rows shows (all when `most` is None):
+    the first three, the last two and, between them, a few evenly spaced."""
+    if most is None or count <= most:
+        return list(range(count))
+    head, tail = 3, 2
+    between = np.linspace(head, count - tail - 1, max(most - head - tail, 0) + 2)[1:-1]
+    chosen = {*range(head), *np.round(between).astype(int).tolist(), *range(count - tail, count)}
+    return sorted(chosen)
+
+
+def format_table(rows, unit: str = "nT", extra=(), most: int | None = None) -> str:
+    """Rows in the layout of Table 1 of [1], as text for a terminal; with `most`, at most about
+    that many of them (`shown_rows`), a line saying how many rows each gap leaves out."""
     columns = ["max", "min", "mean", "std", "range", *extra]
     width = max([len("row")] + [len(str(r["label"])) for r in rows])
     header = f"{'row':<{width}}  " + "  ".join(f"{c:>12}" for c in columns)
@@ -272,7 +284,12 @@ def format_table(rows, unit: str = "nT", extra=()) -> str:
     # gauss or uT), so that a spread of 0.003 G does not print as 0.00.
     scale = max([abs(float(r[c])) for r in rows for c in STAT_KEYS if r.get(c)] or [1.0])
     decimals = 2 if scale >= 100 else min(8, 4 - int(np.floor(np.log10(scale))))
-    for row in rows:
+    shown = shown_rows(len(rows), most)
+    for k, index in enumerate(shown):
+        row = rows[index]
+        gap = index - (shown[k - 1] if k else -1) - 1
+        if gap:
+            lines.append(f"{'...':<{width}}  ({gap} row{'s' if gap > 1 else ''} not shown)")
         cells = []
         for c in columns:
             value = row.get(c)

@@ -79,19 +79,24 @@ def band_directions(n, rng, tilt_deg):
     return np.column_stack([np.cos(lift) * np.cos(phi), np.cos(lift) * np.sin(phi), np.sin(lift)])
 
 
-def tilted_directions(n, rng, max_tilt_deg=20.0, dip_deg=60.0):
-    """Field directions seen by a sensor at any heading, roll and pitch each uniform within
-    +-max_tilt_deg, in a field of `dip_deg` inclination (north-east-down world frame)."""
+def tilt_directions(n, rng, max_tilt_deg=20.0, inclination_deg=60.0):
+    """Field directions in the sensor frame of a sensor turned to any heading but rolled and
+    pitched by at most `max_tilt_deg` (uniform), in a field `inclination_deg` below the horizon
+    (north, east, down): a vehicle, or a device carried upright. The world field is turned into
+    the sensor frame by the heading about z, then the pitch about y, then the roll about x."""
     heading = rng.uniform(0, 2 * np.pi, n)
-    pitch, roll = np.radians(max_tilt_deg) * rng.uniform(-1, 1, (2, n))
-    dip = np.radians(dip_deg)
-    world = np.array([np.cos(dip), 0.0, np.sin(dip)])
-    # about z (heading), then y (pitch), then x (roll): passive rotations of the field vector
-    c, s = np.cos(heading), np.sin(heading)
-    v = np.column_stack(
-        [c * world[0] - s * world[1], s * world[0] + c * world[1], world[2] + 0 * c]
+    roll, pitch = np.radians(rng.uniform(-max_tilt_deg, max_tilt_deg, (2, n)))
+    dip = np.radians(inclination_deg)
+    north, down = np.cos(dip), np.sin(dip)
+    v = (np.cos(heading) * north, -np.sin(heading) * north, np.full(n, down))  # heading
+    v = (
+        np.cos(pitch) * v[0] - np.sin(pitch) * v[2],
+        v[1],
+        np.sin(pitch) * v[0] + np.cos(pitch) * v[2],
     )
-    c, s = np.cos(pitch), np.sin(pitch)
-    v = np.column_stack([c * v[:, 0] + s * v[:, 2], v[:, 1], -s * v[:, 0] + c * v[:, 2]])
-    c, s = np.cos(roll), np.sin(roll)
-    return np.column_stack([v[:, 0], c * v[:, 1] - s * v[:, 2], s * v[:, 1] + c * v[:, 2]])
+    v = (
+        v[0],
+        np.cos(roll) * v[1] + np.sin(roll) * v[2],
+        -np.sin(roll) * v[1] + np.cos(roll) * v[2],
+    )
+    return np.column_stack(v)

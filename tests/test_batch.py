@@ -17,7 +17,9 @@ from synthetic import PAPER_FIELD, make_log, planar_directions
 DOCUMENTED = [
     "log",
     "status",
+    "verdict",
     "exit_status",
+    "model",
     *[f"{name}{tail}" for name in PARAMETER_NAMES for tail in ("", "_se")],
     "std_measured",
     "std_corrected",
@@ -61,7 +63,7 @@ def fleet(tmp_path):
         write(folder / f"sensor_{k}.csv", make_log(n=1200, noise=1.0, seed=300 + k)[0])
     rng = np.random.default_rng(5)
     flat, _ = make_log(n=1200, noise=1.0, seed=9, directions=planar_directions(1200, rng))
-    write(folder / "sensor_flat.csv", flat)  # a turntable log: IPOPT fails
+    write(folder / "sensor_flat.csv", flat)  # a turntable log: refused
     cone, _ = make_log(n=1200, noise=1.0, seed=9, directions=cone_directions(1200, rng))
     write(folder / "sensor_cone.csv", cone)  # solved, but z_z and s_z are not determined
     (folder / "sensor_text.csv").write_text("bx,by,bz\n1,2,3\n4,five,6\n")
@@ -69,6 +71,7 @@ def fleet(tmp_path):
     return folder
 
 
+@pytest.mark.slow  # end to end, seconds
 def test_one_bad_log_never_stops_the_others(fleet, tmp_path, capsys):
     out_dir = tmp_path / "out"
     code, out, err = run(capsys, "batch", "calibrate", fleet / "*.csv", "--out-dir", out_dir)
@@ -82,9 +85,14 @@ def test_one_bad_log_never_stops_the_others(fleet, tmp_path, capsys):
         "sensor_2.csv": ("ok", 0),
         "sensor_cols.csv": ("bad-input", 2),
         "sensor_cone.csv": ("quality-failed", 1),
-        "sensor_flat.csv": ("solve-failed", 1),
         "sensor_text.csv": ("bad-input", 2),
     }
+    # The turntable log is refused either by the quality check or, when the staged cycle
+    # wandered along the blind directions first, by the failed solve (which of the two, the
+    # floating-point kernel's rounding decides); exit 1 and the plane are the same either way.
+    flat = by_log.loc["sensor_flat.csv"]
+    assert flat["status"] in ("quality-failed", "solve-failed")
+    expected["sensor_flat.csv"] = (flat["status"], 1)
     assert {log: (row.status, row.exit_status) for log, row in by_log.iterrows()} == expected
     assert list(summary["log"]) == sorted(summary["log"])  # the order of the logs
     ok = by_log.loc["sensor_0.csv"]
@@ -95,11 +103,13 @@ def test_one_bad_log_never_stops_the_others(fleet, tmp_path, capsys):
     assert ok["std_measured"] == pytest.approx(result.statistics[0]["std"], rel=1e-15)
     assert ok["std_corrected"] == pytest.approx(result.statistics[-1]["std"], rel=1e-15)
     assert ok["coverage_fraction"] == result.identifiability["coverage"]["fraction"]
-    assert "absolute scale not identifiable" in ok["warnings"] and ok["n_samples"] == 1200
+    assert ok["n_samples"] == 1200 and ok["verdict"] == result.verdict.status
     cone = by_log.loc["sensor_cone.csv"]  # parameters in the summary, but no params.json
     assert "do not determine z_z, s_z" in cone["message"] and np.isfinite(cone["z_x"])
-    flat = by_log.loc["sensor_flat.csv"]
-    assert "solver status" in flat["message"] and np.isnan(flat["z_x"])
+    assert cone["verdict"] == "failed" and flat["verdict"] == "failed"
+    assert "lie in one plane" in flat["message"]
+    if flat["status"] == "solve-failed":
+        assert "solver status" in flat["message"] and np.isnan(flat["z_x"])
     assert "five" not in by_log.loc["sensor_text.csv", "message"]
     assert "non-numeric" in by_log.loc["sensor_text.csv", "message"]
     assert sorted(p.name for p in out_dir.iterdir()) == [
@@ -109,7 +119,8 @@ def test_one_bad_log_never_stops_the_others(fleet, tmp_path, capsys):
         "sensor_2.params.json",
         "summary.csv",
     ]
-    assert "sensor_text.csv: bad-input" in err and "quality-failed 1" in err
+    refused = sum(status == "quality-failed" for status, _ in expected.values())
+    assert "sensor_text.csv: bad-input" in err and f"quality-failed {refused}" in err
 
 
 def test_a_rerun_skips_logs_whose_output_is_newer_unless_forced(fleet, tmp_path):

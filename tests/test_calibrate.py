@@ -1,6 +1,5 @@
 """nlpcal.calibrate: truth recovery, reference modes, the gauge, Table 1 rows and bad input."""
 
-import re
 from dataclasses import replace
 
 import numpy as np
@@ -13,6 +12,7 @@ from nlpcal.calibration.coverage import PLANAR_NOISE, flatness
 from nlpcal.errors import InputError, QualityError, SolveError
 from nlpcal.nlp import steps
 from nlpcal.nlp.solver import SolveOutcome
+from resolution import assert_same_optimum
 from synthetic import (
     PAPER_FIELD,
     PAPER_TRUTH,
@@ -90,12 +90,7 @@ def test_noise_free_data_are_recovered_to_solver_tolerance(
 def test_staged_equals_joint_at_convergence(noisy):
     staged = calibrate(noisy, method="staged", rtol=1e-13, cycles=200)
     joint = calibrate(noisy, method="joint")
-    for k in OFFSETS:
-        assert staged.parameters[k] == pytest.approx(joint.parameters[k], abs=1e-3)
-    for k in SCALES:
-        assert staged.parameters[k] == pytest.approx(joint.parameters[k], abs=1e-8)
-    for k in ANGLES:
-        assert staged.parameters[k] == pytest.approx(joint.parameters[k], abs=1e-6)
+    assert_same_optimum(staged.parameters, joint.parameters, joint.standard_errors)
 
 
 def test_reference_series_identifies_all_nine():
@@ -118,10 +113,11 @@ def test_gauge_without_reference(noisy):
     assert sum(result.parameters[k] for k in SCALES) == pytest.approx(0.0, abs=1e-12)
     assert result.gauge["constraint"] == "s_x + s_y + s_z = 0"
     assert result.reference == {"mode": "none"}
-    assert any("absolute scale not identifiable" in w for w in result.warnings)
+    # a note on the method, not a warning about the data
+    assert any("no reference field" in n for n in result.notes)
+    assert not any("reference field" in w for w in result.warnings)
     with_ref = calibrate(noisy, method="joint", reference_field=PAPER_FIELD)
-    assert with_ref.gauge is None
-    assert not any("absolute scale" in w for w in with_ref.warnings)
+    assert with_ref.gauge is None and with_ref.notes == []
 
 
 def test_table1_rows(noisy):
@@ -156,11 +152,11 @@ def test_stop_rules(noisy):
 
 def test_array_likes_give_the_same_answer(noisy):
     small = noisy[:400]
-    from_array = calibrate(small, method="joint").parameters
+    from_array = calibrate(small, method="joint")
     from_list = calibrate(small.tolist(), method="joint").parameters
     from_frame = calibrate(pd.DataFrame(small, columns=["bx", "by", "bz"]), method="joint")
     for other in (from_list, from_frame.parameters):  # memory layout changes summation order
-        assert other == pytest.approx(from_array, rel=1e-12, abs=1e-12)
+        assert_same_optimum(other, from_array.parameters, from_array.standard_errors)
 
 
 def test_json_round_trip(noisy, tmp_path):
@@ -189,9 +185,7 @@ def test_rotation_about_one_axis_is_reported_as_not_identifiable(method):
     try:
         result = calibrate(samples, method=method, reference_field=PAPER_FIELD)
     except SolveError as failure:
-        assert "do not determine" in str(failure)
-        reason = str(failure).split("do not determine ")[1].split("What would help")[0]
-        named = set(re.findall(r"\b(z_[xyz]|s_[xyz]|alpha_deg|beta_deg|gamma_deg)\b", reason))
+        named = set(failure.identifiability["not_identifiable"])
     else:
         named = set(result.identifiability["not_identifiable"])
         assert any("not identifiable" in w for w in result.warnings)
@@ -212,18 +206,19 @@ def test_turns_about_one_axis_never_give_a_result(method, reference, axis, half_
     samples, _ = make_log(
         n=1200, noise=noise, seed=9, directions=circle_directions(1200, rng, axis, half_angle)
     )
+    # Refused either way: after the solve (QualityError), or when a solve that wandered along
+    # the blind directions failed (SolveError; which problem fails first depends on rounding).
+    # Either refusal says the samples lie in one plane, within the noise (noise-free samples: a
+    # thickness at rounding level, on every BLAS kernel), and names the blind parameters.
     with pytest.raises((QualityError, SolveError)) as info:
         calibrate(samples, method=method, reference_field=reference)
-    assert "the samples lie in one plane" in str(info.value)
+    identifiability = info.value.identifiability
+    flat = identifiability["flatness"]
+    assert flat["planar"] and flat["within_noise"]
+    unit_axis = np.asarray(axis) / np.linalg.norm(axis)
+    assert abs(np.dot(flat["normal"], unit_axis)) == pytest.approx(1.0, abs=1e-3)  # 2.6 deg
+    assert {"z_z", "s_z"} <= set(flat["parameters"]) <= set(identifiability["not_identifiable"])
     assert "tilting it out of that plane" in str(info.value)
-    if isinstance(info.value, QualityError):
-        flat = info.value.result.identifiability["flatness"]
-        assert (
-            flat["planar"]
-            and abs(abs(np.dot(flat["normal"], axis)) - np.linalg.norm(axis))
-            < 1e-6 * np.linalg.norm(axis) + 1e-3
-        )
-        assert set(flat["parameters"]) <= set(info.value.result.identifiability["not_identifiable"])
 
 
 @pytest.mark.parametrize("tilt_deg", [1.0, 2.0])
@@ -259,6 +254,23 @@ def test_a_noisy_full_sphere_is_never_taken_for_a_plane():
     samples, _ = make_log(n=3000, noise=0.12 * PAPER_FIELD, seed=9)
     flat = flatness(samples, noise=0.12 * PAPER_FIELD)
     assert not flat["planar"] and flat["out_of_plane_std"] > 0.5 * flat["in_plane_std"]
+
+
+@pytest.mark.parametrize("rounding", [0.0, 1e-8, 1e-7])
+def test_a_plane_to_rounding_is_a_plane_whatever_noise_it_is_judged_against(rounding):
+    # Noise-free samples on one circle: their thickness is rounding (0 on one BLAS kernel, 1e-8
+    # of the extent on another), as is their noise. Rounding against rounding decides nothing:
+    # the cloud is planar, even judged against a noise level far below its thickness.
+    rng = np.random.default_rng(8)
+    samples, _ = make_log(
+        n=1200, noise=0.0, seed=9, directions=circle_directions(1200, rng, (1, 2, 2), 60)
+    )
+    normal = flatness(samples, noise=1.0)["normal"]
+    extent = flatness(samples, noise=1.0)["in_plane_std"]
+    wobble = rounding * extent * np.sqrt(2.0) * np.sin(np.arange(len(samples)))  # std: rounding
+    flat = flatness(samples + np.outer(wobble, normal), noise=1e-12, reference=True)
+    assert flat["planar"] and flat["within_noise"], flat["out_of_plane_std"] / extent
+    assert {"z_z", "s_z"} <= set(flat["parameters"])
 
 
 def test_a_narrow_band_of_tilts_is_not_taken_for_a_plane():
@@ -475,7 +487,7 @@ def test_ipopt_starts_from_the_newton_step_of_the_start(block, monkeypatch):
     samples, _ = make_log(n=2000, noise=1.0, seed=3)
     moments = accumulate(samples, None)
     start = steps.block_step(moments, "joint", np.zeros(9)).theta
-    free = list(steps.BLOCKS[block])
+    free = list(nlpcal.nlp.blocks.BLOCKS[block])
     start[free] += (
         0.45 * np.array([1.0, -1.0, 0.5]) * steps.variable_scale(moments.frame.radius)[free]
     )
@@ -642,7 +654,7 @@ def test_threads_are_checked_and_leave_blas_as_they_found_it(noisy):
             calibrate(noisy, method="joint", threads=bad)
     one = calibrate(noisy, method="joint", threads=np.int64(1))
     two = calibrate(noisy, method="joint", threads=2)
-    assert one.parameters == pytest.approx(two.parameters, rel=1e-9, abs=1e-9)
+    assert_same_optimum(one.parameters, two.parameters, two.standard_errors)  # other sums
     assert blas_threads() == before
     # Calls that overlap in threads: the last one out restores the limits.
     calls = [

@@ -275,6 +275,7 @@ def log_csv(tmp_path_factory):
 FAST = ["--cycles", "3", "--cg-max-iter", "100"]
 
 
+@pytest.mark.slow  # end to end, seconds
 def test_cli_compare_writes_json_table_and_plot(log_csv, tmp_path, capsys):
     pytest.importorskip("matplotlib")
     out, png = tmp_path / "compare.json", tmp_path / "compare.png"
@@ -289,6 +290,7 @@ def test_cli_compare_writes_json_table_and_plot(log_csv, tmp_path, capsys):
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) < 200_000
 
 
+@pytest.mark.slow  # end to end, seconds
 def test_compare_figure_is_150_dpi_and_titled_with_the_file_name(log_csv, tmp_path, monkeypatch):
     pytest.importorskip("matplotlib")
     from PIL import Image

@@ -255,8 +255,10 @@ def test_bound_active_warning_when_truth_is_outside():
     assert result.angles_deg[0] == pytest.approx(0.5, abs=1e-6)
     assert len(result.warnings) == 1 and "outside the bounds" in result.warnings[0]
     assert result.to_dict()["any_bound_active"] is True
+    assert result.to_dict()["verdict"] == {"status": "warnings", "reasons": result.warnings}
     wider = ortho.invert(data, bound_deg=[1.0, 0.5, 0.5])
     assert not any(wider.bound_active) and not wider.warnings
+    assert wider.verdict.status == "ok"
     np.testing.assert_allclose(wider.angles_deg, truth, atol=0.002)
 
 

@@ -3,12 +3,14 @@ binary files refused, units checked, rows that are not readings, and logs writte
 
 import io
 import json
+import re
 import sys
 
 import numpy as np
 import pandas as pd
 import pytest
 
+import nlpcal
 from nlpcal import units
 from nlpcal.cli import main
 from nlpcal.errors import InputError
@@ -339,6 +341,7 @@ def test_quiet_and_verbose(tmp_path, capsys):
     assert code == 2 and "not allowed with" in err
 
 
+@pytest.mark.slow  # end to end, seconds
 def test_allow_unidentifiable_writes_the_result_with_its_warning(tmp_path, capsys):
     # The field only ever within 32 deg of -z, with much noise: the offsets trade off against the
     # radius of a far-away sphere, and the staged cycle walks along that valley.
@@ -360,6 +363,11 @@ def test_allow_unidentifiable_writes_the_result_with_its_warning(tmp_path, capsy
     document = json.loads(out.read_text())
     assert {"z_x", "z_z"} <= set(document["identifiability"]["not_identifiable"])
     assert any(w.startswith("not identifiable") for w in document["warnings"])
+    # written anyway, it still says it failed, first on the terminal and in the file
+    assert document["verdict"]["status"] == "failed"
+    assert any("do not determine" in r and "z_x" in r for r in document["verdict"]["reasons"])
+    assert err.startswith("nlpcal: verdict: FAILED") or "\nnlpcal: verdict: FAILED" in err
+    assert nlpcal.CalibrationResult.load(out).verdict.status == "failed"  # recomputed on reading
 
 
 def test_poorly_determined_states_the_standard_error_and_its_limit(tmp_path):
@@ -373,6 +381,9 @@ def test_poorly_determined_states_the_standard_error_and_its_limit(tmp_path):
     assert f"{name} ± " in warning and "limit" in warning
     assert result.standard_errors[name] > limit
     assert "a steadier field" in warning and "--reference-field" in warning
+    verdict = result.verdict
+    assert verdict.status == "poorly_determined" and name in verdict.reasons[0]
+    assert verdict.line().startswith("POORLY DETERMINED: ") and warning in verdict.reasons
 
 
 def test_small_numbers_keep_their_digits_in_the_table():
@@ -384,6 +395,18 @@ def test_small_numbers_keep_their_digits_in_the_table():
     assert "0.17470" in format_table(rows, "G")
     rows[0].update(mean=49460.0, std=0.99)
     assert "       0.99" in format_table(rows, "nT")
+
+
+def test_a_long_table_shows_its_first_a_few_and_its_last_rows():
+    from nlpcal.statistics import format_table
+
+    rows = [{"label": f"cycle {k}", "mean": 1e4, "std": 1.0 / (k + 1)} for k in range(300)]
+    text = format_table(rows, "nT", most=10)
+    shown = [line.split()[1] for line in text.splitlines() if line.startswith("cycle ")]
+    assert shown[:3] == ["0", "1", "2"] and shown[-2:] == ["298", "299"] and len(shown) <= 10
+    skipped = [int(n) for n in re.findall(r"\((\d+) rows? not shown\)", text)]
+    assert sum(skipped) + len(shown) == 300
+    assert format_table(rows, "nT").count("\ncycle ") == 300  # all of them without a limit
 
 
 def test_a_bad_value_is_placed_alike_in_memory_and_in_chunks(tmp_path):

@@ -9,7 +9,7 @@ import pytest
 import nlpcal
 from nlpcal.cli import main
 from nlpcal.robust import Loss, robust_std
-from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log, sensor_output
+from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log, sensor_output, tilt_directions
 
 OFFSETS = ("z_x", "z_y", "z_z")
 
@@ -140,25 +140,7 @@ def tilted():
     staged cycle converges slowly (about two thousand cycles)."""
     rng = np.random.default_rng(1)
     n = 3000
-    heading = rng.uniform(0, 2 * np.pi, n)
-    roll, pitch = np.radians(rng.uniform(-20, 20, (2, n)))
-    inclination = np.radians(60.0)
-    world = np.array([np.cos(inclination), 0.0, np.sin(inclination)])
-    # the field in the sensor frame: heading about z, then pitch about y, then roll about x
-    b = np.empty((n, 3))
-    for i in range(n):
-        ch, sh, cp, sp, cr, sr = (
-            np.cos(heading[i]),
-            np.sin(heading[i]),
-            np.cos(pitch[i]),
-            np.sin(pitch[i]),
-            np.cos(roll[i]),
-            np.sin(roll[i]),
-        )
-        rz = np.array([[ch, sh, 0], [-sh, ch, 0], [0, 0, 1]])
-        ry = np.array([[cp, 0, -sp], [0, 1, 0], [sp, 0, cp]])
-        rx = np.array([[1, 0, 0], [0, cr, sr], [0, -sr, cr]])
-        b[i] = rx @ ry @ rz @ world
+    b = tilt_directions(n, rng, max_tilt_deg=20.0, inclination_deg=60.0)
     return sensor_output(PAPER_FIELD * b, PAPER_TRUTH) + rng.normal(size=(n, 3))
 
 
@@ -188,6 +170,7 @@ def test_a_target_stop_is_the_users_but_reports_no_standard_errors(tilted):
     assert any("above the joint optimum" in w for w in result.warnings)
 
 
+@pytest.mark.slow  # end to end, seconds
 def test_cli_staged_unconverged_exits_1_unless_allowed(tilted, tmp_path, capsys):
     path = tmp_path / "tilted.csv"
     pd.DataFrame(tilted, columns=["bx", "by", "bz"]).to_csv(path, index=False)
@@ -198,3 +181,4 @@ def test_cli_staged_unconverged_exits_1_unless_allowed(tilted, tmp_path, capsys)
     assert main(["calibrate", str(path), "--allow-unconverged", "-o", str(out)]) == 0
     doc = json.loads(out.read_text())
     assert doc["standard_errors"] is None and doc["solver"]["stop_reason"] == "max_cycles"
+    assert doc["solver"]["converged"] is False and doc["verdict"]["status"] == "failed"

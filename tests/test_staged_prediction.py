@@ -10,14 +10,14 @@ from nlpcal.calibration.staged import cycles_to_converge
 from nlpcal.cli import main
 from nlpcal.errors import QualityError
 from nlpcal.simulation import simulate
-from synthetic import make_log, tilted_directions
+from synthetic import make_log, tilt_directions
 
 
 @pytest.fixture(scope="module")
 def tilted():
     """2000 samples, 5 nT of noise, heading free, roll and pitch within +-20 deg."""
     rng = np.random.default_rng(4)
-    return make_log(n=2000, noise=5.0, seed=4, directions=tilted_directions(2000, rng))[0]
+    return make_log(n=2000, noise=5.0, seed=4, directions=tilt_directions(2000, rng))[0]
 
 
 def test_the_prediction_of_a_geometric_sequence_is_exact():

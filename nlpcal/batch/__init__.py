@@ -24,6 +24,10 @@ Statuses and the exit status `nlpcal calibrate` or `nlpcal apply` would have giv
     ok 0, quality-failed 1 (the result fails a quality check; nothing written), solve-failed 1,
     bad-input 2 (the log or the options are unusable), error 1 (an output could not be written,
     the worker died, or a defect of nlpcal)
+
+The summary of `calibrate_many` gives each log's verdict (`nlpcal.verdict`) beside its status: the
+result's own ("ok", "warnings", "poorly_determined") when the status is ok, at least "warnings"
+when the log was read with warnings, and "failed" for every other status.
 """
 
 from __future__ import annotations
@@ -37,7 +41,7 @@ from .. import cluster
 from ..calibration import CalibrationResult
 from ..correction import load_parameters
 from ..errors import InputError
-from ..io import write_csv_atomic
+from ..io import Outputs
 from ..io.files import COMPRESSED_SUFFIXES
 from ..io.sources import is_parquet, log_paths
 from ..models.zhou2010 import PARAMETER_NAMES
@@ -68,14 +72,18 @@ __all__ = [
 SUMMARY = "summary.csv"
 PARAMS_SUFFIX = ".params.json"
 CORRECTED_TAG = ".corrected"
-#: Columns of the summary of `calibrate_many`: the nine parameters each followed by its standard
-#: error (_se, empty when the data leave a direction free), the std of |B| measured and
-#: corrected (the first and last Table 1 rows), the fraction of the 26 direction bins the
-#: corrected field visits, and the unit with where it came from (`nlpcal.units.UNIT_SOURCES`).
+#: Columns of the summary of `calibrate_many`: the model that ran (full, diagonal or offset), the
+#: nine parameters each followed by its standard error (_se, empty when the data leave a
+#: direction free; both empty for a parameter the model does not estimate), the std of |B|
+#: measured and corrected (the first and last Table 1 rows), the fraction of the 26 direction
+#: bins the corrected field visits, and the unit with where it came from
+#: (`nlpcal.units.UNIT_SOURCES`).
 CALIBRATION_COLUMNS = (
     "log",
     "status",
+    "verdict",
     "exit_status",
+    "model",
     *[f"{name}{tail}" for name in PARAMETER_NAMES for tail in ("", "_se")],
     "std_measured",
     "std_corrected",
@@ -218,8 +226,9 @@ def _run(jobs, task, reused, ledger: Ledger, keys: dict, columns, scheduler, wor
         raise
     finally:
         report.rows = [rows[str(job[0])] for job in jobs if str(job[0]) in rows]
-        write_csv_atomic(report.summary, report.table())
-        ledger.save()
+        with Outputs() as outputs:  # the summary and the record of the outputs, together
+            outputs.csv(report.summary, report.table())
+            outputs.json(ledger.path, ledger.document())
     return report
 
 

@@ -19,12 +19,14 @@ entry, and is made again.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 from pathlib import Path
 
 from ..errors import InputError
 from ..io import read_json, write_json_atomic
+from ..io.files import passes_through
 
 FILE = "batch.json"
 FORMAT = "nlpcal-batch"
@@ -84,13 +86,18 @@ class Ledger:
         self.save()
 
     def failed(self, output: Path) -> None:
-        """Forget an output whose log failed now, and remove the file an earlier run left."""
+        """Forget an output whose log failed now, and remove the file an earlier run left (a
+        character device or a FIFO in its place holds nothing and stays, as does a folder)."""
         self.outputs.pop(Path(output).name, None)
-        Path(output).unlink(missing_ok=True)
+        with contextlib.suppress(FileNotFoundError, InputError):
+            if not passes_through(output):
+                Path(output).unlink()
+
+    def document(self) -> dict:
+        return {"format": FORMAT, "format_version": FORMAT_VERSION, "outputs": self.outputs}
 
     def save(self) -> None:
-        document = {"format": FORMAT, "format_version": FORMAT_VERSION, "outputs": self.outputs}
-        write_json_atomic(self.path, document)
+        write_json_atomic(self.path, self.document())
 
 
 def _outputs(document) -> dict:

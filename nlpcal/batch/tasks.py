@@ -22,8 +22,8 @@ from ..drift.fit import DriftFit
 from ..errors import InputError, QualityError, SolveError, WriteError
 from ..io import read_log, read_table, write_bytes_atomic, write_table
 from ..io.sources import is_parquet, write_parquet
-from ..models.zhou2010 import PARAMETER_NAMES
 from ..statistics import field_statistics
+from ..verdict import worst
 
 #: Status of a log -> the exit status of the single command.
 STATUSES = {"ok": 0, "quality-failed": 1, "solve-failed": 1, "bad-input": 2, "error": 1}
@@ -52,19 +52,26 @@ def failure(exc: BaseException) -> tuple:
 
 
 def status_row(row: dict, status: str, message: str = "") -> dict:
+    """The row with its status and exit status; a calibration's verdict (`nlpcal.verdict`) is
+    "failed" unless the status is "ok", and at least "warnings" with warnings in the row."""
     row.update(status=status, exit_status=STATUSES[status], message=message)
+    if status != "ok":
+        row["verdict"] = "failed"
+    elif "verdict" in row:  # a calibration's: warnings from reading the log count too
+        row["verdict"] = worst(row["verdict"], "warnings" if row.get("warnings") else "ok")
     return row
 
 
 def calibration_row(result: CalibrationResult) -> dict:
     """The summary columns a calibration result fills."""
     errors = result.standard_errors or {}
-    row: dict = {}
-    for name in PARAMETER_NAMES:
+    row: dict = {"model": result.model_name}
+    for name in result.estimated_parameters:  # those the model fixes stay empty
         row[name] = result.parameters[name]
         row[f"{name}_se"] = errors.get(name)
     coverage = result.identifiability.get("coverage", {})
     row.update(
+        verdict=result.verdict.status,
         std_measured=result.statistics[0]["std"] if result.statistics else None,
         std_corrected=result.statistics[-1]["std"] if result.statistics else None,
         coverage_fraction=coverage.get("fraction"),

@@ -23,6 +23,7 @@ from .coverage import coverage_centre, direction_coverage
 from .diagnostics import (
     explain_failure,
     joint_gap,
+    notes_for,
     problem_flatness,
     residual_spread,
     scaled_hessian,
@@ -33,6 +34,7 @@ from .diagnostics import (
 from .joint import run_joint
 from .problem import Problem
 from .result import CalibrationResult
+from .selection import MODEL_CHOICES, choose_model, selection_warning
 from .staged import CYCLES_DEFAULT, RTOL_DEFAULT, StopRule, run_staged
 
 METHODS = ("staged", "joint")
@@ -51,6 +53,7 @@ def calibrate(
     samples,
     *,
     method: str = "staged",
+    model: str = "full",
     reference_field=None,
     unit: str | None = None,
     reference_unit: str | None = None,
@@ -71,6 +74,11 @@ def calibrate(
     samples : (N, 3) array-like of raw sensor output B_M. [unit]
     method : "staged", the cycle of Fig. 1 in [1] (orthogonal -> scale -> offset), or "joint",
         all nine in one IPOPT problem.
+    model : the form of Eq. 4 estimated: "full" (the nine, the paper's), "diagonal" (offsets
+        and scales, no angles), "offset" (offsets; with a reference also one common scale), or
+        "auto": the richest of them the attitudes determine (`selection.choose_model`), with
+        the reason under `model_selection`. The parameters a form does not estimate are fixed
+        at zero and listed under `fixed_parameters`.
     reference_field : None (Eq. 8, absolute scale not identifiable), a number F, or an array of
         N values F_i (for example a proton magnetometer sampled with the log). [reference_unit]
     unit : the unit of the samples: nT, uT, mT, mG, G, T, or raw for counts. The result is in nT
@@ -102,6 +110,7 @@ def calibrate(
     """
     with chunks.call_threads(threads):
         validation.choice(method, "method", METHODS)
+        validation.choice(model, "model", MODEL_CHOICES)
         unit_source = "assumed" if unit is None else "option"
         unit = "nT" if unit is None else unit
         units.field_factor(unit)
@@ -133,144 +142,206 @@ def calibrate(
         )
         validation.reference_scale(reference, validation.mean_magnitude(samples))
         moments = accumulate(samples, reference)
-        problem = Problem(
-            samples=samples,
-            reference=reference,
-            moments=moments,
-            loss=chosen_loss,
-            ipopt=replace(OPTIONS, print_level=5) if verbose else OPTIONS,
+
+        def problem_for(form: str) -> Problem:
+            return Problem(
+                samples=samples,
+                reference=reference,
+                moments=moments,
+                loss=chosen_loss,
+                ipopt=replace(OPTIONS, print_level=5) if verbose else OPTIONS,
+                model=form,
+            )
+
+        rule = StopRule(
+            max_cycles=cycles,
+            target_std=target_std,
+            target_range=target_range,
+            rtol=rtol,
+            predict=not allow_unconverged,  # the user asked to run to the limit
+            every_row_exact=False,
         )
-        try:
-            if method == "staged":
-                rule = StopRule(
-                    max_cycles=cycles,
-                    target_std=target_std,
-                    target_range=target_range,
-                    rtol=rtol,
-                    predict=not allow_unconverged,  # the user asked to run to the limit
-                    every_row_exact=False,
-                )
-                theta, rows, stages, stop_reason = run_staged(problem, rule, progress)
-                hs = scaled_hessian(problem.moments, theta)
-            else:
-                step, rows, stages = run_joint(problem)
-                theta, stop_reason = step.theta, "solved"
-                hs = scaled_hessian(problem.moments, theta, step)
-        except SolveError as failure:
-            raise explain_failure(problem, failure, method, units.base_unit(unit)) from None
-        final = rows[-1]
-        errors, identifiability, covariance = uncertainty(
-            problem, final["objective"], hs, final["residual_lag1_autocorrelation"], theta
-        )
-        spread = residual_spread(problem, theta)
-        flat = problem_flatness(problem, theta, spread)
-        identifiability["flatness"] = flat
-        if flat["planar"]:  # the Hessian at a degenerate optimum can look healthy
-            blind = set(flat["parameters"]) | set(identifiability["not_identifiable"])
-            identifiability["not_identifiable"] = [n for n in PARAMETER_NAMES if n in blind]
-        if identifiability["not_identifiable"]:  # theta is not to be trusted: judge the directions
-            centred = np.zeros(9)  # about the fitted sphere's centre, or the samples' mean when the
-            centred[0:3] = coverage_centre(samples, problem.moments.frame)  # sphere is degenerate
-            identifiability["coverage"] = direction_coverage(samples, centred)
-        else:
-            identifiability["coverage"] = direction_coverage(samples, theta)
         base = units.base_unit(unit)
-        warnings = unit_warnings + warnings_for(
-            problem, theta, hs, errors, identifiability, final, base
-        )
-        point_errors = errors  # the standard errors at theta, which the quality check judges
-        robust = {**problem.loss.to_dict(), **spread}
-        if problem.loss.robust:
-            robust.update(
-                scale_source="given"
-                if problem.scale_given
-                else f"1.4826 MAD x {TUNING[problem.loss.kind]:g}",
-                reweightings=problem.reweights,
-                downweighted=final["downweighted"],
-                downweighted_fraction=final["downweighted"] / len(samples),
-                centre=problem.centre,
+        selection = None
+        if model == "auto":  # each form judged on its joint solve, the staged cycle's optimum
+            model, selection = choose_model(
+                lambda form: estimate(problem_for(form), "joint", rule, base, quality=False)
             )
-        elif spread["residual_std"] > HEAVY_TAIL_RATIO * spread["residual_robust_std"]:
-            warnings.append(
-                f"the residuals are heavy-tailed (std {spread['residual_std']:.3g}, robust std "
-                f"{spread['residual_robust_std']:.3g}): spikes or disturbances may pull the least-"
-                f"squares estimate; a robust loss (--loss huber) down-weights them"
+        try:
+            result = estimate(
+                problem_for(model),
+                method,
+                rule,
+                base,
+                progress=progress,
+                require_identifiable=require_identifiable,
+                allow_unconverged=allow_unconverged,
             )
-        unconverged = None
-        if method == "staged":
-            gap = joint_gap(problem, theta, errors)
-            identifiability["joint_gap"] = gap
-            distance = gap["max_gap_in_standard_errors"]
-            checked = "objective_joint" in gap and distance is not None
-            if not checked or distance > STAGED_GAP_LIMIT:
-                message = staged_message(stop_reason, cycles, gap, stages[-1])
-                warnings.append(message)
-                identifiability["standard_errors_at_joint_optimum"] = errors
-                errors = covariance = None  # they describe an optimum, not this point
-                # a target stop is the user's request; a cycle that converged by its rtol rule but
-                # cannot be checked (no standard errors, no joint optimum) keeps its warning
-                if stop_reason in UNCONVERGED or (stop_reason == "rtol" and checked):
-                    stop_reason = (
-                        stop_reason if stop_reason in UNCONVERGED else "above_joint_optimum"
-                    )
-                    unconverged = message
-            elif stop_reason in UNCONVERGED and len(rows) > 2:
-                when = (
-                    f"at the maximum of {cycles} cycles"
-                    if stop_reason == "max_cycles"
-                    else f"after {len(rows) - 1} cycles, predicting that it could not meet it "
-                    f"within {cycles}"
-                )
-                warnings.append(
-                    f"the staged cycle stopped {when} before its rtol rule ({rtol:g}) held; its "
-                    f"parameters agree with the joint optimum of the same data within "
-                    f"{STAGED_GAP_LIMIT:g} standard errors"
-                )
-        if flat["planar"]:  # along the plane's normal no linearisation describes the data
-            errors = covariance = None
-        mode = problem.moments.reference
-        result = CalibrationResult(
-            parameters=Zhou2010Parameters.from_theta(theta).to_dict(),
-            statistics=rows,
-            method=method,
-            reference=problem.reference_document(),
-            gauge=dict(GAUGE) if mode == "none" else None,
-            solver={
-                "name": "ipopt",
-                "status": stages[-1]["status"],
-                "success": True,
-                "iterations": sum(s["iterations"] for s in stages),
-                "stop_reason": stop_reason,
-                "stages": stages,
-            },
-            unit=units.base_unit(unit),
-            unit_source=unit_source,
-            standard_errors=errors,
-            covariance=covariance,
-            identifiability=identifiability,
-            warnings=warnings,
-            n_samples=int(samples.shape[0]),
-            input={"log_unit": unit},
-            robust=robust,
-        )
-        unconverged = None if allow_unconverged else unconverged
-        overrides = {"allow_unconverged": True} if unconverged else {}
-        if require_identifiable and identifiability["not_identifiable"]:
-            also = f" Besides, {unconverged[0].lower()}{unconverged[1:]}." if unconverged else ""
-            raise QualityError(
-                undetermined_message(
-                    point_errors, identifiability, final, problem.moments.reference, base
-                )
-                + also,
-                "Not_Identifiable",
-                result=result,
-                overrides={"require_identifiable": False, **overrides},
-            )
-        if unconverged:
-            raise QualityError(
-                unconverged, "Staged_Unconverged", result=result, overrides=overrides
-            )
+        except SolveError as failure:  # a QualityError holds the result: it records the choice
+            if isinstance(failure.result, CalibrationResult):
+                record_unit(failure.result, unit_source, unit_warnings)
+                if selection is not None:
+                    record_selection(failure.result, selection)
+            raise
+        record_unit(result, unit_source, unit_warnings)
+        if selection is not None:
+            record_selection(result, selection)
         return result
+
+
+def record_unit(result: CalibrationResult, source: str, warnings: list) -> None:
+    """Record where a result's unit came from, and the warnings about it first."""
+    result.unit_source = source
+    result.warnings[:0] = warnings
+
+
+def record_selection(result: CalibrationResult, selection: dict) -> None:
+    """Record how model "auto" chose a result's model; a restricted choice is its first warning
+    (the correction assumes the parameters it fixes)."""
+    result.model_selection = selection
+    if selection["chosen"] != "full":
+        result.warnings.insert(0, selection_warning(selection))
+
+
+def estimate(
+    problem: Problem,
+    method: str,
+    rule: StopRule,
+    base: str,
+    *,
+    progress=None,
+    quality: bool = True,
+    require_identifiable: bool = True,
+    allow_unconverged: bool = False,
+) -> CalibrationResult:
+    """Solve one calibration problem by `method`, judge what the data determine and build its
+    result (`calibrate`): the model's parameters, Table 1 rows, standard errors, identifiability
+    and warnings.
+
+    base : the unit of the result (nT or raw). quality : raise QualityError as `calibrate` does
+    (False returns every result that solved, as with require_identifiable=False and
+    allow_unconverged=True). Raises SolveError when the solve fails.
+    """
+    try:
+        if method == "staged":
+            theta, rows, stages, stop_reason = run_staged(problem, rule, progress)
+            hs = scaled_hessian(problem.moments, theta)
+        else:
+            step, rows, stages = run_joint(problem)
+            theta, stop_reason = step.theta, "solved"
+            hs = scaled_hessian(problem.moments, theta, step)
+    except SolveError as failure:
+        raise explain_failure(problem, failure, method, base) from None
+    samples = problem.samples
+    final = rows[-1]
+    errors, identifiability, covariance = uncertainty(
+        problem, final["objective"], hs, final["residual_lag1_autocorrelation"], theta
+    )
+    spread = residual_spread(problem, theta)
+    flat = problem_flatness(problem, theta, spread)
+    flat["parameters"] = [n for n in flat["parameters"] if n in problem.estimated]
+    identifiability["flatness"] = flat
+    if flat["planar"]:  # the Hessian at a degenerate optimum can look healthy
+        blind = set(flat["parameters"]) | set(identifiability["not_identifiable"])
+        identifiability["not_identifiable"] = [n for n in PARAMETER_NAMES if n in blind]
+    if identifiability["not_identifiable"]:  # theta is not to be trusted: judge the directions
+        centred = np.zeros(9)  # about the fitted sphere's centre, or the samples' mean when the
+        centred[0:3] = coverage_centre(samples, problem.moments.frame)  # sphere is degenerate
+        identifiability["coverage"] = direction_coverage(samples, centred)
+    else:
+        identifiability["coverage"] = direction_coverage(samples, theta)
+    warnings = warnings_for(problem, theta, hs, errors, identifiability, final, base)
+    point_errors = errors  # the standard errors at theta, which the quality check judges
+    robust = {**problem.loss.to_dict(), **spread}
+    if problem.loss.robust:
+        robust.update(
+            scale_source="given"
+            if problem.scale_given
+            else f"1.4826 MAD x {TUNING[problem.loss.kind]:g}",
+            reweightings=problem.reweights,
+            downweighted=final["downweighted"],
+            downweighted_fraction=final["downweighted"] / len(samples),
+            centre=problem.centre,
+        )
+    elif spread["residual_std"] > HEAVY_TAIL_RATIO * spread["residual_robust_std"]:
+        warnings.append(
+            f"the residuals are heavy-tailed (std {spread['residual_std']:.3g}, robust std "
+            f"{spread['residual_robust_std']:.3g}): spikes or disturbances may pull the least-"
+            f"squares estimate; a robust loss (--loss huber) down-weights them"
+        )
+    unconverged = None
+    if method == "staged":
+        gap = joint_gap(problem, theta, errors)
+        identifiability["joint_gap"] = gap
+        distance = gap["max_gap_in_standard_errors"]
+        checked = "objective_joint" in gap and distance is not None
+        if not checked or distance > STAGED_GAP_LIMIT:
+            message = staged_message(stop_reason, rule.max_cycles, gap, stages[-1])
+            warnings.append(message)
+            identifiability["standard_errors_at_joint_optimum"] = errors
+            errors = covariance = None  # they describe an optimum, not this point
+            # a target stop is the user's request; a cycle that converged by its rtol rule but
+            # cannot be checked (no standard errors, no joint optimum) keeps its warning
+            if stop_reason in UNCONVERGED or (stop_reason == "rtol" and checked):
+                stop_reason = stop_reason if stop_reason in UNCONVERGED else "above_joint_optimum"
+                unconverged = message
+        elif stop_reason in UNCONVERGED and len(rows) > 2:
+            when = (
+                f"at the maximum of {rule.max_cycles} cycles"
+                if stop_reason == "max_cycles"
+                else f"after {len(rows) - 1} cycles, predicting that it could not meet it "
+                f"within {rule.max_cycles}"
+            )
+            warnings.append(
+                f"the staged cycle stopped {when} before its rtol rule ({rule.rtol:g}) held; its "
+                f"parameters agree with the joint optimum of the same data within "
+                f"{STAGED_GAP_LIMIT:g} standard errors"
+            )
+    if flat["planar"]:  # along the plane's normal no linearisation describes the data
+        errors = covariance = None
+    mode = problem.moments.reference
+    result = CalibrationResult(
+        parameters=Zhou2010Parameters.from_theta(theta).to_dict(),
+        statistics=rows,
+        method=method,
+        reference=problem.reference_document(),
+        gauge=dict(GAUGE) if mode == "none" else None,
+        solver={
+            "name": "ipopt",
+            "status": stages[-1]["status"],
+            "success": True,
+            "iterations": sum(s["iterations"] for s in stages),
+            "stop_reason": stop_reason,
+            "converged": unconverged is None,
+            "stages": stages,
+        },
+        unit=base,
+        standard_errors=errors,
+        covariance=covariance,
+        identifiability=identifiability,
+        warnings=warnings,
+        notes=notes_for(problem),
+        n_samples=int(samples.shape[0]),
+        input={"log_unit": base},
+        robust=robust,
+        model_name=problem.model,
+    )
+    if not quality:
+        return result
+    unconverged = None if allow_unconverged else unconverged
+    overrides = {"allow_unconverged": True} if unconverged else {}
+    if require_identifiable and identifiability["not_identifiable"]:
+        also = f" Besides, {unconverged[0].lower()}{unconverged[1:]}." if unconverged else ""
+        raise QualityError(
+            undetermined_message(point_errors, identifiability, final, mode, base, problem.model)
+            + also,
+            "Not_Identifiable",
+            result=result,
+            overrides={"require_identifiable": False, **overrides},
+        )
+    if unconverged:
+        raise QualityError(unconverged, "Staged_Unconverged", result=result, overrides=overrides)
+    return result
 
 
 def staged_message(stop_reason: str, cycles: int, gap: dict, last: dict | None = None) -> str:
@@ -279,9 +350,8 @@ def staged_message(stop_reason: str, cycles: int, gap: dict, last: dict | None =
     last : the record of the last stage (its predicted cycles when the cycle stopped early).
     """
     if stop_reason == "predicted_unconverged" and last is not None:
-        done = last["cycle"]
         why = (
-            f"the staged cycle stopped after {done} cycles, predicting from its rate of "
+            f"the staged cycle stopped after {last['cycle']} cycles, predicting from its rate of "
             f"convergence (each cycle's improvement {last['convergence_rate']:.4g} times the one "
             f"before) that its rtol rule would need about {last['predicted_cycles']} cycles, "
             f"more than its limit of {cycles}"
@@ -364,6 +434,7 @@ def _record_log(result: CalibrationResult, log: Log) -> CalibrationResult:
 __all__ = [
     "CYCLES_DEFAULT",
     "METHODS",
+    "MODEL_CHOICES",
     "RTOL_DEFAULT",
     "CalibrationResult",
     "Problem",

@@ -37,6 +37,12 @@ PLANAR_NOISE = 5.0
 NEARLY_PLANAR = 0.05
 #: A cloud at least this thick against its extent is never planar, whatever the noise.
 NEVER_PLANAR = 0.2
+#: A cloud thinner than this fraction of its extent lies in one plane whatever the noise level
+#: it is judged against: the smallest eigenvalue of its second-moment matrix is resolved to about
+#: machine epsilon times the largest, so thicknesses below sqrt(eps) = 1.5e-8 of the extent are
+#: rounding, whose value depends on the BLAS kernel (0 on one, 1.2e-8 of the extent on another),
+#: as does the noise of noise-free samples (1e-11 nT); a hundred times sqrt(eps) leaves a margin.
+ROUNDING_THIN = 1e-6
 #: Leading rows whose successive differences tell the noise across the plane.
 HEAD_ROWS = 1024
 #: A sensor axis whose share of the plane's normal exceeds this is one the plane leaves blind.
@@ -62,10 +68,20 @@ def coverage_centre(samples, frame) -> np.ndarray:
     return np.asarray(frame.centre) if frame.radius <= 3.0 * spread else mean
 
 
+def bin_hits(vectors) -> np.ndarray:
+    """(26,) how many of the vectors (N, 3) fall in each direction bin (`direction_bins`)."""
+    return np.bincount(np.argmax(np.asarray(vectors) @ _BIN_DIRECTIONS.T, axis=1), minlength=26)
+
+
+def direction_bins() -> tuple:
+    """(names, (26, 3) unit vectors) of the 26 direction bins, in `bin_hits` order. [1]"""
+    return list(_BIN_NAMES), _BIN_DIRECTIONS.copy()
+
+
 def direction_coverage(samples, theta) -> dict:
     """How many of 26 direction bins the corrected field B1 visits."""
     b1 = correct(subsample(samples), Zhou2010Parameters.from_theta(theta))
-    hits = np.bincount(np.argmax(b1 @ _BIN_DIRECTIONS.T, axis=1), minlength=26)
+    hits = bin_hits(b1)
     covered = int(np.count_nonzero(hits))
     missing = [_BIN_NAMES[k] for k in range(26) if not hits[k]]
     missing.sort(key=_bin_order)  # +x, -x, +y, -y, +z, -z, then edges and corners
@@ -84,7 +100,8 @@ def flatness(samples, noise: float, reference: bool = False) -> dict:
     ellipse: a whole family of ellipsoids passes through it, so the offset, scale and angles of the
     axes along the plane's normal are not determined, whatever the solver returns (the spread of
     |B1| even shrinks as the blind axis is scaled towards zero). The cloud lies in one plane when
-    its thickness is within PLANAR_NOISE noise levels (and below NEVER_PLANAR of its extent), and,
+    its thickness is within PLANAR_NOISE noise levels (and below NEVER_PLANAR of its extent) or
+    below ROUNDING_THIN of its extent (where thickness and noise are both rounding), and,
     without a `reference` field, nearly in one when it is below NEARLY_PLANAR of its extent. The
     noise level is the smaller of `noise` (the residual standard deviation of the fit, which model
     misfit inflates) [field unit] and the noise of successive samples across the plane (1.4826
@@ -104,7 +121,10 @@ def flatness(samples, noise: float, reference: bool = False) -> dict:
     if thickness <= PLANAR_NOISE * noise:  # within the residuals: is it within the sensor noise?
         across = np.diff(np.asarray(samples[:HEAD_ROWS], dtype=float) @ normal)
         level = min(noise, robust_std(across) / np.sqrt(2.0) if across.size > 8 else np.inf)
-    within_noise = bool(thickness <= PLANAR_NOISE * level and thickness < NEVER_PLANAR * extent)
+    within_noise = bool(
+        (thickness <= PLANAR_NOISE * level and thickness < NEVER_PLANAR * extent)
+        or thickness <= ROUNDING_THIN * extent
+    )
     planar = within_noise or (not reference and bool(thickness < NEARLY_PLANAR * extent))
     blind_axes = {axis for axis, share in zip("xyz", np.abs(normal)) if share > PLANAR_AXIS_SHARE}
     return {

@@ -14,7 +14,6 @@ from .. import inference, units
 from ..errors import SolveError
 from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
 from ..moments import Moments
-from ..nlp import blocks
 from ..nlp.blocks import evaluate, objective_function, variable_scale
 from ..nlp.steps import block_step
 from ..robust import robust_std
@@ -47,19 +46,14 @@ SHIFT_WARN = 0.1
 def scaled_hessian(moments: Moments, theta, step=None) -> np.ndarray:
     """D H D: the Hessian of the objective [field^2] in the scaled variables theta = D x.
 
-    From the joint problem's own Hessian when `step` is its solve, else from the full objective.
+    From the joint problem's own Hessian when `step` is its solve of all nine, else from the
+    full objective.
     """
     scale = variable_scale(moments.frame.radius)
-    if step is not None and step.block == "joint":
+    if step is not None and step.block == "joint" and step.free.model == "full":
         return step.f_ref * step.hess
     hess = evaluate(objective_function, moments, theta)[2]
     return scale[:, None] * hess * scale[None, :]
-
-
-def gauge_basis(moments: Moments) -> np.ndarray:
-    """Orthonormal basis of the scaled variables the gauge leaves free (all nine with a reference;
-    eight without one, s_x + s_y + s_z = 0)."""
-    return np.eye(9) if moments.reference != "none" else blocks.gauge_basis(range(9))  # 9 x 8
 
 
 def _names(indices) -> list:
@@ -73,17 +67,18 @@ def uncertainty(
     covariance of the nine parameters in their units (angles in deg), or None.
 
     For f = (1/N) sum r_i^2 the Gauss-Newton information is N H / 2 (`nlpcal.inference`), here
-    in the scaled variables of the problems; without a reference it is taken on the gauge's null
-    space. With a robust loss (and `theta`), the covariance is the sandwich A^-1 B A^-1 of an
-    M-estimate, A = sum psi'(r) J J^T and B = sum psi(r)^2 J J^T (`sandwich`).
+    in the scaled variables of the problems, on the directions the model estimates (without a
+    reference, within the gauge's null space: `nlpcal.nlp.blocks.Variables.basis`). With a
+    robust loss (and `theta`), the covariance is the sandwich A^-1 B A^-1 of an M-estimate,
+    A = sum psi'(r) J J^T and B = sum psi(r)^2 J J^T (`sandwich`). Standard errors, the
+    covariance and the judgements are given for the parameters the model estimates only.
     """
     moments = problem.moments
     n = problem.samples.shape[0]
-    options: dict = {
-        "basis": gauge_basis(moments),
-        "autocorrelation": autocorrelation,
-        "dof": n - 9,
-    }
+    basis = problem.free.basis
+    # the parameters fitted: the model's free directions, and without a reference the mean |B1|
+    fitted = basis.shape[1] + (1 if moments.reference == "none" else 0)
+    options: dict = {"basis": basis, "autocorrelation": autocorrelation, "dof": n - fitted}
     form = "gauss-newton"
     if problem.loss.robust and theta is not None:
         information, meat, form = sandwich(problem, theta)
@@ -91,25 +86,26 @@ def uncertainty(
     else:
         result = inference.estimate(
             inference.information_from_hessian(hs, n),
-            residual_variance=n * objective / max(n - 9, 1),
+            residual_variance=n * objective / max(n - fitted, 1),
             **options,
         )
+    estimated = problem.estimated
+    index = [PARAMETER_NAMES.index(name) for name in estimated]
     errors = covariance = None
     if result.covariance is not None and np.all(np.isfinite(result.covariance)):
         to_units = variable_scale(moments.frame.radius).copy()  # scaled -> parameter units
         to_units[6:9] = np.degrees(to_units[6:9])
-        covariance = to_units[:, None] * result.covariance * to_units[None, :]
-        errors = {name: float(v) for name, v in zip(PARAMETER_NAMES, np.sqrt(np.diag(covariance)))}
+        full = to_units[:, None] * result.covariance * to_units[None, :]
+        covariance = full[np.ix_(index, index)]  # the estimated parameters only
+        errors = {name: float(np.sqrt(full[i, i])) for name, i in zip(estimated, index)}
     radius = moments.frame.radius
     limits = np.concatenate([POORLY_DETERMINED[:3] * radius, POORLY_DETERMINED[3:]])
     far = np.concatenate([UNDETERMINED[:3] * radius, UNDETERMINED[3:]])
-    undetermined = [
-        name for name, limit in zip(PARAMETER_NAMES, far) if errors and errors[name] > limit
-    ]
+    undetermined = [n for n in estimated if errors and errors[n] > far[PARAMETER_NAMES.index(n)]]
     poorly = [
-        name
-        for name, limit in zip(PARAMETER_NAMES, limits)
-        if errors and errors[name] > limit and name not in undetermined
+        n
+        for n in estimated
+        if errors and errors[n] > limits[PARAMETER_NAMES.index(n)] and n not in undetermined
     ]
     weak = _names(result.weak)
     return (
@@ -123,8 +119,8 @@ def uncertainty(
             "covariance_form": form,
             "residual_lag1_autocorrelation": float(autocorrelation),
             "standard_error_inflation": result.inflation,
-            "poorly_determined_limits": {n_: float(v) for n_, v in zip(PARAMETER_NAMES, limits)},
-            "undetermined_limits": {n_: float(v) for n_, v in zip(PARAMETER_NAMES, far)},
+            "poorly_determined_limits": {n: float(limits[i]) for n, i in zip(estimated, index)},
+            "undetermined_limits": {n: float(far[i]) for n, i in zip(estimated, index)},
         },
         covariance,
     )
@@ -148,12 +144,13 @@ def sandwich(problem: Problem, theta) -> tuple:
             (moments.weight_sum, 0.5 * moments.weight_sum * scaled_hessian(moments, theta))
         )
     (slopes, bread), (squares, meat) = parts
-    basis = gauge_basis(problem.moments)
+    basis = problem.free.basis
     values = np.linalg.eigvalsh(basis.T @ (0.5 * (meat + meat.T)) @ basis)
     if values[0] >= -MEAT_TOLERANCE * max(values[-1], 0.0):
         return bread, meat, "sandwich"
     n = problem.samples.shape[0]
-    ratio = squares / slopes * n / max(n - 9, 1) if slopes > 0 else np.inf
+    p = len(problem.estimated)
+    ratio = squares / slopes * n / max(n - p, 1) if slopes > 0 else np.inf
     return bread, ratio * bread, "huber"
 
 
@@ -166,7 +163,7 @@ def joint_gap(problem: Problem, theta, errors) -> dict:
     status of the joint solve.
     """
     try:
-        step = block_step(problem.moments, "joint", theta)
+        step = block_step(problem.moments, "joint", theta, model=problem.model)
     except SolveError as failure:
         return {"status": failure.status, "max_gap_in_standard_errors": None}
     staged = Zhou2010Parameters.from_theta(theta).as_vector()
@@ -175,8 +172,7 @@ def joint_gap(problem: Problem, theta, errors) -> dict:
     if step.newton_decrease is not None:  # not re-solved: the Newton step's length bounds it
         gap = float(np.sqrt(problem.moments.n * step.newton_decrease / step.f_start))
     elif errors is not None:
-        sd = np.array([errors[name] for name in PARAMETER_NAMES])
-        gap = float(np.max(np.abs(staged - joint) / np.where(sd > 0, sd, np.inf)))
+        gap = float(np.max(np.abs(staged - joint) / _standard_errors(errors)))
     return {
         "objective_staged": step.f_start,
         "objective_joint": step.f_end,
@@ -203,8 +199,9 @@ def exact_optimum_shift(problem: Problem, theta, hs: np.ndarray, errors) -> floa
     """How far the exact optimum lies from `theta`, in standard errors (largest over parameters).
 
     One Newton step on the exact per-sample objective: its gradient by central differences (the
-    18 objectives in one pass over the data), the Hessian of the moment objective. Without a
-    reference the step stays in the gauge's null space.
+    18 objectives in one pass over the data), the Hessian of the moment objective. The step
+    stays in the directions the model estimates (without a reference, in the gauge's null
+    space).
     """
     if errors is None:
         return None
@@ -215,13 +212,19 @@ def exact_optimum_shift(problem: Problem, theta, hs: np.ndarray, errors) -> floa
         problem.samples, [theta + scale * x for x in steps], problem.reference
     )
     grad = (values[0::2] - values[1::2]) / (2 * h)
-    basis = gauge_basis(problem.moments)
+    basis = problem.free.basis
     reduced = basis.T @ hs @ basis
     step = -basis @ np.linalg.solve(0.5 * (reduced + reduced.T), basis.T @ grad)
     shift = step * scale
     shift[6:9] = np.degrees(shift[6:9])
-    sd = np.array([errors[name] for name in PARAMETER_NAMES])
-    return float(np.max(np.abs(shift) / np.where(sd > 0, sd, np.inf)))
+    return float(np.max(np.abs(shift) / _standard_errors(errors)))
+
+
+def _standard_errors(errors: dict) -> np.ndarray:
+    """The nine standard errors in PARAMETER_NAMES order, inf where a parameter has none (fixed
+    by the model) or none above zero: what a distance in standard errors divides by."""
+    sd = np.array([errors.get(name, np.inf) for name in PARAMETER_NAMES])
+    return np.where(sd > 0, sd, np.inf)
 
 
 def explain_failure(
@@ -231,7 +234,8 @@ def explain_failure(
     coverage only when it is to blame.
 
     The Hessian is taken where the failing solve started (failure.result). `method` is the one
-    that failed, whose alternative is suggested (None: no suggestion).
+    that failed, whose alternative is suggested (None: no suggestion). The error returned carries
+    what was found as its `identifiability` (the parameters not determined, the flatness).
     """
     theta = failure.result
     if theta is None or not np.all(np.isfinite(theta)):
@@ -239,16 +243,20 @@ def explain_failure(
     flat = problem_flatness(problem, theta)
     if flat["planar"]:
         return SolveError(
-            f"{failure}: {planar_message(flat, _unit_word(unit))}", failure.status, result=theta
+            f"{failure}: {planar_message(flat, _unit_word(unit))}",
+            failure.status,
+            result=theta,
+            identifiability={"not_identifiable": flat["parameters"], "flatness": flat},
         )
     hs = scaled_hessian(problem.moments, theta)
     objective = field_statistics(problem.samples, theta, problem.reference)["objective"]
     _, identifiability, _ = uncertainty(problem, objective, hs)
     weak = identifiability["not_identifiable"]
+    identifiability["flatness"] = flat
     identifiability["coverage"] = direction_coverage(problem.samples, theta)
     if not weak and identifiability["coverage"]["fraction"] < COVERAGE_WARN:
         final = field_statistics(problem.samples, theta, problem.reference)
-        help_ = what_would_help(identifiability, final, problem.moments.reference)
+        help_ = what_would_help(identifiability, final, problem.moments.reference, problem.model)
         covered = identifiability["coverage"]["covered"]
         return SolveError(
             f"{failure}: the field directions cover {covered} of 26 direction bins, a cap of the "
@@ -256,6 +264,7 @@ def explain_failure(
             f"wanders. {help_[:1].upper()}{help_[1:]}",
             failure.status,
             result=theta,
+            identifiability=identifiability,
         )
     if not weak:
         return SolveError(
@@ -264,14 +273,16 @@ def explain_failure(
             + (f"; try --method {'staged' if method == 'joint' else 'joint'}" if method else ""),
             failure.status,
             result=theta,
+            identifiability=identifiability,
         )
     final = field_statistics(problem.samples, theta, problem.reference)
-    help_ = what_would_help(identifiability, final, problem.moments.reference)
+    help_ = what_would_help(identifiability, final, problem.moments.reference, problem.model)
     help_ = help_ or "rotate the sensor through more attitudes"
     return SolveError(
         f"{failure}: the data do not determine {', '.join(weak)}. {help_[:1].upper()}{help_[1:]}",
         failure.status,
         result=theta,
+        identifiability=identifiability,
     )
 
 
@@ -305,8 +316,9 @@ def _judged(errors: dict, limits: dict, names, unit: str, share: float) -> str:
     return "; ".join(parts)
 
 
-def what_would_help(identifiability: dict, final: dict, reference: str) -> str:
-    """What would determine the parameters better, from what limits them here."""
+def what_would_help(identifiability: dict, final: dict, reference: str, model: str = "full") -> str:
+    """What would determine the parameters better, from what limits them here (`model`: the form
+    of Eq. 4 fitted; a smaller one is suggested where the attitudes cover a cap of the sphere)."""
     advice = []
     coverage = identifiability.get("coverage", {})
     missing = coverage.get("missing", [])
@@ -333,10 +345,19 @@ def what_would_help(identifiability: dict, final: dict, reference: str) -> str:
         )
     if reference == "none":
         advice.append("a known field magnitude (--reference-field F) to fix the overall scale")
+    if model != "offset" and (
+        coverage.get("fraction", 1.0) < COVERAGE_WARN or identifiability.get("not_identifiable")
+    ):
+        advice.append(
+            "or a smaller model: --model auto fits the richest the attitudes determine "
+            "(diagonal: offsets and scales; offset: the offsets alone)"
+        )
     return "what would help: " + "; ".join(advice) if advice else ""
 
 
-def undetermined_message(errors, identifiability: dict, final: dict, reference: str, unit):
+def undetermined_message(
+    errors, identifiability: dict, final: dict, reference: str, unit, model: str = "full"
+):
     """Why the data do not determine some parameters, and what would: a few sentences."""
     undetermined = identifiability.get("undetermined", [])
     flat = identifiability.get("flatness", {})
@@ -357,8 +378,21 @@ def undetermined_message(errors, identifiability: dict, final: dict, reference: 
             f"the data do not determine {', '.join(weak)} (|B1| does not change along a "
             f"combination of them)"
         )
-    help_ = what_would_help(identifiability, final, reference)
+    help_ = what_would_help(identifiability, final, reference, model)
     return "; ".join(parts) + (f". {help_[0].upper()}{help_[1:]}." if help_ else ".")
+
+
+#: The note on the method of a calibration without a reference field (a result's `notes`, not
+#: its warnings: it says how the problem is posed, not what is wrong with the data).
+GAUGE_NOTE = (
+    "no reference field: the overall scale is fixed by s_x + s_y + s_z = 0 (scale ratios, "
+    "offsets and angles are determined); a reference field fixes it"
+)
+
+
+def notes_for(problem: Problem) -> list:
+    """What the user should know about how the problem was posed (not about the data)."""
+    return [GAUGE_NOTE] if problem.moments.reference == "none" else []
 
 
 def warnings_for(
@@ -367,16 +401,12 @@ def warnings_for(
     """What the data cannot tell, in words (and the exact-optimum check, into identifiability)."""
     warnings = []
     reference = problem.moments.reference
-    if reference == "none":
-        warnings.append(
-            "absolute scale not identifiable without a reference field: the scales "
-            "are fixed by the gauge s_x + s_y + s_z = 0; the scale ratios, offsets "
-            "and angles are determined. Give a reference field for absolute scales."
-        )
     if identifiability["not_identifiable"]:
         warnings.append(
             "not identifiable: "
-            + undetermined_message(errors, identifiability, final, reference, unit).rstrip(".")
+            + undetermined_message(
+                errors, identifiability, final, reference, unit, problem.model
+            ).rstrip(".")
         )
     coverage = identifiability["coverage"]
     if coverage["fraction"] < COVERAGE_WARN and not identifiability["not_identifiable"]:
@@ -393,7 +423,7 @@ def warnings_for(
             unit,
             100 * POORLY_DETERMINED[0],
         )
-        help_ = what_would_help(identifiability, final, reference)
+        help_ = what_would_help(identifiability, final, reference, problem.model)
         warnings.append(
             f"poorly determined (standard errors above the limits): {judged}"
             + (f". {help_[0].upper()}{help_[1:]}" if help_ else "")

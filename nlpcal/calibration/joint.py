@@ -107,7 +107,8 @@ def run_joint(problem, start=None):
     squares, each solve warm-started).
 
     start : the first solve's start (internal units); default the algebraic ellipsoid fit
-        (`algebraic_start`), else the sphere fit (`joint_start`).
+        (`algebraic_start`), else the sphere fit (`joint_start`), projected onto the model's
+        parameters (`nlpcal.nlp.blocks.Variables.project`).
 
     Returns (step, rows, stages): the `nlpcal.nlp.steps.Step` of the last solve, the measured
     and the joint Table 1 rows, and the record of every solve.
@@ -118,12 +119,13 @@ def run_joint(problem, start=None):
         start = algebraic_start(problem.moments)
     if start is None:
         start = joint_start(problem.moments)
-    step = block_step(problem.moments, "joint", start, problem.ipopt)
+    start = problem.free.project(start)
+    step = block_step(problem.moments, "joint", start, problem.ipopt, model=problem.model)
     records = [(step, "joint")]
     scale = variable_scale(problem.moments.frame.radius)
     for _ in range(MAX_REWEIGHTS if problem.loss.robust else 0):
         changed = problem.reweight(step.theta)
-        new = block_step(problem.moments, "joint", step.theta, problem.ipopt)
+        new = block_step(problem.moments, "joint", step.theta, problem.ipopt, model=problem.model)
         move = float(np.max(np.abs(new.theta - step.theta) / scale))
         step = new
         records.append((step, "joint (reweighted)"))

@@ -15,9 +15,16 @@ from typing import Any
 
 import numpy as np
 
-from ..models.zhou2010 import Zhou2010Parameters
+from ..models.zhou2010 import Zhou2010Parameters, estimated_parameters
 from ..moments import Moments, accumulate
-from ..nlp.blocks import OPTIONS, evaluate, summary_function, value_function
+from ..nlp.blocks import (
+    OPTIONS,
+    Variables,
+    evaluate,
+    summary_function,
+    value_function,
+    variables,
+)
 from ..nlp.solver import IpoptOptions
 from ..passes import reduce
 from ..robust import MAD_SAMPLES, Loss
@@ -45,6 +52,8 @@ class Problem:
     centre : without a reference, the centre of |B1| the residuals are taken from (the weighted
         mean of the latest pass). [field unit]
     ipopt : the IPOPT settings of every solve (print_level > 0 shows IPOPT's log).
+    model : the form of Eq. 4 estimated (`nlpcal.models.zhou2010.MODELS`); the parameters it
+        does not estimate stay at zero.
     """
 
     samples: np.ndarray
@@ -57,6 +66,7 @@ class Problem:
     weighted_at: np.ndarray | None = None  # the estimate the current weights were taken at
     frozen: bool = False  # the weights stay as they are (a comparison of solvers on them)
     ipopt: IpoptOptions = OPTIONS
+    model: str = "full"
 
     def __post_init__(self):
         self.scale_given = self.loss.scale is not None
@@ -105,6 +115,16 @@ class Problem:
             "iterations": int(iterations),
             "wall_s": float(wall_s),
         }
+
+    @property
+    def free(self) -> Variables:
+        """The directions of theta the model estimates (`nlpcal.nlp.blocks.variables`)."""
+        return variables("joint", self.moments.reference, self.model)
+
+    @property
+    def estimated(self) -> list:
+        """The names of the parameters the model estimates, in PARAMETER_NAMES order."""
+        return estimated_parameters(self.model, self.moments.reference != "none")
 
     @property
     def rows_from_moments(self) -> bool:

@@ -13,9 +13,19 @@ import numpy as np
 
 from .. import inference, units, validation
 from ..errors import InputError
-from ..models.zhou2010 import PARAMETER_NAMES, PARAMETER_UNITS, Zhou2010Parameters, correct
+from ..models.zhou2010 import (
+    MODELS,
+    PARAMETER_NAMES,
+    PARAMETER_UNITS,
+    Zhou2010Parameters,
+    correct,
+    estimated_parameters,
+    is_of_model,
+    tied_parameters,
+)
 from ..results import Document, DocumentReader
 from ..statistics import STD_DDOF, format_table
+from ..verdict import Verdict, judge
 from ..version import __version__
 
 #: Plausible ranges of the parameters read from a document: scale errors keep every gain within
@@ -54,21 +64,41 @@ def read_robust(reader: DocumentReader) -> dict:
     return dict(block.document)
 
 
-def read_covariance(reader: DocumentReader) -> np.ndarray | None:
-    """The optional "covariance" block: 9 x 9, symmetric, finite, non-negative diagonal."""
+def read_covariance(reader: DocumentReader, estimated: list) -> np.ndarray | None:
+    """The optional "covariance" block of the `estimated` parameters: symmetric, finite,
+    non-negative diagonal."""
     if not reader.has("covariance"):
         return None
     block = reader.reader("covariance")
-    if block.strings("parameters") != list(PARAMETER_NAMES):
+    if block.strings("parameters") != list(estimated):
         raise InputError(
-            f"{reader.source}: covariance.parameters must be {', '.join(PARAMETER_NAMES)}"
+            f"{reader.source}: covariance.parameters must be {', '.join(estimated)} (the "
+            f"parameters its model estimates)"
         )
-    matrix = block.array("matrix", (9, 9))
+    size = len(estimated)
+    matrix = block.array("matrix", (size, size))
     if not np.allclose(matrix, matrix.T, rtol=1e-9, atol=0.0) or (np.diag(matrix) < 0).any():
         raise InputError(
             f"{reader.source}: covariance.matrix must be symmetric with a non-negative diagonal"
         )
     return matrix
+
+
+def check_model(parameters: dict, model_name: str, scale_known: bool, source: str) -> None:
+    """InputError unless the parameters are of the form `model_name`: the ones it does not
+    estimate at zero, the ones it ties equal."""
+    if is_of_model(parameters, model_name, scale_known):
+        return
+    estimated = estimated_parameters(model_name, scale_known)
+    moved = [n for n in PARAMETER_NAMES if n not in estimated and parameters[n] != 0.0]
+    given = ", ".join(f"{n} = {parameters[n]:g}" for n in moved)
+    raise InputError(
+        f"{source}: model {model_name} fixes {', '.join(moved)} at 0, but the parameters give "
+        f"{given}"
+        if moved
+        else f"{source}: model {model_name} estimates one common value for "
+        f"{', '.join(tied_parameters(model_name, scale_known)[0])}, but the parameters differ"
+    )
 
 
 @dataclass
@@ -82,13 +112,21 @@ class CalibrationResult(Document):
     unit_source : where the unit of the log came from (`nlpcal.units.UNIT_SOURCES`: "option",
         "names", "format" or "assumed"); None in a document written before results recorded it,
         which is treated as "assumed" (`scale_fixed_by`).
-    standard_errors : per parameter, in its unit; None when the data leave a direction free.
-    covariance : (9, 9) covariance of the parameters in PARAMETER_NAMES order, in their units
-        (offsets [unit], scale errors [1], angles [deg]); None without standard errors.
+    standard_errors : per estimated parameter, in its unit; None when the data leave a direction
+        free. Parameters the model does not estimate have none (they are fixed, not estimated).
+    covariance : (k, k) covariance of the k estimated parameters in PARAMETER_NAMES order, in
+        their units (offsets [unit], scale errors [1], angles [deg]); None without standard
+        errors.
     identifiability : what the attitude coverage determines (`nlpcal.calibration.diagnostics`).
     input : where the samples came from (file, columns, the unit of the file).
     robust : the loss and its scale, the samples it down-weighted, and the spread of the
         residuals (their standard deviation and robust standard deviation). [unit]
+    model_name : the form of Eq. 4 estimated (`nlpcal.models.zhou2010.MODELS`), "model" in the
+        document: the parameters it does not estimate are fixed at zero (`fixed_parameters`).
+    model_selection : how model "auto" chose it (the reason, the richer forms rejected), or None.
+    warnings : what looks wrong with the data or the result, each a sentence.
+    notes : what the user should know about how the problem was posed (the gauge without a
+        reference field), each a sentence: not warnings.
     """
 
     FORMAT = "nlpcal-calibration"
@@ -114,10 +152,23 @@ class CalibrationResult(Document):
     covariance: np.ndarray | None = None
     identifiability: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
+    notes: list = field(default_factory=list)
     n_samples: int = 0
     version: str = __version__
     input: dict = field(default_factory=dict)
     robust: dict = field(default_factory=dict)
+    model_name: str = "full"
+    model_selection: dict | None = None
+
+    @property
+    def estimated_parameters(self) -> list:
+        """The parameters the model estimates, in PARAMETER_NAMES order."""
+        return estimated_parameters(self.model_name, self.reference.get("mode", "none") != "none")
+
+    @property
+    def fixed_parameters(self) -> list:
+        """The parameters the model does not estimate: held at zero, without standard errors."""
+        return [name for name in PARAMETER_NAMES if name not in self.estimated_parameters]
 
     @property
     def model(self) -> Zhou2010Parameters:
@@ -162,8 +213,32 @@ class CalibrationResult(Document):
         """(9, 9) correlation matrix of the parameters, or None without a covariance. [1]"""
         return inference.correlation(self.covariance)
 
-    def table(self) -> str:
-        return format_table(self.statistics, self.unit, extra=("iterations",))
+    def table(self, most: int | None = None) -> str:
+        """Table 1 rows as text; with `most`, the first, a few and the last of them."""
+        return format_table(self.statistics, self.unit, extra=("iterations",), most=most)
+
+    @property
+    def verdict(self) -> Verdict:
+        """The result's verdict (`nlpcal.verdict`): failed when the solve did not converge or
+        the data do not determine some parameters (a result written with an allow flag),
+        poorly determined when some standard errors exceed their limits, else ok or warnings."""
+        block = self.identifiability or {}
+        failures = []
+        if self.solver.get("success") is False:
+            failures.append(f"the solver failed ({self.solver.get('status')})")
+        elif self.solver.get("converged") is False:
+            failures.append(
+                f"not converged: the {self.method} solve stopped on "
+                f"{self.solver.get('stop_reason')}, away from the optimum"
+            )
+        if block.get("not_identifiable"):
+            failures.append(f"the data do not determine {', '.join(block['not_identifiable'])}")
+        poor = block.get("poorly_determined") or []
+        return judge(
+            failures,
+            [f"{', '.join(poor)}: standard errors above their limits"] if poor else [],
+            self.warnings,
+        )
 
     def body(self) -> dict:
         document = {
@@ -176,16 +251,28 @@ class CalibrationResult(Document):
             "solver": dict(self.solver),
             "unit": self.unit,
             "unit_source": self.unit_source,
+            "model": self.model_name,
+            "fixed_parameters": self.fixed_parameters,
             "standard_errors": self.standard_errors,
             "identifiability": dict(self.identifiability),
             "warnings": list(self.warnings),
+            "notes": list(self.notes),
             "n_samples": self.n_samples,
             "nlpcal_version": self.version,
         }
+        tied = tied_parameters(self.model_name, self.reference.get("mode", "none") != "none")
+        if tied:
+            document["tied_parameters"] = tied
+        if self.model_selection:
+            document["model_selection"] = dict(self.model_selection)
         if self.covariance is not None:
+            unit_of = dict(zip(PARAMETER_NAMES, PARAMETER_UNITS))
             document["covariance"] = {
-                "parameters": list(PARAMETER_NAMES),
-                "units": [self.unit if u == "field" else u for u in PARAMETER_UNITS],
+                "parameters": self.estimated_parameters,
+                "units": [
+                    self.unit if unit_of[n] == "field" else unit_of[n]
+                    for n in self.estimated_parameters
+                ],
                 "matrix": np.asarray(self.covariance).tolist(),
             }
         if self.input:
@@ -198,11 +285,17 @@ class CalibrationResult(Document):
     def fields_from(cls, reader: DocumentReader) -> dict:
         """The constructor arguments stored in a document (shared with the temperature kind)."""
         errors = reader.reader("standard_errors") if reader.has("standard_errors") else None
+        model_name = reader.string("model", "full", options=list(MODELS))
+        reference = reader.mapping("reference", {"mode": "none"})
+        scale_known = reference.get("mode", "none") != "none"
+        estimated = estimated_parameters(model_name, scale_known)
+        parameters = read_parameters(reader).to_dict()
+        check_model(parameters, model_name, scale_known, reader.source)
         return {
-            "parameters": read_parameters(reader).to_dict(),
+            "parameters": parameters,
             "statistics": reader.items("statistics", []),
             "method": reader.string("method", "staged"),
-            "reference": reader.mapping("reference", {"mode": "none"}),
+            "reference": reference,
             "gauge": reader.mapping("gauge", None),
             "solver": reader.mapping("solver", {}),
             "unit": reader.string("unit", "nT", options=list(units.FIELD_UNITS_NT)),
@@ -211,12 +304,13 @@ class CalibrationResult(Document):
             if errors is None
             else {
                 name: errors.number(name, positive=False, minimum=0.0)
-                for name in PARAMETER_NAMES
+                for name in estimated
                 if errors.has(name)
             },
-            "covariance": read_covariance(reader),
+            "covariance": read_covariance(reader, estimated),
             "identifiability": reader.mapping("identifiability", {}),
             "warnings": reader.strings("warnings", []),
+            "notes": reader.strings("notes", []),
             "n_samples": reader.integer("n_samples", 0),
             "version": reader.string("nlpcal_version", "unknown"),
             "input": reader.provenance(
@@ -225,6 +319,8 @@ class CalibrationResult(Document):
                 units=(("log_unit", units.FIELD_UNITS_NT), ("unit_source", units.UNIT_SOURCES)),
             ),
             "robust": read_robust(reader),
+            "model_name": model_name,
+            "model_selection": reader.mapping("model_selection", None),
         }
 
     @classmethod

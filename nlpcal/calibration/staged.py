@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..defaults import CYCLES_DEFAULT, RTOL_DEFAULT
-from ..nlp.blocks import STAGE_ORDER
+from ..nlp.blocks import STAGE_ORDER, variables
 from ..nlp.steps import block_step
 
 #: The prediction of the rtol rule (`cycles_to_converge`) reads the rate of convergence from the
@@ -101,6 +101,9 @@ def run_staged(problem, rule: StopRule, progress=None):
     (after the measured row), the record of every stage solve and why the cycle stopped.
     """
     theta = np.zeros(9)  # Fig. 1: the first pass starts with every other block at zero
+    # a restricted model has no stage for the blocks it does not estimate (the diagonal model no
+    # orthogonal stage; the offset model a scale stage only for its common scale)
+    order = [s for s in STAGE_ORDER if variables(s, problem.moments.reference, problem.model).size]
     rows = [problem.measured_row()]
     stages = []
     previous = rows[0]["objective"] if not problem.loss.robust else None
@@ -116,8 +119,8 @@ def run_staged(problem, rule: StopRule, progress=None):
         started = time.perf_counter()
         iterations = 0
         changed = cycle > 1 and problem.loss.robust and problem.reweight(theta)
-        for stage in STAGE_ORDER:
-            step = block_step(problem.moments, stage, theta, problem.ipopt)
+        for stage in order:
+            step = block_step(problem.moments, stage, theta, problem.ipopt, model=problem.model)
             theta = step.theta
             iterations += step.iterations
             stages.append(

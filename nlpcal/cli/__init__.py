@@ -10,6 +10,7 @@ when it runs, so `nlpcal --help` and `nlpcal --version` do not pay for numpy, pa
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import signal
 import sys
@@ -122,6 +123,8 @@ def main(argv=None) -> int:
         return 2
     except SystemExit as exc:  # --help and --version
         return int(exc.code or 0)
+    except BrokenPipeError:
+        return _reader_gone()
     set_verbosity(args)
     _TERMINATION.clear()
     previous = signal.getsignal(signal.SIGTERM)
@@ -141,6 +144,8 @@ def main(argv=None) -> int:
     except WriteError as exc:
         print(f"nlpcal {args.command}: error: {exc}", file=sys.stderr)
         return 1
+    except BrokenPipeError:  # `nlpcal simulate | head`: the reader has what it wanted
+        return _reader_gone()
     except OSError as exc:  # a file that cannot be read, named by the system's reason
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"nlpcal {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
@@ -171,6 +176,24 @@ def main(argv=None) -> int:
     finally:
         if in_main_thread:
             signal.signal(signal.SIGTERM, previous)
+
+
+#: The exit status a shell reports for a process killed by SIGPIPE: 128 + 13.
+BROKEN_PIPE_STATUS = 141
+
+
+def _reader_gone() -> int:
+    """End quietly, as tools killed by SIGPIPE do, when the reader of stdout (or of a FIFO
+    output) went away. Python ignores SIGPIPE, so the write raised instead; stdout is pointed
+    at the null device so that the interpreter's last flush of it finds no broken pipe."""
+    try:
+        sys.stdout.flush()
+    except BrokenPipeError:
+        with contextlib.suppress(OSError, ValueError):
+            null = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(null, sys.stdout.fileno())
+            os.close(null)
+    return BROKEN_PIPE_STATUS
 
 
 def _set_signal(number, handler) -> bool:

@@ -27,6 +27,7 @@ from .common import (
     log_options,
     report_log,
     tell,
+    tell_written,
     warn,
     write_plot,
 )
@@ -120,7 +121,7 @@ def correction_for(args, table, require_temperature: bool):
 def run_apply(args) -> int:
     from ..correction import outliers, read_log_for
     from ..errors import InputError
-    from ..io import check_output_path, read_table, write_table
+    from ..io import Outputs, check_output_path, read_table, table_text
 
     check_output_path(args.output, args.log, args.params, args.drift)
     check_plot(args)
@@ -137,10 +138,12 @@ def run_apply(args) -> int:
         extra[OUTLIER_COLUMN] = flags = outliers(correction, corrected)
         warn(f"{int(flags.sum())} of {len(flags)} rows flagged as outliers")
     frame = log.written_back(corrected, TOTAL_COLUMN, extra)
-    write_table(frame, log.layout, args.output)
+    with Outputs() as outputs:
+        outputs.text(args.output, table_text(frame, log.layout))
+        write_plot(outputs, args, log, correction.parameters, corrected)
     if args.output:
         warn(f"wrote {len(frame)} corrected rows to {args.output} ({log.layout.describe()})")
-    write_plot(args, log, correction.parameters, corrected)
+    tell_written(args.plot)
     return 0
 
 

@@ -114,8 +114,10 @@ def _register_calibrate(actions):
         help="calibrate every log: DIR/<log>.params.json and DIR/summary.csv",
         description="""Calibrate every log as 'nlpcal calibrate' does, with its options.
 Writes DIR/<log name>.params.json for each log that passes, and DIR/summary.csv with one row per
-log: log, status (ok, quality-failed, bad-input, solve-failed, error), exit_status (that of
-'nlpcal calibrate' on the log), the nine parameters each with its standard error (_se),
+log: log, status (ok, quality-failed, bad-input, solve-failed, error), verdict (of the result:
+ok, warnings or poorly_determined when the status is ok, else failed), exit_status (that of
+'nlpcal calibrate' on the log), model (the --model that ran; with auto, the one chosen), the nine
+parameters each with its standard error (_se; both empty where the model fixes a parameter),
 std_measured and std_corrected of |B|, coverage_fraction, warnings, message, unit, n_samples,
 output, action (run, or skipped as up to date), seconds.
 Exit status: the largest of the logs'.""",

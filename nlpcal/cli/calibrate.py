@@ -32,12 +32,12 @@ from .common import (
     add_scheduler_arguments,
     add_threads_argument,
     check_plot,
-    emit_json,
     log_options,
     progress,
     report_log,
     say,
     solver_log,
+    tell_written,
     warn,
     warning,
     write_plot,
@@ -53,6 +53,10 @@ OVERRIDE_FLAGS = {
     "require_identifiable": "--allow-unidentifiable",
     "allow_unconverged": "--allow-unconverged",
 }
+#: The forms of Eq. 4 `--model` takes (`nlpcal.calibration.MODEL_CHOICES`).
+MODEL_CHOICES = ("full", "diagonal", "offset", "auto")
+#: Table 1 rows printed without -v: the measured row, the first cycles, a few, the last two.
+SUMMARY_ROWS = 10
 
 
 def register(sub):
@@ -95,6 +99,15 @@ them (say, the sensor was never turned over); --allow-unidentifiable writes them
         default="staged",
         help="staged: the paper's cycle, angles -> scales -> offsets, repeated (default); "
         "joint: all nine in one solve (same optimum, fewer iterations)",
+    )
+    parser.add_argument(
+        "--model",
+        choices=MODEL_CHOICES,
+        default="full",
+        help="full: the nine parameters (default, the paper's); diagonal: offsets and scales, "
+        "no angles; offset: the offsets alone (with a reference field, and one common scale); "
+        "auto: the richest of them the attitudes determine, and why. The parameters a model "
+        "does not estimate are fixed at zero",
     )
     parser.add_argument(
         "--cycles",
@@ -224,13 +237,18 @@ def _run_calibrate(args) -> int:
     from ..calibration import calibrate_log
     from ..drift.temperature import calibrate_temperature_log
     from ..errors import InputError, QualityError
-    from ..io import check_output_path
+    from ..io import Outputs, check_output_path
 
     check_output_path(args.output, args.log)
     check_plot(args)
     temperature = args.temperature_column or args.temperature_model
     if args.temperature_model and not args.temperature_column:
         raise InputError("--temperature-model needs --temperature-column COL")
+    if temperature and args.model != "full":
+        raise InputError(
+            "--model applies to the nine-parameter calibration; the temperature calibration "
+            "estimates the full model"
+        )
     if temperature and not args.reference_column:
         raise InputError(
             "the temperature calibration needs --reference-column COL, a reference "
@@ -267,7 +285,8 @@ def _run_calibrate(args) -> int:
     except QualityError as failure:
         progress("")
         if failure.result is not None:
-            say(failure.result.table())
+            say_verdict(failure.result)
+            say(failure.result.table(most=table_rows()))
         flags = [OVERRIDE_FLAGS[name] for name in failure.overrides if name in OVERRIDE_FLAGS]
         if not flags:
             raise
@@ -278,28 +297,47 @@ def _run_calibrate(args) -> int:
             result=failure.result,
         ) from None
     progress("")
+    say_verdict(result)
     warn(
         f"read {log.n} rows in {read_s:.2f} s (pandas {log.engine} engine); calibrated in "
         f"{time.perf_counter() - started:.2f} s"
     )
-    say(result.table())
+    say(result.table(most=table_rows()))
     robust = getattr(result, "robust", {})
     if robust.get("loss", "l2") != "l2":
         warn(
             f"{robust['loss']} loss, scale {robust['scale']:.4g} {result.unit}: "
             f"{robust['downweighted']} of {log.n} samples down-weighted"
         )
+    selection = getattr(result, "model_selection", None)
+    if selection and selection["chosen"] == "full":  # a restricted choice is among the warnings
+        warn(f"model auto chose full: {selection['reason']}")
     for message in result.warnings:
         if message not in log.warnings:  # said when the log was read
             warning(message)
+    for message in result.notes:
+        warn(f"note: {message}")
     corrected = None
     if args.plot and temperature:
         corrected = _apply_temperature(result, log, args.temperature_column)
-    emit_json(result.to_dict(), args.output)
-    if args.output:
-        warn(f"wrote {args.output}")
-    write_plot(args, log, result, corrected)
+    with Outputs() as outputs:
+        outputs.json(args.output, result.to_dict())
+        write_plot(outputs, args, log, result, corrected)
+    tell_written(args.output, args.plot)
     return 0
+
+
+def say_verdict(result) -> None:
+    """The verdict of a result (`nlpcal.verdict`) in one line, before the rest of the summary."""
+    warn(f"verdict: {result.verdict.line()}")
+
+
+def table_rows() -> int | None:
+    """How many Table 1 rows the terminal shows: all with -v, else the first, a few and the
+    last (SUMMARY_ROWS)."""
+    from . import common
+
+    return None if common.VERBOSITY >= 1 else SUMMARY_ROWS
 
 
 def calibration_options(args) -> dict:
@@ -307,6 +345,7 @@ def calibration_options(args) -> dict:
     `nlpcal calibrate` (and of `nlpcal batch calibrate`) give."""
     return {
         "method": args.method,
+        "model": args.model,
         "cycles": args.cycles,
         "rtol": args.rtol,
         "target_std": args.target_std,

@@ -133,6 +133,13 @@ def progress(message: str, done: bool = False) -> None:
     sys.stderr.flush()
 
 
+def tell_written(*paths) -> None:
+    """ "wrote PATH" for each output written to a path (not stdout), silent with -q."""
+    for path in paths:
+        if path and str(path) != "-":
+            warn(f"wrote {path}")
+
+
 def tell(notes) -> None:
     """What the library decided on the user's behalf, one line each on stderr (not with -q)."""
     for note in notes:
@@ -379,24 +386,18 @@ def log_options(args) -> dict:
 
 
 def emit_json(document, output) -> None:
-    """JSON to -o (written atomically) or to stdout; strict (no NaN, no Infinity)."""
-    from ..io.files import json_text, write_text_atomic
+    """JSON to -o or to stdout (`nlpcal.io.files.Outputs`); strict (no NaN, no Infinity)."""
+    from ..io.files import write_json_atomic
 
-    text = json_text(document)
-    if output:
-        write_text_atomic(output, text)
-    else:
-        sys.stdout.write(text)
+    write_json_atomic(output, document)
 
 
 def emit_csv(frame, output, float_format: str | None = None) -> None:
-    """A table to -o (written atomically) or to stdout; exact values unless float_format."""
+    """A table to -o or to stdout (`nlpcal.io.files.Outputs`); exact values unless
+    float_format."""
     from ..io.files import write_csv_atomic
 
-    if output:
-        write_csv_atomic(output, frame, float_format)
-    else:
-        frame.to_csv(sys.stdout, index=False, float_format=float_format)
+    write_csv_atomic(output, frame, float_format)
 
 
 #: Where the unit of a log read with a calibration comes from by default (`add_log_arguments`).
@@ -427,17 +428,16 @@ def add_plot_argument(parser):
     )
 
 
-def write_plot(args, log, parameters, corrected=None) -> None:
-    """The calibration figure of --plot (`add_plot_argument`), written atomically."""
-    from ..io import write_bytes_atomic
+def write_plot(outputs, args, log, parameters, corrected=None) -> None:
+    """The calibration figure of --plot (`add_plot_argument`), one of a command's `outputs`
+    (`nlpcal.io.files.Outputs`)."""
     from ..report import figure_png
 
     if args.plot:
         png = figure_png(
             log, parameters, corrected, title=f"{Path(log.path).name} ({args.command})"
         )
-        write_bytes_atomic(args.plot, png)
-        warn(f"wrote {args.plot}")
+        outputs.bytes(args.plot, png)
 
 
 def check_plot(args) -> None:

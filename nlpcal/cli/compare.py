@@ -22,12 +22,11 @@ from .common import (
     add_loss_arguments,
     add_reference_arguments,
     add_threads_argument,
-    emit_json,
     log_options,
     report_log,
     say,
     solver_log,
-    warn,
+    tell_written,
     warning,
 )
 
@@ -109,7 +108,7 @@ as a warning (exit 0).""",
 def run(args) -> int:
     from ..comparison import CompareSettings, compare_log
     from ..comparison.conjugate_gradient import CGOptions
-    from ..io import check_output_path, read_log, write_bytes_atomic
+    from ..io import Outputs, check_output_path, read_log
     from ..plots import comparison_png, require_matplotlib
 
     settings = CompareSettings(
@@ -133,10 +132,9 @@ def run(args) -> int:
     say(result.table())
     for message in result.warnings:
         warning(message)
-    emit_json(result.to_dict(), args.output)
-    if args.output:
-        warn(f"wrote {args.output}")
-    if png is not None:
-        write_bytes_atomic(args.plot, png)
-        warn(f"wrote {args.plot}")
+    with Outputs() as outputs:
+        outputs.json(args.output, result.to_dict())
+        if png is not None:
+            outputs.bytes(args.plot, png)
+    tell_written(args.output, args.plot)
     return 0

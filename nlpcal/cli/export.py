@@ -13,8 +13,6 @@ stated in the file and on stderr. Exit 2 when the calibration cannot be expresse
 
 from __future__ import annotations
 
-import sys
-
 from .common import FIELD_UNITS, add_command, add_params_argument, say, tell
 
 FORMATS = ("matlab", "matrix", "ardupilot", "px4", "c-header")  # nlpcal.formats.FORMATS
@@ -88,9 +86,7 @@ def run(args) -> int:
             f"nlpcal export: the symmetric matrix turns nlpcal's axes by "
             f"{written.rotation_deg:.4f} deg (R is in the file's comments); |B1| is unchanged"
         )
+    write_text_atomic(args.output, written.text)
     if args.output:
-        write_text_atomic(args.output, written.text)
         say(f"nlpcal export: wrote {args.fmt} to {args.output}")
-    else:
-        sys.stdout.write(written.text)
     return 0

@@ -21,7 +21,6 @@ from .common import (
     add_command,
     add_field_argument,
     add_log_arguments,
-    emit_csv,
     emit_json,
     log_options,
     report_log,
@@ -190,7 +189,7 @@ def _run_worst_case(args) -> int:
 
 def _run_map(args) -> int:
     from ..errors import InputError
-    from ..io import check_output_path, write_bytes_atomic
+    from ..io import Outputs, check_output_path
     from ..orthogonality import error_map, error_table, worst_case
     from ..plots import orthogonality_map_png, require_matplotlib
 
@@ -214,15 +213,16 @@ def _run_map(args) -> int:
             error,
             worst_case(args.angles_deg, args.reference_field),
         )
-    # everything is computed: only now touch the outputs
+    table = error_table(theta, phi, error) if args.csv else None
+    with Outputs() as outputs:  # everything is computed: only now touch the outputs
+        if png is not None:
+            outputs.bytes(args.output, png)
+        if table is not None:
+            outputs.csv(args.csv, table, "%.10g")
     if png is not None:
-        write_bytes_atomic(args.output, png)
         warn(f"wrote {args.output} (grid max |dB| = {abs(error).max():.4f} nT)")
-    if args.csv:
-        table = error_table(theta, phi, error)
-        emit_csv(table, None if args.csv == "-" else args.csv, "%.10g")
-        if args.csv != "-":
-            warn(f"wrote {args.csv} ({len(table)} grid points)")
+    if table is not None and args.csv != "-":
+        warn(f"wrote {args.csv} ({len(table)} grid points)")
     return 0
 
 

@@ -6,7 +6,8 @@
 The report embeds the figure (base64 PNG; needs matplotlib, else it says so), the parameters with
 standard errors, units and correlations, the Table 1 rows of the calibration and of the log,
 identifiability, warnings and provenance (nlpcal version, input files and their SHA-256, options).
-It opens from disk in any browser: no script, nothing fetched.
+It opens from disk in any browser: no script, nothing fetched. Without a reference option the
+reference of the calibration is used: its constant field, or the log's column it was fitted with.
 """
 
 from __future__ import annotations
@@ -44,6 +45,18 @@ def register(sub):
     parser.set_defaults(func=run)
 
 
+def stored_reference_column(parameters, options: dict, columns) -> str | None:
+    """The reference column the calibration was fitted with, when no reference option is given
+    and the log has that column (a constant reference is taken from the parameters by
+    `nlpcal.report`)."""
+    if any(options.get(k) is not None for k in ("reference_field", "reference_model")):
+        return None
+    if options.get("reference_column") is not None:
+        return None
+    column = (getattr(parameters, "reference", None) or {}).get("column")
+    return column if column is not None and column in list(columns) else None
+
+
 def run(args) -> int:
     from ..correction import read_log_for
     from ..io import check_output_path, read_table, write_text_atomic
@@ -52,7 +65,15 @@ def run(args) -> int:
     check_output_path(args.output, args.params, args.log, args.drift)
     table = read_table(args.log, header=args.header)
     correction = correction_for(args, table, require_temperature=True)
-    log = read_log_for(table, correction, **log_options(args))
+    options = log_options(args)
+    stored = stored_reference_column(correction.parameters, options, table.columns)
+    if stored:
+        options["reference_column"] = stored
+        correction.notes.append(
+            f"reference column {stored!r} of the log, as in the parameters file (a reference "
+            f"option overrides it)"
+        )
+    log = read_log_for(table, correction, **options)
     report_log(log)
     corrected = correction.apply(log)
     tell(correction.notes)

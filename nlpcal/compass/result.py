@@ -14,6 +14,7 @@ import numpy as np
 from ..errors import InputError
 from ..models import qiu2017 as model
 from ..results import Document, DocumentReader
+from ..verdict import Verdict, judge
 
 ESTIMATED_SCALE = "estimated: unknown field, scaled so that det(correction_matrix) = 1"
 GRAVITY_SCALE = "1 g by definition (sensitivity relative to the local gravity)"
@@ -123,6 +124,11 @@ class CompassCalibration(Document):
     alignment: dict | None = None  # free-rotation mode: magnetometer-to-accelerometer rotation
     warnings: list = field(default_factory=list)
     input: dict = field(default_factory=dict)
+
+    @property
+    def verdict(self) -> Verdict:
+        """ok, or warnings (the fits that fail raise instead of returning a result)."""
+        return judge(warnings=self.warnings)
 
     def apply(self, mag, acc) -> tuple:
         """Calibrated (field [nT], specific force [g]) from raw readings in nT and g."""

@@ -20,6 +20,7 @@ from ..models.liu2022 import TemperatureModel, k_factor, modulus_line
 from ..models.zhou2010 import Zhou2010Parameters
 from ..models.zhou2010 import correct as zhou_correct
 from ..results import Document, DocumentReader
+from ..verdict import Verdict, judge
 from ..version import __version__
 
 #: Fewest samples of a drift fit: two for the line of Eq. 1, one more for its standard errors.
@@ -80,6 +81,15 @@ class DriftFit(Document):
     def model(self) -> TemperatureModel:
         """The common temperature model equivalent to this fit."""
         return TemperatureModel.from_drift(self.a, self.b, self.base_temperature)
+
+    @property
+    def verdict(self) -> Verdict:
+        """Poorly determined when the slope's standard error exceeds MAX_SLOPE_RELATIVE_ERROR
+        of the slope, with the warnings."""
+        poor = []
+        if not self.a_standard_error <= MAX_SLOPE_RELATIVE_ERROR * abs(self.a):
+            poor.append(f"a: standard error above {MAX_SLOPE_RELATIVE_ERROR:.0%} of a")
+        return judge([], poor, self.warnings)
 
     def correct(self, samples, temperature, params: Zhou2010Parameters | None) -> np.ndarray:
         """Eq. 9 (divide the raw vector by k(t)), then Eq. 4 with `params` (None: Eq. 9 only)."""

@@ -31,6 +31,7 @@ from ..nlp.blocks import variable_scale
 from ..nlp.temperature import gauss_newton_pass, minimise, n_coefficients
 from ..results import Document, DocumentReader
 from ..statistics import format_table
+from ..verdict import Verdict
 from .evaluation import evaluation_row
 
 #: A temperature span below this is too small to determine temperature coefficients. [degC]
@@ -136,6 +137,14 @@ class TemperatureCalibrationResult(Document):
         return self.calibration.warnings
 
     @property
+    def notes(self) -> list:
+        return self.calibration.notes
+
+    @property
+    def verdict(self) -> Verdict:
+        return self.calibration.verdict
+
+    @property
     def unit(self) -> str:
         return self.calibration.unit
 
@@ -177,8 +186,8 @@ class TemperatureCalibrationResult(Document):
         """`apply` (the nine parameters are this result's own; `params` is ignored)."""
         return self.apply(samples, temperature)
 
-    def table(self) -> str:
-        return format_table(self.statistics, self.unit, extra=("rmse",))
+    def table(self, most: int | None = None) -> str:
+        return format_table(self.statistics, self.unit, extra=("rmse",), most=most)
 
     def body(self) -> dict:
         document = self.calibration.body()

@@ -28,7 +28,7 @@ import numpy as np
 from .. import units, validation
 from ..calibration.result import CalibrationResult
 from ..errors import InputError
-from ..models.zhou2010 import correction_matrix, from_correction
+from ..models.zhou2010 import correction_matrix, from_correction, smallest_model
 from ..results import Document, DocumentReader
 from ..version import __version__
 
@@ -147,7 +147,8 @@ class AffineCorrection(Document):
         unit_source : where the file's unit came from (`read_unit_source`; "format" when the
             format fixes it, as the autopilots' do).
         The rotation Q that the nine parameters do not carry (A = Q O_p S_p) is recorded under
-        input.rotation_not_carried; |B1| is the same with or without it.
+        input.rotation_not_carried; |B1| is the same with or without it. The result's model is
+        the smallest form of Eq. 4 that holds the correction exactly (a diagonal A: "diagonal").
         """
         matrix = validation.matrix(self.matrix, "the correction matrix A", invertible=True)
         try:
@@ -164,6 +165,9 @@ class AffineCorrection(Document):
             statistics=[],
             method="imported",
             reference=reference,
+            # the smallest form that holds the correction exactly: a restricted model exported
+            # by nlpcal reads back as that model
+            model_name=smallest_model(params.to_dict(), reference["mode"] != "none"),
             unit=base,
             unit_source=unit_source,
             input={

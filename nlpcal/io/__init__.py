@@ -1,11 +1,13 @@
 """Reading logs and documents, writing outputs: the one home of nlpcal's file handling.
 
-`files` writes atomically and strictly (no NaN in JSON), `layout` detects how a delimited text log
-is laid out, `tables` reads it and picks its columns, `rows` screens rows that are not readings,
-`logs` turns a table into samples, reference and extra columns in base units.
+`files` writes outputs (files atomically, devices and pipes through, several together) and
+strict JSON (no NaN), `layout` detects how a delimited text log is laid out, `tables` reads it
+and picks its columns, `rows` screens rows that are not readings, `logs` turns a table into
+samples, reference and extra columns in base units.
 """
 
 from .files import (
+    Outputs,
     check_output_path,
     json_text,
     plain,
@@ -34,6 +36,7 @@ from .tables import (
 __all__ = [
     "Layout",
     "Log",
+    "Outputs",
     "SensorLog",
     "Table",
     "check_output_path",

@@ -12,9 +12,7 @@ from __future__ import annotations
 
 import io
 import re
-import sys
 from dataclasses import dataclass, replace
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -388,9 +386,5 @@ def table_text(frame: pd.DataFrame, layout: Layout) -> str:
 
 
 def write_table(frame: pd.DataFrame, layout: Layout, output=None) -> None:
-    """`table_text` to `output` (written atomically) or to stdout."""
-    text = table_text(frame, layout)
-    if output:
-        write_text_atomic(Path(output), text)
-    else:
-        sys.stdout.write(text)
+    """`table_text` to `output` or to stdout (`nlpcal.io.files.Outputs`)."""
+    write_text_atomic(output, table_text(frame, layout))

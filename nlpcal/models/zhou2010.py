@@ -219,3 +219,64 @@ def from_correction(matrix, offsets) -> tuple[Zhou2010Parameters, np.ndarray]:
         [*offsets, g_x - 1.0, g_y - 1.0, g_z - 1.0, *np.degrees([alpha, beta, gamma])]
     )
     return params, a @ sn
+
+
+# --- restricted forms of Eq. 4 ------------------------------------------------------------------
+
+#: The forms of Eq. 4 in [1] nlpcal estimates, from the fewest parameters to all nine:
+#: "offset" Z_p alone (S_p = O_p = I; with a known field one common scale, s_x = s_y = s_z),
+#: "diagonal" Z_p and S_p (O_p = I), "full" the nine of Eq. 4. Parameters a form does not
+#: estimate are held at their identity values (zero). MATLAB's magcal calls them 'eye', 'diag'
+#: and 'sym'; MotionCal fits 4, 7 and 10 elements.
+MODELS = ("offset", "diagonal", "full")
+
+
+def model_directions(model: str, scale_known: bool) -> np.ndarray:
+    """(9, k) directions in theta (PARAMETER_NAMES order) that a form of Eq. 4 frees: the
+    estimate is theta = E x, zero along every other direction.
+
+    scale_known : whether a reference field fixes the absolute scale; the "offset" form then
+        frees one common scale (the direction s_x = s_y = s_z).
+    """
+    identity = np.eye(9)
+    if model == "full":
+        return identity
+    if model == "diagonal":
+        return identity[:, :6]
+    if model == "offset":
+        common = np.r_[0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0][:, None]
+        return np.hstack([identity[:, :3], common]) if scale_known else identity[:, :3]
+    raise ValueError(f"unknown model {model!r}; expected one of {', '.join(MODELS)}")
+
+
+def estimated_parameters(model: str, scale_known: bool) -> list:
+    """The names of the parameters a form of Eq. 4 estimates (the others are fixed at zero)."""
+    rows = np.any(model_directions(model, scale_known) != 0.0, axis=1)
+    return [name for name, free in zip(PARAMETER_NAMES, rows) if free]
+
+
+def tied_parameters(model: str, scale_known: bool) -> list:
+    """Groups of parameters a form estimates as one value (the common scale of "offset")."""
+    directions = model_directions(model, scale_known)
+    return [
+        [name for name, v in zip(PARAMETER_NAMES, column) if v != 0.0]
+        for column in directions.T
+        if np.count_nonzero(column) > 1
+    ]
+
+
+def is_of_model(parameters: dict, model: str, scale_known: bool) -> bool:
+    """Whether named parameters are of a form: zero where it fixes them, equal (to 1e-12) where
+    it ties them."""
+    estimated = estimated_parameters(model, scale_known)
+    if any(parameters[n] != 0.0 for n in PARAMETER_NAMES if n not in estimated):
+        return False
+    return all(
+        np.allclose([parameters[n] for n in group], parameters[group[0]], rtol=1e-12, atol=1e-15)
+        for group in tied_parameters(model, scale_known)
+    )
+
+
+def smallest_model(parameters: dict, scale_known: bool) -> str:
+    """The smallest form of Eq. 4 that holds the parameters exactly (an imported correction)."""
+    return next(m for m in MODELS if is_of_model(parameters, m, scale_known))

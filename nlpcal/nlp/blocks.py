@@ -22,6 +22,12 @@ checks around IPOPT: `nlpcal.nlp.steps`.
 Without a reference field, Eq. 8 shrinks as all (1 + s) grow together; the gauge
 s_x + s_y + s_z = 0 (an equality constraint in every problem that frees s) removes that direction.
 
+A restricted form of Eq. 4 (`nlpcal.models.zhou2010.MODELS`: offsets alone, or offsets and
+scales) is the same problem on fewer variables: a block frees the model's directions that lie
+in it (`Variables`), theta = theta_ref + var_scale * (E x), and every parameter the model does
+not estimate stays at theta_ref, its identity value zero. One `nlpsol` per (block, reference
+kind, model).
+
 References
 ----------
 [1] Zhou et al. (2010), see `nlpcal.models.zhou2010`.
@@ -30,12 +36,13 @@ References
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cache
+from functools import cache, cached_property
 
 import casadi as ca
 import numpy as np
 
 from .. import moments as mom
+from ..models.zhou2010 import model_directions
 from .objective import (
     magnitude_summary_expression,
     objective_derivatives,
@@ -166,10 +173,67 @@ def value_function(reference: str) -> ca.Function:
     return ca.Function(f"value_{reference}", [theta, s.data], [f], ["theta", "p"], ["f"])
 
 
-def has_gauge(block: str, reference: str) -> bool:
-    """Whether the block's problem carries the gauge s_x + s_y + s_z = 0 (no reference, and the
-    block frees the scales)."""
-    return reference == "none" and any(i in SCALE_INDICES for i in BLOCKS[block])
+@dataclass(frozen=True, eq=False)
+class Variables:
+    """The scaled variables x of one problem: theta = theta_ref + var_scale * (E x).
+
+    The columns of E are the directions of theta the model frees (`model_directions`) that lie
+    within the block's parameters: unit vectors, or the common scale s_x = s_y = s_z of the
+    "offset" model with a reference. Built once per (block, reference kind, model).
+    """
+
+    block: str
+    reference: str
+    model: str
+    matrix: np.ndarray  # E, (9, k)
+
+    @property
+    def size(self) -> int:
+        return self.matrix.shape[1]
+
+    @property
+    def gauge(self) -> bool:
+        """Whether the problem carries the gauge s_x + s_y + s_z = 0 (no reference, and the block
+        frees a scale)."""
+        return self.reference == "none" and bool(np.any(self.matrix[SCALE_INDICES, :]))
+
+    @cached_property
+    def gauge_basis(self) -> np.ndarray:
+        """(k, k - 1) orthonormal basis of the x the gauge leaves free (`null_of_gauge`)."""
+        return _read_only(null_of_gauge(self.matrix))
+
+    def theta(self, theta_ref, x, var_scale) -> np.ndarray:
+        """theta_ref + var_scale * (E x). [internal units]"""
+        return np.asarray(theta_ref, dtype=float) + var_scale * (self.matrix @ np.asarray(x))
+
+    def project(self, theta) -> np.ndarray:
+        """The nearest theta the model allows: zero along the directions it fixes, tied
+        parameters at their mean. [internal units]"""
+        e = self.matrix
+        return e @ np.linalg.lstsq(e, np.asarray(theta, dtype=float), rcond=None)[0]
+
+    @cached_property
+    def basis(self) -> np.ndarray:
+        """(9, q) orthonormal directions of the scaled theta this problem can move along (the
+        gauge's null space without a reference): where its uncertainty lives."""
+        directions = self.matrix @ self.gauge_basis if self.gauge else self.matrix
+        return _read_only(np.linalg.qr(directions)[0] if directions.size else directions)
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    """A copy that cannot be changed: a cached property of a `Variables` shared by every solve."""
+    array = np.array(array)
+    array.flags.writeable = False
+    return array
+
+
+@cache
+def variables(block: str, reference: str, model: str = "full") -> Variables:
+    """The `Variables` of a block (stage or joint) of a model, for a kind of reference."""
+    directions = model_directions(model, reference != "none")
+    inside = np.array([i in BLOCKS[block] for i in range(9)])
+    keep = [k for k in range(directions.shape[1]) if not np.any(directions[~inside, k])]
+    return Variables(block, reference, model, _read_only(directions[:, keep]))
 
 
 @dataclass(frozen=True)
@@ -182,23 +246,25 @@ class BlockProblem:
 
 
 @problem(
-    "zhou2010.block", examples=[(b, r) for b in BLOCKS for r in ("none", "constant", "series")]
+    "zhou2010.block",
+    examples=[(b, r) for b in BLOCKS for r in ("none", "constant", "series")]
+    + [("joint", r, m) for m in ("offset", "diagonal") for r in ("none", "constant")]
+    + [("scale", "constant", "offset")],
 )
-def block_problem(block: str, reference: str, options: IpoptOptions = OPTIONS):
-    """The problem of one block (stage or joint) for one kind of reference.
+def block_problem(block: str, reference: str, model: str = "full", options: IpoptOptions = OPTIONS):
+    """The problem of one block (stage or joint) of a model for one kind of reference.
 
     Built on first use and cached for the life of the process.
     """
     s = _symbols(reference)
-    free = BLOCKS[block]
-    x = ca.MX.sym("x", len(free))
-    parts = [x[free.index(i)] if i in free else ca.MX(0) for i in range(9)]
-    theta = s.theta_ref + s.var_scale * ca.vertcat(*parts)
+    free = variables(block, reference, model)
+    x = ca.MX.sym("x", free.size)
+    theta = s.theta_ref + s.var_scale * ca.mtimes(ca.DM(free.matrix), x)
     f = objective_expression(theta, s.gram, s.centre, s.length, reference)
-    gauge = has_gauge(block, reference)
-    g = ca.sum1(theta[3:6]) if gauge else None
-    solver = build_nlpsol(f"nlpcal_{block}_{reference}", x, f / s.f_ref, s.data, g, options)
-    return BlockProblem(block, solver, gauge)
+    g = ca.sum1(theta[3:6]) if free.gauge else None
+    name = f"nlpcal_{block}_{reference}_{model}"
+    solver = build_nlpsol(name, x, f / s.f_ref, s.data, g, options)
+    return BlockProblem(block, solver, free.gauge)
 
 
 def parameter_values(moments: mom.Moments) -> np.ndarray:
@@ -234,13 +300,15 @@ def _evaluation(builder, reference: str) -> Evaluation:
     return Evaluation(builder(reference))
 
 
-@cache
-def _gauge_basis(free: tuple) -> np.ndarray:
-    normal = np.array([1.0 if i in SCALE_INDICES else 0.0 for i in free])
+def null_of_gauge(directions) -> np.ndarray:
+    """Orthonormal basis of the x, in variables theta = var_scale * (E x) with E = `directions`
+    (9, k), that the gauge s_x + s_y + s_z = 0 leaves free (every scale has the same variable
+    scale, so the gauge's normal in x is the column sums of E's scale rows)."""
+    normal = np.asarray(directions, dtype=float)[list(SCALE_INDICES), :].sum(axis=0)
     return np.linalg.svd(normal[None, :])[2][1:].T
 
 
 def gauge_basis(free) -> np.ndarray:
     """Orthonormal basis of the scaled variables of the parameters `free` (indices into theta)
-    that the gauge s_x + s_y + s_z = 0 leaves free (every scale has the same variable scale)."""
-    return _gauge_basis(tuple(free)).copy()
+    that the gauge s_x + s_y + s_z = 0 leaves free."""
+    return null_of_gauge(np.eye(9)[:, list(free)])

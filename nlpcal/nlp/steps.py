@@ -25,17 +25,16 @@ import numpy as np
 from .. import moments as mom
 from ..errors import SolveError
 from .blocks import (
-    BLOCKS,
     OPTIONS,
     BlockProblem,
+    Variables,
     block_problem,
     evaluate,
-    gauge_basis,
-    has_gauge,
     objective_function,
     parameter_values,
     value_function,
     variable_scale,
+    variables,
 )
 from .solver import IpoptOptions, SolveOutcome, solve
 
@@ -57,7 +56,7 @@ class Step:
     f_end: float  # [field^2], the moment objective at `theta`
     f_ref: float  # [field^2], the objective scale the problem was solved with
     block: str
-    x: np.ndarray  # the scaled variables of `theta` in this problem
+    x: np.ndarray  # the scaled variables of `theta` in this problem (`free`)
     # Hessian of the scaled objective f / f_ref in x, from the last Newton check: at `x`, or at
     # the point whose Newton step, within STATIONARY_SE standard errors, landed on `x` (over
     # which the Hessian changes by far less than its own precision)
@@ -65,6 +64,7 @@ class Step:
     # [field^2], what a Newton step from the start promised, when it was taken instead of IPOPT
     newton_decrease: float | None = None
     problem: BlockProblem | None = None  # the IPOPT problem, when IPOPT ran
+    free: Variables | None = None  # the problem's variables (block, reference kind, model)
 
     @property
     def iterations(self) -> int:
@@ -97,20 +97,20 @@ def resolution(moments: mom.Moments, standard_errors: float = STATIONARY_SE) -> 
     return max(STATIONARY_RTOL, standard_errors**2 / moments.n)
 
 
-def _newton_step(block: str, gauge: bool, g: np.ndarray, h: np.ndarray):
+def _newton_step(free: Variables, g: np.ndarray, h: np.ndarray):
     """One Newton step of the objective over a block (gradient g and Hessian h in its scaled
     variables), on the gauge's null space when the block has one: (the decrease it promises,
     the step). The decrease is inf, and the step zero, when the Hessian is not positive."""
-    if gauge:
-        basis = gauge_basis(BLOCKS[block])
+    if free.gauge:
+        basis = free.gauge_basis
         g, h = basis.T @ g, basis.T @ h @ basis
     try:
         factor = np.linalg.cholesky(0.5 * (h + h.T))
     except np.linalg.LinAlgError:
-        return np.inf, np.zeros(len(BLOCKS[block]))
+        return np.inf, np.zeros(free.size)
     half = np.linalg.solve(factor, g)  # H^-1 = L^-T L^-1
     step = -np.linalg.solve(factor.T, half)
-    return 0.5 * float(half @ half), basis @ step if gauge else step
+    return 0.5 * float(half @ half), basis @ step if free.gauge else step
 
 
 @dataclass(frozen=True)
@@ -122,7 +122,7 @@ class _Newton:
     """
 
     moments: mom.Moments
-    block: str
+    free: Variables
     theta_ref: np.ndarray
     x: np.ndarray
     f: float
@@ -131,16 +131,15 @@ class _Newton:
     step: np.ndarray
 
     @classmethod
-    def at(cls, moments: mom.Moments, block: str, theta_ref, x) -> _Newton:
-        free = list(BLOCKS[block])
-        scale = variable_scale(moments.frame.radius)[free]
-        theta = _theta(moments, block, theta_ref, x)
+    def at(cls, moments: mom.Moments, free: Variables, theta_ref, x) -> _Newton:
+        directions = variable_scale(moments.frame.radius)[:, None] * free.matrix  # d theta / dx
+        theta = _theta(moments, free, theta_ref, x)
         f_value, gradient, hess = evaluate(objective_function, moments, theta)
-        g = scale * gradient[free]
-        h = scale[:, None] * hess[np.ix_(free, free)] * scale[None, :]
-        decrease, step = _newton_step(block, has_gauge(block, moments.reference), g, h)
+        g = directions.T @ gradient
+        h = directions.T @ hess @ directions
+        decrease, step = _newton_step(free, g, h)
         x = np.asarray(x, dtype=float)
-        return cls(moments, block, theta_ref, x, f_value, h, decrease, step)
+        return cls(moments, free, theta_ref, x, f_value, h, decrease, step)
 
     def within(self, threshold: float | None = None) -> bool:
         """Whether x is the block's optimum to the resolution of the data: the step is shorter
@@ -151,15 +150,19 @@ class _Newton:
     def taken(self) -> _Newton:
         """Where the step lands: x + step with f there (the Hessian and decrease are still the
         ones at x), or this point itself where the step is no finishing one (longer than
-        FINISHING_STEP: a jump along a direction the data hardly determine) or f does not
-        decrease (rounding, or a Hessian that is not positive). From within the resolution the
-        step lands on the optimum to the square of its length in standard errors."""
+        FINISHING_STEP: a jump along a direction the data hardly determine) or f rises (by more
+        than the step promised to lower it, or than PRECISION_FLOOR L^2: rounding). From within
+        the resolution the step lands on the optimum to the square of its length in standard
+        errors. A step that promises less than the rounding of f (which is 1e-10 of f on a 1 nT
+        log in 50 000 nT) is taken whichever way the last bits of f fall, so that the BLAS
+        kernel that summed the moments does not decide between two answers."""
         if not np.max(np.abs(self.step)) <= FINISHING_STEP or not np.any(self.step):
             return self
         x = self.x + self.step
-        theta = _theta(self.moments, self.block, self.theta_ref, x)
+        theta = _theta(self.moments, self.free, self.theta_ref, x)
         (f_value,) = evaluate(value_function, self.moments, theta)
-        return replace(self, x=x, f=f_value) if f_value <= self.f else self
+        rounding = min(self.decrease, PRECISION_FLOOR * self.moments.length**2)
+        return replace(self, x=x, f=f_value) if f_value <= self.f + rounding else self
 
     def finished(self) -> _Newton:
         """Newton steps from here until one is within the resolution, which is taken: every
@@ -172,7 +175,7 @@ class _Newton:
             after = current.taken()
             if current.within() or after is current:
                 return after
-            current = _Newton.at(self.moments, self.block, self.theta_ref, after.x)
+            current = _Newton.at(self.moments, self.free, self.theta_ref, after.x)
         return current
 
 
@@ -183,11 +186,9 @@ FINISHING_STEPS = 4
 FINISHING_STEP = 1.0
 
 
-def _theta(moments: mom.Moments, block: str, theta_ref, x) -> np.ndarray:
-    """theta_ref + var_scale * x, x the scaled variables of the block."""
-    step = np.zeros(9)
-    step[list(BLOCKS[block])] = x
-    return np.asarray(theta_ref, dtype=float) + variable_scale(moments.frame.radius) * step
+def _theta(moments: mom.Moments, free: Variables, theta_ref, x) -> np.ndarray:
+    """theta_ref + var_scale * (E x), x the scaled variables of the block."""
+    return free.theta(theta_ref, x, variable_scale(moments.frame.radius))
 
 
 def block_step(
@@ -196,8 +197,13 @@ def block_step(
     theta,
     options: IpoptOptions = OPTIONS,
     stationary: float | None = None,
+    model: str = "full",
 ) -> Step:
     """Minimise over one block of theta from `theta`, the other blocks held fixed.
+
+    model : the form of Eq. 4 (`nlpcal.models.zhou2010.MODELS`): the block frees only the
+    directions the model estimates (`nlpcal.nlp.blocks.variables`); the others keep their
+    values in `theta`.
 
     A block already at its optimum (a Newton step would gain less than the fraction
     `stationary` of the objective, by default `resolution`: a step shorter than STATIONARY_SE
@@ -212,8 +218,9 @@ def block_step(
     resolution, keeps the start: a stage never makes the objective worse.
     """
     theta = np.asarray(theta, dtype=float)
-    zero = np.zeros(len(BLOCKS[block]))
-    start = _Newton.at(moments, block, theta, zero)
+    free = variables(block, moments.reference, model)
+    zero = np.zeros(free.size)
+    start = _Newton.at(moments, free, theta, zero)
     f_start = start.f
     floor = PRECISION_FLOOR * moments.length**2
     if abs(f_start) <= floor:
@@ -221,14 +228,14 @@ def block_step(
         outcome = SolveOutcome(
             x=zero, f=f_start, status="At_Precision_Floor", success=True, iterations=0
         )
-        return _step(moments, block, theta, outcome, f_start, 1.0, start.hess)
+        return _step(moments, free, theta, outcome, f_start, 1.0, start.hess)
     if start.within(stationary):
         landed = start.taken()
         outcome = SolveOutcome(
             x=landed.x, f=landed.f, status="At_Stationary_Point", success=True, iterations=0
         )
-        return _step(moments, block, theta, outcome, f_start, 1.0, start.hess, start.decrease)
-    problem = block_problem(block, moments.reference, options)
+        return _step(moments, free, theta, outcome, f_start, 1.0, start.hess, start.decrease)
+    problem = block_problem(block, moments.reference, model, options)
     f_ref = max(f_start, SCALE_FLOOR * moments.length**2)
     p = parameter_values(moments).copy()
     p[0:9] = theta  # theta_ref: the blocks held fixed, and where x = 0
@@ -239,7 +246,7 @@ def block_step(
     outcome = solve(problem.solver, x0=start.taken().x, p=p, **bounds)
     # A negative objective (a variance) means the series of `nlp.objective` does not hold where
     # the solve went, which happens when the data leave directions undetermined.
-    end = _Newton.at(moments, block, theta, outcome.x)
+    end = _Newton.at(moments, free, theta, outcome.x)
     if end.f < -floor:
         raise SolveError(
             f"the {block} problem's objective, a variance, went negative where the solve ended: "
@@ -269,26 +276,27 @@ def block_step(
     if end.f > f_start + 1e-12 * f_ref and not end.within():
         outcome = replace(outcome, x=zero, f=f_start / f_ref)
         return _step(
-            moments, block, theta, outcome, f_start, f_ref, start.hess / f_ref, problem=problem
+            moments, free, theta, outcome, f_start, f_ref, start.hess / f_ref, problem=problem
         )
     outcome = replace(outcome, x=end.x, f=end.f / f_ref)
-    return _step(moments, block, theta, outcome, f_start, f_ref, end.hess / f_ref, problem=problem)
+    return _step(moments, free, theta, outcome, f_start, f_ref, end.hess / f_ref, problem=problem)
 
 
 def _step(
-    moments, block, theta_ref, outcome, f_start, f_ref, hess, newton_decrease=None, problem=None
+    moments, free, theta_ref, outcome, f_start, f_ref, hess, newton_decrease=None, problem=None
 ) -> Step:
     """The Step of a block solve from theta_ref that ended at `outcome.x` (scaled objective
     `outcome.f`), with the Hessian of the scaled objective from the last Newton check."""
     return Step(
-        theta=_theta(moments, block, theta_ref, outcome.x),
+        theta=_theta(moments, free, theta_ref, outcome.x),
         outcome=outcome,
         f_start=f_start,
         f_end=outcome.f * f_ref,
         f_ref=f_ref,
-        block=block,
+        block=free.block,
         x=outcome.x,
         hess=hess,
         newton_decrease=newton_decrease,
         problem=problem,
+        free=free,
     )

@@ -31,6 +31,7 @@ from ..nlp.orthogonality import inversion_objective, inversion_solver
 from ..nlp.solver import solve
 from ..results import Document, DocumentReader
 from ..statistics import field_statistics
+from ..verdict import Verdict, judge
 from .worst_case import implied_worst_case
 
 #: Default bound of the inversion, as in section 2 of [1]. [deg]
@@ -74,6 +75,15 @@ class Inversion(Document):
     warnings: list = field(default_factory=list)
     source: str | None = None  #: the log the samples came from, if any.
     not_identifiable: list = field(default_factory=list)  #: angles the attitudes leave free.
+
+    @property
+    def verdict(self) -> Verdict:
+        """Failed when IPOPT did not converge or the attitudes leave an angle undetermined (a
+        result kept with require_identifiable=False), else ok or warnings."""
+        failures = [] if self.success else [f"IPOPT did not converge ({self.status})"]
+        if self.not_identifiable:
+            failures.append(f"the attitudes do not determine {', '.join(self.not_identifiable)}")
+        return judge(failures, [], self.warnings)
 
     def body(self) -> dict:
         document = {
@@ -322,6 +332,16 @@ class Repeatability(Document):
     @property
     def warnings(self) -> list:
         return [w for run in self.runs for w in run.warnings]
+
+    @property
+    def verdict(self) -> Verdict:
+        """The worst of the runs': their failed checks, each with the run it concerns."""
+        failures = [
+            f"run {k + 1}: {reason}"
+            for k, run in enumerate(self.runs)
+            for reason in run.verdict.reasons[: run.verdict.failures]
+        ]
+        return judge(failures, [], self.warnings)
 
     def body(self) -> dict:
         return {

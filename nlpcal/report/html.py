@@ -1,10 +1,11 @@
 """A calibration report as one self-contained HTML file: figures embedded as base64 PNG, styles
 inline, no script and nothing fetched from the network, so it opens from disk in any browser.
 
-Sections: the figure of the log before and after; the nine parameters with standard errors and
-units; their correlations; the Table 1 rows of the calibration and of the log; the reference
-field; identifiability; warnings; provenance (nlpcal version, input files and their SHA-256,
-options).
+What matters comes first: the verdict (`nlpcal.verdict`) as a banner, the warnings and notes, the
+nine parameters rounded by their standard errors with the poorly determined ones marked; then the
+figure of the log before and after, the Table 1 rows of the log, the correlations, the Table 1
+rows of the calibration (folded after TABLE_ROWS rows), the reference field, identifiability and
+provenance (nlpcal version, input files and their SHA-256, options), all as tables.
 """
 
 from __future__ import annotations
@@ -12,11 +13,11 @@ from __future__ import annotations
 import base64
 import datetime
 import html
-import json
 
 import numpy as np
 
 from ..calibration.result import CalibrationResult
+from ..inference import rounded
 from ..models.zhou2010 import PARAMETER_NAMES, PARAMETER_UNITS
 from ..statistics import STAT_KEYS
 from ..version import __version__
@@ -41,22 +42,33 @@ MEANINGS = {
     "gamma_deg": "x projection from ox<sub>1</sub>",
 }
 STYLE = """
-body { font-family: system-ui, -apple-system, "Segoe UI", Roboto, sans-serif; margin: 2em auto;
-       max-width: 1200px; color: #1a1a1a; line-height: 1.4; padding: 0 1em; }
-h1 { font-size: 1.6em; margin-bottom: 0.2em; } h2 { font-size: 1.25em; margin-top: 1.6em;
-  border-bottom: 1px solid #ccc; padding-bottom: 0.2em; }
-table { border-collapse: collapse; margin: 0.5em 0; font-size: 0.92em; }
-th, td { border: 1px solid #d0d0d0; padding: 0.25em 0.6em; text-align: right; }
+body { font-family: system-ui, -apple-system, "Segoe UI", Roboto, sans-serif; margin: 1em auto;
+       max-width: 1200px; color: #1a1a1a; line-height: 1.35; padding: 0 1em; }
+h1 { font-size: 1.5em; margin: 0.2em 0; } h2 { font-size: 1.2em; margin: 1em 0 0.4em;
+  border-bottom: 1px solid #ccc; padding-bottom: 0.15em; }
+table { border-collapse: collapse; margin: 0.4em 0; font-size: 0.9em; }
+th, td { border: 1px solid #d0d0d0; padding: 0.15em 0.6em; text-align: right; }
 th { background: #f2f2f2; } td.text, th.text { text-align: left; }
 .num { font-variant-numeric: tabular-nums; font-family: ui-monospace, Menlo, Consolas, monospace; }
-.warn { background: #fff4e0; border-left: 4px solid #e69500; padding: 0.4em 0.8em;
-        margin: 0.3em 0; }
+.warn { background: #fff4e0; border-left: 4px solid #e69500; padding: 0.3em 0.8em;
+        margin: 0.3em 0; font-size: 0.92em; }
 .ok { color: #1d7a2e; } .bad { color: #b00020; font-weight: bold; }
 img { max-width: 100%; height: auto; border: 1px solid #ddd; }
 code, pre { font-family: ui-monospace, Menlo, Consolas, monospace; font-size: 0.9em; }
 pre { background: #f7f7f7; padding: 0.6em; overflow-x: auto; }
 .small { color: #555; font-size: 0.85em; }
+.verdict { padding: 0.5em 1em; margin: 0.5em 0 0.8em; border-radius: 4px; font-size: 1.05em; }
+.verdict strong { font-size: 1.2em; }
+.verdict ul { margin: 0.3em 0 0; }
+.verdict-ok { background: #e6f4ea; border-left: 6px solid #1d7a2e; }
+.verdict-warnings { background: #fff4e0; border-left: 6px solid #e69500; }
+.verdict-poorly_determined { background: #fde8e8; border-left: 6px solid #c0392b; }
+.verdict-failed { background: #b00020; color: white; border-left: 6px solid #600010; }
+tr.poor td { background: #fde8e8; } tr.undetermined td { background: #f8c8c8; }
+details summary { cursor: pointer; color: #0b57d0; margin: 0.3em 0; }
 """
+#: Table 1 rows of the calibration shown before the rest are folded away.
+TABLE_ROWS = 10
 
 
 def _e(value) -> str:
@@ -71,42 +83,80 @@ def _number(value, digits: int = 8) -> str:
     return f"{float(value):.{digits}g}"
 
 
-def _table(header, rows, text_columns=(0,)) -> str:
+def _table(header, rows, text_columns=(0,), classes=None) -> str:
+    """An HTML table; `classes` gives each row's CSS class ("" for none)."""
     head = "".join(
         f'<th class="{"text" if k in text_columns else ""}">{h}</th>' for k, h in enumerate(header)
     )
+    classes = classes or [""] * len(rows)
     body = "".join(
-        "<tr>"
+        (f'<tr class="{css}">' if css else "<tr>")
         + "".join(
             f'<td class="{"text" if k in text_columns else "num"}">{cell}</td>'
             for k, cell in enumerate(row)
         )
         + "</tr>"
-        for row in rows
+        for css, row in zip(classes, rows)
     )
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
+def _verdict(result: CalibrationResult) -> str:
+    """The banner: the status and the failed checks and poorly determined parameters in full."""
+    verdict = result.verdict
+    serious = verdict.reasons[: verdict.failures + verdict.poorly_determined]
+    items = "".join(f"<li>{_e(reason)}</li>" for reason in serious)
+    count = verdict.warnings
+    more = f"<li>{count} warning{'s' if count > 1 else ''}, below</li>" if count else ""
+    listed = f"<ul>{items}{more}</ul>" if items or more else ""
+    return (
+        f'<div class="verdict verdict-{verdict.status}" id="verdict"><strong>Verdict: '
+        f"{_e(verdict.label)}</strong>{listed}</div>"
+    )
+
+
+def _warnings(result: CalibrationResult) -> str:
+    warnings = "".join(f'<p class="warn">{_e(w)}</p>' for w in result.warnings) or (
+        '<p class="ok">No warnings.</p>'
+    )
+    notes = "".join(f'<p class="small">Note: {_e(n)}</p>' for n in result.notes)
+    return warnings + notes
+
+
 def _parameters(result: CalibrationResult) -> str:
+    """The nine parameters rounded by their standard errors (`nlpcal.inference.rounded`), the
+    poorly determined and undetermined ones marked."""
     errors = result.standard_errors or {}
+    block = result.identifiability or {}
+    marks = {
+        **{name: ("poor", "poorly determined") for name in block.get("poorly_determined", [])},
+        **{name: ("undetermined", "not determined") for name in block.get("not_identifiable", [])},
+    }
     rows = []
     for name, unit in zip(PARAMETER_NAMES, PARAMETER_UNITS):
         meaning = MEANINGS.get(name, MEANINGS.get(name[0], ""))
+        value, error = rounded(result.parameters[name], errors.get(name))
+        css, mark = marks.get(name, ("", ""))
         rows.append(
-            [
-                f"{SYMBOLS[name]} <code>{name}</code>",
-                _number(result.parameters[name], 10),
-                _number(errors.get(name), 3),
-                _e(result.unit if unit == "field" else unit),
-                meaning,
-            ]
+            (
+                css,
+                [
+                    f"{SYMBOLS[name]} <code>{name}</code>",
+                    value,
+                    error.replace("-", "&ndash;")
+                    if name not in result.fixed_parameters
+                    else f"fixed ({_e(result.model_name)} model)",
+                    _e(result.unit if unit == "field" else unit),
+                    f'<span class="bad">&#9888; {mark}</span>' if mark else "",
+                    meaning,
+                ],
+            )
         )
     note = ""
     if not errors:
         note = '<p class="warn">No standard errors: the data leave a direction undetermined.</p>'
-    return (
-        _table(["parameter", "value", "standard error", "unit", "meaning"], rows, (0, 3, 4)) + note
-    )
+    header = ["parameter", "value", "standard error", "unit", "determined", "meaning"]
+    return _table(header, [r for _, r in rows], (0, 3, 4, 5), [c for c, _ in rows]) + note
 
 
 def _correlations(result: CalibrationResult) -> str:
@@ -126,11 +176,12 @@ def _correlations(result: CalibrationResult) -> str:
         if result.gauge
         else ""
     )
-    head = "".join(f"<th>{SYMBOLS[n]}</th>" for n in PARAMETER_NAMES)
+    names = result.estimated_parameters  # the covariance's (the model may fix some)
+    head = "".join(f"<th>{SYMBOLS[n]}</th>" for n in names)
     body = ""
-    for i, name in enumerate(PARAMETER_NAMES):
+    for i, name in enumerate(names):
         cells = ""
-        for j in range(len(PARAMETER_NAMES)):
+        for j in range(len(names)):
             text, colour = cell(float(matrix[i, j]))
             cells += f'<td class="num" style="background:{colour}">{text}</td>'
         body += f"<tr><th>{SYMBOLS[name]}</th>{cells}</tr>"
@@ -155,8 +206,56 @@ def _rows(rows, unit: str) -> str:
     return _table(header, table)
 
 
-def _pre(document) -> str:
-    return f"<pre>{_e(json.dumps(document, indent=2, default=str))}</pre>"
+def _folded(rows, unit: str, shown: int = TABLE_ROWS) -> str:
+    """Table 1 rows: the first `shown`, the rest behind a <details> that unfolds them."""
+    if len(rows) <= shown:
+        return _rows(rows, unit)
+    return (
+        _rows(rows[:shown], unit)
+        + f"<details><summary>the other {len(rows) - shown} rows</summary>"
+        + _rows(rows[shown:], unit)
+        + "</details>"
+    )
+
+
+def _cell(value) -> str:
+    """A value of a provenance or reference block as readable text (nested blocks as tables)."""
+    if isinstance(value, dict):
+        return _pairs(value)
+    if isinstance(value, (list, tuple)):
+        return _e(", ".join(str(v) for v in value)) if value else "&ndash;"
+    if isinstance(value, bool) or value is None:
+        return {True: "yes", False: "no", None: "&ndash;"}[value]
+    if isinstance(value, (int, float, np.number)):
+        return _number(value)
+    return _e(value)
+
+
+def _pairs(block: dict) -> str:
+    """A block of key -> value as a two-column table (keys with underscores as words)."""
+    if not block:
+        return "&ndash;"
+    return _table(
+        ["", ""], [[_e(str(k).replace("_", " ")), _cell(v)] for k, v in block.items()], (0, 1)
+    )
+
+
+def _reference(result: CalibrationResult, view: CalibrationView) -> str:
+    """The reference the calibration was fitted to, and the one this report judges against."""
+    stored = dict(result.reference or {"mode": "none"})
+    judged = {
+        "none": "none: the field's own mean is the only level, so the histograms show the spread "
+        "of |B| about its mean",
+        "given": f"{view.target_label}, given to this report",
+        "stored": f"{view.target_label}, the reference stored in the parameters file",
+    }[view.reference_source]
+    rows = [
+        ["fitted to", _pairs(stored) if stored.get("mode") != "none" else "no reference field"],
+        ["this report judges against", _e(judged)],
+    ]
+    if result.gauge:
+        rows.append(["gauge", _pairs(result.gauge)])
+    return _table(["", ""], rows, (0, 1))
 
 
 def _identifiability(result: CalibrationResult) -> str:
@@ -217,11 +316,8 @@ def render_report(
         )
     else:
         figure = f'<p class="warn">No figure: {_e(missing_figure)}</p>'
-    warnings = "".join(f'<p class="warn">{_e(w)}</p>' for w in result.warnings) or (
-        '<p class="ok">No warnings.</p>'
-    )
     calibration_rows = (
-        _rows(result.statistics, result.unit)
+        _folded(result.statistics, result.unit)
         if result.statistics
         else "<p>The calibration carries no Table 1 rows (imported).</p>"
     )
@@ -229,22 +325,22 @@ def render_report(
     sections = [
         f"<h1>nlpcal calibration report</h1><p class='small'>{title} &middot; generated {now} "
         f"by nlpcal {_e(__version__)}</p>",
-        f"<h2>Before and after</h2>{figure}",
-        f"<h2>Table 1 rows of this log</h2>{_rows(view.rows(), view.unit)}"
-        f"<p class='small'>std with ddof = 0; RMSE against the reference {view.target_label} "
-        f"when one is given.</p>",
+        _verdict(result),
+        f"<h2>Warnings</h2>{_warnings(result)}",
         "<h2>Parameters (Zhou et al. 2010, Eq. 4: B1 = O<sub>p</sub> S<sub>p</sub> "
         f"(B<sub>M</sub> &minus; Z<sub>p</sub>))</h2>{_parameters(result)}"
-        f"<p class='small'>Method: {_e(result.method)}; solver: "
-        f"{_e(result.solver.get('status', 'none'))}, "
+        f"<p class='small'>Values rounded to two significant digits of their standard errors. "
+        f"Method: {_e(result.method)}; solver: {_e(result.solver.get('status', 'none'))}, "
         f"{_e(result.solver.get('iterations', 0))} iterations.</p>",
+        f"<h2>Before and after</h2>{figure}",
+        f"<h2>Table 1 rows of this log</h2>{_rows(view.rows(), view.unit)}"
+        f"<p class='small'>std with ddof = 0; RMSE against the reference field when there is "
+        f"one.</p>",
         f"<h2>Correlations</h2>{_correlations(result)}",
         f"<h2>Table 1 rows of the calibration</h2>{calibration_rows}",
-        f"<h2>Reference field</h2>{_pre(result.reference)}"
-        + (f"<h3>Gauge</h3>{_pre(result.gauge)}" if result.gauge else ""),
+        f"<h2>Reference field</h2>{_reference(result, view)}",
         f"<h2>Identifiability</h2>{_identifiability(result)}",
-        f"<h2>Warnings</h2>{warnings}",
-        f"<h2>Provenance</h2>{_pre(provenance)}",
+        f"<h2>Provenance</h2>{_pairs(provenance)}",
     ]
     return (
         "<!DOCTYPE html>\n<html lang='en'><head><meta charset='utf-8'>"

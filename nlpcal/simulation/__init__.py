@@ -80,7 +80,8 @@ PRESETS = {
 }
 
 #: Presets that write a folder of logs rather than one log: name -> writer, called as
-#: writer(out_dir, seed=..., noise=..., n=...) and returning the paths it wrote (atomically).
+#: writer(out_dir, seed=..., noise=..., n=...) and returning the paths it wrote (all together,
+#: `nlpcal.io.files.Outputs`).
 DIRECTORY_PRESETS = {
     "liu2022": liu2022.write_replica,
     "qiu2017": qiu2017.write_replica,

@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import InputError
-from ..io.files import read_json, write_csv_atomic, write_json_atomic
+from ..io.files import Outputs, read_json
 from ..models import liu2022
 from ..models.liu2022 import TemperatureModel, modulus_line
 from ..models.zhou2010 import Zhou2010Parameters
@@ -166,16 +166,7 @@ def write_replica(
     f_sweep = f0 + _smooth_noise(attitudes, rng, 50, 8.0)
     sweep = log(rot @ world, t_sweep, f_sweep, 2.0)
 
-    written = []
-    for name, frame in (
-        ("base.csv", base),
-        ("drift.csv", drift),
-        ("field.csv", field_log),
-        ("sweep.csv", sweep),
-    ):
-        path = out_dir / name
-        write_csv_atomic(path, frame)
-        written.append(path)
+    logs = {"base.csv": base, "drift.csv": drift, "field.csv": field_log, "sweep.csv": sweep}
     truth = {
         "description": "replica of Liu et al. (2022): nine parameters at t0 (Eq. 4 of Zhou et al."
         " 2010) and the temperature factor k(t) of Eq. 9",
@@ -198,10 +189,11 @@ def write_replica(
             f"degC",
         },
     }
-    path = out_dir / "truth.json"
-    write_json_atomic(path, truth)
-    written.append(path)
-    return written
+    with Outputs() as outputs:  # the five files appear together, or none of them
+        for name, frame in logs.items():
+            outputs.csv(out_dir / name, frame)
+        outputs.json(out_dir / "truth.json", truth)
+    return [out_dir / name for name in [*logs, "truth.json"]]
 
 
 def replica_truth(path) -> tuple:

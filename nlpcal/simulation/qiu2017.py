@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import InputError
-from ..io.files import write_csv_atomic, write_json_atomic
+from ..io.files import Outputs
 from ..models import qiu2017 as model
 
 #: Noise of the replica per axis at noise=None: magnetometer [nT], accelerometer [g].
@@ -132,7 +132,7 @@ def replica(*, seed: int = 0, noise: float | None = None, n: int | None = None) 
 def write_replica(
     out_dir, *, seed: int = 0, noise: float | None = None, n: int | None = None
 ) -> list:
-    """Write turns.csv, test.csv and truth.json of `replica` into out_dir (atomically).
+    """Write turns.csv, test.csv and truth.json of `replica` into out_dir (together: `Outputs`).
 
     Returns the paths written. Suggested use:
     nlpcal compass calibrate DIR/turns.csv --mag-columns mx_nT my_nT mz_nT --acc-columns ax_g
@@ -141,7 +141,8 @@ def write_replica(
     out_dir = Path(out_dir)
     data = replica(seed=seed, noise=noise, n=n)
     paths = [out_dir / "turns.csv", out_dir / "test.csv", out_dir / "truth.json"]
-    write_csv_atomic(paths[0], data["turns"])
-    write_csv_atomic(paths[1], data["test"])
-    write_json_atomic(paths[2], data["truth"])
+    with Outputs() as outputs:  # the three files appear together, or none of them
+        outputs.csv(paths[0], data["turns"])
+        outputs.csv(paths[1], data["test"])
+        outputs.json(paths[2], data["truth"])
     return paths
