@@ -18,7 +18,6 @@ import socket
 import stat
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pandas as pd
@@ -44,6 +43,22 @@ NAMED_WRITER = (
     "import sys; from nlpcal.io import files; files.UNNAMED_FILES = False; "
     "from nlpcal.cli import main; sys.exit(main(sys.argv[1:]))"
 )
+#: The named writer held after it filled its temporary file, until a signal ends it: a kill
+#: that always lands between the write and the rename, however loaded the machine.
+HELD_NAMED_WRITER = """
+import sys, time
+from nlpcal.io import files
+files.UNNAMED_FILES = False
+fill = files._fill
+def held(fd, write, binary):
+    fill(fd, write, binary)
+    sys.stderr.write("filled\\n")
+    sys.stderr.flush()
+    time.sleep(120)
+files._fill = held
+from nlpcal.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
 
 
 def null_device(path: Path) -> int:
@@ -480,16 +495,17 @@ def test_a_failed_batch_log_leaves_a_device_in_place_of_its_output(tmp_path, cap
 
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
 def test_a_killed_write_through_the_named_writer_leaves_nothing(tmp_path, signum):
-    output = tmp_path / "big.csv"
+    output = tmp_path / "log.csv"
     output.write_text("previous")
-    command = [sys.executable, "-c", NAMED_WRITER, "simulate", "-n", "500000", "-o", str(output)]
-    process = subprocess.Popen(command, stderr=subprocess.PIPE)
-    deadline = time.monotonic() + 120
-    while not debris(tmp_path) and process.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.005)
-    assert debris(tmp_path), "the named temporary file never appeared"
-    process.send_signal(signum)
-    _, err = process.communicate(timeout=60)
+    command = [sys.executable, "-c", HELD_NAMED_WRITER, "simulate", "-n", "2000", "-o", str(output)]
+    process = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
+    try:
+        assert process.stderr.readline() == "filled\n", "the writer never held"
+        assert debris(tmp_path), "the named temporary file is not there"
+        process.send_signal(signum)  # while the complete file waits under its temporary name
+        _, err = process.communicate(timeout=60)
+    finally:
+        process.kill()
     assert process.returncode == (143 if signum == signal.SIGTERM else 130), err
     assert output.read_text() == "previous"
     assert debris(tmp_path) == []

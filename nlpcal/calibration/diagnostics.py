@@ -137,13 +137,8 @@ def sandwich(problem: Problem, theta) -> tuple:
     (Huber's covariance of an M-estimate for residuals alike in spread), and `form` says so.
     """
     loss = problem.loss
-    parts = []
-    for weight in (loss.slope, lambda r: (loss.weight(r) * r) ** 2):
-        moments = problem.weighted_moments(theta, weight)
-        parts.append(
-            (moments.weight_sum, 0.5 * moments.weight_sum * scaled_hessian(moments, theta))
-        )
-    (slopes, bread), (squares, meat) = parts
+    slopes, bread = weighted_information(problem, theta, loss.slope)
+    squares, meat = weighted_information(problem, theta, lambda r: (loss.weight(r) * r) ** 2)
     basis = problem.free.basis
     values = np.linalg.eigvalsh(basis.T @ (0.5 * (meat + meat.T)) @ basis)
     if values[0] >= -MEAT_TOLERANCE * max(values[-1], 0.0):
@@ -152,6 +147,15 @@ def sandwich(problem: Problem, theta) -> tuple:
     p = len(problem.estimated)
     ratio = squares / slopes * n / max(n - p, 1) if slopes > 0 else np.inf
     return bread, ratio * bread, "huber"
+
+
+def weighted_information(problem: Problem, theta, weight) -> tuple:
+    """(sum g, sum g_i J_i J_i^T) with per-sample weights g_i = weight(r_i) at theta, in the scaled
+    variables: from the Hessian of the moment objective with the samples weighted by g (a
+    weighted mean of squares has sum(g) H_g / 2 = sum g J J^T up to terms in the curvature of r).
+    One pass over the data."""
+    moments = problem.weighted_moments(theta, weight)
+    return moments.weight_sum, 0.5 * moments.weight_sum * scaled_hessian(moments, theta)
 
 
 def joint_gap(problem: Problem, theta, errors) -> dict:
@@ -201,17 +205,28 @@ def exact_optimum_shift(problem: Problem, theta, hs: np.ndarray, errors) -> floa
     One Newton step on the exact per-sample objective: its gradient by central differences (the
     18 objectives in one pass over the data), the Hessian of the moment objective. The step
     stays in the directions the model estimates (without a reference, in the gauge's null
-    space).
+    space). With a robust loss the objective is the one the fit minimises, (2/N) sum rho(r_i)
+    (`statistics.exact_objectives`), and its Hessian (2/N) sum psi'(r_i) J_i J_i^T (the bread of
+    the sandwich, one more pass): the distance to the optimum of the loss, not of the unweighted
+    squares.
     """
     if errors is None:
         return None
     scale = variable_scale(problem.moments.frame.radius)
     h = 1e-3  # in scaled variables: 1e-6 of the field for offsets, 1e-6 for scales, 1e-5 rad
     steps = [sign * h * e for e in np.eye(9) for sign in (1.0, -1.0)]
+    robust = problem.loss.robust and problem.loss.scale is not None
     values = exact_objectives(
-        problem.samples, [theta + scale * x for x in steps], problem.reference
+        problem.samples,
+        [theta + scale * x for x in steps],
+        problem.reference,
+        loss=problem.loss if robust else None,
+        centre=problem.centre,
     )
     grad = (values[0::2] - values[1::2]) / (2 * h)
+    if robust:
+        information = weighted_information(problem, theta, problem.loss.slope)[1]
+        hs = 2.0 * information / problem.samples.shape[0]
     basis = problem.free.basis
     reduced = basis.T @ hs @ basis
     step = -basis @ np.linalg.solve(0.5 * (reduced + reduced.T), basis.T @ grad)
@@ -428,7 +443,9 @@ def warnings_for(
             f"poorly determined (standard errors above the limits): {judged}"
             + (f". {help_[0].upper()}{help_[1:]}" if help_ else "")
         )
-    if final.get("series_rel_error", 0.0) > SERIES_CHECK:
+    inexact = final.get("series_rel_error", 0.0) > SERIES_CHECK
+    robust = problem.loss.robust  # reweighting may stop before the weights settle
+    if inexact or robust:
         shift = exact_optimum_shift(problem, theta, hs, errors)
         identifiability["exact_optimum_shift_in_standard_errors"] = shift
         if shift is None or shift > SHIFT_WARN:
@@ -437,10 +454,23 @@ def warnings_for(
                 if shift is None
                 else f"is estimated to lie {shift:.2g} standard errors away"
             )
-            warnings.append(
+            why = (
                 f"the moment expansion of the objective is inexact here "
                 f"({final['series_rel_error']:.1e} relative; |B1|^2 varies by up to "
-                f"{final['max_abs_u']:.1%}); the exact optimum {where}; check the "
-                f"reference field and the data for disturbances"
+                f"{final['max_abs_u']:.1%}); "
+                if inexact
+                else ""
             )
+            optimum = (
+                f"the exact optimum of the {problem.loss.kind} loss"
+                if robust
+                else ("the exact optimum")
+            )
+            advice = (
+                "the reweighting may have stopped before the weights settled (--method joint "
+                "reweights until they do), or the data are disturbed"
+                if robust
+                else "check the reference field and the data for disturbances"
+            )
+            warnings.append(f"{why}{optimum} {where}; {advice}")
     return warnings

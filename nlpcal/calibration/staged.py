@@ -93,9 +93,13 @@ def run_staged(problem, rule: StopRule, progress=None):
     """Cycle the three stages until a stop rule holds.
 
     problem : a `nlpcal.calibration.problem.Problem` (samples, moments, reference, loss).
-    With a robust loss the first cycle is least squares, and every later cycle starts by
-    reweighting the samples at the latest parameters (iteratively reweighted least squares, one
-    reweighting per cycle); the objective of the rtol rule is then the mean loss.
+    With a robust loss the cycle first runs least squares until its rtol rule holds (for half of
+    the cycles at most), then starts every cycle by reweighting the samples at the latest
+    parameters (iteratively reweighted least squares, one reweighting per cycle) until the rule
+    holds on the mean loss with the loss scale settled. Reweighting from the second cycle on
+    instead takes the weights far from the optimum, and on a log whose offsets the data determine
+    weakly (the RM3100 logs of docs/real-data.md) the cycle then crawls along the valley until
+    its cycle limit.
     progress : None, or called with (cycle, its Table 1 row) after every cycle.
     Returns (theta, rows, stages, stop_reason): the last parameters, one Table 1 row per cycle
     (after the measured row), the record of every stage solve and why the cycle stopped.
@@ -106,7 +110,7 @@ def run_staged(problem, rule: StopRule, progress=None):
     order = [s for s in STAGE_ORDER if variables(s, problem.moments.reference, problem.model).size]
     rows = [problem.measured_row()]
     stages = []
-    previous = rows[0]["objective"] if not problem.loss.robust else None
+    previous = rows[0]["objective"]
     stop_reason = "max_cycles"
     predicting = (
         rule.predict
@@ -115,10 +119,11 @@ def run_staged(problem, rule: StopRule, progress=None):
         and rule.target_range is None
     )
     objectives = [previous]
+    robust_phase, changed = False, False  # least squares first, then reweighting every cycle
     for cycle in range(1, rule.max_cycles + 1):
         started = time.perf_counter()
         iterations = 0
-        changed = cycle > 1 and problem.loss.robust and problem.reweight(theta)
+        changed = robust_phase and problem.reweight(theta)
         for stage in order:
             step = block_step(problem.moments, stage, theta, problem.ipopt, model=problem.model)
             theta = step.theta
@@ -156,13 +161,17 @@ def run_staged(problem, rule: StopRule, progress=None):
         if rule.target_range is not None and row["range"] <= rule.target_range:
             stop_reason = "target_range"
             break
-        if problem.loss.robust:  # the mean loss, from an exact row
-            current = row.get("robust_objective")
+        if robust_phase:  # the mean loss, from an exact row
+            current = row["robust_objective"]
         else:  # the exact objective of the row, or the moments' when rows come from them
             current = row["objective"] if rule.every_row_exact else step.f_end
-        if previous is not None and not changed and previous - current <= rule.rtol * previous:
+        settled = previous is not None and previous - current <= rule.rtol * previous
+        if settled and not changed and (robust_phase or not problem.loss.robust):
             stop_reason = "rtol"
             break
+        if problem.loss.robust and not robust_phase and (settled or 2 * cycle >= rule.max_cycles):
+            robust_phase, current = True, None  # least squares has converged (or half the
+            # cycles are spent, which leaves the other half to the loss): reweight
         previous = current
         objectives.append(current)
         predicted = cycles_to_converge(objectives, rule.rtol) if predicting else None
