@@ -402,7 +402,7 @@ def test_no_command_writes_over_one_of_its_inputs(log_csv, tmp_path, capsys):
     log = folder / "log.csv"
     log.write_bytes(log_csv.read_bytes())
     params = folder / "params.json"
-    assert run(capsys, "calibrate", log, "--method", "joint", "-o", params)[0] == 0
+    assert run(capsys, "calibrate", log, "--method", "joint", "--unit", "nT", "-o", params)[0] == 0
     exported = folder / "cal.m"
     assert run(capsys, "export", params, "--format", "matlab", "-o", exported)[0] == 0
     attempts = [

@@ -215,7 +215,8 @@ def test_the_command_line_records_applies_and_exports_a_restricted_model(tmp_pat
     log = tmp_path / "log.csv"
     pd.DataFrame(samples, columns=["bx", "by", "bz"]).to_csv(log, index=False)
     params = tmp_path / "params.json"
-    code, _, err = _run(capsys, "calibrate", log, "--model", "diagonal", "-o", params)
+    calibrate = ("calibrate", log, "--model", "diagonal", "--unit", "nT", "-o", params)
+    code, _, err = _run(capsys, *calibrate)  # the unit given: exports in a field unit may follow
     assert code == 0, err
     document = json.loads(params.read_text())
     assert document["model"] == "diagonal" and "alpha_deg" not in document["standard_errors"]

@@ -283,7 +283,7 @@ def inputs(tmp_path_factory):
         ["simulate", "-n", "300", "--seed", "3", "-o", d / "log.csv"],
         ["simulate", "--preset", "qiu2017", "-n", "40", "-o", d / "q"],
         ["simulate", "--preset", "liu2022", "-n", "30", "-o", d / "l"],
-        ["calibrate", d / "log.csv", "--method", "joint", "-o", d / "params.json"],
+        ["calibrate", d / "log.csv", "--method", "joint", "--unit", "nT", "-o", d / "params.json"],
         ["export", d / "params.json", "--format", "matlab", "-o", d / "matlab.txt"],
         ["compass", "calibrate", d / "q" / "turns.csv", *COMPASS_COLUMNS, "-o", d / "c.json"],
         ["compass", "attitude", d / "c.json", d / "q" / "test.csv", "-o", d / "att.csv"],

@@ -76,8 +76,9 @@ CORRECTED_TAG = ".corrected"
 #: Columns of the summary of `calibrate_many`: the model that ran (full, diagonal or offset), the
 #: nine parameters each followed by its standard error (_se, empty when the data leave a
 #: direction free; both empty for a parameter the model does not estimate), the std of |B|
-#: measured and corrected (the first and last Table 1 rows) and the fraction of the 26 direction
-#: bins the corrected field visits.
+#: measured and corrected (the first and last Table 1 rows), the fraction of the 26 direction
+#: bins the corrected field visits, and the unit with where it came from
+#: (`nlpcal.units.UNIT_SOURCES`).
 CALIBRATION_COLUMNS = (
     "log",
     "status",
@@ -91,6 +92,7 @@ CALIBRATION_COLUMNS = (
     "warnings",
     "message",
     "unit",
+    "unit_source",
     "n_samples",
     "output",
     "action",

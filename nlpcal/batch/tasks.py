@@ -78,6 +78,7 @@ def calibration_row(result: CalibrationResult) -> dict:
         coverage_fraction=coverage.get("fraction"),
         warnings=WARNING_SEPARATOR.join(result.warnings),
         unit=result.unit,
+        unit_source=result.unit_source,
         n_samples=result.n_samples,
     )
     return row
@@ -102,9 +103,6 @@ class CalibrateTask:
             log = read_log(log_path, **self.read_options)
             result = calibrate_log(log, **self.options)
             row.update(calibration_row(result))
-            row["warnings"] = WARNING_SEPARATOR.join(
-                [*getattr(log, "warnings", []), *result.warnings]
-            )
             result.save(output)
             row["output"] = str(output)
             status_row(row, "ok")

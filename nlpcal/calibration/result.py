@@ -125,6 +125,9 @@ class CalibrationResult(Document):
     statistics : Table 1 rows (label, max, min, mean, std, range [unit], objective [unit^2],
         iterations, wall_s [s]); the first is the measured |B_M|.
     unit : the unit of offsets and rows: "nT", or "raw" for counts.
+    unit_source : where the unit of the log came from (`nlpcal.units.UNIT_SOURCES`: "option",
+        "names", "format" or "assumed"); None in a document written before results recorded it,
+        which is treated as "assumed" (`scale_fixed_by`).
     standard_errors : per estimated parameter, in its unit; None when the data leave a direction
         free. Parameters the model does not estimate have none (they are fixed, not estimated).
     covariance : (k, k) covariance of the k estimated parameters in PARAMETER_NAMES order, in
@@ -160,6 +163,7 @@ class CalibrationResult(Document):
     gauge: dict | None = None
     solver: dict = field(default_factory=dict)
     unit: str = "nT"
+    unit_source: str | None = None
     standard_errors: dict | None = None
     covariance: np.ndarray | None = None
     identifiability: dict = field(default_factory=dict)
@@ -191,6 +195,23 @@ class CalibrationResult(Document):
         """The unit of the log the parameters were estimated from (the result's unit if unknown)."""
         recorded = self.input.get("log_unit")
         return recorded if recorded in units.FIELD_UNITS_NT else self.unit
+
+    def scale_fixed_by(self) -> str | None:
+        """What fixes the physical scale of the result, or None when nothing does.
+
+        "the unit" when the unit of the log was given, fixed by its format or carried by its
+        column names; "the reference field" when the unit was only assumed but a reference
+        field fitted |B1| to a magnitude in it. A result in raw counts, or whose unit was only
+        assumed (or not recorded: a document older than `unit_source`) without a reference, has
+        no physical scale: its offsets may be off by any power of ten.
+        """
+        if self.unit == "raw":
+            return None
+        if self.unit_source in units.FIXING_SOURCES:
+            return "the unit"
+        if (self.reference or {}).get("mode", "none") != "none":
+            return "the reference field"
+        return None
 
     def apply(self, samples, unit: str | None = None) -> np.ndarray:
         """Corrected field B1 = O_p S_p (B_M - Z_p), Eq. 4 in [1].
@@ -245,6 +266,7 @@ class CalibrationResult(Document):
             "gauge": self.gauge,
             "solver": dict(self.solver),
             "unit": self.unit,
+            "unit_source": self.unit_source,
             "model": self.model_name,
             "fixed_parameters": self.fixed_parameters,
             "standard_errors": self.standard_errors,
@@ -293,6 +315,7 @@ class CalibrationResult(Document):
             "gauge": reader.mapping("gauge", None),
             "solver": reader.mapping("solver", {}),
             "unit": reader.string("unit", "nT", options=list(units.FIELD_UNITS_NT)),
+            "unit_source": reader.string("unit_source", None, options=units.UNIT_SOURCES),
             "standard_errors": None
             if errors is None
             else {
@@ -309,7 +332,7 @@ class CalibrationResult(Document):
             "input": reader.provenance(
                 strings=("log", "temperature_column"),
                 lists=("columns",),
-                units=(("log_unit", units.FIELD_UNITS_NT),),
+                units=(("log_unit", units.FIELD_UNITS_NT), ("unit_source", units.UNIT_SOURCES)),
             ),
             "robust": read_robust(reader),
             "model_name": model_name,

@@ -14,7 +14,7 @@ from ..calibration.result import FIELD_LIMIT, CalibrationResult
 from ..errors import InputError
 from ..io.files import existing_file, sha256_file
 from . import ardupilot, c_header, matlab, matrix, px4
-from .affine import AffineCorrection, Export, polar, rotation_angle_deg
+from .affine import AffineCorrection, Export, expected_field, polar, rotation_angle_deg
 
 #: Format name -> module; every module has write(correction, ...) and read(text, source, ...).
 FORMATS = {
@@ -38,6 +38,8 @@ def _check(fmt: str, unit, instance) -> None:
         raise InputError(f"{fmt} parameters are in {fixed}; --unit applies to the other formats")
     if fmt not in AUTOPILOTS and instance is not None:
         raise InputError(f"--instance applies to ardupilot and px4, not to {fmt}")
+    if fmt in AUTOPILOTS and instance is not None:
+        FORMATS[fmt].names(instance)  # InputError for an instance the system does not have
 
 
 def export(
@@ -64,14 +66,51 @@ def export(
         )
     if not isinstance(result, CalibrationResult):
         result = result.calibration  # a temperature calibration: the nine parameters at t0
-    correction = AffineCorrection.from_result(result, unit)
+    target = FORMATS[fmt].UNIT if fmt in AUTOPILOTS else unit or result.log_unit
+    notes = scale_notes(result, target)
+    correction = AffineCorrection.from_result(result, None if fmt in AUTOPILOTS else unit)
     if fmt in AUTOPILOTS:
         module = FORMATS[fmt]
         chosen = module.INSTANCES[0] if instance is None else instance
-        return module.write(correction, instance=chosen, max_rotation_deg=max_rotation_deg)
-    written = FORMATS[fmt].write(correction)
-    written.rotation_deg = rotation_angle_deg(correction.polar()[0])
+        written = module.write(correction, instance=chosen, max_rotation_deg=max_rotation_deg)
+    else:
+        written = FORMATS[fmt].write(correction)
+        written.rotation_deg = rotation_angle_deg(correction.polar()[0])
+    written.notes[:0] = notes
     return written
+
+
+def scale_notes(result: CalibrationResult, target: str) -> list:
+    """What the export must say about its physical scale (a list of notes), or InputError when
+    `result` cannot be written in the field unit `target`: its unit is raw counts, or was only
+    assumed (or not recorded) and no reference field fixed the scale
+    (`CalibrationResult.scale_fixed_by`)."""
+    if target == "raw":
+        return []
+    fixed_by = result.scale_fixed_by()
+    if fixed_by == "the unit":
+        return []
+    if fixed_by == "the reference field":
+        field = expected_field(result)
+        size = "" if field is None else f" ({field:.6g} {result.unit})"
+        return [
+            f"the unit of the calibrated log was assumed ({result.log_unit}), and its reference "
+            f"field{size} fixes the scale: the correction maps the log's numbers to "
+            f"{result.unit}, written in {target}"
+        ]
+    why = {
+        "raw": "it is in raw counts",
+        "assumed": f"its unit was only assumed ({result.log_unit}: the log's columns name none)",
+    }.get(
+        "raw" if result.unit == "raw" else result.unit_source or "",
+        "its file does not record where its unit came from (written before unit_source)",
+    )
+    raise InputError(
+        f"cannot write this calibration in {target}: {why}, so offsets in a field unit "
+        f"could be wrong by any factor; calibrate the log again with --unit (the unit of its "
+        f"field columns) or with a reference field (--reference-field, --reference-column or "
+        f"--reference-model) that fixes the scale"
+    )
 
 
 def import_file(
@@ -124,6 +163,7 @@ def import_file(
             correction.field = field
     result = correction.to_result(
         log_unit=None if fmt in AUTOPILOTS else correction.unit,
+        unit_source="format" if fmt in AUTOPILOTS else correction.source["unit_source"],
         imported_from=str(path),
         format=fmt,
         sha256=sha256_file(path),

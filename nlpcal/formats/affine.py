@@ -152,10 +152,14 @@ class AffineCorrection(Document):
             factor,
         )
 
-    def to_result(self, log_unit: str | None = None, **input_block) -> CalibrationResult:
+    def to_result(
+        self, log_unit: str | None = None, unit_source: str = "format", **input_block
+    ) -> CalibrationResult:
         """A CalibrationResult holding the nine parameters of this correction (Cholesky route).
 
         log_unit : the unit of the logs it applies to (default: the base unit, nT or raw).
+        unit_source : where the file's unit came from (`read_unit_source`; "format" when the
+            format fixes it, as the autopilots' do).
         The rotation Q that the nine parameters do not carry (A = Q O_p S_p) is recorded under
         input.rotation_not_carried; |B1| is the same with or without it. The result's model is
         the smallest form of Eq. 4 that holds the correction exactly (a diagonal A: "diagonal").
@@ -184,6 +188,7 @@ class AffineCorrection(Document):
             # by nlpcal reads back as that model
             model_name=smallest_model(params.to_dict(), reference["mode"] != "none"),
             unit=base,
+            unit_source=unit_source,
             input={
                 **input_block,
                 "log_unit": log_unit or base,
@@ -227,10 +232,21 @@ class AffineCorrection(Document):
 
 
 def _provenance(result: CalibrationResult) -> dict:
-    block = {"method": result.method, "parameters_unit": result.unit}
+    block = {
+        "method": result.method,
+        "parameters_unit": result.unit,
+        "unit_source": result.unit_source,
+        "scale_fixed_by": result.scale_fixed_by(),
+    }
     if result.input.get("log"):
         block["log"] = result.input["log"]
     return block
+
+
+def read_unit_source(given, stated) -> str:
+    """Where the unit of a file read came from (`nlpcal.units.UNIT_SOURCES`): the unit `given`
+    (--unit) is "option", one the file `stated` "format", nlpcal's default nT "assumed"."""
+    return "option" if given else "format" if stated else "assumed"
 
 
 @dataclass

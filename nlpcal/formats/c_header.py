@@ -15,7 +15,7 @@ import numpy as np
 from .. import units, validation
 from ..errors import InputError
 from ..results import distinct
-from .affine import MODEL, AffineCorrection, Export
+from .affine import MODEL, AffineCorrection, Export, read_unit_source
 
 _UNIT = re.compile(r"b and B1 in (\S+?)[,;]")
 _ARRAY = re.compile(r"NLPCAL_(A|B|FIELD)\b[^=]*=\s*(\{.*?\}\s*\}|\{.*?\}|[^;{]+)", re.DOTALL)
@@ -49,7 +49,7 @@ def write(correction: AffineCorrection) -> Export:
 def read(text: str, source: str, unit: str | None = None) -> AffineCorrection:
     """NLPCAL_A, NLPCAL_B (and NLPCAL_FIELD) of a header written by `write`."""
     written = _UNIT.search(text)
-    unit = unit or (written.group(1) if written else "nT")
+    given, unit = unit, unit or (written.group(1) if written else "nT")
     units.field_factor(unit)
     code = re.sub(r"/\*.*?\*/", " ", text, flags=re.DOTALL)
     found = [
@@ -66,7 +66,11 @@ def read(text: str, source: str, unit: str | None = None) -> AffineCorrection:
         offsets=values["B"],
         unit=unit,
         field=field,
-        source={"file": source, "format": "c-header"},
+        source={
+            "file": source,
+            "format": "c-header",
+            "unit_source": read_unit_source(given, written),
+        },
     )
 
 

@@ -20,7 +20,7 @@ import numpy as np
 from .. import units
 from ..errors import InputError
 from ..results import distinct
-from .affine import MODEL, AffineCorrection, Export, number_text
+from .affine import MODEL, AffineCorrection, Export, number_text, read_unit_source
 
 _UNIT = re.compile(r"^\s*%\s*unit:\s*(\S+)", re.MULTILINE)
 _ASSIGNMENT = re.compile(r"\b(A|b|expmfs)\s*=\s*(\[[^\]]*\]|[^;\n]+)", re.DOTALL)
@@ -80,7 +80,7 @@ def read(text: str, source: str, unit: str | None = None) -> AffineCorrection:
         offsets=b.ravel(),
         unit=file_unit,
         field=field,
-        source={"file": source, "format": "matlab"},
+        source={"file": source, "format": "matlab", "unit_source": read_unit_source(unit, written)},
     )
 
 

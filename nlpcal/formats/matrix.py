@@ -15,7 +15,7 @@ from __future__ import annotations
 from ..errors import InputError
 from ..io.files import json_text
 from ..results import parse_json
-from .affine import AffineCorrection, Export
+from .affine import AffineCorrection, Export, read_unit_source
 
 
 def write(correction: AffineCorrection) -> Export:
@@ -29,7 +29,13 @@ def read(text: str, source: str, unit: str | None = None) -> AffineCorrection:
     except RecursionError:
         raise InputError(f"{source}: nested too deeply; not valid JSON") from None
     correction = AffineCorrection.from_dict(document, source)
-    correction.source = {"file": source, "format": "matrix", "written_by": correction.source}
+    stated = isinstance(document, dict) and "unit" in document
+    correction.source = {
+        "file": source,
+        "format": "matrix",
+        "written_by": correction.source,
+        "unit_source": read_unit_source(unit, stated),
+    }
     if unit and unit != correction.unit:
         if isinstance(document, dict) and "unit" in document:
             raise InputError(

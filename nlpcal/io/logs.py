@@ -44,7 +44,8 @@ class Log:
     path : where it came from ("stdin" for `-`).
     columns : the three field columns.
     samples : (N, 3) field samples in the base unit (nT, or raw counts). [base unit]
-    unit : the unit of the field columns in the file.
+    unit : the unit of the field columns in the file ("raw" when an assumed unit was ruled out).
+    unit_source : where the unit came from, one of `nlpcal.units.UNIT_SOURCES`.
     reference : None, a number or (N,) values of the reference field magnitude. [base unit]
     reference_column : the column the reference came from, if any.
     reference_source : what a geomagnetic-model reference came from (model, package), if any.
@@ -62,6 +63,7 @@ class Log:
     columns: list
     samples: np.ndarray
     unit: str
+    unit_source: str = "assumed"
     reference: object = None
     reference_column: str | None = None
     reference_source: dict | None = None
@@ -89,6 +91,7 @@ class Log:
             "log": self.path,
             "columns": list(self.columns),
             "log_unit": self.unit,
+            "unit_source": self.unit_source,
             "layout": self.layout.to_dict(),
             "csv_engine": self.engine,
             "rows_dropped": int(self.dropped),
@@ -136,12 +139,23 @@ class Log:
         return self.extras[self.column(column)]
 
 
-def sensor_unit(columns, unit, fallback, notes, what="magnetometer", flag="--unit") -> tuple:
-    """(unit, how) of a sensor's columns: `unit` ("given"), else the one their names carry
-    ("names"), else `fallback` ("assumed")."""
+def sensor_unit(
+    columns, unit, fallback, notes, what="magnetometer", flag="--unit", declared=None
+) -> tuple:
+    """(unit, source) of a sensor's columns, the source one of `nlpcal.units.UNIT_SOURCES`:
+    `unit` ("option"), else the unit the file format `declared` ("format"), else the one the
+    column names carry ("names"), else `fallback` ("assumed")."""
     prefixes = units.MAGNETIC_PREFIXES if what == "magnetometer" else units.ACC_PREFIXES
     suffixes = units.FIELD_SUFFIXES if what == "magnetometer" else units.ACC_SUFFIXES
     hinted = units.suggested_unit(columns, prefixes, suffixes)
+    if unit is None and declared is not None:
+        units.field_factor(declared)
+        if hinted and hinted != declared:
+            notes.append(
+                f"the {what} columns ({', '.join(columns)}) suggest {hinted}, but the file "
+                f"format fixes {declared}"
+            )
+        return declared, "format"
     if unit is None:
         if hinted:
             notes.append(f"{what} unit {hinted} taken from the column names ({', '.join(columns)})")
@@ -155,7 +169,7 @@ def sensor_unit(columns, unit, fallback, notes, what="magnetometer", flag="--uni
         notes.append(
             f"the {what} columns ({', '.join(columns)}) suggest {hinted}, but {flag} is {unit}"
         )
-    return unit, "given"
+    return unit, "option"
 
 
 def typical_magnitudes(samples) -> list:
@@ -253,7 +267,9 @@ def read_log(
 
     path : a delimited text log, "-" for stdin, or a `Table` already read.
     columns : the three field columns, names or 0-based positions (None: detected).
-    unit : the unit of the field columns (None: from their names, else `fallback_unit`).
+    unit : the unit of the field columns (None: the unit a file format fixes, `Table.field_unit`,
+        else the one their names carry, else `fallback_unit`; an assumed unit under which the
+        magnitudes are far from Earth's field gives way to raw counts, `settle_unit`).
     reference_column : a column of reference magnitudes, or reference_field : one number (in
         `reference_field_unit`, default the log's unit). The reference is converted to the base
         unit with the samples.
@@ -315,12 +331,12 @@ def read_log(
         values, kept, dropped = screened(
             table, chosen + extra + times_at, drop_invalid, notes, checked
         )
-        unit, how = sensor_unit(chosen, unit, fallback_unit, notes)
+        unit, how = sensor_unit(chosen, unit, fallback_unit, notes, declared=table.field_unit)
         frame, engine, layout, source = table.frame, table.engine, table.layout, table.source
         samples = values[:, :3] * units.field_factor(unit)
     if samples.shape[0]:
         validation.sample_sizes(samples)
-    check = unit_check(samples, unit, how)
+    samples, unit, check = settle_unit(samples, unit, how)
     warnings = [check] if check else []
     resolved = dict(zip(requested, extra))  # the names asked for -> the log's own names
     extras = {name: np.asarray(values[:, 3 + k]) for k, name in enumerate(extra)}
@@ -346,6 +362,7 @@ def read_log(
         columns=list(chosen),
         samples=samples,
         unit=unit,
+        unit_source=how,
         reference=reference,
         reference_column=name,
         reference_source=source_of_reference,
@@ -376,6 +393,22 @@ def unit_check(
     factor = units.field_factor(unit) if sensor == "magnetometer" else units.acc_factor(unit)
     in_unit = [m / factor for m in typical_magnitudes(samples)]
     return units.unit_warning(in_unit, unit, how, sensor=sensor, flag=flag, raw_allowed=raw_allowed)
+
+
+def settle_unit(samples, unit: str, how: str) -> tuple:
+    """(samples, unit, warning or None) after the plausibility check of a field log's unit.
+
+    samples : in the base unit of `unit`. [nT or raw]
+    An assumed unit (`how` "assumed") under which the magnitudes are far from Earth's field is
+    not kept: the samples are taken back to the file's numbers and recorded as raw counts, so no
+    result made from them claims a field unit. A unit given, fixed by the format or carried by the
+    names is kept, with the warning.
+    """
+    warning = unit_check(samples, unit, how)
+    if warning is None or how != "assumed":
+        return samples, unit, warning
+    factor = units.field_factor(unit)
+    return (samples if factor == 1.0 else samples * (1.0 / factor)), "raw", warning
 
 
 #: The role of the column of times, read apart from the numeric columns.

@@ -62,6 +62,12 @@ class Table:
     layout : how the file is laid out (delimiter, header, decimal mark, comments).
     engine : the pandas engine that read it.
     text : whether the cells were kept as text (so that they can be written back unchanged).
+    field_unit : the unit of the field columns when the file format fixes it (a ROS
+        sensor_msgs/MagneticField is in tesla, an ArduPilot DataFlash MAG message in milligauss,
+        an ImagCDF file states its unit in its header), else None. A reader of such a format
+        sets it; `nlpcal.io.read_log` then records the unit with `unit_source` "format". The
+        delimited text and Parquet readers of today leave it None: nothing in those files fixes
+        a unit.
     """
 
     source: str
@@ -70,6 +76,7 @@ class Table:
     engine: str = "c"
     text: bool = False
     notes: list = field(default_factory=list)
+    field_unit: str | None = None
 
     @property
     def columns(self) -> list:
