@@ -255,6 +255,52 @@ def test_outputs_are_put_in_place_only_when_all_are_complete(writer, tmp_path, c
     assert sorted(p.name for p in tmp_path.iterdir()) == ["first.json"]
 
 
+def test_a_reader_gone_from_stdout_leaves_the_other_outputs_in_place(writer, tmp_path):
+    # the reader of stdout went away having what it wanted: the complete files still take place
+    first = tmp_path / "first.json"
+    first.write_text("previous")
+
+    def gone(handle):
+        raise BrokenPipeError(errno.EPIPE, "Broken pipe")
+
+    with pytest.raises(BrokenPipeError), Outputs() as outputs:
+        outputs.json(first, {"a": 1})
+        outputs.write(None, gone)
+    assert json.loads(first.read_text()) == {"a": 1}
+    assert debris(tmp_path) == []
+
+
+def test_two_outputs_to_one_place_are_refused(tmp_path):
+    with pytest.raises(InputError, match="share one destination"), Outputs() as outputs:
+        outputs.text(None, "a document")
+        outputs.bytes("-", PNG)  # a figure after a document on stdout: neither readable
+    with pytest.raises(InputError, match="share one destination"), Outputs() as outputs:
+        outputs.text(tmp_path / "out.txt", "a")
+        outputs.text(tmp_path / "." / "out.txt", "b")
+    assert not (tmp_path / "out.txt").exists()
+    with Outputs() as outputs:  # a character device takes any number of outputs
+        device = tmp_path / "null"
+        null_device(device)
+        outputs.text(device, "a")
+        outputs.bytes(device, PNG)
+
+
+@pytest.mark.parametrize("output", [None, "-"])
+def test_a_plot_to_the_stdout_of_a_document_is_refused_before_any_work(inputs, capsys, output):
+    argv = ["calibrate", str(inputs / "log.csv"), "--unit", "nT", "--plot", "-"]
+    code = main(argv + ([] if output is None else ["-o", output]))
+    captured = capsys.readouterr()
+    assert code == 2 and captured.out == ""
+    assert "share one destination" in captured.err and "verdict" not in captured.err
+
+
+def test_a_link_into_a_missing_folder_is_refused_before_any_work(tmp_path):
+    link = tmp_path / "params.json"
+    link.symlink_to(tmp_path / "nowhere" / "params.json")
+    with pytest.raises(InputError, match="does not exist"):
+        files.check_output_path(link)
+
+
 def test_a_failed_write_through_leaves_the_files(writer, tmp_path):
     first = tmp_path / "first.json"
     first.write_text("previous")

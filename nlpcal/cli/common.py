@@ -444,12 +444,13 @@ def write_plot(outputs, args, log, parameters, corrected=None) -> None:
 
 
 def check_plot(args) -> None:
-    from ..io import check_output_path
+    from ..io import check_distinct_outputs, check_output_path
     from ..plots import require_matplotlib
 
+    plot = getattr(args, "plot", None)
     check_output_path(
-        getattr(args, "plot", None),
-        *(getattr(args, name, None) for name in ("log", "params", "drift", "output")),
+        plot, *(getattr(args, name, None) for name in ("log", "params", "drift", "output"))
     )
-    if getattr(args, "plot", None):
+    if plot:
+        check_distinct_outputs(plot, getattr(args, "output", None))
         require_matplotlib()
