@@ -34,7 +34,7 @@ from .diagnostics import (
 from .joint import run_joint
 from .problem import Problem
 from .result import CalibrationResult
-from .selection import MODEL_CHOICES, choose_model, selection_warning
+from .selection import MODEL_CHOICES, choose_model, restriction_warning, selection_warning
 from .staged import CYCLES_DEFAULT, RTOL_DEFAULT, StopRule, run_staged
 
 METHODS = ("staged", "joint")
@@ -186,7 +186,27 @@ def calibrate(
         record_unit(result, unit_source, unit_warnings)
         if selection is not None:
             record_selection(result, selection)
+        elif model != "full":  # a form the user chose: do the data contradict what it fixes?
+            check_restriction(result, problem_for(model), problem_for("full"), rule, base)
         return result
+
+
+def check_restriction(
+    result: CalibrationResult, restricted: Problem, full: Problem, rule: StopRule, base: str
+) -> None:
+    """Warn when the log contradicts the parameters a restricted model fixes
+    (`selection.restriction_warning`), judged against the full model's joint solve on the same
+    moments; a full model the data do not determine says nothing, and no warning is given."""
+    try:
+        reference = estimate(full, "joint", rule, base, quality=False)
+    except SolveError:
+        return
+    if reference.identifiability.get("not_identifiable"):
+        return
+    freed = (full.free.basis.shape[1], restricted.free.basis.shape[1])
+    warning = restriction_warning(result, reference, freed)
+    if warning:
+        result.warnings.append(warning)
 
 
 def record_unit(result: CalibrationResult, source: str, warnings: list) -> None:
