@@ -201,13 +201,19 @@ def check_distinct_outputs(*paths) -> None:
     place (`destination`)."""
     seen: dict = {}
     for path in paths:
-        place = destination(output_target(path))
-        if place is not None and place in seen:
-            raise InputError(
-                f"{'-' if path is None else path}: {seen[place]} is written there already; two "
-                f"outputs cannot share one destination, so give each its own"
-            )
-        seen.setdefault(place, "-" if path is None else str(path))
+        _claim(seen, destination(output_target(path)), path)
+
+
+def _claim(places: dict, place, path) -> None:
+    """Record that the output `path` goes to `place` in `places` (its destinations so far);
+    InputError when another output went there already."""
+    name = "-" if path is None else str(path)
+    if place is not None and place in places:
+        raise InputError(
+            f"{name}: {places[place]} is written there already; two outputs cannot share one "
+            f"destination, so give each its own"
+        )
+    places.setdefault(place, name)
 
 
 def passes_through(path) -> bool:
@@ -383,13 +389,7 @@ class Outputs:
         when another output of the same commit goes to the same place (stdout twice would
         interleave a document and a figure)."""
         target = output_target(path)
-        place = destination(target)
-        if place is not None and place in self._places:
-            raise InputError(
-                f"{path}: {self._places[place]} is written there already; two outputs cannot "
-                f"share one destination, so give each its own"
-            )
-        self._places[place] = "-" if path is None else str(path)
+        _claim(self._places, destination(target), path)
         kind = _Replacement if target.kind == "replace" else _Passage
         self._pending.append(kind(path, target, write, binary))
 
