@@ -23,6 +23,8 @@ ACC_UNITS_G = {"g": 1.0, "mg": 1e-3, "m/s2": 1.0 / 9.80665}
 FIELD_SUFFIXES = {
     "nt": "nT",
     "ut": "uT",
+    "µt": "uT",  # the micro sign (phyphox: "Magnetic field x (µT)")
+    "μt": "uT",  # the Greek letter mu
     "mt": "mT",
     "mg": "mG",
     "gauss": "G",
@@ -137,6 +139,8 @@ MAGNETIC_PREFIXES = (
     "field",
     "compass",
     "b1",
+    "magneticfield",  # phyphox "Magnetic field x (µT)", ROS 2 magnetic_field.x
+    "fieldmagneticfield",  # ROS 1 `rostopic echo -p`: field.magnetic_field.x
 )
 #: Prefixes of accelerometer axes (ax, acc_x, accel_x, "Accelerometer X (g)").
 ACC_PREFIXES = ("a", "acc", "accel", "accelerometer", "acceleration", "f")

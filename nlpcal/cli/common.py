@@ -71,6 +71,17 @@ def at_least_one(text: str) -> int:
     return value
 
 
+def at_least_zero(text: str) -> int:
+    """An argparse type: a whole number of at least 0 (a 0-based index)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected 0 or more, got {value}")
+    return value
+
+
 def add_verbosity(parser) -> None:
     """-v/--verbose and -q/--quiet on a parser and, recursively, on its subcommands; the value
     given anywhere on the command line wins (subcommands leave the default to the top)."""
@@ -207,6 +218,7 @@ def add_log_arguments(
         "that would fit; a unit given here is used as given",
     )
     add_input_arguments(parser)
+    add_recorded_arguments(parser)
     parser.add_argument(
         "--drop-invalid",
         action="store_true",
@@ -215,6 +227,33 @@ def add_log_arguments(
         "instead of failing on the first and keeping the second. Rows reading exactly "
         "(0, 0, 0) are always left out",
     )
+
+
+def add_recorded_arguments(parser) -> None:
+    """--variable (a MATLAB .mat file) and --instance (an ArduPilot DataFlash log)."""
+    parser.add_argument(
+        "--variable",
+        metavar="NAME",
+        help="the variable of a MATLAB .mat file that holds the field: an N x 3 array or a "
+        "struct with magnetometer fields (default: the only one, or the only one whose name "
+        "says mag)",
+    )
+    parser.add_argument(
+        "--instance",
+        type=at_least_zero,
+        metavar="N",
+        help="the compass of an ArduPilot DataFlash .bin log, 0-based like the I field of its "
+        "MAG messages (MAG2 is 1, MAG3 is 2 in older logs); needed when it has several",
+    )
+
+
+def table_options(args) -> dict:
+    """The keyword arguments of `nlpcal.io.read_table` that the common arguments give."""
+    return {
+        "header": getattr(args, "header", None),
+        "variable": getattr(args, "variable", None),
+        "instance": getattr(args, "instance", None),
+    }
 
 
 def add_field_argument(
@@ -374,7 +413,7 @@ def log_options(args) -> dict:
         "columns": args.columns,
         "unit": args.unit,
         "drop_invalid": args.drop_invalid,
-        "header": getattr(args, "header", None),
+        **table_options(args),
         "reference_column": getattr(args, "reference_column", None),
         "reference_field": getattr(args, "reference_field", None),
         "reference_model": reference_model(args),
@@ -417,7 +456,8 @@ def add_params_argument(parser) -> None:
 #: The help of a LOG argument.
 LOG_HELP = (
     "the log: a delimited text file (comma, semicolon, tab or whitespace), a Parquet file, a "
-    "quoted pattern or a folder of them, or - for stdin"
+    "quoted pattern or a folder of them, or - for stdin; or a MotionCal capture (Raw: lines), "
+    "a MATLAB .mat file or an ArduPilot DataFlash .bin log"
 )
 
 
