@@ -299,7 +299,7 @@ def _run_calibrate(args) -> int:
     progress("")
     say_verdict(result)
     warn(
-        f"read {log.n} rows in {read_s:.2f} s (pandas {log.engine} engine); calibrated in "
+        f"read {log.n} rows in {read_s:.2f} s ({log.read_by}); calibrated in "
         f"{time.perf_counter() - started:.2f} s"
     )
     say(result.table(most=table_rows()))

@@ -159,8 +159,8 @@ def tell(notes) -> None:
 
 def report_log(log) -> None:
     """How a log was read (-v), what the reader decided and what looks wrong (not with -q)."""
-    engine = getattr(log, "engine", "c")
-    detail(f"read {log.path}: {log.layout.describe()} (pandas {engine} engine)")
+    engine = getattr(log, "read_by", "pandas c engine")
+    detail(f"read {log.path}: {log.layout.describe()} ({engine})")
     tell(log.notes)
     for message in log.warnings:
         warning(message)

@@ -294,7 +294,8 @@ def read_lazy_log(
     files = log_files(source, header, notes=notes)
     first = files[0]
     chosen = first.field_columns(columns, notes)
-    unit, how = sensor_unit(chosen, unit, fallback_unit, notes, declared=declared_unit(chosen))
+    declared = declared_unit(chosen, notes)
+    unit, how = sensor_unit(chosen, unit, fallback_unit, notes, declared=declared)
     wanted, factors = list(chosen), [units.field_factor(unit)] * 3
     name = None
     if reference_column is not None:

@@ -26,7 +26,7 @@ from ..geomagnetic import ReferenceModel, parse_times
 from ..moments import sphere_frame
 from .layout import Layout
 from .mapped import csv_to_memmap
-from .recorders import check_options, declared_unit, is_recorded
+from .recorders import ENGINES, check_options, declared_unit, is_recorded
 from .rows import RowScreen
 from .tables import (
     Table,
@@ -81,6 +81,11 @@ class Log:
     def base_unit(self) -> str:
         """The unit of `samples` and `reference`: "nT", or "raw" for counts."""
         return units.base_unit(self.unit)
+
+    @property
+    def read_by(self) -> str:
+        """What read the log, for messages: "pandas c engine", "pymavlink DFReader" ..."""
+        return self.engine if self.engine in ENGINES.values() else f"pandas {self.engine} engine"
 
     @property
     def n(self) -> int:
@@ -310,7 +315,7 @@ def read_log(
 
         def scale(chosen) -> float:  # the unit, once the columns are known
             decided["unit"], decided["how"] = sensor_unit(
-                chosen, unit, fallback_unit, notes, declared=declared_unit(chosen)
+                chosen, unit, fallback_unit, notes, declared=declared_unit(chosen, notes)
             )
             return units.field_factor(decided["unit"])
 
@@ -349,7 +354,9 @@ def read_log(
         values, kept, dropped = screened(
             table, chosen + extra + times_at, drop_invalid, notes, checked
         )
-        declared = table.field_unit if table.field_columns == chosen else declared_unit(chosen)
+        declared = (
+            table.field_unit if table.field_columns == chosen else declared_unit(chosen, notes)
+        )
         unit, how = sensor_unit(chosen, unit, fallback_unit, notes, declared=declared)
         frame, engine, layout, source = table.frame, table.engine, table.layout, table.source
         samples = values[:, :3] * units.field_factor(unit)

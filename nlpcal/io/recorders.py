@@ -31,6 +31,12 @@ from .layout import head_bytes
 from .matlab import is_mat, read_mat
 from .motioncal import is_capture, read_capture
 
+#: What reads each recorded format (`Log.engine`), for messages and result documents.
+ENGINES = {
+    "motioncal": "MotionCal line reader",
+    "mat": "scipy/h5py MATLAB reader",
+    "dataflash": "pymavlink DFReader",
+}
 #: What the reading options apply to, for messages.
 OPTION_FORMATS = {
     "--variable": "MATLAB .mat files",
@@ -93,14 +99,14 @@ def read_recorded(name: str, source, *, variable=None, instance=None) -> Recorde
     unit: str | None
     if found == "motioncal":
         frame, notes = read_capture(name, _bytes(source))
-        columns, unit, engine = motioncal.FIELD_COLUMNS, motioncal.FIELD_UNIT, "MotionCal"
+        columns, unit = motioncal.FIELD_COLUMNS, motioncal.FIELD_UNIT
     elif found == "mat":
         frame, columns, notes = read_mat(name, source, variable)
-        unit, engine = None, "MATLAB .mat"
+        unit = None
     else:
         frame, notes = read_dataflash(name, source, instance)
-        columns, unit, engine = dataflash.FIELD_COLUMNS, dataflash.FIELD_UNIT, "pymavlink"
-    return Recorded(frame, columns, unit, engine, notes)
+        columns, unit = dataflash.FIELD_COLUMNS, dataflash.FIELD_UNIT
+    return Recorded(frame, columns, unit, ENGINES[found], notes)
 
 
 def check_options(name: str, found: str | None, *, variable=None, instance=None) -> None:
@@ -122,11 +128,16 @@ def _bytes(source) -> bytes:
         return handle.read()
 
 
-def declared_unit(columns) -> str | None:
+def declared_unit(columns, notes: list | None = None) -> str | None:
     """The unit a recorded format fixes for field columns of these names: tesla for ROS
-    `sensor_msgs/MagneticField` columns, else None."""
+    `sensor_msgs/MagneticField` columns (said in `notes`), else None."""
     prefixes = {units.clean(str(c).lower())[:-1] for c in columns}
     axes = [str(c).lower()[-1:] for c in columns]
     if len(prefixes) == 1 and prefixes <= set(ROS_PREFIXES) and axes == ["x", "y", "z"]:
+        if notes is not None:
+            notes.append(
+                f"the field columns ({', '.join(map(str, columns))}) are a ROS "
+                f"sensor_msgs/MagneticField, in tesla"
+            )
         return ROS_UNIT
     return None
