@@ -159,8 +159,8 @@ def tell(notes) -> None:
 
 def report_log(log) -> None:
     """How a log was read (-v), what the reader decided and what looks wrong (not with -q)."""
-    engine = getattr(log, "read_by", "pandas c engine")
-    detail(f"read {log.path}: {log.layout.describe()} ({engine})")
+    reading = log.reading() if hasattr(log, "reading") else log.layout.describe()
+    detail(f"read {log.path}: {reading}")
     tell(log.notes)
     for message in log.warnings:
         warning(message)

@@ -16,7 +16,6 @@ import io
 import os
 import tempfile
 
-import numpy as np
 import pandas as pd
 
 from ..errors import InputError
@@ -54,9 +53,7 @@ def _messages(path) -> list:
                     break
                 kind = message.get_type()
                 instance = int(getattr(message, "I", MESSAGES[kind]))
-                found.append(
-                    (instance, [float(getattr(message, name, np.nan)) for name in COLUMNS])
-                )
+                found.append((instance, [getattr(message, name, None) for name in COLUMNS]))
         finally:
             reader.filehandle.close()
     return found
@@ -100,8 +97,7 @@ def read_dataflash(name: str, source, instance: int | None = None) -> tuple:
             f"--instance with one of those"
         )
     rows = [row for k, row in messages if k == chosen]
-    frame = pd.DataFrame(np.asarray(rows, dtype=float), columns=list(COLUMNS))
-    frame = frame.dropna(axis=1, how="all")
+    frame = pd.DataFrame(rows, columns=list(COLUMNS)).dropna(axis=1, how="all")
     notes = [
         f"{name}: ArduPilot DataFlash log, compass instance {chosen} ({len(rows)} MAG "
         f"messages; MagX, MagY, MagZ in mG with the vehicle's offsets applied)"

@@ -36,7 +36,7 @@ from .logs import (
     sensor_unit,
     settle_unit,
 )
-from .recorders import check_options, declared_unit, is_recorded
+from .recorders import check_options, declared_unit
 from .rows import QUOTED_ROWS, RowScreen
 from .tables import column_name, log_files, named, numeric_columns, resolve_columns, unreadable
 
@@ -284,11 +284,6 @@ def read_lazy_log(
         import dask  # noqa: F401
     except ImportError:
         raise InputError("a log on a Dask cluster needs dask: pip install 'nlpcal[dask]'") from None
-    if is_recorded(source):
-        raise InputError(
-            f"{source} is read whole, not in blocks on a cluster (a MotionCal capture, a .mat "
-            f"file or a DataFlash log); drop --scheduler"
-        )
     check_options(str(source), None, variable=variable, instance=instance)
     notes: list = []
     files = log_files(source, header, notes=notes)

@@ -85,7 +85,16 @@ class Log:
     @property
     def read_by(self) -> str:
         """What read the log, for messages: "pandas c engine", "pymavlink DFReader" ..."""
-        return self.engine if self.engine in ENGINES.values() else f"pandas {self.engine} engine"
+        return self.engine if self.recorded else f"pandas {self.engine} engine"
+
+    @property
+    def recorded(self) -> bool:
+        """Whether the log was read from a recorded format (`nlpcal.io.recorders`), not text."""
+        return self.engine in ENGINES.values()
+
+    def reading(self) -> str:
+        """How the log was read, for messages: its layout (of text) and its reader."""
+        return self.read_by if self.recorded else f"{self.layout.describe()} ({self.read_by})"
 
     @property
     def n(self) -> int:
@@ -354,9 +363,9 @@ def read_log(
         values, kept, dropped = screened(
             table, chosen + extra + times_at, drop_invalid, notes, checked
         )
-        declared = (
-            table.field_unit if table.field_columns == chosen else declared_unit(chosen, notes)
-        )
+        fixed = table.field_columns in (None, chosen)  # the unit of other columns is not
+        declared = table.field_unit if fixed else None
+        declared = declared or declared_unit(chosen, notes)
         unit, how = sensor_unit(chosen, unit, fallback_unit, notes, declared=declared)
         frame, engine, layout, source = table.frame, table.engine, table.layout, table.source
         samples = values[:, :3] * units.field_factor(unit)

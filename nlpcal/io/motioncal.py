@@ -72,5 +72,5 @@ def read_capture(name: str, data: bytes) -> tuple:
         notes.append(f"{other} line(s) other than Raw: left out ({', '.join(OTHER_KINDS)} ...)")
     if cut:
         notes.append(f"{cut} incomplete or malformed Raw: line(s) left out")
-    frame = pd.DataFrame(np.asarray(rows, dtype=float), columns=list(COLUMNS))
+    frame = pd.DataFrame(np.asarray(rows, dtype=np.int64), columns=list(COLUMNS))
     return frame, notes

@@ -37,6 +37,12 @@ ENGINES = {
     "mat": "scipy/h5py MATLAB reader",
     "dataflash": "pymavlink DFReader",
 }
+#: What each recorded format is, for messages.
+NAMES = {
+    "motioncal": "a MotionCal capture",
+    "mat": "a MATLAB .mat file",
+    "dataflash": "an ArduPilot DataFlash log",
+}
 #: What the reading options apply to, for messages.
 OPTION_FORMATS = {
     "--variable": "MATLAB .mat files",
@@ -85,6 +91,17 @@ def is_recorded(path) -> bool:
     if text == "-" or not os.path.isfile(text):
         return False
     return kind(head_bytes(text)) is not None
+
+
+def refuse_streaming(name: str, source) -> None:
+    """InputError when a file that is read whole (a recorded format) is to be read in chunks
+    (--low-memory on a pattern) or blocks (--scheduler)."""
+    found = kind(head_bytes(source))
+    if found is not None:
+        raise InputError(
+            f"{name} is {NAMES[found]}, which nlpcal reads whole, not in chunks or blocks; "
+            f"drop --low-memory or --scheduler"
+        )
 
 
 def read_recorded(name: str, source, *, variable=None, instance=None) -> Recorded | None:

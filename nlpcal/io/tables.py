@@ -393,6 +393,7 @@ def log_files(
             found.append(LogFile(str(item), item, Layout(), pd.DataFrame(columns=columns), True))
             continue
         label, source = open_source(item)
+        recorders.refuse_streaming(name or label, source)
         layout = detect_layout(name or label, source, header)
         preview, _ = _frame(name or label, source, layout, nrows=PREVIEW_ROWS)
         found.append(LogFile(name or label, source, layout, preview))
