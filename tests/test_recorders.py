@@ -7,6 +7,7 @@ the independent forward model in synthetic.py. Every suggestion the reader print
 from __future__ import annotations
 
 import json
+import re
 import struct
 import sys
 
@@ -421,3 +422,58 @@ def test_a_damaged_mat_or_bin_is_one_sentence(tmp_path, capsys):
         path.write_bytes(data)
         with pytest.raises(InputError):
             read_log(path)
+
+
+# --- the rest of the reader's contract on recorded logs -----------------------------------------
+
+
+def test_apply_writes_every_recorded_row_back_with_its_columns(tmp_path, capsys):
+    pytest.importorskip("pymavlink")
+    samples, _ = field_nt()
+    path = tmp_path / "log.bin"
+    path.write_bytes(dataflash_log([np.rint(samples / NT_PER_COUNT)] * 2))
+    calibrated(capsys, tmp_path, path, "--instance", "1")
+    output = tmp_path / "applied.csv"
+    code, out, err = run(
+        capsys, "apply", tmp_path / "out.json", path, "--instance", "1", "-o", output
+    )
+    assert code == 0, err
+    lines = output.read_text().splitlines()
+    assert lines[0].split(",")[:4] == ["TimeUS", "MagX", "MagY", "MagZ"] and len(lines) == 2001
+    assert lines[1].startswith("1000000,")  # the log's time as logged, in microseconds
+    code, out, err = run(capsys, "apply", tmp_path / "out.json", path, "-o", output)
+    assert code == 2 and "--instance" in err
+
+
+def test_low_memory_reads_a_recorded_log_whole_and_scheduler_refuses_it(tmp_path, capsys):
+    samples, _ = field_nt()
+    path = tmp_path / "capture.txt"
+    path.write_text(motioncal_text(samples))
+    output = tmp_path / "out.json"
+    code, out, err = run(capsys, "calibrate", path, "--low-memory", "-o", output)
+    assert code == 0 and "read whole" in err
+    pytest.importorskip("dask")
+    code, out, err = run(capsys, "calibrate", path, "--scheduler", "threads", "-o", output)
+    assert code == 2 and "--scheduler" in err
+
+
+def test_other_columns_of_a_capture_are_not_in_the_format_unit(tmp_path):
+    samples, _ = field_nt(n=100)
+    path = tmp_path / "capture.txt"
+    path.write_text(motioncal_text(samples))
+    log = read_log(path, columns=["gx", "gy", "gz"], unit="raw")
+    assert (log.unit, log.unit_source) == ("raw", "option")
+    assert read_log(path, columns=["ax", "ay", "az"]).unit_source == "assumed"
+
+
+def test_the_unit_suggested_for_a_mat_file_in_microtesla_works(tmp_path, capsys):
+    """A .mat variable whose name carries no unit, in uT: read as nT the magnitudes are far
+    from Earth's field; the warning suggests the unit, and following it recovers the truth."""
+    samples, _ = field_nt()
+    path = tmp_path / "log.mat"
+    write_v5(path, {"B": samples / 1000.0})
+    output = tmp_path / "out.json"
+    code, out, err = run(capsys, "calibrate", path, "-o", output)
+    suggested = re.findall(r"\((--unit \w+)\)", err)
+    assert suggested == ["--unit uT"]
+    assert_recovers(calibrated(capsys, tmp_path, path, *suggested[0].split()))
