@@ -60,26 +60,23 @@ def add_command(sub, name: str, *, help: str, description: str, examples=(), **o
     )
 
 
-def at_least_one(text: str) -> int:
-    """An argparse type: a whole number of at least 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected at least 1, got {value}")
-    return value
+def at_least(minimum: int):
+    """An argparse type: a whole number of at least `minimum`."""
+
+    def whole_number(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"expected at least {minimum}, got {value}")
+        return value
+
+    return whole_number
 
 
-def at_least_zero(text: str) -> int:
-    """An argparse type: a whole number of at least 0 (a 0-based index)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected 0 or more, got {value}")
-    return value
+#: A count (threads, workers, cycles ...). A 0-based index (a compass instance).
+at_least_one, at_least_zero = at_least(1), at_least(0)
 
 
 def add_verbosity(parser) -> None:
