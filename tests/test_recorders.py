@@ -477,3 +477,18 @@ def test_the_unit_suggested_for_a_mat_file_in_microtesla_works(tmp_path, capsys)
     suggested = re.findall(r"\((--unit \w+)\)", err)
     assert suggested == ["--unit uT"]
     assert_recovers(calibrated(capsys, tmp_path, path, *suggested[0].split()))
+
+
+def test_text_logs_that_only_look_like_recorded_ones_stay_text(tmp_path):
+    """A CSV whose first column is MATLABtime is not a .mat file, and magnetic_field_x columns
+    of one's own are not ROS's tesla."""
+    samples, times = field_nt(n=100)
+    rows = [f"{t},{x},{y},{z}" for t, (x, y, z) in zip(times, samples)]
+    path = tmp_path / "matlab_export.csv"
+    path.write_text("MATLABtime,magnetic_field_x,magnetic_field_y,magnetic_field_z\n")
+    with open(path, "a") as handle:
+        handle.write("\n".join(rows) + "\n")
+    log = read_log(path)
+    assert log.columns == ["magnetic_field_x", "magnetic_field_y", "magnetic_field_z"]
+    assert (log.unit, log.unit_source) == ("nT", "assumed")
+    np.testing.assert_allclose(log.samples, samples)

@@ -31,8 +31,9 @@ AXES = ("x", "y", "z")
 
 
 def is_mat(head: bytes) -> bool:
-    """Whether the start of a file is a MATLAB 5, 7 or 7.3 header."""
-    return head.startswith(b"MATLAB")
+    """Whether the start of a file is a MATLAB 5, 7 or 7.3 header ("MATLAB 5.0 MAT-file, ..."),
+    not a text log whose first column is called MATLABtime."""
+    return head.startswith(b"MATLAB") and b"MAT-file" in head[:116]
 
 
 def _load_v5(name: str, data) -> dict:

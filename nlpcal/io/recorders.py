@@ -19,11 +19,11 @@ text reader.
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass, field
 
 import pandas as pd
 
-from .. import units
 from ..errors import InputError
 from . import dataflash, motioncal
 from .dataflash import is_dataflash, read_dataflash
@@ -48,9 +48,9 @@ OPTION_FORMATS = {
     "--variable": "MATLAB .mat files",
     "--instance": "ArduPilot DataFlash .bin logs",
 }
-#: The prefixes of ROS sensor_msgs/MagneticField columns once cleaned (`nlpcal.units.clean`):
-#: `field.magnetic_field.x` of `rostopic echo -p`, `magnetic_field.x` of ROS 2 exports.
-ROS_PREFIXES = ("fieldmagneticfield", "magneticfield")
+#: ROS sensor_msgs/MagneticField columns: `field.magnetic_field.x` of `rostopic echo -p`,
+#: `magnetic_field.x` of ROS 2 exports (a topic or message name may precede them).
+_ROS_FIELD = re.compile(r"(^|[./])(field\.)?magnetic_field\.[xyz]$")
 #: The unit of sensor_msgs/MagneticField: "Measurement of the Magnetic Field vector at a specific
 #: location in Tesla" (its message definition).
 ROS_UNIT = "T"
@@ -148,13 +148,18 @@ def _bytes(source) -> bytes:
 def declared_unit(columns, notes: list | None = None) -> str | None:
     """The unit a recorded format fixes for field columns of these names: tesla for ROS
     `sensor_msgs/MagneticField` columns (said in `notes`), else None."""
-    prefixes = {units.clean(str(c).lower())[:-1] for c in columns}
-    axes = [str(c).lower()[-1:] for c in columns]
-    if len(prefixes) == 1 and prefixes <= set(ROS_PREFIXES) and axes == ["x", "y", "z"]:
+    names = [str(c).strip() for c in columns]
+    prefixes = {_ROS_FIELD.sub("", name) for name in names}
+    axes = [name[-1:] for name in names]
+    if (
+        all(_ROS_FIELD.search(name) for name in names)
+        and len(prefixes) == 1
+        and axes == ["x", "y", "z"]
+    ):
         if notes is not None:
             notes.append(
-                f"the field columns ({', '.join(map(str, columns))}) are a ROS "
-                f"sensor_msgs/MagneticField, in tesla"
+                f"the field columns ({', '.join(names)}) are a ROS sensor_msgs/MagneticField, "
+                f"in tesla"
             )
         return ROS_UNIT
     return None
