@@ -153,11 +153,16 @@ def is_axis_template(template, prefixes, suffixes) -> bool:
 
 
 def suggested_unit(columns, prefixes=MAGNETIC_PREFIXES, suffixes=FIELD_SUFFIXES):
-    """The unit a column suffix such as _uT, (uT) or _gauss suggests for an axis triple, or None."""
+    """The unit a column suffix such as _uT, (uT) or _gauss suggests for an axis triple, or None;
+    also for three columns of any prefix that differ only in their axis letter and end in the
+    same unit ("flight.B_x_nT", "flight.B_y_nT", "flight.B_z_nT")."""
     low = columns[0].lower()
     for i, ch in enumerate(low):
         if ch in "xyz" and is_axis_template((low[:i], low[i + 1 :]), prefixes, suffixes):
             return suffixes.get(clean(low[i + 1 :]))
+    named = {unit_in_name(str(c), suffixes) for c in columns}
+    if len(named) == 1 and tuple(map(str, columns)) in axis_templates(map(str, columns)).values():
+        return named.pop()
     return None
 
 

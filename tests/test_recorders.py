@@ -278,6 +278,17 @@ def test_a_mat_struct_with_named_axes_is_found(tmp_path, writer):
 
 
 @pytest.mark.parametrize("writer", [write_v5, write_v73])
+def test_a_mat_struct_with_one_n_by_3_field_is_found(tmp_path, writer):
+    samples, times = field_nt(n=100)
+    path = tmp_path / "s.mat"
+    writer(path, {"flight": {"t": times, "B_nT": samples}, "other": 1.0})
+    log = read_log(path)
+    assert log.columns == ["flight.B_x_nT", "flight.B_y_nT", "flight.B_z_nT"]
+    assert (log.unit, log.unit_source) == ("nT", "names") and "t" in log.frame.columns
+    np.testing.assert_allclose(log.samples, samples)
+
+
+@pytest.mark.parametrize("writer", [write_v5, write_v73])
 def test_several_candidate_arrays_ask_for_variable_and_the_suggestion_works(
     tmp_path, capsys, writer
 ):

@@ -128,14 +128,14 @@ def _columns(variables: dict, n: int) -> dict:
     return found
 
 
-def _struct_field(variable: str, struct: dict) -> pd.DataFrame | None:
-    """A struct whose fields hold a magnetometer's axes (or one N x 3 field) as a table."""
+def _struct_field(variable: str, struct: dict) -> tuple | None:
+    """(table, whether its first three columns are the field) of a struct whose fields hold a
+    magnetometer's axes (mx, my, mz ...) or one N x 3 array, else None."""
     triples = {key: t for key, t in ((k, _triple(v)) for k, v in struct.items()) if t is not None}
-    lengths = [np.squeeze(v).shape[0] for v in struct.values() if _vector_like(v)]
     if len(triples) == 1:
         key, triple = next(iter(triples.items()))
-        frame = pd.DataFrame(triple, columns=axis_names(f"{variable}.{key}"))
-        return frame.assign(**_columns(struct, triple.shape[0]))
+        return _table(f"{variable}.{key}", triple, struct), True
+    lengths = [np.squeeze(v).shape[0] for v in struct.values() if _vector_like(v)]
     if not lengths:
         return None
     n = max(set(lengths), key=lengths.count)
@@ -145,7 +145,7 @@ def _struct_field(variable: str, struct: dict) -> pd.DataFrame | None:
         for template in units.axis_templates(list(frame.columns))
         if units.is_axis_template(template, units.MAGNETIC_PREFIXES, units.FIELD_SUFFIXES)
     ]
-    return frame if len(recognised) == 1 else None
+    return (frame, False) if len(recognised) == 1 else None
 
 
 def _vector_like(value) -> bool:
@@ -170,13 +170,13 @@ def _chosen(name: str, variables: dict, variable: str | None) -> tuple:
         triple = _triple(value)
         if triple is not None:
             return variable, _table(variable, triple, variables), True
-        frame = _struct_field(variable, value) if isinstance(value, dict) else None
-        if frame is None:
+        found = _struct_field(variable, value) if isinstance(value, dict) else None
+        if found is None:
             raise InputError(
                 f"{name}: variable {variable!r} is {_shape(value)}, not an N x 3 numeric array "
                 f"or a struct with magnetometer fields"
             )
-        return variable, frame, False
+        return (variable, *found)
     arrays = {key: t for key, t in ((k, _triple(v)) for k, v in variables.items()) if t is not None}
     if len(arrays) > 1:
         arrays = {key: t for key, t in arrays.items() if _magnetic(key)} or arrays
@@ -189,15 +189,15 @@ def _chosen(name: str, variables: dict, variable: str | None) -> tuple:
             f"--variable NAME, for example --variable {next(iter(arrays))}"
         )
     structs = {
-        key: frame
-        for key, frame in (
+        key: found
+        for key, found in (
             (k, _struct_field(k, v)) for k, v in variables.items() if isinstance(v, dict)
         )
-        if frame is not None
+        if found is not None
     }
     if len(structs) == 1:
-        key, frame = next(iter(structs.items()))
-        return key, frame, False
+        key, found = next(iter(structs.items()))
+        return (key, *found)
     raise InputError(
         f"{name}: no variable is an N x 3 numeric array or a struct with magnetometer fields "
         f"({listing}); pass --variable NAME"
