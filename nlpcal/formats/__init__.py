@@ -125,7 +125,7 @@ def export(
     written.notes[:0] = notes
     if written.dropped:
         written.notes.append(
-            f"not written, {fmt} has no place for it: {'; '.join(written.dropped)}"
+            f"not written to {fmt} (it has no place for them): {'; '.join(written.dropped)}"
         )
     return written
 
