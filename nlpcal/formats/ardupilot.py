@@ -35,17 +35,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
+from . import autopilot
 from .affine import AffineCorrection, Export, number_text
-from .autopilot import (
-    check_range,
-    device_id,
-    identity_lines,
-    orientation,
-    parameters,
-    rotation_lines,
-    symmetric,
-    unused_names,
-)
+from .autopilot import check_range, parameters, rotation_lines, symmetric
 
 UNIT = "mG"
 #: (DIA low, DIA high, |ODI| limit) of CompassCalibrator::fit_acceptable. [1]
@@ -119,7 +111,9 @@ def write(correction: AffineCorrection, instance: int = 1, max_rotation_deg=None
         f" D = [[DIA_X, ODI_X, ODI_Y], [ODI_X, DIA_Y, ODI_Z], [ODI_Y, ODI_Z, DIA_Z]], in mGauss",
         *rotation_lines(rotation, angle, "#"),
     ]
-    identity, dropped = identity_lines(correction, "ardupilot", keys["DEV_ID"], keys["ORIENT"])
+    identity, dropped = autopilot.identity_lines(
+        correction, "ardupilot", keys["DEV_ID"], keys["ORIENT"]
+    )
     if identity and identity[0][0] == keys["DEV_ID"]:
         lines.append(
             f"# {keys['DEV_ID']} names the compass this calibration is for; ArduPilot detects "
@@ -158,7 +152,5 @@ def read(text: str, source: str, instance: int = 1) -> AffineCorrection:
         offsets=-ofs,
         unit=UNIT,
         source={"file": source, "format": "ardupilot", "instance": instance},
-        sensor_id=device_id(values, keys["DEV_ID"], source),
-        orientation=orientation(values, keys["ORIENT"], "ardupilot", ROTATIONS, source),
-        unused=unused_names(values, used, PREFIX),
+        **autopilot.identity(values, used, "ardupilot", ROTATIONS, PREFIX, source),
     )

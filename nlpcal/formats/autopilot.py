@@ -126,6 +126,18 @@ def orientation(values: dict, name: str, system: str, labels: dict, source: str)
     return record
 
 
+def identity(values: dict, used: list, system: str, labels: dict, own: tuple, source: str):
+    """What an import takes beside the correction: {"sensor_id", "orientation", "unused"}, from
+    the device id and rotation parameters, the last two of `used` (`device_id`, `orientation`),
+    and the names of the file it does not use (`unused_names`)."""
+    id_name, rot_name = used[-2:]
+    return {
+        "sensor_id": device_id(values, id_name, source),
+        "orientation": orientation(values, rot_name, system, labels, source),
+        "unused": unused_names(values, used, own),
+    }
+
+
 def identity_lines(correction: AffineCorrection, system: str, id_name: str, rot_name: str):
     """(rows, dropped) for the sensor's identity: the device id and the orientation parameter
     when `correction` carries them in a form `system` takes, else a phrase each for the note."""

@@ -43,17 +43,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
+from . import autopilot
 from .affine import AffineCorrection, Export, number_text
-from .autopilot import (
-    check_range,
-    device_id,
-    identity_lines,
-    orientation,
-    parameters,
-    rotation_lines,
-    symmetric,
-    unused_names,
-)
+from .autopilot import check_range, parameters, rotation_lines, symmetric
 
 UNIT = "G"
 #: Range of CAL_MAGn_XSCALE, _YSCALE, _ZSCALE in PX4's parameter metadata. [1]
@@ -106,7 +98,7 @@ def write(
     odiag = np.array([p[0, 1], p[0, 2], p[1, 2]])
     for name, value in zip(keys["SCALE"], scale):
         check_range(name, value, *SCALE_RANGE, "PX4", "the range of PX4's parameter metadata")
-    identity, dropped = identity_lines(correction, "px4", keys["ID"], keys["ROT"])
+    identity, dropped = autopilot.identity_lines(correction, "px4", keys["ID"], keys["ROT"])
     has_id = bool(identity) and identity[0][0] == keys["ID"]
     lines = [
         f"# nlpcal calibration for PX4 magnetometer slot {instance}: m' = S (m - OFF), "
@@ -191,7 +183,5 @@ def read(text: str, source: str, instance: int = 0) -> AffineCorrection:
         offsets=off,
         unit=UNIT,
         source={"file": source, "format": "px4", "instance": instance},
-        sensor_id=device_id(values, keys["ID"], source),
-        orientation=orientation(values, keys["ROT"], "px4", {-1: "board"}, source),
-        unused=unused_names(values, used, PREFIX),
+        **autopilot.identity(values, used, "px4", {-1: "board"}, PREFIX, source),
     )
