@@ -94,7 +94,7 @@ int main(void)
 @pytest.mark.parametrize("case", ["plain", "common", "per-axis"])
 def test_compiled_header_reproduces_apply(tmp_path, case):
     if case == "plain":
-        result = _result()
+        result = _result(sensor_id='mast "B"')  # its #define must compile too
     elif case == "common":
         result = _temperature("common", k_slope_per_degC=2.5e-4)
     else:
@@ -291,6 +291,11 @@ def test_exports_write_the_device_id_where_the_autopilot_has_a_place(tmp_path):
     path.write_text(export(mounted, "matrix").text)
     back, _ = import_file(path, "matrix")
     assert (back.sensor_id, back.orientation) == (DEVICE_ID, mounted.orientation)
+    # the C header defines it, and reads it back
+    for sensor in (DEVICE_ID, 'mast "B"'):
+        header = tmp_path / "c.h"
+        header.write_text(export(_result(sensor_id=sensor), "c-header").text)
+        assert import_file(header, "c-header")[0].sensor_id == sensor
     # the orientation goes back into ArduPilot's own parameter, and is said dropped for PX4
     assert "COMPASS_ORIENT3,4" in _lines(export(mounted, "ardupilot", instance=3).text)
     assert "COMPASS_ORIENT" in export(mounted, "px4").notes[-1]

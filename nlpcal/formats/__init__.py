@@ -47,7 +47,7 @@ CARRIES = {
     "matrix": ("field", "sensor_id", "orientation"),
     "ardupilot": ("sensor_id", "orientation"),
     "px4": ("sensor_id", "orientation", "temperature"),
-    "c-header": ("field", "temperature"),
+    "c-header": ("field", "sensor_id", "temperature"),
 }
 
 

@@ -12,11 +12,14 @@ NLPCAL_OFFSET_SLOPE [unit/degC] and takes the temperature, `nlpcal_apply(m, t, b
     b1 = A diag(1 / (1 + sigma (t - t0))) (m - b - zeta (t - t0))    (`TemperatureDrift`)
 
 which is Liu et al.'s (2022) Eq. 9 for their common model and the per-axis model of
-`nlpcal.models.liu2022`. The function is C99 (static inline) and needs no library.
+`nlpcal.models.liu2022`. The function is C99 (static inline) and needs no library. A
+calibration's sensor_id is written as `#define NLPCAL_SENSOR_ID 97539` (a device id) or
+`"name"`, and read back.
 """
 
 from __future__ import annotations
 
+import json
 import re
 
 import numpy as np
@@ -31,6 +34,8 @@ _UNIT = re.compile(r"b and B1 in (\S+?)[,;]")
 _ARRAY = re.compile(r"\bdouble\s+(\w+)[^=;(]*=\s*(\{.*?\}\s*\}|\{.*?\}|[^;{]+)", re.DOTALL)
 #: The body of a function: from ") {" to the "}" that starts a line.
 _BODY = re.compile(r"\)\s*\{.*?^\}", re.DOTALL | re.MULTILINE)
+#: The sensor's identity: a device id or a C string literal (JSON's escapes are C's).
+_SENSOR_ID = re.compile(r'^\s*#define\s+NLPCAL_SENSOR_ID\s+(\d+|"(?:[^"\\]|\\.)*")', re.MULTILINE)
 #: The constants of the correction, by their name in NLPCAL_*.
 _USED = ("A", "B", "FIELD")
 
@@ -56,6 +61,11 @@ def write(correction: AffineCorrection) -> Export:
         lines.append(
             f"static const double NLPCAL_FIELD = {_c(correction.field)}; "
             f"/* expected |B1| [{correction.unit}] */"
+        )
+    if correction.sensor_id is not None:
+        lines.append(
+            f"#define NLPCAL_SENSOR_ID {json.dumps(correction.sensor_id, ensure_ascii=False)} "
+            f"/* the sensor this calibration is for */"
         )
     if drift is not None:
         lines += [
@@ -132,12 +142,16 @@ def read(text: str, source: str, unit: str | None = None) -> AffineCorrection:
     if values["A"].size != 9 or values["B"].size != 3:
         raise InputError(f"{source}: NLPCAL_A must hold 9 values and NLPCAL_B 3")
     field = float(values["FIELD"][0]) if "FIELD" in values and values["FIELD"].size else None
+    sensor = _SENSOR_ID.search(code)
     return AffineCorrection(
         matrix=values["A"].reshape(3, 3),
         offsets=values["B"],
         unit=unit,
         field=field,
         unused=unused,
+        sensor_id=None
+        if sensor is None
+        else validation.sensor_id(json.loads(sensor.group(1)), f"{source}: NLPCAL_SENSOR_ID"),
         source={
             "file": source,
             "format": "c-header",
