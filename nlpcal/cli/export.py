@@ -29,8 +29,9 @@ def register(sub):
         help="write a calibration for MATLAB, ArduPilot, PX4, firmware (C) or as a matrix",
         description=__doc__.split("\n\n")[2],
         examples=(
-            "nlpcal export params.json --format ardupilot -o compass.param",
-            "nlpcal export params.json --format c-header -o calibration.h",
+            "nlpcal export params.json -o compass.param      # ardupilot, from the extension",
+            "nlpcal export params.json -o calibration.h      # C header with nlpcal_apply()",
+            "nlpcal export temperature.json -o vehicle.params --drop-temperature",
             "nlpcal export params.json --format matlab --unit uT",
         ),
     )

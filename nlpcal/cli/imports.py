@@ -25,7 +25,7 @@ def register(sub):
         help="read a MATLAB, ArduPilot, PX4, matrix or C-header calibration into params.json",
         description=__doc__.split("\n\n")[2],
         examples=(
-            "nlpcal import compass.param --format ardupilot -o params.json",
+            "nlpcal import compass.param -o params.json      # ardupilot, from the extension",
             "nlpcal import magcal.json --format matlab --unit uT --reference-field 48.5",
         ),
     )

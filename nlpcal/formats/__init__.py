@@ -57,7 +57,10 @@ def format_for(path, option: str) -> str:
     if suffix in EXTENSIONS:
         return EXTENSIONS[suffix]
     known = ", ".join(f"{k} ({v})" for k, v in EXTENSIONS.items())
-    where = f"the extension {suffix!r} of {path}" if suffix else f"{path or 'stdout'}"
+    if suffix:
+        where = f"the extension {suffix!r} of {path}"
+    else:
+        where = "stdout" if path in (None, "-") else f"{path}, which has no extension"
     raise InputError(
         f"cannot tell the format from {where}; pass --format, or give {option} one of the "
         f"extensions {known}"
