@@ -141,6 +141,17 @@ def progress(message: str, done: bool = False) -> None:
     sys.stderr.flush()
 
 
+def add_sensor_id_argument(parser) -> None:
+    """--sensor-id: the identity of the sensor, recorded in the result and in exports."""
+    parser.add_argument(
+        "--sensor-id",
+        metavar="ID",
+        help="the sensor calibrated: its autopilot device id (an integer, as in ArduPilot's "
+        "COMPASS_DEV_ID or PX4's CAL_MAGn_ID) or a name; recorded as sensor_id in the result "
+        "and written by the ardupilot and px4 exports",
+    )
+
+
 def tell_written(*paths) -> None:
     """ "wrote PATH" for each output written to a path (not stdout), silent with -q."""
     for path in paths:
