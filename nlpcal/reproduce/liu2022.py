@@ -25,6 +25,7 @@ from ..calibration import calibrate
 from ..drift import fit_drift, rmse_rows
 from ..models import liu2022 as model
 from ..models.zhou2010 import Zhou2010Parameters
+from ..plots import drift_reproduction_png
 from ..simulation import liu2022 as replica
 from .values import Reproduction, Value
 
@@ -101,8 +102,6 @@ def reproduce() -> Reproduction:
     modulus = model.diurnal_correction(np.linalg.norm(drift_samples, axis=1), drift_reference)
 
     def figure() -> bytes:
-        from ..plots import drift_reproduction_png
-
         paper = {log: [float(v) for v in printed] for log, printed in PAPER_RMSE.items()}
         return drift_reproduction_png(
             drift_temperature,

@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..compass import attitude, calibrate_turns, evaluate
+from ..plots import attitude_errors_png
 from ..simulation import qiu2017 as replica
 from .values import Reproduction, Value
 
@@ -74,8 +75,6 @@ def reproduce() -> Reproduction:
     errors = (estimate - truth + 180.0) % 360.0 - 180.0
 
     def figure() -> bytes:
-        from ..plots import attitude_errors_png
-
         return attitude_errors_png(
             truth[:, 1],
             errors,

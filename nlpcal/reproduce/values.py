@@ -164,7 +164,7 @@ class Reproduction:
         if markdown:
             lines = ["| " + " | ".join(header) + " |", "|---" * len(header) + "|"]
             lines += ["| " + " | ".join(row) + " |" for row in rows]
-            return "\n".join([*lines, "", *(f"{note}  " for note in notes)]).rstrip()
+            return "\n".join([*lines, "", *(f"- {note}" for note in notes)]).rstrip()
         widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
         lines = ["  ".join(cell.ljust(w) for cell, w in zip(row, widths)).rstrip() for row in rows]
         title = "  ".join(cell.ljust(w) for cell, w in zip(header, widths)).rstrip()

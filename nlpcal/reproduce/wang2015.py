@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import orthogonality as ortho
+from ..plots import orthogonality_map_png
 from .values import Reproduction, Value
 
 REFERENCE = (
@@ -117,8 +118,6 @@ def reproduce() -> Reproduction:
     )
 
     def figure() -> bytes:
-        from ..plots import orthogonality_map_png
-
         theta, phi, error = ortho.error_map(WORST_ANGLES_DEG, FIELD, step_deg=1.0)
         return orthogonality_map_png(WORST_ANGLES_DEG, FIELD, theta, phi, error, worst, dpi=80)
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 from ..calibration import calibrate
 from ..comparison import compare
 from ..models.zhou2010 import PARAMETER_NAMES
+from ..plots import comparison_png
 from ..simulation import PRESETS, simulate
 from .values import Reproduction, Value
 
@@ -92,8 +93,6 @@ def reproduce() -> Reproduction:
         )
 
     def figure() -> bytes:
-        from ..plots import comparison_png
-
         return comparison_png(
             comparison,
             title=f"zhou2010 replica, {ATTITUDES} attitudes, N = {N}, seed {SEED}, "
