@@ -14,7 +14,6 @@ Needs matplotlib (pip install 'nlpcal[plot]').
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from dataclasses import replace
@@ -25,7 +24,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))  # run from a checkout without installing
 
-from generated import check_page, replace_block, update_page  # noqa: E402
+from generated import check_page, check_parser, replace_block, update_page  # noqa: E402
 from nlpcal.calibration.joint import joint_start  # noqa: E402
 from nlpcal.calibration.problem import Problem  # noqa: E402
 from nlpcal.comparison import CompareSettings, compare  # noqa: E402
@@ -158,14 +157,7 @@ def paper_table() -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument(
-        "--check",
-        action="store_true",
-        help="compare the page's tables (statistics to their last digit, counts within a few) "
-        "without writing anything; exit 1 when they are out of date",
-    )
-    args = parser.parse_args(argv)
+    args = check_parser(__doc__.splitlines()[0]).parse_args(argv)
     FIGURES.mkdir(exist_ok=True)
     preset = PRESETS["zhou2010"]
     results, blocks = {}, {}

@@ -24,6 +24,7 @@ moments) changes last digits and the stop decisions that compare them (`differen
 
 from __future__ import annotations
 
+import argparse
 import re
 import sys
 from pathlib import Path
@@ -41,6 +42,18 @@ def replace_block(page: str, name: str, body: str, where: str = "the page") -> s
     if not pattern.search(page):
         raise SystemExit(f"{where}: the markers of block {name!r} are missing")
     return pattern.sub(lambda m: m.group(1) + body.rstrip() + "\n" + m.group(2), page)
+
+
+def check_parser(description: str) -> argparse.ArgumentParser:
+    """The parser of a page's script, with its --check option."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument(
+        "--check",
+        action="store_true",
+        help="compare the page's tables (statistics to their last printed digit, counts within "
+        "a few) without writing anything; exit 1 when they are out of date",
+    )
+    return parser
 
 
 #: Cycle counts agree within this many counts or this fraction, whichever is larger.

@@ -13,14 +13,13 @@ About 10 s. Figures need matplotlib (pip install 'nlpcal[plot]').
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))  # run from a checkout without installing
 
-from generated import check_page, replace_block, update_page  # noqa: E402
+from generated import check_page, check_parser, replace_block, update_page  # noqa: E402
 from nlpcal.io import write_bytes_atomic  # noqa: E402
 from nlpcal.reproduce import PAPERS, reproduce  # noqa: E402
 
@@ -41,14 +40,7 @@ def block(reproduction) -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument(
-        "--check",
-        action="store_true",
-        help="compare the pages' blocks at the printed resolution without writing anything; "
-        "exit 1 when they are out of date",
-    )
-    args = parser.parse_args(argv)
+    args = check_parser(__doc__.splitlines()[0]).parse_args(argv)
     status = 0
     for paper in PAPERS:
         reproduction = reproduce(paper)
