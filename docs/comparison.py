@@ -151,8 +151,8 @@ def cg_sensitivity(samples) -> str:
 
 def paper_table() -> str:
     lines = ["| row | max | min | mean | std | range |", "|---|---|---|---|---|---|"]
-    for label, *values in PAPER_TABLE1:  # as printed in the paper
-        lines.append("| " + " | ".join([label] + [f"{float(v):.2f}" for v in values]) + " |")
+    for label, *values in PAPER_TABLE1:
+        lines.append("| " + " | ".join([label] + [f"{v:.2f}" for v in values]) + " |")
     return "\n".join(lines)
 
 

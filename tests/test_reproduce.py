@@ -14,25 +14,23 @@ from pathlib import Path
 import pytest
 
 from nlpcal.cli import main
-from nlpcal.reproduce import PAPERS, liu2022, qiu2017, wang2015, zhou2010
+from nlpcal.models import wang2015 as wang_model
+from nlpcal.reproduce import PAPERS, wang2015
 from nlpcal.reproduce.values import Reproduction, Value, half_unit
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 #: Every number each paper publishes, as printed, that its table must show.
 PUBLISHED = {
-    "zhou2010": [c for row in zhou2010.PAPER_TABLE1 for c in row[1:]]
-    + list(zhou2010.PAPER_PARAMETERS),
-    "wang2015": [
-        wang2015.PAPER_WORST_CASE_NT,
-        wang2015.PAPER_IMPLIED_NT,
-        wang2015.PAPER_DEVIATION_DEG,
-        *wang2015.PAPER_SYNTHETIC_DEG,
-        *(printed for _, printed in wang2015.PAPER_PROBE_DEG),
+    "zhou2010": [
+        "50776", "48147", "49506", "744.38", "2629.30", "53.06", "219.55", "16.29", "115.08",
+        "-71.55", "188.13", "116.29", "0.0072", "-0.0024", "-0.0049", "-2.34", "1.29", "-0.27",
     ],
-    "liu2022": [liu2022.PAPER_A, liu2022.PAPER_B, liu2022.PAPER_FIT_RMSE]
-    + [v for values in liu2022.PAPER_RMSE.values() for v in values],
-    "qiu2017": [printed for _, printed in qiu2017.PAPER_BOUNDS],
-}
+    "wang2015": ["95", "3.8", "0.004", "0.07", "0.04", "0.1", "0.064", "0.103"],
+    "liu2022": [
+        "7.0805", "50906", "0.0113", "891.43", "15.50", "2.76", "1064.70", "41.25", "9.40",
+    ],
+    "qiu2017": ["0.15", "0.5"],
+}  # fmt: skip
 
 
 def run(capsys, *argv):
@@ -95,20 +93,21 @@ def test_the_values_that_must_agree_do(runs):
 
 
 def test_a_verdict_follows_the_printed_digits_and_the_standard_error():
-    assert half_unit("16.29") == pytest.approx(0.005)
-    assert half_unit("95") == pytest.approx(0.5)
-    assert half_unit("-0.0049") == pytest.approx(0.00005)
-    assert Value("std", "nT", "16.29", 16.294).verdict == "matches"
-    assert Value("std", "nT", "16.29", 16.296).verdict == "unexplained"
-    assert Value("std", "nT", "16.29", 16.296, cause="the replica").verdict == "differs"
+    assert half_unit(2) == pytest.approx(0.005)
+    assert half_unit(0) == pytest.approx(0.5)
+    assert half_unit(4) == pytest.approx(0.00005)
+    assert Value("range", "nT", 115.6, 2, 115.6).printed == "115.60"
+    assert Value("std", "nT", 16.29, 2, 16.294).verdict == "matches"
+    assert Value("std", "nT", 16.29, 2, 16.296).verdict == "unexplained"
+    assert Value("std", "nT", 16.29, 2, 16.296, cause="the replica").verdict == "differs"
     # three standard errors widen it
-    assert Value("z_x", "nT", "-71.55", -71.80, standard_error=0.1).verdict == "matches"
-    assert Value("z_x", "nT", "-71.55", -71.90, standard_error=0.1).verdict == "unexplained"
+    assert Value("z_x", "nT", -71.55, 2, -71.80, standard_error=0.1).verdict == "matches"
+    assert Value("z_x", "nT", -71.55, 2, -71.90, standard_error=0.1).verdict == "unexplained"
     # a bound: anything at or below it matches, above it does not
-    assert Value("roll", "deg", "0.15", -3.0, bound=True).verdict == "matches"
-    assert Value("roll", "deg", "0.15", 0.154, bound=True).verdict == "matches"
-    assert Value("roll", "deg", "0.15", 0.156, bound=True).verdict == "unexplained"
-    assert Value("roll", "deg", "0.15", float("nan"), cause="x").verdict == "unexplained"
+    assert Value("roll", "deg", 0.15, 2, -3.0, bound=True).verdict == "matches"
+    assert Value("roll", "deg", 0.15, 2, 0.154, bound=True).verdict == "matches"
+    assert Value("roll", "deg", 0.15, 2, 0.156, bound=True).verdict == "unexplained"
+    assert Value("roll", "deg", 0.15, 2, float("nan"), cause="x").verdict == "unexplained"
 
 
 def test_a_perturbed_published_number_flips_its_verdict():
@@ -116,8 +115,7 @@ def test_a_perturbed_published_number_flips_its_verdict():
     assert reproduction.ok
     values = reproduction.values
     k = next(i for i, v in enumerate(values) if v.verdict == "matches" and v.cause is None)
-    moved = f"{values[k].paper + 3 * values[k].tolerance:.6f}"
-    flipped = replace(values[k], printed=moved)
+    flipped = replace(values[k], paper=values[k].paper + 3 * values[k].tolerance)
     assert flipped.verdict == "unexplained"
     changed = Reproduction(**{**reproduction.__dict__, "values": [*values[:k], flipped]})
     assert not changed.ok and changed.counts()["unexplained"] == 1
@@ -127,7 +125,7 @@ def test_a_perturbed_published_number_flips_its_verdict():
 
 
 def test_an_unexplained_difference_exits_1_and_writes_nothing(capsys, tmp_path, monkeypatch):
-    monkeypatch.setattr(wang2015, "PAPER_IMPLIED_NT", "4.8")  # the paper's 3.8 nT, perturbed
+    monkeypatch.setattr(wang_model, "PAPER_IMPLIED_NT", 4.8)  # the paper's 3.8 nT, perturbed
     folder = tmp_path / "out"
     folder.mkdir()
     (folder / "wang2015.json").write_text("kept")

@@ -34,12 +34,8 @@ REFERENCE = (
     "and its correction method, sections 1-3"
 )
 SEED = 0
-#: The numbers of [1] as printed (`nlpcal.models.liu2022` holds their values).
-PAPER_A, PAPER_B, PAPER_FIT_RMSE = "7.0805", "50906", "0.0113"
-PAPER_RMSE = {
-    "drift": ("891.43", "15.50", "2.76"),
-    "field": ("1064.70", "41.25", "9.40"),
-}
+#: The published RMSE of Eq. 10 of each log (`nlpcal.models.liu2022`), printed with 2 decimals.
+PAPER_RMSE = {"drift": model.PAPER_DRIFT_RMSE_NT, "field": model.PAPER_FIELD_RMSE_NT}
 LOG_TITLES = {
     "drift": "drift experiment (static, 6.8 -> 5.1 degC)",
     "field": "field check (80 attitudes, 12.8 degC)",
@@ -85,31 +81,39 @@ def reproduce() -> Reproduction:
         f"F_1 - F_0 = {shift:+.2f} nT (its disturbances reach 10 nT)"
     )
     values = [
-        Value("Eq. 1 slope a", "nT/degC", PAPER_A, fit.a, standard_error=fit.a_standard_error),
-        Value("Eq. 1 intercept b", "nT", PAPER_B, fit.b, cause=b_cause),
-        Value("Eq. 1 fit RMSE", "nT", PAPER_FIT_RMSE, fit.fit_rmse, cause=FIT_RMSE_CAUSE),
+        Value(
+            "Eq. 1 slope a",
+            "nT/degC",
+            model.PAPER_A_NT_PER_DEGC,
+            4,
+            fit.a,
+            standard_error=fit.a_standard_error,
+        ),
+        Value("Eq. 1 intercept b", "nT", model.PAPER_B_NT, 0, fit.b, cause=b_cause),
+        Value(
+            "Eq. 1 fit RMSE", "nT", model.PAPER_FIT_RMSE_NT, 4, fit.fit_rmse, cause=FIT_RMSE_CAUSE
+        ),
     ]
     rmse = {}
     for log in ("drift", "field"):
         samples, temperature, reference = _columns(logs[f"{log}.csv"])
         rows = rmse_rows(samples, reference, params=params, temperature=temperature, correction=fit)
         rmse[log] = [row["rmse"] for row in rows]
-        for label, printed, value in zip(ROWS, PAPER_RMSE[log], rmse[log]):
+        for label, paper, value in zip(ROWS, PAPER_RMSE[log], rmse[log]):
             cause = RAW_CAUSE if label == "raw" else CORRECTED_CAUSE
             quantity = f"RMSE, {LOG_TITLES[log]}, {label}"
-            values.append(Value(quantity, "nT", printed, value, cause=cause))
+            values.append(Value(quantity, "nT", paper, 2, value, cause=cause))
     drift_samples, drift_temperature, drift_reference = _columns(logs["drift.csv"])
     modulus = model.diurnal_correction(np.linalg.norm(drift_samples, axis=1), drift_reference)
 
     def figure() -> bytes:
-        paper = {log: [float(v) for v in printed] for log, printed in PAPER_RMSE.items()}
         return drift_reproduction_png(
             drift_temperature,
             modulus,
             fitted=(fit.a, fit.b),
             published=(model.PAPER_A_NT_PER_DEGC, model.PAPER_B_NT),
             rmse=rmse,
-            paper_rmse=paper,
+            paper_rmse=PAPER_RMSE,
             rows=ROWS,
         )
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..compass import attitude, calibrate_turns, evaluate
+from ..models import qiu2017 as model
 from ..plots import attitude_errors_png
 from ..simulation import qiu2017 as replica
 from .values import Reproduction, Value
@@ -30,10 +31,10 @@ REFERENCE = (
     "compass, section 4"
 )
 SEED = 0
-#: The bounds of [1] on the attitude errors after calibration, as printed. [deg]
-PAPER_BOUNDS = (("roll", "0.15"), ("pitch", "0.15"), ("heading", "0.5"))
+#: The digits [1] prints after the decimal point of each bound (`model.PAPER_ATTITUDE_BOUNDS_DEG`).
+BOUND_DECIMALS = {"roll": 2, "pitch": 2, "heading": 1}
 #: Bands of |true pitch| compared with the bounds: the roll error grows near the vertical. [deg]
-PITCH_BANDS = (0.0, 60.0, 85.0)
+PITCH_BANDS = (0.0, 60.0, model.PAPER_MAX_PITCH_DEG)
 
 STEEP_CAUSE = (
     "near the vertical an accelerometer noise n turns into a roll error of about n / cos(pitch) "
@@ -61,12 +62,13 @@ def reproduce() -> Reproduction:
     for band in stats["bands"]:
         where = f"|pitch| {band['pitch_min_deg']:g}-{band['pitch_max_deg']:g} deg"
         steep = band["pitch_min_deg"] > 0
-        for name, printed in PAPER_BOUNDS:
+        for name, bound in model.PAPER_ATTITUDE_BOUNDS_DEG.items():
             values.append(
                 Value(
                     f"largest {name} error, {where} ({band['n']} attitudes)",
                     "deg",
-                    printed,
+                    bound,
+                    BOUND_DECIMALS[name],
                     band[name]["max_abs"],
                     cause=STEEP_CAUSE if steep else None,
                     bound=True,
@@ -78,7 +80,7 @@ def reproduce() -> Reproduction:
         return attitude_errors_png(
             truth[:, 1],
             errors,
-            [float(printed) for _, printed in PAPER_BOUNDS],
+            list(model.PAPER_ATTITUDE_BOUNDS_DEG.values()),
             title=f"qiu2017 replica, seed {SEED}: turn-mode calibration, {len(test)} test "
             "attitudes",
         )

@@ -22,14 +22,10 @@ STANDARD_ERRORS = 3.0
 FORMAT = "nlpcal-reproduction"
 
 
-def decimals_of(printed: str) -> int:
-    """Digits after the decimal point of a number as printed ("16.29" -> 2, "95" -> 0)."""
-    return len(printed.split(".")[1]) if "." in printed else 0
-
-
-def half_unit(printed: str) -> float:
-    """Half a unit of the last digit of a number as printed: "16.29" -> 0.005, "95" -> 0.5."""
-    return 0.5 * 10.0 ** -decimals_of(printed)
+def half_unit(decimals: int) -> float:
+    """Half a unit of the last digit of a number printed with `decimals` digits after the point:
+    16.29 (2) -> 0.005, 95 (0) -> 0.5."""
+    return 0.5 * 10.0**-decimals
 
 
 @dataclass(frozen=True)
@@ -38,7 +34,8 @@ class Value:
 
     quantity : what it is, in the paper's words ("Table 1, cycle 7, std").
     unit : its unit ("nT", "deg", "1").
-    printed : the number as the paper prints it ("16.29"); `paper` is its value.
+    paper : the paper's number. [unit]
+    decimals : the digits the paper prints after the decimal point (2 for 16.29, 0 for 95).
     nlpcal : nlpcal's number for the same quantity. [unit]
     standard_error : of nlpcal's number, when it is an estimate. [unit]
     cause : why the two may differ (a property of the replica or of the paper's report), or None
@@ -48,22 +45,24 @@ class Value:
 
     quantity: str
     unit: str
-    printed: str
+    paper: float
+    decimals: int
     nlpcal: float
     standard_error: float | None = None
     cause: str | None = None
     bound: bool = False
 
     @property
-    def paper(self) -> float:
-        return float(self.printed)
+    def printed(self) -> str:
+        """The paper's number as it prints it."""
+        return f"{self.paper:.{self.decimals}f}"
 
     @property
     def tolerance(self) -> float:
         """Half a unit of the paper's last printed digit plus STANDARD_ERRORS standard errors of
         nlpcal's number. [unit]"""
         spread = STANDARD_ERRORS * self.standard_error if self.standard_error else 0.0
-        return half_unit(self.printed) + spread
+        return half_unit(self.decimals) + spread
 
     @property
     def basis(self) -> str:
@@ -94,7 +93,7 @@ class Value:
 
     def nlpcal_text(self) -> str:
         """nlpcal's number with one digit more than the paper prints."""
-        return f"{self.nlpcal:.{decimals_of(self.printed) + 1}f}"
+        return f"{self.nlpcal:.{self.decimals + 1}f}"
 
     def to_dict(self) -> dict:
         return {

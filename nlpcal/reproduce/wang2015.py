@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import orthogonality as ortho
+from ..models import wang2015 as model
 from ..plots import orthogonality_map_png
 from .values import Reproduction, Value
 
@@ -30,22 +31,15 @@ REFERENCE = (
     "three-components magnetic flux-gate sensor, sections 1-3"
 )
 FIELD = ortho.PAPER_FIELD_NT  # [nT]
-#: The forward-modelling example of [1] and its printed worst case, "about 95 nT". [deg], [nT]
-WORST_ANGLES_DEG, PAPER_WORST_CASE_NT = (0.1, 0.1, 0.1), "95"
-#: The repeatability of [1], "within 0.004 deg", and the error it implies, "at most 3.8 nT".
-PAPER_DEVIATION_DEG, PAPER_IMPLIED_NT = "0.004", "3.8"
-#: The synthetic inversion of [1]: the angles it recovers "exactly". [deg]
-PAPER_SYNTHETIC_DEG = ("0.07", "0.04", "0.1")
-SYNTHETIC_N, SYNTHETIC_SEED = 500, 7
-#: The real probe of [1]: alpha and 90 deg - gamma (beta not given). [deg]
-PAPER_PROBE_DEG = (("alpha", "0.064"), ("gamma", "0.103"))
+#: The synthetic inversion: directions, seed, and the digits the paper prints for each angle.
+SYNTHETIC_N, SYNTHETIC_SEED, SYNTHETIC_DECIMALS = 500, 7, (2, 2, 1)
 #: The replica of the probe's repeated runs: runs, directions, noise per axis [nT], first seed.
 RUNS, RUN_N, RUN_NOISE_NT, RUN_SEED = 5, 400, 10.0, 100
 
 ABOUT_CAUSE = (
     "the paper gives 'about 95 nT', the largest value of its simulated map over all directions "
-    "(Fig. 3); the exact maximum over the sphere, B (sigma_max - 1) with sigma_max the largest "
-    "singular value of T, is 96.0 nT"
+    "(Fig. 3); nlpcal's is the exact maximum over the sphere, B (sigma_max - 1) with sigma_max "
+    "the largest singular value of T"
 )
 SPREAD_CAUSE = (
     "the real probe's logs are not public: the spread of repeated runs is set by the probe's "
@@ -55,38 +49,39 @@ SPREAD_CAUSE = (
 
 
 def reproduce() -> Reproduction:
-    worst = ortho.worst_case(WORST_ANGLES_DEG, FIELD)
+    worst = ortho.worst_case(model.PAPER_WORST_ANGLES_DEG, FIELD)
     values = [
         Value(
             "worst-case |dB| for angles (0.1, 0.1, 0.1) deg at 55 000 nT",
             "nT",
-            PAPER_WORST_CASE_NT,
+            model.PAPER_WORST_CASE_NT,
+            0,
             worst.max_abs_error_nT,
             cause=ABOUT_CAUSE,
         ),
         Value(
             "worst-case |dB| implied by a 0.004 deg angle uncertainty",
             "nT",
-            PAPER_IMPLIED_NT,
-            ortho.implied_worst_case(float(PAPER_DEVIATION_DEG), FIELD),
+            model.PAPER_IMPLIED_NT,
+            1,
+            ortho.implied_worst_case(model.PAPER_DEVIATION_DEG, FIELD),
         ),
     ]
-    truth = [float(a) for a in PAPER_SYNTHETIC_DEG]
+    truth = model.PAPER_SYNTHETIC_ANGLES_DEG
     data = ortho.synthetic_rotation(truth, FIELD, n=SYNTHETIC_N, seed=SYNTHETIC_SEED)
     inversion = ortho.invert(data, bound_deg=0.5, start_deg=(0.0, 0.0, 0.0))
-    for k, (name, printed) in enumerate(zip(ortho.ANGLE_NAMES, PAPER_SYNTHETIC_DEG)):
+    for k, (name, paper) in enumerate(zip(ortho.ANGLE_NAMES, truth)):
         values.append(
             Value(
                 f"synthetic inversion, noiseless, {name}",
                 "deg",
-                printed,
+                paper,
+                SYNTHETIC_DECIMALS[k],
                 float(inversion.angles_deg[k]),
                 standard_error=_std(inversion.angles_std_deg, k),
             )
         )
-    probe = [0.0, 0.0, 0.0]
-    for name, printed in PAPER_PROBE_DEG:
-        probe[ortho.ANGLE_NAMES.index(name)] = float(printed)
+    probe = [model.PAPER_PROBE_ANGLES_DEG.get(name, 0.0) for name in ortho.ANGLE_NAMES]
     runs = [
         ortho.invert(
             ortho.synthetic_rotation(probe, FIELD, n=RUN_N, noise_nT=RUN_NOISE_NT, seed=seed)
@@ -94,14 +89,15 @@ def reproduce() -> Reproduction:
         for seed in range(RUN_SEED, RUN_SEED + RUNS)
     ]
     report = ortho.repeatability(runs, field_nT=FIELD)
-    for name, printed in PAPER_PROBE_DEG:
+    for name, paper in model.PAPER_PROBE_ANGLES_DEG.items():
         k = ortho.ANGLE_NAMES.index(name)
         spread = np.std([run.angles_deg[k] for run in runs], ddof=1)
         values.append(
             Value(
                 f"probe, mean of {RUNS} runs, {name}",
                 "deg",
-                printed,
+                paper,
+                3,
                 float(report.mean_angles_deg[k]),
                 standard_error=float(spread / np.sqrt(RUNS)),
             )
@@ -110,7 +106,8 @@ def reproduce() -> Reproduction:
         Value(
             f"repeatability: largest deviation of {RUNS} runs from their mean",
             "deg",
-            PAPER_DEVIATION_DEG,
+            model.PAPER_DEVIATION_DEG,
+            3,
             report.max_abs_deviation_deg,
             cause=SPREAD_CAUSE,
             bound=True,
@@ -118,8 +115,9 @@ def reproduce() -> Reproduction:
     )
 
     def figure() -> bytes:
-        theta, phi, error = ortho.error_map(WORST_ANGLES_DEG, FIELD, step_deg=1.0)
-        return orthogonality_map_png(WORST_ANGLES_DEG, FIELD, theta, phi, error, worst, dpi=80)
+        angles = model.PAPER_WORST_ANGLES_DEG
+        theta, phi, error = ortho.error_map(angles, FIELD, step_deg=1.0)
+        return orthogonality_map_png(angles, FIELD, theta, phi, error, worst, dpi=80)
 
     return Reproduction(
         paper="wang2015",

@@ -22,7 +22,7 @@ from ..calibration import calibrate
 from ..comparison import compare
 from ..models.zhou2010 import PARAMETER_NAMES
 from ..plots import comparison_png
-from ..simulation import PRESETS, simulate
+from ..simulation import PRESETS, ZHOU2010_PARAMETERS, simulate
 from .values import Reproduction, Value
 
 REFERENCE = (
@@ -32,24 +32,24 @@ REFERENCE = (
 #: The replica: samples, seed, white noise per axis [nT], attitude set.
 N, SEED, NOISE, ATTITUDES = 2000, 1, 1.0, "turntable"
 
-#: Table 1 of [1]: |B1| statistics of the measured data, one pass and cycles 2-7, as printed. [nT]
+#: Table 1 of [1]: |B1| statistics of the measured data, one pass and cycles 2-7. [nT]
 PAPER_TABLE1 = (
-    ("measured", "50776", "48147", "49506", "744.38", "2629.30"),
-    ("1 pass", "49528", "49303", "49434", "53.06", "219.55"),
-    ("cycle 2", "49510", "49377", "49451", "23.93", "132.94"),
-    ("cycle 3", "49513", "49392", "49458", "17.61", "120.42"),
-    ("cycle 4", "49514", "49397", "49461", "16.51", "116.73"),
-    ("cycle 5", "49514", "49399", "49462", "16.34", "115.60"),
-    ("cycle 6", "49515", "49399", "49462", "16.30", "115.13"),
-    ("cycle 7", "49515", "49400", "49462", "16.29", "115.08"),
+    ("measured", 50776, 48147, 49506, 744.38, 2629.30),
+    ("1 pass", 49528, 49303, 49434, 53.06, 219.55),
+    ("cycle 2", 49510, 49377, 49451, 23.93, 132.94),
+    ("cycle 3", 49513, 49392, 49458, 17.61, 120.42),
+    ("cycle 4", 49514, 49397, 49461, 16.51, 116.73),
+    ("cycle 5", 49514, 49399, 49462, 16.34, 115.60),
+    ("cycle 6", 49515, 49399, 49462, 16.30, 115.13),
+    ("cycle 7", 49515, 49400, 49462, 16.29, 115.08),
 )
-#: The statistics of a Table 1 row, in its column order (std with ddof 0).
+#: The statistics of a Table 1 row, in its column order (std with ddof 0), and the digits the
+#: paper prints after the decimal point for each.
 TABLE1_STATISTICS = ("max", "min", "mean", "std", "range")
-
-#: The final parameters of [1] (section 6), as printed, in the order of PARAMETER_NAMES.
-PAPER_PARAMETERS = (
-    "-71.55", "188.13", "116.29", "0.0072", "-0.0024", "-0.0049", "-2.34", "1.29", "-0.27",
-)  # fmt: skip
+TABLE1_DECIMALS = (0, 0, 0, 2, 2)
+#: The final parameters of [1] (section 6) are ZHOU2010_PARAMETERS; the digits the paper prints
+#: after the decimal point for each, and their units, in the order of PARAMETER_NAMES.
+PARAMETER_DECIMALS = (2, 2, 2, 4, 4, 4, 2, 2, 2)
 PARAMETER_UNITS = ("nT",) * 3 + ("1",) * 3 + ("deg",) * 3
 
 TABLE1_CAUSE = (
@@ -76,17 +76,18 @@ def reproduce() -> Reproduction:
     errors = joint.standard_errors or {}  # none only when the replica left a direction free
     values = []
     # the staged rows: measured, then one per cycle (the paper's "1 pass" is cycle 1)
-    for (label, *printed), row in zip(PAPER_TABLE1, comparison.staged):
-        for name, text in zip(TABLE1_STATISTICS, printed):
-            values.append(
-                Value(f"Table 1, {label}, {name}", "nT", text, row[name], cause=TABLE1_CAUSE)
-            )
-    for name, unit, text in zip(PARAMETER_NAMES, PARAMETER_UNITS, PAPER_PARAMETERS):
+    for (label, *published), row in zip(PAPER_TABLE1, comparison.staged):
+        for name, paper, decimals in zip(TABLE1_STATISTICS, published, TABLE1_DECIMALS):
+            quantity = f"Table 1, {label}, {name}"
+            values.append(Value(quantity, "nT", paper, decimals, row[name], cause=TABLE1_CAUSE))
+    final = ZHOU2010_PARAMETERS.to_dict()
+    for name, unit, decimals in zip(PARAMETER_NAMES, PARAMETER_UNITS, PARAMETER_DECIMALS):
         values.append(
             Value(
                 f"final parameter {name}",
                 unit,
-                text,
+                final[name],
+                decimals,
                 joint.parameters[name],
                 standard_error=errors.get(name),
             )
