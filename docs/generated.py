@@ -123,12 +123,17 @@ def _pieces(text: str, title: str = ""):
     return NUMBER.sub("#", text), numbers
 
 
+def _cells(line: str) -> list:
+    """The cells of a Markdown table row (an escaped \\| stays inside its cell)."""
+    return re.split(r"(?<!\\)\|", line)
+
+
 def _line_pieces(line: str, header: list | None):
     """The words and numbers of a line; in a table row cell by cell, with its column's header
     telling counts, and wall-time cells left out."""
     if header is None or not line.startswith("|"):
         return [_pieces(line)]
-    cells = line.split("|")
+    cells = _cells(line)
     if len(cells) != len(header):
         return [(line, [])]
     pieces = []
@@ -151,7 +156,7 @@ def differences(page: str, updated: str) -> list:
         if old.startswith("|") and not old.startswith("|-"):
             following = old_lines[number] if number < len(old_lines) else ""
             if following.startswith("|-") or following.startswith("|:"):
-                header = old.split("|")  # a table's header row: the same on both sides
+                header = _cells(old)  # a table's header row: the same on both sides
         elif not old.startswith("|"):
             header = None
         agree = old == new

@@ -162,7 +162,8 @@ class Reproduction:
         notes = [f"({k}) {cause}" for k, cause in enumerate(causes, start=1)]
         if markdown:
             lines = ["| " + " | ".join(header) + " |", "|---" * len(header) + "|"]
-            lines += ["| " + " | ".join(row) + " |" for row in rows]
+            cells = [[cell.replace("|", "\\|") for cell in row] for row in rows]  # |pitch|
+            lines += ["| " + " | ".join(row) + " |" for row in cells]
             return "\n".join([*lines, "", *(f"- {note}" for note in notes)]).rstrip()
         widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
         lines = ["  ".join(cell.ljust(w) for cell, w in zip(row, widths)).rstrip() for row in rows]
