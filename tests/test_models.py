@@ -307,6 +307,9 @@ def test_auto_on_the_x_imu3_log_matches_an_independent_fit(real_data, tmp_path):
         pytest.skip(f"{path} is absent")
     params = tmp_path / "params.json"
     command = [sys.executable, "-m", "nlpcal", "calibrate", str(path), "--model", "auto"]
+    # a hand-turned log: the scores of neighbouring samples are alike, and the offset along x
+    # rests on a few passes of the sensor, so its standard error may exceed the limit
+    command.append("--allow-unidentifiable")
     run = subprocess.run([*command, "-o", str(params)], capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
     assert "model auto chose" in run.stderr
@@ -325,16 +328,17 @@ def test_auto_on_the_x_imu3_log_matches_an_independent_fit(real_data, tmp_path):
     theirs = magnitudes.std() / magnitudes.mean()
     assert ours == pytest.approx(theirs, rel=0.05)
     # Honest standard errors: those of the independent fit's Jacobian (white residuals),
-    # widened by nlpcal's stated factor for the autocorrelation of neighbouring residuals,
+    # widened by nlpcal's stated factor for the dependence of neighbouring samples' scores,
     # agree with nlpcal's within 10 %.
     residuals = magnitudes - fit.x[3]
     covariance = (
         residuals @ residuals / (len(samples) - fit.x.size) * np.linalg.inv(fit.jac.T @ fit.jac)
     )
-    inflation = document["identifiability"]["standard_error_inflation"]
+    widening = document["identifiability"]["score_dependence"]["standard_error_widening"]
     for k, name in enumerate(("z_x", "z_y", "z_z")):
-        expected = np.sqrt(covariance[k, k]) * inflation
+        expected = np.sqrt(covariance[k, k]) * widening[name]
         assert document["standard_errors"][name] == pytest.approx(expected, rel=0.1), name
+        assert widening[name] > 1.0  # a hand-turned log: neighbours are alike
         # and the two estimates agree within a fraction of that standard error
         assert abs(document["parameters"][name] - fit.x[k]) < 0.5 * expected, name
 

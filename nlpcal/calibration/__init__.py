@@ -214,7 +214,7 @@ def estimate(
     samples = problem.samples
     final = rows[-1]
     errors, identifiability, covariance = uncertainty(
-        problem, final["objective"], hs, final["residual_lag1_autocorrelation"], theta
+        problem, final["objective"], hs, theta, final["mean"]
     )
     spread = residual_spread(problem, theta)
     flat = problem_flatness(problem, theta, spread)
