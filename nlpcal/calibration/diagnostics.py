@@ -89,7 +89,7 @@ def uncertainty(
             information, residual_variance=n * objective / max(n - fitted, 1), **options
         )
     else:
-        meat, independent, dependence = score_meat(problem, theta, centre, basis, n - fitted)
+        meat, independent, dependence, noise = score_meat(problem, theta, centre, basis, n - fitted)
         result = inference.estimate(information, meat=meat, **options)
         if robust:  # Huber's sandwich for independent samples
             alone = inference.estimate(information, meat=independent, **options)
@@ -122,7 +122,7 @@ def uncertainty(
         if errors and errors[n] > limits[PARAMETER_NAMES.index(n)] and n not in undetermined
     ]
     weak = _names(result.weak)
-    block = {
+    block: dict = {
         "not_identifiable": [n for n in PARAMETER_NAMES if n in weak or n in undetermined],
         "undetermined": undetermined,
         "poorly_determined": poorly,
@@ -134,18 +134,47 @@ def uncertainty(
     }
     if dependence is not None:
         block["score_dependence"] = dependence
+    if dependence is not None and not robust and errors is not None and not result.weak:
+        variance = n * objective / max(n - fitted, 1)
+        shift = noise_bias(information, basis, noise, variance) * to_units
+        block["second_order_bias"] = {
+            "form": "errors in variables, second order in the sensor noise",
+            "noise_std": float(np.sqrt(variance / noise["mean_square_g"])),
+            "bias": {name: float(shift[i]) for name, i in zip(estimated, index)},
+            "bias_in_standard_errors": {
+                name: float(shift[i] / errors[name]) for name, i in zip(estimated, index)
+            },
+        }
     return errors, block, covariance
 
 
+def noise_bias(information, basis, noise: dict, variance: float) -> np.ndarray:
+    """The bias of the estimate to second order in white sensor noise of sigma on each axis, in
+    the scaled variables (9,).
+
+    The residual r_i = |M (b_i + n_i - Z_p)| - F_i depends on the noise n_i of the raw sample,
+    and so does its sensitivity J_i: E[r_i J_i] = sigma^2 (dJ_i/db g_i + tr(d2 r_i/db2) J_i / 2)
+    with g_i = dr_i/db = M^T u_i, which does not vanish. The estimating equation sum r_i J_i = 0
+    is then off by sigma^2 times their sum (`scores.score_block_sums`), and the estimate by
+    bias = -sigma^2 A^-1 sum(...) (on the directions the model estimates). It grows as sigma^2
+    and as A^-1: along a direction the attitudes barely determine (a short arc) it reaches
+    standard errors. sigma^2 = s^2 / mean |g|^2, s^2 the residual variance (the noise of |B1|
+    is sigma |g|).
+    """
+    reduced = basis.T @ np.asarray(information, dtype=float) @ basis
+    sigma2 = variance / noise["mean_square_g"]
+    return -sigma2 * basis @ np.linalg.solve(reduced, basis.T @ noise["gradient"])
+
+
 def score_meat(problem: Problem, theta, centre: float | None, basis, dof: int) -> tuple:
-    """(Omega, G_0, description): the meat of the sandwich covariance in the scaled variables,
-    A V A with V the block jackknife's covariance of the estimated directions (`basis`;
+    """(Omega, G_0, description, noise): the meat of the sandwich covariance in the scaled
+    variables, A V A with V the block jackknife's covariance of the estimated directions (`basis`;
     `inference.block_jackknife`, groups of GROUP_BANDWIDTHS automatic Bartlett bandwidths,
     widened by `inference.t_widening` for its number of groups), the sum of the squares of the
     block sums times N / dof (the meat for independent samples), and what the result says of it
-    (`score_dependence`)."""
+    (`score_dependence`), and the noise terms of the bias (`noise_bias`)."""
     n = problem.samples.shape[0]
-    series, informations, block_rows = score_block_sums(
+    series, informations, block_rows, noise = score_block_sums(
         problem.samples,
         theta,
         problem.reference,
@@ -170,7 +199,7 @@ def score_meat(problem: Problem, theta, centre: float | None, basis, dof: int) -
         "groups": int(groups),
         "t_widening": widening,
     }
-    return meat, independent, description
+    return meat, independent, description, noise
 
 
 def bread(problem: Problem, theta) -> np.ndarray:

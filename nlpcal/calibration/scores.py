@@ -44,8 +44,10 @@ SCORE_CHUNK_ROWS = 512
 #: The entries of psi' J J^T a block sums: its upper triangle (row <= column).
 UPPER = np.triu_indices(9)
 #: Columns of a block's sums: psi J (9), psi, psi' J (9), psi', the upper triangle of
-#: psi' J J^T (45).
-WIDTH = 20 + len(UPPER[0])
+#: psi' J J^T (45), then the noise terms: dJ/db g (9), tr J (9), tr, |g|^2.
+WIDTH = 20 + len(UPPER[0]) + 20
+#: The step of the derivative of J along g, relative to the sphere's radius. [1]
+NOISE_STEP = 1e-5
 #: The upper-triangular entries of M, as (row, column).
 ENTRIES = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 
@@ -63,8 +65,8 @@ def entry_derivatives(theta) -> np.ndarray:
 
 
 def sensitivities(raw, theta, derivatives, scale) -> tuple:
-    """(|B1|, J): |B1| of a chunk of raw samples (n,) [field unit] and the sensitivities of it to
-    the scaled variables (n, 9) [field unit]."""
+    """(|B1|, J, g): |B1| of a chunk of raw samples (n,) [field unit], the sensitivities of it to
+    the scaled variables (n, 9) [field unit] and to the raw sample, g = M^T u (n, 3). [1]"""
     offset, matrix = correction(theta)
     centred = raw - offset
     field = centred @ matrix.T
@@ -74,7 +76,7 @@ def sensitivities(raw, theta, derivatives, scale) -> tuple:
     jacobian[:, 0:3] = -(u @ matrix)
     products = np.stack([u[:, j] * centred[:, c] for j, c in ENTRIES], axis=1)
     jacobian[:, 3:9] = products @ derivatives
-    return magnitude, jacobian * scale
+    return magnitude, jacobian * scale, -jacobian[:, 0:3]
 
 
 @dataclass(frozen=True)
@@ -88,6 +90,8 @@ class ScoreBlock:
     block_rows: int
     loss: Any
     centre: float | None
+    step: float  # of the derivative along g [field unit]
+    frobenius: float  # |M|_F^2 [1]
     chunk_rows: int = SCORE_CHUNK_ROWS
 
     def __call__(self, samples, reference, start: int) -> tuple:
@@ -98,13 +102,22 @@ class ScoreBlock:
         sums = np.zeros((count, WIDTH))
         for begin in range(0, n, self.chunk_rows):
             stop = min(begin + self.chunk_rows, n)
-            magnitude, jacobian = sensitivities(
-                samples[begin:stop], self.theta, self.derivatives, self.scale
+            raw = samples[begin:stop]
+            magnitude, jacobian, gradient = sensitivities(
+                raw, self.theta, self.derivatives, self.scale
             )
             ref = reference_chunk(reference, begin, stop)
             r = magnitude - (ref if ref is not None else self.centre)
             psi, slope = self.loss.weight(r) * r, self.loss.slope(r)
             weighted = jacobian * slope[:, None]
+            # the noise terms of the bias (`noise_bias_gradient`): J's derivative along g, and
+            # tr(d2|B1|/db2) = (|M|_F^2 - |g|^2) / |B1|
+            h = self.step
+            ahead = sensitivities(raw + h * gradient, self.theta, self.derivatives, self.scale)
+            behind = sensitivities(raw - h * gradient, self.theta, self.derivatives, self.scale)
+            along = (ahead[1] - behind[1]) / (2 * h)
+            squares = np.einsum("ij,ij->i", gradient, gradient)
+            trace = (self.frobenius - squares) / magnitude
             values = np.column_stack(
                 [
                     jacobian * psi[:, None],
@@ -112,6 +125,10 @@ class ScoreBlock:
                     weighted,
                     slope,
                     weighted[:, UPPER[0]] * jacobian[:, UPPER[1]],
+                    along,
+                    jacobian * trace[:, None],
+                    trace,
+                    squares,
                 ]
             )
             index = (start + np.arange(begin, stop)) // self.block_rows - first
@@ -138,8 +155,8 @@ def _merge(earlier: tuple, later: tuple) -> tuple:
 def score_block_sums(
     samples, theta, reference, loss, centre: float | None, radius: float, chunk_rows: int = 16384
 ) -> tuple:
-    """(S, A, block_rows): per block of `block_rows` consecutive samples, the sum S_k (K, 9) of
-    the scores psi(r_i) J_i at theta and the sum A_k (K, 9, 9) of psi'(r_i) J_i J_i^T (the
+    """(S, A, block_rows, bias): per block of `block_rows` consecutive samples, the sum S_k
+    (K, 9) of the scores psi(r_i) J_i at theta and the sum A_k (K, 9, 9) of psi'(r_i) J_i J_i^T (the
     block's share of the information), in the scaled variables and, without a reference, with
     the centre profiled out (J_i - Jbar); one pass over the samples.
 
@@ -147,11 +164,17 @@ def score_block_sums(
     reference : None, a float or an (N,) series. centre : without a reference the centre of
         |B1| the residuals are taken from (the mean for least squares). [field unit]
     radius : the sphere frame's radius, for the scaled variables. [field unit]
+
+    bias : the terms of the estimate's bias to second order in the sensor noise
+    (`nlpcal.calibration.diagnostics.noise_bias`): "gradient", E[sum r_i J_i] / sigma^2 =
+    sum (dJ_i/db g_i + tr(d2|B1_i|/db2) J_i / 2) (profiled without a reference), and
+    "mean_square_g", the mean of |g|^2 (the noise of |B1| is sigma |g|).
     """
     samples = as_rows(samples)
     n = samples.shape[0]
     block_rows = max(1, -(-n // MAX_BLOCKS))
     theta = np.asarray(theta, dtype=float)
+    offset, matrix = correction(theta)
     work = ScoreBlock(
         theta,
         entry_derivatives(theta),
@@ -159,16 +182,21 @@ def score_block_sums(
         block_rows,
         loss,
         centre,
+        NOISE_STEP * radius,
+        float(np.sum(matrix * matrix)),
         min(chunk_rows, SCORE_CHUNK_ROWS),
     )
     _, sums = reduce(samples, reference, work, _merge, chunk_rows, indexed=True)
     scores, psi = sums[:, 0:9], sums[:, 9]
     weighted, slopes = sums[:, 10:19], sums[:, 19]
+    upper = sums[:, 20 : 20 + len(UPPER[0])]
     information = np.zeros((len(sums), 9, 9))
-    information[:, UPPER[0], UPPER[1]] = sums[:, 20:]
-    information[:, UPPER[1], UPPER[0]] = sums[:, 20:]
+    information[:, UPPER[0], UPPER[1]] = upper
+    information[:, UPPER[1], UPPER[0]] = upper
+    noise = sums[:, 20 + len(UPPER[0]) :].sum(axis=0)
+    along, traced, trace, squares = noise[0:9], noise[9:18], noise[18], noise[19]
+    mean = weighted.sum(axis=0) / slopes.sum()
     if reference is None:  # the centre profiled out: J_i - Jbar, Jbar the psi'-weighted mean
-        mean = weighted.sum(axis=0) / slopes.sum()
         scores = scores - np.outer(psi, mean)
         cross = np.einsum("ki,j->kij", weighted, mean)
         information = (
@@ -177,4 +205,6 @@ def score_block_sums(
             - cross.transpose(0, 2, 1)
             + slopes[:, None, None] * np.outer(mean, mean)
         )
-    return scores, information, block_rows
+        traced = traced - mean * trace
+    bias = {"gradient": along + 0.5 * traced, "mean_square_g": squares / n}
+    return scores, information, block_rows, bias
