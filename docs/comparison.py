@@ -39,7 +39,7 @@ FIGURES = HERE / "figures"
 #: The simulated logs: the zhou2010 preset, 2000 samples, 1 nT white noise, seed 1.
 N, SEED, NOISE = 2000, 1, 1.0
 #: Enough cycles to see where the staged method ends on every attitude set.
-SETTINGS = CompareSettings(cycles=500, rtol=1e-9, cg=CGOptions(max_iter=5000))
+SETTINGS = CompareSettings(cg=CGOptions(max_iter=5000))  # the default 500 cycles, rtol 1e-9
 #: Cycles shown one by one in the tables (the paper shows seven); the last is always shown.
 SHOWN_CYCLES = 7
 #: Step constants tried for the joint CG on the uniform set (a = factor / lambda_max).

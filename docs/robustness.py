@@ -90,7 +90,11 @@ def tilt_table() -> str:
             result = nlpcal.calibrate(samples, method="staged", cycles=cycles)
         except nlpcal.QualityError as failure:
             gap = failure.result.identifiability["joint_gap"]["max_gap_in_standard_errors"]
-            outcome = f"exit 1, quality check: {gap:.3g} standard errors from the joint optimum"
+            ran, why = len(failure.result.statistics) - 1, failure.result.solver["stop_reason"]
+            outcome = (
+                f"exit 1 after {ran} cycles ({why}), quality check: {gap:.3g} standard errors "
+                f"from the joint optimum"
+            )
         else:
             gap = result.identifiability["joint_gap"]["max_gap_in_standard_errors"]
             outcome = (

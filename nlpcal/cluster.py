@@ -15,10 +15,12 @@ dask.distributed are the `dask` extra (pip install 'nlpcal[dask]').
 from __future__ import annotations
 
 import contextlib
+import re
 from pathlib import Path
 
 from . import validation
 from .errors import InputError
+from .results import read_json_document
 
 #: Scheduler names of `--scheduler`; anything else is the address of a running scheduler.
 SCHEDULERS = ("threads", "processes", "local")
@@ -125,16 +127,29 @@ def _connect(distributed, address: str):
     is_file = address.endswith(".json") or Path(address).is_file()
     if is_file and not Path(address).is_file():  # Dask would wait for it to appear
         raise InputError(f"{address}: no such scheduler file")
+    target = scheduler_file_address(address) if is_file else address
     try:
-        if is_file:
-            return distributed.Client(scheduler_file=address, timeout=CONNECT_TIMEOUT_S)
-        return distributed.Client(address, timeout=CONNECT_TIMEOUT_S)
-    except (OSError, TimeoutError, ValueError) as exc:
+        return distributed.Client(target, timeout=CONNECT_TIMEOUT_S)
+    except Exception as exc:  # refused, timed out, or an answer that is not Dask's protocol
         choices = ", ".join(SCHEDULERS)
+        reason = " ".join(str(exc).split()) or type(exc).__name__
         raise InputError(
-            f"no Dask scheduler answers at {address!r} ({' '.join(str(exc).split())}); give "
-            f"its address (tcp://host:8786), its scheduler file, or one of {choices}"
+            f"no Dask scheduler answers at {target!r} ({reason}); give its address "
+            f"(tcp://host:8786), its scheduler file, or one of {choices}"
         ) from None
+
+
+def scheduler_file_address(path: str) -> str:
+    """The scheduler's address in a scheduler file (the JSON a scheduler writes with
+    --scheduler-file: an object whose "address" is "protocol://host:port")."""
+    document = read_json_document(path, "scheduler file")
+    address = document.get("address") if isinstance(document, dict) else None
+    if not isinstance(address, str) or not re.fullmatch(r"[a-z][a-z0-9+]*://\S+", address):
+        raise InputError(
+            f'{path}: not a Dask scheduler file (expected a JSON object whose "address" is '
+            f"protocol://host:port, as a scheduler started with --scheduler-file writes)"
+        )
+    return address
 
 
 def run_tasks(function, items, on_result, client=None) -> None:

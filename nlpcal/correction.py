@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import units
+from . import units, validation
 from .calibration.result import CalibrationResult
 from .drift.evaluation import evaluation_row
 from .drift.fit import DriftFit
@@ -168,12 +168,8 @@ def outliers(correction: Correction, corrected) -> np.ndarray:
 def read_log_for(path, correction: Correction, *, reference_column=None, **kw) -> Log:
     """Read a log to apply `correction` to: its temperature column comes along, and its unit
     defaults to the unit of the log the parameters were estimated from."""
-    extra = [correction.temperature_column] if correction.temperature_column else []
-    if reference_column and reference_column == correction.temperature_column:
-        raise InputError(
-            f"the temperature and reference columns are both "
-            f"{reference_column!r}; they must be different columns"
-        )
+    column = correction.temperature_column
+    extra = {"the temperature column of the calibration": column} if column else {}
     return read_log(
         path,
         reference_column=reference_column,
@@ -203,6 +199,8 @@ def statistics_rows(log: Log, correction: Correction | None = None) -> tuple:
     Returns (rows, extra columns to print).
     """
     reference = log.reference
+    if reference is not None:  # the check of calibrate: the same unit, the same field
+        validation.reference_scale(reference, validation.mean_magnitude(log.samples))
     rows = [{"label": "measured", **field_statistics(log.samples)}]
     if correction is not None and correction.parameters is not None:
         if reference is not None:

@@ -42,6 +42,7 @@ from itertools import combinations_with_replacement
 
 import numpy as np
 
+from .errors import InputError
 from .passes import LazySamples, as_rows, reduce, reference_chunk
 from .statistics import MagnitudeStats
 
@@ -326,7 +327,10 @@ def accumulate(
     work = GramBlock(frame.centre, length, layout(kind == "series"), shift, chunk_rows, weight)
     gram, measured, total = reduce(samples, reference, work, merge_gram, chunk_rows)
     if weight is not None and not total > 0:
-        raise ValueError("every sample has weight zero")
+        raise InputError(
+            "every sample has weight zero: the loss scale is too small for the residuals of "
+            "these data (raise --loss-scale, or leave it out to estimate it)"
+        )
     total = total if weight is not None else float(n)
     gram /= total
     return Moments(

@@ -19,6 +19,7 @@ Documents written by nlpcal 0.1.0 had no "format" key; `load_any` recognises the
 from __future__ import annotations
 
 import json
+from functools import partial
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -26,7 +27,8 @@ import numpy as np
 
 from . import validation
 from .errors import InputError
-from .io.files import json_text, read_json, write_json_atomic
+from .io.files import existing_file, json_text, write_json_atomic
+from .io.strict import strict
 from .verdict import Verdict
 from .version import __version__
 
@@ -211,16 +213,17 @@ class Document:
         "nlpcal_version"."""
         body = self.body()
         verdict = self.verdict
-        return {
+        document = {
             "format": self.FORMAT,
             "format_version": self.FORMAT_VERSION,
             **({} if verdict is None else {"verdict": verdict.to_dict()}),
             **body,
             "nlpcal_version": body.get("nlpcal_version", __version__),
         }
+        return strict(document, f"the {self.WHAT}")
 
     def to_json(self) -> str:
-        """Strict JSON of the document (non-finite numbers written as null)."""
+        """Strict JSON of the document (`to_dict`: finite numbers, no null)."""
         return json_text(self.to_dict())
 
     def save(self, path) -> None:
@@ -263,9 +266,9 @@ class Document:
     @classmethod
     def from_json(cls, text: str, source: str = ""):
         try:
-            document = json.loads(text)
-        except (json.JSONDecodeError, RecursionError) as exc:
-            raise InputError(f"{source or cls.WHAT}: not valid JSON ({exc})") from None
+            document = parse_json(text, source or cls.WHAT)
+        except RecursionError:
+            raise InputError(f"{source or cls.WHAT}: nested too deeply; not valid JSON") from None
         return cls.from_dict(document, source)
 
     @classmethod
@@ -274,10 +277,42 @@ class Document:
         return cls.from_dict(read_json_document(path, cls.WHAT), str(path))
 
 
-def read_json_document(path, what: str = "JSON document"):
-    """The parsed JSON of a file, refusing files nested deeper than MAX_DEPTH."""
+def distinct(pairs, source: str, what: str = "key") -> dict:
+    """A dict of (name, value) pairs; InputError when a name comes twice with different values,
+    since which one was meant cannot be known (the same value twice is kept once)."""
+    found: dict = {}
+    for name, value in pairs:
+        if name in found and not _same(found[name], value):
+            raise InputError(
+                f"{source}: {what} {name!r} is given twice with different values; keep one"
+            )
+        found[name] = value
+    return found
+
+
+def _same(first, second) -> bool:
+    if isinstance(first, np.ndarray) or isinstance(second, np.ndarray):
+        return np.shape(first) == np.shape(second) and bool(np.all(first == second))
+    return bool(first == second) and type(first) is type(second)
+
+
+def parse_json(text: str, source: str, what: str = "JSON document"):
+    """The parsed JSON of `text`; InputError naming `source` when it is not valid JSON or an
+    object repeats a key with different values."""
     try:
-        return read_json(path, what)
+        return json.loads(text, object_pairs_hook=partial(distinct, source=source))
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{source}: not a valid {what} ({exc})") from None
+
+
+def read_json_document(path, what: str = "JSON document"):
+    """The parsed JSON of a file (`parse_json`), refusing files nested deeper than Python
+    reads."""
+    path = existing_file(path, f"a {what}")
+    try:
+        return parse_json(path.read_text(), str(path), what)
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not a valid {what} ({exc})") from None
     except RecursionError:
         raise InputError(f"{path}: nested deeper than Python can read; not a {what}") from None
 

@@ -58,8 +58,14 @@ class Loss:
 
     def __post_init__(self):
         validation.choice(self.kind, "loss", LOSSES)
-        if self.scale is not None:
-            validation.number(self.scale, "the loss scale", positive=True)
+        if self.scale is not None:  # within the sizes a sample may have, so r / delta and
+            validation.number(  # delta^2 stay representable
+                self.scale,
+                "the loss scale",
+                positive=True,
+                minimum=validation.MIN_SAMPLE_MAGNITUDE,
+                maximum=validation.MAX_SAMPLE_VALUE,
+            )
 
     @property
     def robust(self) -> bool:

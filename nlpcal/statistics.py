@@ -227,34 +227,58 @@ def field_statistics(
 @dataclass(frozen=True)
 class ObjectivesBlock:
     """The work of one pass that evaluates the exact objective under several corrections: the
-    `MagnitudeStats` of |B1| for each (offset, matrix, shift) of `corrections`."""
+    `MagnitudeStats` of |B1| for each (offset, matrix, shift) of `corrections`, and with a robust
+    `loss` the sums of rho, psi and psi' of the residuals (about `centre` without a reference)."""
 
     corrections: tuple
     chunk_rows: int = 16384
+    loss: Any = None
+    centre: float | None = None
 
     def __call__(self, samples, reference) -> list:
         samples = np.asarray(samples, dtype=float)
-        stats = [MagnitudeStats(shift) for _, _, shift in self.corrections]
+        stats = [(MagnitudeStats(shift), np.zeros(3)) for _, _, shift in self.corrections]
         for start in range(0, samples.shape[0], self.chunk_rows):
             stop = min(start + self.chunk_rows, samples.shape[0])
             chunk, ref = samples[start:stop], reference_chunk(reference, start, stop)
-            for (offset, matrix, _), total in zip(self.corrections, stats):
-                total.add(corrected_magnitude(chunk, offset, matrix), ref)
+            for (offset, matrix, _), (total, sums) in zip(self.corrections, stats):
+                magnitude = corrected_magnitude(chunk, offset, matrix)
+                total.add(magnitude, ref)
+                if self.loss is not None:
+                    r = magnitude - (ref if ref is not None else self.centre)
+                    loss = self.loss
+                    sums += (loss.rho(r).sum(), (loss.weight(r) * r).sum(), loss.slope(r).sum())
         return stats
 
 
 def _merge_each(first: list, second: list) -> list:
-    return [a.merge(b) for a, b in zip(first, second)]
+    return [(a.merge(b), x + y) for (a, x), (b, y) in zip(first, second)]
 
 
-def exact_objectives(samples, thetas, reference=None, chunk_rows: int = 16384) -> np.ndarray:
+def exact_objectives(
+    samples, thetas, reference=None, chunk_rows: int = 16384, loss=None, centre=None
+) -> np.ndarray:
     """The exact objective (Eq. 8, or its reference variant) at each parameter vector of
-    `thetas`, in one pass over the samples (one task per block on a Dask log). [field^2]"""
+    `thetas`, in one pass over the samples (one task per block on a Dask log). [field^2]
+
+    loss, centre : with a robust `nlpcal.robust.Loss` (its scale set), the objective is
+        (2/N) sum rho(r_i) of the residuals r_i = |B1_i| - F_i, which is the mean square for
+        least squares; without a reference r_i = |B1_i| - c, with c one Newton step from `centre`
+        towards the c that minimises it: (2/N) (sum rho - (sum psi)^2 / (2 sum psi')), which for
+        least squares is the variance of |B1| (Eq. 8) exactly.
+    """
     samples = as_rows(samples)
     corrections = tuple(shifted_correction(samples, theta) for theta in thetas)
-    work = ObjectivesBlock(corrections, chunk_rows)
+    robust = loss is not None and loss.robust
+    work = ObjectivesBlock(corrections, chunk_rows, loss if robust else None, centre)
     totals = reduce(samples, reference, work, _merge_each, chunk_rows)
-    return np.array([total.result()["objective"] for total in totals])
+    if not robust:
+        return np.array([total.result()["objective"] for total, _ in totals])
+    values = []
+    for total, (rho, psi, slope) in totals:
+        profiled = 0.0 if reference is not None or not slope > 0 else psi * psi / (2.0 * slope)
+        values.append(2.0 * (rho - profiled) / total.n)
+    return np.array(values)
 
 
 def shown_rows(count: int, most: int | None) -> list:

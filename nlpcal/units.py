@@ -157,7 +157,15 @@ def suggested_unit(columns, prefixes=MAGNETIC_PREFIXES, suffixes=FIELD_SUFFIXES)
     return None
 
 
-# --- plausibility of magnitudes against the declared or assumed unit ---------------------------
+# --- where a unit came from, and plausibility of magnitudes against it ------------------------
+
+#: Where the unit of a log's field columns came from, as every result records it ("unit_source"):
+#: "option" (given by the caller: --unit), "names" (the column names carry it), "format" (the
+#: file format fixes it, `nlpcal.io.tables.Table.field_unit`) or "assumed" (a fallback).
+UNIT_SOURCES = ("option", "names", "format", "assumed")
+#: Sources that fix the physical scale of a result; "assumed" does not, and neither does a record
+#: without a source (written before results recorded one).
+FIXING_SOURCES = ("option", "names", "format")
 
 #: Earth's field at the surface, from the magnetic equator to the poles. [nT]
 EARTH_FIELD_NT = (22_000.0, 67_000.0)
@@ -195,8 +203,8 @@ def unit_warning(
 
     magnitudes : candidate typical magnitudes in `unit` (the median |v|, the radius of a fitted
         sphere); the unit is implausible only when every one of them is.
-    unit : the unit the samples are read in. how : "given" (by the user), "names" (the column
-        names carry it) or "assumed" (a fallback).
+    unit : the unit the samples are read in. how : where it came from, one of UNIT_SOURCES; an
+        assumed unit that the magnitudes rule out is replaced by raw counts (`settle_unit`).
     sensor : "magnetometer" (judged against Earth's field, EARTH_FIELD_NT) or "accelerometer"
         (against gravity, GRAVITY_G).
     raw_allowed : whether the caller takes raw counts (the e-compass does not).
@@ -217,8 +225,9 @@ def unit_warning(
         u for u in table if u != "raw" and _plausible(typical * table[u], band, IMPLAUSIBLE_FACTOR)
     ]
     said = {
-        "given": f"as given ({flag} {unit})",
+        "option": f"as given ({flag} {unit})",
         "names": f"as the column names say ({unit})",
+        "format": f"in {unit}, as the file format fixes it",
         "assumed": f"in {unit}, assumed because the column names carry no unit",
     }[how]
     converted = "" if unit == base else f" = {readable(typical * table[unit])} {base}"
@@ -234,10 +243,15 @@ def unit_warning(
         advice = f"it would be {options}"
     else:
         advice = f"no {sensor} unit nlpcal knows puts it there"
+    if how == "assumed" and "raw" in table and raw_allowed:
+        return (
+            f"{read}: the samples are kept as raw counts, not {unit}, and no export in a field "
+            f"unit can be made from them; {advice}"
+        )
     counts = (
         f"; if the numbers are raw counts, {flag} raw keeps them as counts"
         if "raw" in table and raw_allowed
         else f"; raw counts must be scaled to {'g' if base == 'g' else 'a field unit'} first"
     )
-    kept = "; the unit given is used" if how == "given" else ""
+    kept = "; the unit given is used" if how == "option" else ""
     return f"{read}: {advice}{counts}{kept}"

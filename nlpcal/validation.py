@@ -126,6 +126,22 @@ def samples(
     """Field samples from many attitudes, (N, 3) float64: finite, not all equal, and no axis
     constant."""
     array = vectors(values, "samples", minimum=minimum, purpose=purpose)
+    low, high, largest = sample_sizes(array)
+    if np.all(low == high):
+        raise InputError("all samples are equal; calibration needs many attitudes")
+    if np.any(high - low <= MIN_AXIS_SPREAD * largest):
+        axes = ", ".join("xyz"[k] for k in np.flatnonzero(high - low <= MIN_AXIS_SPREAD * largest))
+        raise InputError(
+            f"the {axes} column is constant: that axis never saw the field change; "
+            f"calibration needs attitudes that turn every axis"
+        )
+    return array
+
+
+def sample_sizes(array) -> tuple:
+    """(per-column minimum, maximum, largest |value|) of (N, 3) samples, refused when a value
+    is not finite or the samples are too large or too small in any unit for their squares
+    (MAX_SAMPLE_VALUE, MIN_SAMPLE_MAGNITUDE): every log is checked so when read. [sample unit]"""
     low, high = axis_ranges(array)
     if not (np.isfinite(low).all() and np.isfinite(high).all()):
         raise InputError("samples contain NaN or infinite values; drop or fix those rows")
@@ -140,15 +156,7 @@ def samples(
             f"the samples are at most {largest:.3g} in size, below "
             f"{MIN_SAMPLE_MAGNITUDE:g} in any unit; check the columns and their unit"
         )
-    if np.all(low == high):
-        raise InputError("all samples are equal; calibration needs many attitudes")
-    if np.any(high - low <= MIN_AXIS_SPREAD * largest):
-        axes = ", ".join("xyz"[k] for k in np.flatnonzero(high - low <= MIN_AXIS_SPREAD * largest))
-        raise InputError(
-            f"the {axes} column is constant: that axis never saw the field change; "
-            f"calibration needs attitudes that turn every axis"
-        )
-    return array
+    return low, high, largest
 
 
 def axis_ranges(array) -> tuple:

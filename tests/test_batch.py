@@ -27,6 +27,7 @@ DOCUMENTED = [
     "warnings",
     "message",
     "unit",
+    "unit_source",
     "n_samples",
     "output",
     "action",

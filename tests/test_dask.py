@@ -344,3 +344,20 @@ def test_the_scores_block_sums_do_not_depend_on_how_the_rows_are_split(monkeypat
     for other in (threads, spread):
         for mine, theirs in zip(whole[:2], other[:2]):
             np.testing.assert_allclose(theirs, mine, rtol=1e-9, atol=1e-9 * np.abs(mine).max())
+
+
+def test_an_assumed_unit_ruled_out_is_raw_counts_in_blocks_too(tmp_path, spiky_log):
+    from nlpcal.io import read_log
+    from nlpcal.io.lazy import read_lazy_log
+
+    frame = pd.DataFrame(spiky_log[:3000] / 1e5, columns=["bx", "by", "bz"])  # gauss, unnamed
+    frame["F"] = PAPER_FIELD / 1e5  # a reference in the same unnamed unit
+    frame.to_csv(tmp_path / "log.csv", index=False)
+    memory = read_log(tmp_path / "log.csv", reference_column="F")
+    with dask.config.set(scheduler="threads"):
+        lazy = read_lazy_log(tmp_path / "log.csv", block_bytes=20_000, reference_column="F")
+        np.testing.assert_array_equal(lazy.samples[::1], memory.samples)
+        np.testing.assert_array_equal(lazy.reference[::1], memory.reference)
+    for log in (memory, lazy):
+        assert (log.unit, log.unit_source) == ("raw", "assumed") and "--unit G" in log.warnings[0]
+    np.testing.assert_array_equal(memory.samples, frame[["bx", "by", "bz"]].to_numpy())

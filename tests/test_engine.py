@@ -19,6 +19,7 @@ PACKAGE = Path(nlpcal.__file__).resolve().parent
 #: Layers from the bottom up; a module may import its own layer and the ones below.
 LAYERS = {
     "models": 0,
+    "defaults": 0,
     "errors": 1,
     "version": 1,
     "units": 1,

@@ -68,7 +68,9 @@ def test_every_format_round_trips_through_import(calibrated, tmp_path, fmt):
 @pytest.mark.parametrize("fmt", FORMATS)
 def test_round_trip_of_other_parameters_and_units(tmp_path, fmt):
     params = Zhou2010Parameters(1234.5, -321.0, 55.5, 0.031, -0.012, 0.0205, 0.8, -1.7, 2.9)
-    result = nlpcal.CalibrationResult(parameters=params.to_dict(), statistics=[])
+    result = nlpcal.CalibrationResult(
+        parameters=params.to_dict(), statistics=[], unit_source="option"
+    )
     result.input = {"log_unit": "uT"}
     unit = None if fmt in ("ardupilot", "px4") else "uT"
     path = tmp_path / "x"
@@ -170,11 +172,13 @@ def test_cholesky_route_recovers_parameters_behind_any_rotation():
 
 def test_ardupilot_refuses_what_it_cannot_express():
     weak = Zhou2010Parameters(s_x=-0.85)  # gain 0.15: DIA_X = 6.7, outside ArduPilot's 0.2 .. 5
-    result = nlpcal.CalibrationResult(parameters=weak.to_dict(), statistics=[])
+    result = nlpcal.CalibrationResult(
+        parameters=weak.to_dict(), statistics=[], unit_source="option"
+    )
     with pytest.raises(InputError, match=r"COMPASS_DIA_X = 6.66667 lies outside 0.2 .. 5"):
         export(result, "ardupilot")
     tilted = nlpcal.CalibrationResult(
-        parameters=Zhou2010Parameters(alpha_deg=12.0).to_dict(), statistics=[]
+        parameters=Zhou2010Parameters(alpha_deg=12.0).to_dict(), statistics=[], unit_source="names"
     )
     with pytest.raises(InputError, match="turns the axes by 6"):
         export(tilted, "px4")
@@ -183,7 +187,8 @@ def test_ardupilot_refuses_what_it_cannot_express():
     with pytest.raises(InputError, match="raw counts"):
         export(counts, "ardupilot")
     far = Zhou2010Parameters(z_x=150_000.0, z_y=100_000.0)  # 1 800 mG is 180 000 nT
-    notes = export(nlpcal.CalibrationResult(far.to_dict(), []), "ardupilot").notes
+    fixed = nlpcal.CalibrationResult(far.to_dict(), [], unit_source="option")
+    notes = export(fixed, "ardupilot").notes
     assert "COMPASS_OFFS_MAX" in notes[0]
     with pytest.raises(InputError, match="instances are 1, 2 and 3"):
         export(counts.__class__(weak.to_dict(), []), "ardupilot", instance=4)
@@ -230,7 +235,12 @@ def test_imports_of_files_written_elsewhere(tmp_path):
 
 def test_export_and_import_commands(calibrated, tmp_path, capsys):
     params = tmp_path / "params.json"
-    assert main(["calibrate", str(EXAMPLE), "--method", "joint", "-o", str(params), "-q"]) == 0
+    calibrate = ["calibrate", str(EXAMPLE), "--method", "joint", "-o", str(params), "-q"]
+    assert main(calibrate) == 0
+    capsys.readouterr()  # the example's columns (bx, by, bz) carry no unit: nT is assumed
+    assert main(["export", str(params), "--format", "ardupilot"]) == 2
+    assert "--unit" in capsys.readouterr().err
+    assert main([*calibrate, "--unit", "nT"]) == 0
     capsys.readouterr()
     assert main(["export", str(params), "--format", "ardupilot", "--instance", "2"]) == 0
     out, err = capsys.readouterr()
@@ -248,3 +258,34 @@ def test_export_and_import_commands(calibrated, tmp_path, capsys):
     assert main(["apply", str(back), str(EXAMPLE), "-o", str(corrected), "-q"]) == 0
     assert main(["export", str(params), "--format", "matlab", "--instance", "1"]) == 2
     assert "--instance applies" in capsys.readouterr().err
+
+
+def test_an_export_in_a_field_unit_needs_a_unit_that_fixes_the_scale(calibrated, tmp_path):
+    result, log = calibrated  # nT assumed (bx, by, bz), but a reference field fixes the scale
+    assert (result.unit_source, result.scale_fixed_by()) == ("assumed", "the reference field")
+    written = export(result, "ardupilot")
+    assert any("reference field" in note and "assumed" in note for note in written.notes)
+    # without the reference nothing fixes the scale: refused, naming the remedies
+    bare = nlpcal.CalibrationResult(
+        parameters=result.parameters, statistics=[], unit_source="assumed"
+    )
+    for fmt in FORMATS:
+        with pytest.raises(InputError, match=r"--unit.*reference field"):
+            export(bare, fmt)
+    # raw counts: only in raw
+    counts = nlpcal.calibrate(log.samples / 100.0, method="joint")  # nT ruled out: raw counts
+    assert (counts.unit, counts.unit_source) == ("raw", "assumed")
+    assert "far from Earth's field" in counts.warnings[0]
+    assert "A =" in export(counts, "matlab").text
+    for fmt, unit in (("ardupilot", None), ("matrix", "nT")):
+        with pytest.raises(InputError, match=r"raw counts.*--unit"):
+            export(counts, fmt, unit=unit)
+    # a parameters file from before unit_source is treated as an assumed unit
+    old = result.to_dict()
+    del old["unit_source"], old["reference"]
+    path = tmp_path / "old.json"
+    path.write_text(json.dumps(old))
+    with pytest.raises(InputError, match="does not record"):
+        export(nlpcal.CalibrationResult.load(path), "px4")
+    given = nlpcal.calibrate(log.samples, unit="nT", method="joint")
+    assert given.unit_source == "option" and export(given, "px4").notes[:1] != written.notes[:1]

@@ -17,13 +17,14 @@ import pytest
 
 from nlpcal import orthogonality as ortho
 from nlpcal.cli import main
-from nlpcal.errors import InputError, SolveError
+from nlpcal.errors import InputError, QualityError, SolveError
 from nlpcal.models import wang2015
 from nlpcal.moments import accumulate
 from nlpcal.nlp.blocks import moment_parameters
 from nlpcal.nlp.orthogonality import inversion_objective, inversion_solver, worst_case_solver
 from nlpcal.nlp.solver import SolveOutcome
 from nlpcal.orthogonality import inversion as inversion_module
+from synthetic import make_log
 
 PAPER_ANGLES = (0.07, 0.04, 0.1)  # the synthetic inversion of section 2 in Wang et al. [deg]
 FIELD = 55_000.0  # [nT]
@@ -675,3 +676,30 @@ def test_invert_reads_the_unit_from_the_column_names_and_flags_near_bound_soluti
     assert all(document["bound_active"])
     assert "objective" in document
     assert "bound" in err
+
+
+def test_invert_fails_when_offsets_and_scales_were_not_removed(tmp_path, capsys):
+    # 80-120 nT offsets and 0.5 % scale errors, 1 nT of noise: three angles cannot explain the
+    # data; the forward model is the tests' own (tests/synthetic.py, Eq. 4 typed in again)
+    angles = {"alpha_deg": 0.07, "beta_deg": 0.04, "gamma_deg": 0.1}
+    dirty = {"z_x": 80.0, "z_y": -120.0, "z_z": 100.0, "s_x": 0.005, "s_y": -0.005, "s_z": 0.005}
+    samples = make_log(n=2000, noise=1.0, seed=8, truth={**dirty, **angles}, field=FIELD)[0]
+    with pytest.raises(QualityError) as caught:
+        ortho.invert(samples)
+    assert caught.value.status == "Model_Unexplained"
+    assert "calibrate first" in caught.value.reason
+    assert caught.value.overrides == {"require_explained": False}
+    kept = ortho.invert(samples, require_explained=False)
+    assert any("do not explain" in w for w in kept.warnings)
+    path = tmp_path / "dirty.csv"
+    pd.DataFrame(samples, columns=["bx_nT", "by_nT", "bz_nT"]).to_csv(path, index=False)
+    out = tmp_path / "angles.json"
+    assert main(["orthogonality", "invert", str(path), "-o", str(out)]) == 1
+    assert "calibrate first" in capsys.readouterr().err and not out.exists()
+    # the same probe with offsets and scales removed: the angles within their standard errors
+    clean = {name: 0.0 for name in dirty}
+    samples = make_log(n=2000, noise=1.0, seed=8, truth={**clean, **angles}, field=FIELD)[0]
+    result = ortho.invert(samples)
+    assert not result.warnings
+    errors = np.asarray(result.angles_std_deg)
+    assert (np.abs(result.angles_deg - list(angles.values())) < 4 * errors).all()

@@ -18,7 +18,6 @@ import socket
 import stat
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pandas as pd
@@ -44,6 +43,22 @@ NAMED_WRITER = (
     "import sys; from nlpcal.io import files; files.UNNAMED_FILES = False; "
     "from nlpcal.cli import main; sys.exit(main(sys.argv[1:]))"
 )
+#: The named writer held after it filled its temporary file, until a signal ends it: a kill
+#: that always lands between the write and the rename, however loaded the machine.
+HELD_NAMED_WRITER = """
+import sys, time
+from nlpcal.io import files
+files.UNNAMED_FILES = False
+fill = files._fill
+def held(fd, write, binary):
+    fill(fd, write, binary)
+    sys.stderr.write("filled\\n")
+    sys.stderr.flush()
+    time.sleep(120)
+files._fill = held
+from nlpcal.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
 
 
 def null_device(path: Path) -> int:
@@ -240,6 +255,52 @@ def test_outputs_are_put_in_place_only_when_all_are_complete(writer, tmp_path, c
     assert sorted(p.name for p in tmp_path.iterdir()) == ["first.json"]
 
 
+def test_a_reader_gone_from_stdout_leaves_the_other_outputs_in_place(writer, tmp_path):
+    # the reader of stdout went away having what it wanted: the complete files still take place
+    first = tmp_path / "first.json"
+    first.write_text("previous")
+
+    def gone(handle):
+        raise BrokenPipeError(errno.EPIPE, "Broken pipe")
+
+    with pytest.raises(BrokenPipeError), Outputs() as outputs:
+        outputs.json(first, {"a": 1})
+        outputs.write(None, gone)
+    assert json.loads(first.read_text()) == {"a": 1}
+    assert debris(tmp_path) == []
+
+
+def test_two_outputs_to_one_place_are_refused(tmp_path):
+    with pytest.raises(InputError, match="share one destination"), Outputs() as outputs:
+        outputs.text(None, "a document")
+        outputs.bytes("-", PNG)  # a figure after a document on stdout: neither readable
+    with pytest.raises(InputError, match="share one destination"), Outputs() as outputs:
+        outputs.text(tmp_path / "out.txt", "a")
+        outputs.text(tmp_path / "." / "out.txt", "b")
+    assert not (tmp_path / "out.txt").exists()
+    with Outputs() as outputs:  # a character device takes any number of outputs
+        device = tmp_path / "null"
+        null_device(device)
+        outputs.text(device, "a")
+        outputs.bytes(device, PNG)
+
+
+@pytest.mark.parametrize("output", [None, "-"])
+def test_a_plot_to_the_stdout_of_a_document_is_refused_before_any_work(inputs, capsys, output):
+    argv = ["calibrate", str(inputs / "log.csv"), "--unit", "nT", "--plot", "-"]
+    code = main(argv + ([] if output is None else ["-o", output]))
+    captured = capsys.readouterr()
+    assert code == 2 and captured.out == ""
+    assert "share one destination" in captured.err and "verdict" not in captured.err
+
+
+def test_a_link_into_a_missing_folder_is_refused_before_any_work(tmp_path):
+    link = tmp_path / "params.json"
+    link.symlink_to(tmp_path / "nowhere" / "params.json")
+    with pytest.raises(InputError, match="does not exist"):
+        files.check_output_path(link)
+
+
 def test_a_failed_write_through_leaves_the_files(writer, tmp_path):
     first = tmp_path / "first.json"
     first.write_text("previous")
@@ -268,7 +329,7 @@ def inputs(tmp_path_factory):
         ["simulate", "-n", "300", "--seed", "3", "-o", d / "log.csv"],
         ["simulate", "--preset", "qiu2017", "-n", "40", "-o", d / "q"],
         ["simulate", "--preset", "liu2022", "-n", "30", "-o", d / "l"],
-        ["calibrate", d / "log.csv", "--method", "joint", "-o", d / "params.json"],
+        ["calibrate", d / "log.csv", "--method", "joint", "--unit", "nT", "-o", d / "params.json"],
         ["export", d / "params.json", "--format", "matlab", "-o", d / "matlab.txt"],
         ["compass", "calibrate", d / "q" / "turns.csv", *COMPASS_COLUMNS, "-o", d / "c.json"],
         ["compass", "attitude", d / "c.json", d / "q" / "test.csv", "-o", d / "att.csv"],
@@ -327,7 +388,7 @@ COMMANDS = {
     "compass evaluate": (
         [
             *("compass", "evaluate", "{d}/att.csv", "--truth-columns"),
-            *("roll_deg", "pitch_deg", "heading_deg", "-o", "{out}"),
+            *("true_roll_deg", "true_pitch_deg", "true_heading_deg", "-o", "{out}"),
         ],
         "json",
     ),
@@ -480,16 +541,17 @@ def test_a_failed_batch_log_leaves_a_device_in_place_of_its_output(tmp_path, cap
 
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
 def test_a_killed_write_through_the_named_writer_leaves_nothing(tmp_path, signum):
-    output = tmp_path / "big.csv"
+    output = tmp_path / "log.csv"
     output.write_text("previous")
-    command = [sys.executable, "-c", NAMED_WRITER, "simulate", "-n", "500000", "-o", str(output)]
-    process = subprocess.Popen(command, stderr=subprocess.PIPE)
-    deadline = time.monotonic() + 120
-    while not debris(tmp_path) and process.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.005)
-    assert debris(tmp_path), "the named temporary file never appeared"
-    process.send_signal(signum)
-    _, err = process.communicate(timeout=60)
+    command = [sys.executable, "-c", HELD_NAMED_WRITER, "simulate", "-n", "2000", "-o", str(output)]
+    process = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
+    try:
+        assert process.stderr.readline() == "filled\n", "the writer never held"
+        assert debris(tmp_path), "the named temporary file is not there"
+        process.send_signal(signum)  # while the complete file waits under its temporary name
+        _, err = process.communicate(timeout=60)
+    finally:
+        process.kill()
     assert process.returncode == (143 if signum == signal.SIGTERM else 130), err
     assert output.read_text() == "previous"
     assert debris(tmp_path) == []

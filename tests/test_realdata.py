@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from nlpcal import calibrate
-from nlpcal.calibration import calibrate_log
+from nlpcal.calibration import CalibrationResult, calibrate_log
 from nlpcal.errors import QualityError, SolveError
 from nlpcal.io import read_log
 
@@ -94,9 +94,10 @@ def test_headerless_whitespace_and_timed_logs_calibrate_as_they_are(
 
 
 def test_unit_mistakes_on_real_logs_are_warned_about(real_data, capsys, tmp_path):
-    # counts (no unit in a headerless file) and gauss (names without units) read as nT
+    # counts (no unit in a headerless file) and gauss (names without units): nT is assumed, ruled
+    # out by the magnitudes, and the samples are kept as raw counts
     for path, suggestion in (
-        ("bazhin_ellipsoid_fit/mag_out.txt", "--unit raw"),
+        ("bazhin_ellipsoid_fit/mag_out.txt", "--unit mG"),
         ("ck_explorer_accmag/acc_mag_log.csv", "--unit G"),
     ):
         log = real_data / path
@@ -105,6 +106,70 @@ def test_unit_mistakes_on_real_logs_are_warned_about(real_data, capsys, tmp_path
         code, captured = _cli(capsys, "stats", log)
         assert code == 0
         assert "far from Earth's field" in captured.err and suggestion in captured.err
+        assert "[raw]" in captured.out
+
+
+#: The real logs whose columns carry no unit, and what nlpcal reads their columns as.
+UNITLESS = (
+    "bazhin_ellipsoid_fit/mag_out.txt",
+    "ck_explorer_accmag/acc_mag_log.csv",
+    "freeimu_gui_accmag/magn.txt",
+    "wagonwheel_magcal/data.csv",
+)
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize("path", UNITLESS)
+def test_unitless_real_logs_are_recorded_as_assumed_raw_and_not_exported(
+    real_data, tmp_path, capsys, path
+):
+    log = real_data / path
+    if not log.exists():
+        pytest.skip(f"{log} is absent")
+    params = tmp_path / "p.json"
+    code, captured = _cli(
+        capsys, "calibrate", log, "--method", "joint", "--allow-unidentifiable", "-o", params
+    )
+    assert code == 0, captured.err
+    document = json.loads(params.read_text())
+    assert document["unit_source"] == "assumed" and document["input"]["unit_source"] == "assumed"
+    # every one of them is far from Earth's field in nT: recorded as counts, the warning kept
+    assert document["unit"] == "raw" and document["input"]["log_unit"] == "raw"
+    assert any("far from Earth's field" in w for w in document["warnings"])
+    for fmt in ("ardupilot", "px4"):
+        code, captured = _cli(capsys, "export", params, "--format", fmt)
+        assert code == 2 and captured.out == ""
+        assert "--unit" in captured.err and "reference field" in captured.err
+
+
+@pytest.mark.realdata
+def test_a_unitless_log_given_its_unit_exports_what_apply_computes(real_data, tmp_path, capsys):
+    log = real_data / "ck_explorer_accmag/acc_mag_log.csv"
+    if not log.exists():
+        pytest.skip(f"{log} is absent")
+    params = tmp_path / "p.json"
+    code, captured = _cli(capsys, "calibrate", log, "--unit", "G", "-o", params)
+    assert code == 0, captured.err
+    document = json.loads(params.read_text())
+    assert (document["unit"], document["unit_source"]) == ("nT", "option")
+    assert not any("far from Earth's field" in w for w in document["warnings"])
+    code, captured = _cli(capsys, "export", params, "--format", "ardupilot")
+    assert code == 0, captured.err
+    rows = [line.split(",") for line in captured.out.splitlines() if not line.startswith("#")]
+    values = {name: float(value) for name, value in rows}
+    result = CalibrationResult.load(params)
+    samples = read_log(log, unit="G").samples  # [nT]
+    ofs = np.array([values[f"COMPASS_OFS_{a}"] for a in "XYZ"])  # [mG]
+    dia = [values[f"COMPASS_DIA_{a}"] for a in "XYZ"]
+    odi = [values[f"COMPASS_ODI_{a}"] for a in "XYZ"]
+    d = np.array([[dia[0], odi[0], odi[1]], [odi[0], dia[1], odi[2]], [odi[1], odi[2], dia[2]]])
+    corrected = (samples / 100.0 + ofs) @ d.T * 100.0  # ArduPilot: m' = D (m + OFS) [mG] -> nT
+    b1 = result.apply(samples, unit="nT")
+    # the autopilot's field is R^T B1: the same magnitudes; offsets are -Z in mG. Exported with
+    # 17 significant digits: agreement to double precision of a 5e4 nT field. [nT]
+    np.testing.assert_allclose(-ofs * 100.0, result.model.offsets, rtol=0, atol=1e-6)
+    magnitude = np.linalg.norm(corrected, axis=1) - np.linalg.norm(b1, axis=1)
+    assert np.abs(magnitude).max() < 1e-6
 
 
 def test_the_zero_row_of_the_rasteiro_logs_is_left_out(real_data):
@@ -154,3 +219,23 @@ def test_robust_fits_of_messy_logs_report_a_true_covariance_or_fail(real_data, l
         covariance = np.asarray(result.covariance)
         assert np.linalg.eigvalsh(covariance)[0] >= -1e-9 * np.abs(covariance).max()
         assert all(np.isfinite(v) and v > 0 for v in result.standard_errors.values())
+
+
+@pytest.mark.parametrize("name", ["MPU6050RM3100_derived.csv", "MPU6500RM3100_derived.csv"])
+def test_the_staged_huber_fit_of_the_rm3100_logs_ends_at_the_joint_one(real_data, name):
+    # Offsets the attitudes determine weakly and 30 % of the samples down-weighted: a staged
+    # cycle that reweights before least squares has converged crawls along the valley to its
+    # cycle limit, and the exact-optimum check once measured the unweighted objective (2.5
+    # standard errors "away" from a fit at the Huber optimum).
+    path = real_data / "rasteiro_robot_multisensor" / name
+    if not path.exists():
+        pytest.skip(f"{path} is absent")
+    log = read_log(path)
+    joint = calibrate_log(log, method="joint", loss="huber")
+    staged = calibrate_log(log, method="staged", loss="huber")
+    assert staged.solver["stop_reason"] == "rtol"
+    for key, value in joint.parameters.items():
+        assert abs(staged.parameters[key] - value) <= 0.2 * joint.standard_errors[key], key
+    for fit in (joint, staged):
+        assert fit.identifiability["exact_optimum_shift_in_standard_errors"] < 0.1
+        assert not any("exact optimum" in w for w in fit.warnings)

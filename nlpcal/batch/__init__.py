@@ -43,7 +43,8 @@ from ..correction import load_parameters
 from ..errors import InputError
 from ..io import Outputs
 from ..io.files import COMPRESSED_SUFFIXES
-from ..io.sources import is_parquet, log_paths
+from ..io.sources import distinct_files, is_parquet, log_paths
+from ..io.strict import finite_table
 from ..models.zhou2010 import PARAMETER_NAMES
 from .ledger import FILE as LEDGER
 from .ledger import Ledger, digest
@@ -75,8 +76,9 @@ CORRECTED_TAG = ".corrected"
 #: Columns of the summary of `calibrate_many`: the model that ran (full, diagonal or offset), the
 #: nine parameters each followed by its standard error (_se, empty when the data leave a
 #: direction free; both empty for a parameter the model does not estimate), the std of |B|
-#: measured and corrected (the first and last Table 1 rows) and the fraction of the 26 direction
-#: bins the corrected field visits.
+#: measured and corrected (the first and last Table 1 rows), the fraction of the 26 direction
+#: bins the corrected field visits, and the unit with where it came from
+#: (`nlpcal.units.UNIT_SOURCES`).
 CALIBRATION_COLUMNS = (
     "log",
     "status",
@@ -90,6 +92,7 @@ CALIBRATION_COLUMNS = (
     "warnings",
     "message",
     "unit",
+    "unit_source",
     "n_samples",
     "output",
     "action",
@@ -195,12 +198,16 @@ def _out_dir(out_dir) -> Path:
     return out_dir
 
 
-def _run(jobs, task, reused, ledger: Ledger, keys: dict, columns, scheduler, workers, progress):
+def _run(
+    jobs, task, reused, ledger: Ledger, keys: dict, columns, scheduler, workers, progress, notes
+):
     """Run `task` on every job (log, ..., output) not in `reused` (log -> its row); write the
-    summary and the ledger (`keys`: log -> the digest of what makes its output)."""
+    summary and the ledger (`keys`: log -> the digest of what makes its output); `notes` go to
+    the report."""
     rows = dict(reused)
     todo = [job for job in jobs if str(job[0]) not in rows]
     report = BatchReport([], ledger.path.parent / SUMMARY, columns, total=len(jobs))
+    report.notes.extend(notes)
     if ledger.note:
         report.notes.append(ledger.note)
     ledger.redoing(job[-1] for job in todo)
@@ -225,7 +232,7 @@ def _run(jobs, task, reused, ledger: Ledger, keys: dict, columns, scheduler, wor
     finally:
         report.rows = [rows[str(job[0])] for job in jobs if str(job[0]) in rows]
         with Outputs() as outputs:  # the summary and the record of the outputs, together
-            outputs.csv(report.summary, report.table())
+            outputs.csv(report.summary, finite_table(report.table(), "the summary", missing=True))
             outputs.json(ledger.path, ledger.document())
     return report
 
@@ -252,7 +259,8 @@ def calibrate_many(
         log finishes.
     """
     out_dir = _out_dir(out_dir)
-    paths = _paths(source, out_dir)
+    notes: list = []
+    paths = _paths(source, out_dir, notes)
     names = output_names(paths)
     jobs = [(path, out_dir / f"{names[path]}{PARAMS_SUFFIX}") for path in paths]
     task = CalibrateTask(dict(read_options or {}), dict(options or {}))
@@ -270,7 +278,9 @@ def calibrate_many(
                 continue  # an unreadable output is made again
             row = {"log": str(path), **calibration_row(result), "output": str(output)}
             reused[str(path)] = status_row({**row, "action": "skipped", "seconds": 0.0}, "ok")
-    return _run(jobs, task, reused, ledger, keys, CALIBRATION_COLUMNS, scheduler, workers, progress)
+    return _run(
+        jobs, task, reused, ledger, keys, CALIBRATION_COLUMNS, scheduler, workers, progress, notes
+    )
 
 
 def apply_many(
@@ -294,7 +304,8 @@ def apply_many(
     The other arguments as in `calibrate_many` and `nlpcal apply`.
     """
     out_dir = _out_dir(out_dir)
-    paths = _paths(source, out_dir)
+    notes: list = []
+    paths = _paths(source, out_dir, notes)
     names = output_names(paths)
     folder = parameters is not None and Path(parameters).is_dir()
     if parameters is not None and not folder:
@@ -325,13 +336,19 @@ def apply_many(
         if not force and ledger.current(output, keys[str(path)], path, params, drift):
             row = {"log": str(path), "params": str(params or ""), "output": str(output)}
             reused[str(path)] = status_row({**row, "action": "skipped", "seconds": 0.0}, "ok")
-    return _run(jobs, task, reused, ledger, keys, APPLY_COLUMNS, scheduler, workers, progress)
+    return _run(
+        jobs, task, reused, ledger, keys, APPLY_COLUMNS, scheduler, workers, progress, notes
+    )
 
 
-def _paths(source, out_dir: Path) -> list:
-    """The logs of `source`, less the files a batch writes into `out_dir` (a folder or pattern
-    that holds the outputs of an earlier run)."""
-    paths = [Path(p) for p in source] if isinstance(source, (list, tuple)) else log_paths(source)
+def _paths(source, out_dir: Path, notes: list) -> list:
+    """The logs of `source`, each once (`nlpcal.io.sources.distinct_files`, whose notes go to
+    `notes`), less the files a batch writes into `out_dir` (a folder or pattern that holds the
+    outputs of an earlier run)."""
+    if isinstance(source, (list, tuple)):
+        paths = distinct_files([Path(p) for p in source], notes)
+    else:
+        paths = log_paths(source, notes)
     out = out_dir.resolve()
     paths = [
         p

@@ -27,6 +27,7 @@ from pathlib import Path
 from ..errors import InputError
 from ..io import read_json, write_json_atomic
 from ..io.files import passes_through
+from ..io.strict import strict
 
 FILE = "batch.json"
 FORMAT = "nlpcal-batch"
@@ -94,7 +95,8 @@ class Ledger:
                 Path(output).unlink()
 
     def document(self) -> dict:
-        return {"format": FORMAT, "format_version": FORMAT_VERSION, "outputs": self.outputs}
+        document = {"format": FORMAT, "format_version": FORMAT_VERSION, "outputs": self.outputs}
+        return strict(document, "the batch ledger")
 
     def save(self) -> None:
         write_json_atomic(self.path, self.document())

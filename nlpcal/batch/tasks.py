@@ -22,6 +22,7 @@ from ..drift.fit import DriftFit
 from ..errors import InputError, QualityError, SolveError, WriteError
 from ..io import read_log, read_table, write_bytes_atomic, write_table
 from ..io.sources import is_parquet, write_parquet
+from ..io.strict import finite_table
 from ..statistics import field_statistics
 from ..verdict import worst
 
@@ -77,6 +78,7 @@ def calibration_row(result: CalibrationResult) -> dict:
         coverage_fraction=coverage.get("fraction"),
         warnings=WARNING_SEPARATOR.join(result.warnings),
         unit=result.unit,
+        unit_source=result.unit_source,
         n_samples=result.n_samples,
     )
     return row
@@ -101,9 +103,6 @@ class CalibrateTask:
             log = read_log(log_path, **self.read_options)
             result = calibrate_log(log, **self.options)
             row.update(calibration_row(result))
-            row["warnings"] = WARNING_SEPARATOR.join(
-                [*getattr(log, "warnings", []), *result.warnings]
-            )
             result.save(output)
             row["output"] = str(output)
             status_row(row, "ok")
@@ -150,7 +149,7 @@ class ApplyTask:
                 row["outliers"] = int(flags.sum())
             frame = log.written_back(corrected, TOTAL_COLUMN, extra)
             if is_parquet(log_path):
-                write_bytes_atomic(output, write_parquet(frame))
+                write_bytes_atomic(output, write_parquet(finite_table(frame)))
             else:  # in the layout of the log, as `nlpcal apply` writes it
                 write_table(frame, log.layout, output)
             row.update(

@@ -14,7 +14,7 @@ import numpy as np
 from .. import chunks, passes, units, validation
 from ..errors import QualityError, SolveError
 from ..io.lazy import field_samples
-from ..io.logs import Log
+from ..io.logs import Log, settle_unit
 from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
 from ..moments import accumulate
 from ..nlp.blocks import GAUGE, OPTIONS
@@ -34,16 +34,16 @@ from .diagnostics import (
 from .joint import run_joint
 from .problem import Problem
 from .result import CalibrationResult
-from .selection import MODEL_CHOICES, choose_model, selection_warning
-from .staged import CYCLES_DEFAULT, StopRule, run_staged
+from .selection import MODEL_CHOICES, choose_model, restriction_warning, selection_warning
+from .staged import CYCLES_DEFAULT, RTOL_DEFAULT, StopRule, run_staged
 
 METHODS = ("staged", "joint")
-#: Default relative improvement below which the staged cycle stops. [1]
-RTOL_DEFAULT = 1e-9
 #: A staged result further than this many standard errors from the joint optimum of the same
 #: objective is not reported as an optimum (a bias of 0.2 standard errors adds 4 % to the
 #: mean squared error). [1]
 STAGED_GAP_LIMIT = 0.2
+#: Why a staged cycle stopped without its rtol rule holding.
+UNCONVERGED = ("max_cycles", "predicted_unconverged")
 #: Least squares warns when the standard deviation of the residuals exceeds their robust one
 #: (1.4826 MAD) by this factor: Gaussian residuals give 1. [1]
 HEAVY_TAIL_RATIO = 1.5
@@ -61,7 +61,7 @@ def calibrate(
     method: str = "staged",
     model: str = "full",
     reference_field=None,
-    unit: str = "nT",
+    unit: str | None = None,
     reference_unit: str | None = None,
     cycles: int = CYCLES_DEFAULT,
     target_std: float | None = None,
@@ -88,7 +88,10 @@ def calibrate(
     reference_field : None (Eq. 8, absolute scale not identifiable), a number F, or an array of
         N values F_i (for example a proton magnetometer sampled with the log). [reference_unit]
     unit : the unit of the samples: nT, uT, mT, mG, G, T, or raw for counts. The result is in nT
-        (or raw), whatever the unit of the samples.
+        (or raw), whatever the unit of the samples, and records the unit as given
+        (`unit_source` "option"). None assumes nT ("assumed"): when the magnitudes are far from
+        Earth's field in nT, the samples are taken as raw counts and the result is in raw, with
+        the warning (`nlpcal.io.logs.settle_unit`).
     reference_unit : the unit of the reference (default: `unit`).
     cycles : the most staged cycles. target_std, target_range : stop the cycle when |B1| meets
         them [unit]. rtol : stop when a cycle lowers the objective by less than this fraction.
@@ -114,6 +117,9 @@ def calibrate(
     with chunks.call_threads(threads):
         validation.choice(method, "method", METHODS)
         validation.choice(model, "model", MODEL_CHOICES)
+        unit_source = "assumed" if unit is None else "option"
+        unit = "nT" if unit is None else unit
+        units.field_factor(unit)
         cycles = validation.count(cycles, "cycles")
         target_std = validation.optional_number(target_std, "target_std", positive=True)
         target_range = validation.optional_number(target_range, "target_range", positive=True)
@@ -130,6 +136,11 @@ def calibrate(
         samples = validation.samples(samples)
         reference = validation.reference(reference_field, samples.shape[0])
         samples = units.to_base(samples, unit)  # in base units a memory map stays mapped
+        unit_warnings = []
+        if unit_source == "assumed":
+            samples, unit, unit_warning = settle_unit(samples, unit, unit_source)
+            unit_warnings = [unit_warning] if unit_warning else []
+            units.check_compatible(unit, reference_unit or unit)
         reference = units.to_base(reference, reference_unit or unit)
         target_std, target_range = (
             units.to_base(target_std, unit),
@@ -153,6 +164,7 @@ def calibrate(
             target_std=target_std,
             target_range=target_range,
             rtol=rtol,
+            predict=not allow_unconverged,  # the user asked to run to the limit
             every_row_exact=False,
         )
         base = units.base_unit(unit)
@@ -172,12 +184,44 @@ def calibrate(
                 allow_unconverged=allow_unconverged,
             )
         except SolveError as failure:  # a QualityError holds the result: it records the choice
-            if selection is not None and isinstance(failure.result, CalibrationResult):
-                record_selection(failure.result, selection)
+            if isinstance(failure.result, CalibrationResult):
+                record_unit(failure.result, unit_source, unit_warnings)
+                if selection is not None:
+                    record_selection(failure.result, selection)
             raise
+        record_unit(result, unit_source, unit_warnings)
         if selection is not None:
             record_selection(result, selection)
+        elif model != "full":  # a form the user chose: do the data contradict what it fixes?
+            check_restriction(result, problem_for(model), problem_for("full"), rule, base)
         return result
+
+
+def check_restriction(
+    result: CalibrationResult, restricted: Problem, full: Problem, rule: StopRule, base: str
+) -> None:
+    """Warn when the log contradicts the parameters a restricted model fixes
+    (`selection.restriction_warning`), judged against the full model's joint solve on the same
+    moments; a full model the data do not determine says nothing, and no warning is given. The
+    test compares variances of |B1|: a robust fit's objective is none, and is not judged."""
+    if restricted.loss.robust:
+        return
+    try:
+        reference = estimate(full, "joint", rule, base, quality=False)
+    except SolveError:
+        return
+    if reference.identifiability.get("not_identifiable"):
+        return
+    freed = (full.free.basis.shape[1], restricted.free.basis.shape[1])
+    warning = restriction_warning(result, reference, freed)
+    if warning:
+        result.warnings.append(warning)
+
+
+def record_unit(result: CalibrationResult, source: str, warnings: list) -> None:
+    """Record where a result's unit came from, and the warnings about it first."""
+    result.unit_source = source
+    result.warnings[:0] = warnings
 
 
 def record_selection(result: CalibrationResult, selection: dict) -> None:
@@ -261,20 +305,26 @@ def estimate(
         distance = gap["max_gap_in_standard_errors"]
         checked = "objective_joint" in gap and distance is not None
         if not checked or distance > STAGED_GAP_LIMIT:
-            message = staged_message(stop_reason, rule.max_cycles, gap)
+            message = staged_message(stop_reason, rule.max_cycles, gap, stages[-1])
             warnings.append(message)
             identifiability["standard_errors_at_joint_optimum"] = errors
             errors = covariance = None  # they describe an optimum, not this point
             # a target stop is the user's request; a cycle that converged by its rtol rule but
             # cannot be checked (no standard errors, no joint optimum) keeps its warning
-            if stop_reason == "max_cycles" or (stop_reason == "rtol" and checked):
-                stop_reason = stop_reason if stop_reason == "max_cycles" else "above_joint_optimum"
+            if stop_reason in UNCONVERGED or (stop_reason == "rtol" and checked):
+                stop_reason = stop_reason if stop_reason in UNCONVERGED else "above_joint_optimum"
                 unconverged = message
-        elif stop_reason == "max_cycles" and len(rows) > 2:
+        elif stop_reason in UNCONVERGED and len(rows) > 2:
+            when = (
+                f"at the maximum of {rule.max_cycles} cycles"
+                if stop_reason == "max_cycles"
+                else f"after {len(rows) - 1} cycles, predicting that it could not meet it "
+                f"within {rule.max_cycles}"
+            )
             warnings.append(
-                f"the staged cycle stopped at the maximum of {rule.max_cycles} cycles before "
-                f"its rtol rule ({rule.rtol:g}) held; its parameters agree with the joint "
-                f"optimum of the same data within {STAGED_GAP_LIMIT:g} standard errors"
+                f"the staged cycle stopped {when} before its rtol rule ({rule.rtol:g}) held; its "
+                f"parameters agree with the joint optimum of the same data within "
+                f"{STAGED_GAP_LIMIT:g} standard errors"
             )
     if flat["planar"]:  # along the plane's normal no linearisation describes the data
         errors = covariance = None
@@ -350,13 +400,26 @@ def correct_bias(parameters: dict, block: dict, warnings: list) -> dict:
     return {name: value - bias.get(name, 0.0) for name, value in parameters.items()}
 
 
-def staged_message(stop_reason: str, cycles: int, gap: dict) -> str:
-    """Why a staged result is not at the optimum, with both objectives and what to do."""
-    why = (
-        f"the staged cycle stopped at its limit of {cycles} cycles"
-        if stop_reason == "max_cycles"
-        else f"the staged cycle stopped on its {stop_reason} rule"
-    )
+def staged_message(stop_reason: str, cycles: int, gap: dict, last: dict | None = None) -> str:
+    """Why a staged result is not at the optimum, with both objectives and what to do.
+
+    last : the record of the last stage (its predicted cycles when the cycle stopped early).
+    """
+    if stop_reason == "predicted_unconverged" and last is not None:
+        why = (
+            f"the staged cycle stopped after {last['cycle']} cycles, predicting from its rate of "
+            f"convergence (each cycle's improvement {last['convergence_rate']:.4g} times the one "
+            f"before) that its rtol rule would need about {last['predicted_cycles']} cycles, "
+            f"more than its limit of {cycles}"
+        )
+        advice = "use --method joint, or --allow-unconverged to run to the limit"
+    else:
+        why = (
+            f"the staged cycle stopped at its limit of {cycles} cycles"
+            if stop_reason == "max_cycles"
+            else f"the staged cycle stopped on its {stop_reason} rule"
+        )
+        advice = "use --method joint, or more --cycles"
     distance = gap.get("max_gap_in_standard_errors")
     if "objective_joint" not in gap:
         return (
@@ -375,9 +438,8 @@ def staged_message(stop_reason: str, cycles: int, gap: dict) -> str:
         else f"; its parameters lie up to {distance:.3g} standard errors from that optimum"
     )
     return (
-        f"{why} with objective {gap['objective_staged']:.6g}, above the joint optimum "
-        f"{gap['objective_joint']:.6g} of the same data{where}; use --method joint, or more "
-        f"--cycles"
+        f"{why}; its objective {gap['objective_staged']:.6g} lies above the joint optimum "
+        f"{gap['objective_joint']:.6g} of the same data{where}; {advice}"
     )
 
 
@@ -392,18 +454,32 @@ def calibrate_log(
     """`calibrate` on a log read by `nlpcal.io.read_log` (its reference included).
 
     target_std, target_range, loss_scale : in the unit of the log's field columns.
-    The result records the log (file, columns, unit) under `input`.
+    The result records the log (file, columns, unit and where the unit came from) under
+    `input`, and the reader's warnings (a unit that does not fit the magnitudes) first among its
+    own; so does the result a QualityError holds.
     """
-    result = calibrate(
-        log.samples,
-        unit=log.base_unit,
-        reference_field=log.reference,
-        target_std=units.to_base(target_std, log.unit),
-        target_range=units.to_base(target_range, log.unit),
-        loss_scale=units.to_base(loss_scale, log.unit),
-        **options,
-    )
+    try:
+        result = calibrate(
+            log.samples,
+            unit=log.base_unit,
+            reference_field=log.reference,
+            target_std=units.to_base(target_std, log.unit),
+            target_range=units.to_base(target_range, log.unit),
+            loss_scale=units.to_base(loss_scale, log.unit),
+            **options,
+        )
+    except QualityError as failure:
+        if isinstance(failure.result, CalibrationResult):
+            _record_log(failure.result, log)
+        raise
+    return _record_log(result, log)
+
+
+def _record_log(result: CalibrationResult, log: Log) -> CalibrationResult:
+    """`result` with the provenance of `log`: its metadata, its unit's source, its warnings."""
     result.input = log.metadata()
+    result.unit_source = log.unit_source
+    result.warnings = [*log.warnings, *(w for w in result.warnings if w not in log.warnings)]
     if log.reference_column:
         result.reference["column"] = log.reference_column
     if log.reference_source:

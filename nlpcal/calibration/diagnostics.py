@@ -68,8 +68,9 @@ def uncertainty(
     For f = (1/N) sum r_i^2 the Gauss-Newton information is A = N H / 2 (`nlpcal.inference`),
     here in the scaled variables of the problems, on the directions the model estimates (without
     a reference, within the gauge's null space: `nlpcal.nlp.blocks.Variables.basis`); with a
-    robust loss A = sum psi'(r) J J^T (`bread`). With `theta` the covariance is the sandwich
-    A^-1 Omega A^-1 with Omega = A V A, V the block jackknife of the scores psi(r_i) J_i
+    robust loss A = sum psi'(r) J J^T (`weighted_information`). With `theta` the covariance is
+    the sandwich A^-1 Omega A^-1 with Omega = A V A, V the block jackknife of the scores
+    psi(r_i) J_i
     (`score_meat`): it follows the dependence of the scores of neighbouring samples (a smooth
     trajectory in a slowly changing field), and for independent samples it is s^2 A^-1 to
     within its noise. Without `theta` (identifiability alone) it is s^2 A^-1. `centre` : without
@@ -82,7 +83,11 @@ def uncertainty(
     fitted = basis.shape[1] + (1 if moments.reference == "none" else 0)
     options: dict = {"basis": basis, "dof": n - fitted}
     robust = problem.loss.robust and theta is not None
-    information = bread(problem, theta) if robust else inference.information_from_hessian(hs, n)
+    information = (
+        weighted_information(problem, theta, problem.loss.slope)[1]
+        if robust
+        else inference.information_from_hessian(hs, n)
+    )
     dependence = None
     if theta is None:
         result = inference.estimate(
@@ -202,12 +207,13 @@ def score_meat(problem: Problem, theta, centre: float | None, basis, dof: int) -
     return meat, independent, description, noise
 
 
-def bread(problem: Problem, theta) -> np.ndarray:
-    """A = sum psi'(r_i) J_i J_i^T of an M-estimate in the scaled variables, from the Hessian of
-    the moment objective with the samples weighted by psi'(r): for a weighted mean of squares
-    with weights g, sum(g) H_g / 2 = sum g J J^T up to terms in the curvature of r."""
-    moments = problem.weighted_moments(theta, problem.loss.slope)
-    return 0.5 * moments.weight_sum * scaled_hessian(moments, theta)
+def weighted_information(problem: Problem, theta, weight) -> tuple:
+    """(sum g, sum g_i J_i J_i^T) with per-sample weights g_i = weight(r_i) at theta, in the scaled
+    variables: from the Hessian of the moment objective with the samples weighted by g (a
+    weighted mean of squares has sum(g) H_g / 2 = sum g J J^T up to terms in the curvature of r).
+    One pass over the data."""
+    moments = problem.weighted_moments(theta, weight)
+    return moments.weight_sum, 0.5 * moments.weight_sum * scaled_hessian(moments, theta)
 
 
 def joint_gap(problem: Problem, theta, errors) -> dict:
@@ -257,17 +263,28 @@ def exact_optimum_shift(problem: Problem, theta, hs: np.ndarray, errors) -> floa
     One Newton step on the exact per-sample objective: its gradient by central differences (the
     18 objectives in one pass over the data), the Hessian of the moment objective. The step
     stays in the directions the model estimates (without a reference, in the gauge's null
-    space).
+    space). With a robust loss the objective is the one the fit minimises, (2/N) sum rho(r_i)
+    (`statistics.exact_objectives`), and its Hessian (2/N) sum psi'(r_i) J_i J_i^T (the bread of
+    the sandwich, one more pass): the distance to the optimum of the loss, not of the unweighted
+    squares.
     """
     if errors is None:
         return None
     scale = variable_scale(problem.moments.frame.radius)
     h = 1e-3  # in scaled variables: 1e-6 of the field for offsets, 1e-6 for scales, 1e-5 rad
     steps = [sign * h * e for e in np.eye(9) for sign in (1.0, -1.0)]
+    robust = problem.loss.robust and problem.loss.scale is not None
     values = exact_objectives(
-        problem.samples, [theta + scale * x for x in steps], problem.reference
+        problem.samples,
+        [theta + scale * x for x in steps],
+        problem.reference,
+        loss=problem.loss if robust else None,
+        centre=problem.centre,
     )
     grad = (values[0::2] - values[1::2]) / (2 * h)
+    if robust:
+        information = weighted_information(problem, theta, problem.loss.slope)[1]
+        hs = 2.0 * information / problem.samples.shape[0]
     basis = problem.free.basis
     reduced = basis.T @ hs @ basis
     step = -basis @ np.linalg.solve(0.5 * (reduced + reduced.T), basis.T @ grad)
@@ -440,15 +457,24 @@ def undetermined_message(
 
 #: The note on the method of a calibration without a reference field (a result's `notes`, not
 #: its warnings: it says how the problem is posed, not what is wrong with the data).
-GAUGE_NOTE = (
-    "no reference field: the overall scale is fixed by s_x + s_y + s_z = 0 (scale ratios, "
-    "offsets and angles are determined); a reference field fixes it"
-)
+def gauge_note(estimated) -> str:
+    """The note of the gauge s_x + s_y + s_z = 0, naming what a model with the `estimated`
+    parameters still determines without a reference field."""
+    determined = ["scale ratios", "offsets"] + (["angles"] if "alpha_deg" in estimated else [])
+    return (
+        "no reference field: the overall scale is fixed by s_x + s_y + s_z = 0 ("
+        f"{', '.join(determined[:-1])} and {determined[-1]} are determined); a reference field "
+        "fixes it"
+    )
 
 
 def notes_for(problem: Problem) -> list:
-    """What the user should know about how the problem was posed (not about the data)."""
-    return [GAUGE_NOTE] if problem.moments.reference == "none" else []
+    """What the user should know about how the problem was posed (not about the data): the
+    gauge, when there is no reference and the model estimates scales."""
+    estimated = problem.estimated
+    if problem.moments.reference != "none" or "s_x" not in estimated:
+        return []
+    return [gauge_note(estimated)]
 
 
 def warnings_for(
@@ -484,7 +510,9 @@ def warnings_for(
             f"poorly determined (standard errors above the limits): {judged}"
             + (f". {help_[0].upper()}{help_[1:]}" if help_ else "")
         )
-    if final.get("series_rel_error", 0.0) > SERIES_CHECK:
+    inexact = final.get("series_rel_error", 0.0) > SERIES_CHECK
+    robust = problem.loss.robust  # reweighting may stop before the weights settle
+    if inexact or robust:
         shift = exact_optimum_shift(problem, theta, hs, errors)
         identifiability["exact_optimum_shift_in_standard_errors"] = shift
         if shift is None or shift > SHIFT_WARN:
@@ -493,10 +521,23 @@ def warnings_for(
                 if shift is None
                 else f"is estimated to lie {shift:.2g} standard errors away"
             )
-            warnings.append(
+            why = (
                 f"the moment expansion of the objective is inexact here "
                 f"({final['series_rel_error']:.1e} relative; |B1|^2 varies by up to "
-                f"{final['max_abs_u']:.1%}); the exact optimum {where}; check the "
-                f"reference field and the data for disturbances"
+                f"{final['max_abs_u']:.1%}); "
+                if inexact
+                else ""
             )
+            optimum = (
+                f"the exact optimum of the {problem.loss.kind} loss"
+                if robust
+                else ("the exact optimum")
+            )
+            advice = (
+                "the reweighting may have stopped before the weights settled (--method joint "
+                "reweights until they do), or the data are disturbed"
+                if robust
+                else "check the reference field and the data for disturbances"
+            )
+            warnings.append(f"{why}{optimum} {where}; {advice}")
     return warnings

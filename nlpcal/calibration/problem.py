@@ -76,8 +76,11 @@ class Problem:
         return {"label": "measured", **self.moments.measured, "iterations": 0, "wall_s": 0.0}
 
     def statistics(self, theta) -> dict:
-        """Table 1 statistics of |B1| at theta, with the loss's sums when it is robust."""
-        if not (self.loss.robust and self.loss.scale is not None):
+        """Table 1 statistics of |B1| at theta, with the loss's sums when it is robust and its
+        residuals are defined: a scale, and a reference or the centre of a first reweighting
+        (a scale given by the user is known before the first cycle, the centre is not)."""
+        centred = self.reference is not None or self.centre is not None
+        if not (self.loss.robust and self.loss.scale is not None and centred):
             return field_statistics(self.samples, theta, self.reference)
         return field_statistics(
             self.samples, theta, self.reference, loss=self.loss, centre=self.centre

@@ -32,6 +32,10 @@ from ..version import __version__
 #: (0.1, 10); angles within +-89 deg; offsets within 1e9 of the field unit (1 T in nT). [1], [deg]
 SCALE_RANGE = (-0.9, 9.0)
 OFFSET_LIMIT = 1e9
+#: Largest total field a document may name: that of the offsets (1 T in nT). [field unit]
+FIELD_LIMIT = OFFSET_LIMIT
+#: The kinds of reference a calibration has: none (Eq. 8), a constant field or a series.
+REFERENCE_MODES = ("none", "constant", "series")
 
 
 def read_parameters(reader: DocumentReader, key: str = "parameters") -> Zhou2010Parameters:
@@ -51,6 +55,18 @@ def read_parameters(reader: DocumentReader, key: str = "parameters") -> Zhou2010
             for name, (low, high) in limits.items()
         }
     )
+
+
+def read_reference(reader: DocumentReader) -> dict:
+    """The "reference" block: its mode, and the field (or the mean of a series) as a positive
+    number within the plausible range of a field (FIELD_LIMIT). [result unit]"""
+    block = reader.reader("reference", None)
+    if block is None:
+        return {"mode": "none"}
+    block.string("mode", "none", options=REFERENCE_MODES)
+    for name in ("field", "field_mean"):
+        block.number(name, None, positive=True, maximum=FIELD_LIMIT)
+    return dict(block.document)
 
 
 def read_robust(reader: DocumentReader) -> dict:
@@ -109,6 +125,9 @@ class CalibrationResult(Document):
     statistics : Table 1 rows (label, max, min, mean, std, range [unit], objective [unit^2],
         iterations, wall_s [s]); the first is the measured |B_M|.
     unit : the unit of offsets and rows: "nT", or "raw" for counts.
+    unit_source : where the unit of the log came from (`nlpcal.units.UNIT_SOURCES`: "option",
+        "names", "format" or "assumed"); None in a document written before results recorded it,
+        which is treated as "assumed" (`scale_fixed_by`).
     standard_errors : per estimated parameter, in its unit; None when the data leave a direction
         free. Parameters the model does not estimate have none (they are fixed, not estimated).
     covariance : (k, k) covariance of the k estimated parameters in PARAMETER_NAMES order, in
@@ -144,6 +163,7 @@ class CalibrationResult(Document):
     gauge: dict | None = None
     solver: dict = field(default_factory=dict)
     unit: str = "nT"
+    unit_source: str | None = None
     standard_errors: dict | None = None
     covariance: np.ndarray | None = None
     identifiability: dict = field(default_factory=dict)
@@ -175,6 +195,23 @@ class CalibrationResult(Document):
         """The unit of the log the parameters were estimated from (the result's unit if unknown)."""
         recorded = self.input.get("log_unit")
         return recorded if recorded in units.FIELD_UNITS_NT else self.unit
+
+    def scale_fixed_by(self) -> str | None:
+        """What fixes the physical scale of the result, or None when nothing does.
+
+        "the unit" when the unit of the log was given, fixed by its format or carried by its
+        column names; "the reference field" when the unit was only assumed but a reference
+        field fitted |B1| to a magnitude in it. A result in raw counts, or whose unit was only
+        assumed (or not recorded: a document older than `unit_source`) without a reference, has
+        no physical scale: its offsets may be off by any power of ten.
+        """
+        if self.unit == "raw":
+            return None
+        if self.unit_source in units.FIXING_SOURCES:
+            return "the unit"
+        if (self.reference or {}).get("mode", "none") != "none":
+            return "the reference field"
+        return None
 
     def apply(self, samples, unit: str | None = None) -> np.ndarray:
         """Corrected field B1 = O_p S_p (B_M - Z_p), Eq. 4 in [1].
@@ -229,6 +266,7 @@ class CalibrationResult(Document):
             "gauge": self.gauge,
             "solver": dict(self.solver),
             "unit": self.unit,
+            "unit_source": self.unit_source,
             "model": self.model_name,
             "fixed_parameters": self.fixed_parameters,
             "standard_errors": self.standard_errors,
@@ -264,7 +302,7 @@ class CalibrationResult(Document):
         """The constructor arguments stored in a document (shared with the temperature kind)."""
         errors = reader.reader("standard_errors") if reader.has("standard_errors") else None
         model_name = reader.string("model", "full", options=list(MODELS))
-        reference = reader.mapping("reference", {"mode": "none"})
+        reference = read_reference(reader)
         scale_known = reference.get("mode", "none") != "none"
         estimated = estimated_parameters(model_name, scale_known)
         parameters = read_parameters(reader).to_dict()
@@ -277,6 +315,7 @@ class CalibrationResult(Document):
             "gauge": reader.mapping("gauge", None),
             "solver": reader.mapping("solver", {}),
             "unit": reader.string("unit", "nT", options=list(units.FIELD_UNITS_NT)),
+            "unit_source": reader.string("unit_source", None, options=units.UNIT_SOURCES),
             "standard_errors": None
             if errors is None
             else {
@@ -293,7 +332,7 @@ class CalibrationResult(Document):
             "input": reader.provenance(
                 strings=("log", "temperature_column"),
                 lists=("columns",),
-                units=(("log_unit", units.FIELD_UNITS_NT),),
+                units=(("log_unit", units.FIELD_UNITS_NT), ("unit_source", units.UNIT_SOURCES)),
             ),
             "robust": read_robust(reader),
             "model_name": model_name,

@@ -95,3 +95,45 @@ def selection_warning(selection: dict) -> str:
         f"model auto chose {selection['chosen']}: {selection['reason']}; the parameters it does "
         f"not estimate are fixed at zero, so the correction assumes them"
     )
+
+
+#: The level of the test of a restricted form against the full one: the fixed parameters are
+#: declared not zero when data of a sensor that obeys the form would give a larger F this rarely.
+RESTRICTION_LEVEL_Z = 3.09  # the standard normal quantile of 1 - 0.001
+#: ... and when the full form's residual spread is smaller by more than this fraction: a
+#: difference too small to matter is not reported, however significant.
+RESTRICTION_SPREAD = 0.05
+
+
+def restriction_warning(restricted: CalibrationResult, full: CalibrationResult, freed: tuple):
+    """A warning when a log contradicts the parameters a restricted form fixes, or None.
+
+    The variance of |B1| (the objective of Eq. 8) falls from f_r to f_f when the full form frees
+    `freed` = (q_f, q_r) directions more; under the restricted form, F = ((f_r - f_f) / (q_f -
+    q_r)) / (f_f / (N - q_f)) is about chi-squared on q_f - q_r degrees of freedom over those
+    degrees, whose 1 - 0.001 quantile is taken by the Wilson-Hilferty approximation [2]. The
+    fixed parameters then bias the others by what they leave out.
+
+    [2] Wilson, E. B. and Hilferty, M. M. (1931), The distribution of chi-square, PNAS 17(12),
+        684-688, doi:10.1073/pnas.17.12.684.
+    """
+    q_full, q_restricted = freed
+    df = q_full - q_restricted
+    f_r = restricted.statistics[-1]["objective"]
+    f_f = full.statistics[-1]["objective"]
+    n = restricted.n_samples
+    if df <= 0 or not f_f > 0 or n <= q_full or not f_r > f_f:
+        return None
+    statistic = (f_r - f_f) / df / (f_f / (n - q_full))
+    a = 2.0 / (9.0 * df)
+    critical = (1.0 - a + RESTRICTION_LEVEL_Z * a**0.5) ** 3  # chi2 quantile / df, Eq. in [2]
+    spread_r, spread_f = restricted.statistics[-1]["std"], full.statistics[-1]["std"]
+    if statistic <= critical or spread_r <= (1.0 + RESTRICTION_SPREAD) * spread_f:
+        return None
+    fixed = ", ".join(restricted.fixed_parameters)
+    return (
+        f"these data contradict the {restricted.model_name} model, which fixes {fixed}: the "
+        f"full model's residual spread is {spread_f:.3g} {restricted.unit} against "
+        f"{spread_r:.3g} here (F = {statistic:.3g} on {df} parameters), so the estimated "
+        f"parameters carry the bias of what it leaves out; use --model full (or auto)"
+    )

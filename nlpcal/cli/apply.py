@@ -122,6 +122,7 @@ def run_apply(args) -> int:
     from ..correction import outliers, read_log_for
     from ..errors import InputError
     from ..io import Outputs, check_output_path, read_table, table_text
+    from ..io.strict import finite_table
 
     check_output_path(args.output, args.log, args.params, args.drift)
     check_plot(args)
@@ -139,7 +140,7 @@ def run_apply(args) -> int:
         warn(f"{int(flags.sum())} of {len(flags)} rows flagged as outliers")
     frame = log.written_back(corrected, TOTAL_COLUMN, extra)
     with Outputs() as outputs:
-        outputs.text(args.output, table_text(frame, log.layout))
+        outputs.text(args.output, table_text(finite_table(frame), log.layout))
         write_plot(outputs, args, log, correction.parameters, corrected)
     if args.output:
         warn(f"wrote {len(frame)} corrected rows to {args.output} ({log.layout.describe()})")

@@ -244,4 +244,8 @@ def _sources(logs):
 
     if len(logs) == 1:
         return logs[0]
-    return list(dict.fromkeys(path for log in logs for path in log_paths(log)))
+    notes: list = []
+    paths = [path for log in logs for path in log_paths(log, notes)]
+    for note in notes:
+        warn(note)
+    return paths

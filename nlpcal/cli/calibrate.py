@@ -21,6 +21,7 @@ from __future__ import annotations
 import time
 from typing import TYPE_CHECKING
 
+from ..defaults import CYCLES_DEFAULT, RTOL_DEFAULT
 from .common import (
     LOG_HELP,
     add_command,
@@ -54,9 +55,6 @@ OVERRIDE_FLAGS = {
 }
 #: The forms of Eq. 4 `--model` takes (`nlpcal.calibration.MODEL_CHOICES`).
 MODEL_CHOICES = ("full", "diagonal", "offset", "auto")
-#: Defaults of the staged cycle (the library's `nlpcal.calibration.CYCLES_DEFAULT`, ...).
-CYCLES_DEFAULT = 500
-RTOL_DEFAULT = 1e-9
 #: Table 1 rows printed without -v: the measured row, the first cycles, a few, the last two.
 SUMMARY_ROWS = 10
 
@@ -258,7 +256,7 @@ def _run_calibrate(args) -> int:
         )
     warn_ignored(args, joint=args.method == "joint" or bool(temperature))
     started = time.perf_counter()
-    extra = [args.temperature_column] if args.temperature_column else []
+    extra = {"--temperature-column": args.temperature_column} if args.temperature_column else {}
     progress(f"reading {args.log} ...")
     log = _read_for_calibration(args, extra)
     progress("")
@@ -315,7 +313,8 @@ def _run_calibrate(args) -> int:
     if selection and selection["chosen"] == "full":  # a restricted choice is among the warnings
         warn(f"model auto chose full: {selection['reason']}")
     for message in result.warnings:
-        warning(message)
+        if message not in log.warnings:  # said when the log was read
+            warning(message)
     for message in result.notes:
         warn(f"note: {message}")
     corrected = None

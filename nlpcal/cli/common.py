@@ -386,18 +386,21 @@ def log_options(args) -> dict:
 
 
 def emit_json(document, output) -> None:
-    """JSON to -o or to stdout (`nlpcal.io.files.Outputs`); strict (no NaN, no Infinity)."""
+    """JSON to -o or to stdout (`nlpcal.io.files.Outputs`); strict (`nlpcal.io.strict`:
+    finite numbers, no null)."""
     from ..io.files import write_json_atomic
+    from ..io.strict import strict
 
-    write_json_atomic(output, document)
+    write_json_atomic(output, strict(document))
 
 
 def emit_csv(frame, output, float_format: str | None = None) -> None:
     """A table to -o or to stdout (`nlpcal.io.files.Outputs`); exact values unless
-    float_format."""
+    float_format; finite (`nlpcal.io.strict`)."""
     from ..io.files import write_csv_atomic
+    from ..io.strict import finite_table
 
-    write_csv_atomic(output, frame, float_format)
+    write_csv_atomic(output, finite_table(frame), float_format)
 
 
 #: Where the unit of a log read with a calibration comes from by default (`add_log_arguments`).
@@ -441,12 +444,13 @@ def write_plot(outputs, args, log, parameters, corrected=None) -> None:
 
 
 def check_plot(args) -> None:
-    from ..io import check_output_path
+    from ..io import check_distinct_outputs, check_output_path
     from ..plots import require_matplotlib
 
+    plot = getattr(args, "plot", None)
     check_output_path(
-        getattr(args, "plot", None),
-        *(getattr(args, name, None) for name in ("log", "params", "drift", "output")),
+        plot, *(getattr(args, name, None) for name in ("log", "params", "drift", "output"))
     )
-    if getattr(args, "plot", None):
+    if plot:
+        check_distinct_outputs(plot, getattr(args, "output", None))
         require_matplotlib()

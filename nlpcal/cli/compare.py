@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..defaults import CYCLES_DEFAULT, RTOL_DEFAULT
 from .common import (
     add_command,
     add_log_arguments,
@@ -53,18 +54,19 @@ as a warning (exit 0).""",
     parser.add_argument(
         "--cycles",
         type=int,
-        default=50,
+        default=CYCLES_DEFAULT,
         metavar="K",
-        help="most cycles of the staged and conjugate-gradient staged runs (default 50); both "
-        "stop earlier when a cycle no longer lowers the objective",
+        help=f"most cycles of the staged and conjugate-gradient staged runs (default "
+        f"{CYCLES_DEFAULT}, as calibrate); both stop earlier when a cycle no longer lowers the "
+        f"objective",
     )
     parser.add_argument(
         "--rtol",
         type=float,
-        default=1e-9,
+        default=RTOL_DEFAULT,
         metavar="R",
         help="stop a cycle run when the objective improves by less than this "
-        "fraction (default 1e-9)",
+        f"fraction (default {RTOL_DEFAULT:g})",
     )
     parser.add_argument(
         "--cg-max-iter",

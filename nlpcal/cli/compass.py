@@ -338,12 +338,15 @@ def _declination(args) -> float:
 
 def run_evaluate(args) -> int:
     from ..compass import evaluate, format_evaluation
-    from ..io import check_output_path, read_columns, read_table
+    from ..io import check_output_path
+    from ..io.logs import read_role_columns
 
     check_output_path(args.output, args.attitude)
-    table = read_table(args.attitude, header=args.header)
-    truth = read_columns(table, args.truth_columns)
-    estimate = read_columns(table, args.estimate_columns)
+    truth, estimate = read_role_columns(
+        args.attitude,
+        {"--truth-columns": args.truth_columns, "--estimate-columns": args.estimate_columns},
+        header=args.header,
+    )
     stats = evaluate(
         estimate,
         truth,
@@ -351,7 +354,7 @@ def run_evaluate(args) -> int:
         remove_heading_offset=args.remove_heading_offset,
     )
     stats["input"] = {
-        "file": table.source,
+        "file": "stdin" if str(args.attitude) == "-" else str(args.attitude),
         "truth_columns": list(args.truth_columns),
         "estimate_columns": list(args.estimate_columns),
     }

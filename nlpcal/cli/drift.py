@@ -1,9 +1,12 @@
 """`nlpcal drift fit`: the temperature drift pipeline of Liu et al. (2022) on a static log.
 
     nlpcal drift fit LOG --temperature-column COL --reference-column COL --base-temperature T0
-                     [--columns X Y Z] [--unit nT] [--drop-invalid] [-o drift.json]
+                     [--diurnal fitted|paper] [--columns X Y Z] [--unit nT] [--drop-invalid]
+                     [-o drift.json]
 
 Diurnal correction, the line |B_m| = a t + b (Eq. 1) and k(t) of Eq. 9; temperatures in degC.
+--diurnal paper is the paper's correction -(F_i - F_1) exactly; the default fits how strongly
+the modulus follows the reference with the line (`nlpcal.drift.fit.DIURNAL_METHODS`).
 `nlpcal apply --drift` and `nlpcal stats --drift` use the result (see `nlpcal.cli.calibrate`).
 Exit status: 0 success (also with warnings), 1 a solve failed, 2 bad usage or input.
 
@@ -24,6 +27,9 @@ from .common import (
     warn,
     warning,
 )
+
+#: `nlpcal.drift.fit.DIURNAL_METHODS`, spelled out so that the command line starts without numpy.
+DIURNAL_METHODS = ("fitted", "paper")
 
 
 def register(sub):
@@ -52,8 +58,11 @@ before the calibration of 'nlpcal calibrate'.""",
         help="fit |B_m| = a t + b (Eq. 1) on a static log with temperature and reference",
         description="""\
 The paper's pipeline on a static-sensor log: diurnal correction (base = the first reference
-value; -(F_i - F_1) is added to the fluxgate modulus), the least-squares line |B_m| = a t + b
-(Eq. 1), and k(t) = (a t + b) / (a t0 + b) (Eq. 9), which is 1 at the base temperature t0.
+value F_1), the least-squares line |B_m| = a t + b (Eq. 1), and k(t) = (a t + b) / (a t0 + b)
+(Eq. 9), which is 1 at the base temperature t0. By default the line is fitted together with the
+gain g of |B_m| on the reference, |B_m| = a t + b + g (F_i - F_1); --diurnal paper adds
+-(F_i - F_1) to the modulus as the paper does (g = 1), which biases a wherever the field drifts
+with the temperature (a raw modulus 2 % too large follows the field 2 % too strongly).
 Warns when the temperature span is too small for a meaningful slope, or when the sensor moved.""",
         examples=(
             "nlpcal drift fit drift.csv --temperature-column temp_c "
@@ -82,6 +91,14 @@ Warns when the temperature span is too small for a meaningful slope, or when the
         "k = 1 [degC], e.g. 7.3 (required: the static log cannot know it, and the wrong t0 "
         "leaves an error of c (t0' - t0) |B| at every temperature)",
     )
+    fit.add_argument(
+        "--diurnal",
+        choices=DIURNAL_METHODS,
+        default="fitted",
+        help="how the diurnal variation F_i - F_1 leaves the modulus: 'fitted' (default) "
+        "estimates its gain with the line; 'paper' subtracts it one for one, exactly as the "
+        "paper (reproduces its numbers; biased where the field drifts with the temperature)",
+    )
     add_log_arguments(fit)
     fit.add_argument(
         "-o", "--output", metavar="DRIFT.json", help="write the fit here (stdout when absent)"
@@ -95,9 +112,15 @@ def run_fit(args) -> int:
     from ..io import check_output_path, read_log
 
     check_output_path(args.output, args.log)
-    log = read_log(args.log, **log_options(args), extra_columns=[args.temperature_column])
+    log = read_log(
+        args.log,
+        **log_options(args),
+        extra_columns={"--temperature-column": args.temperature_column},
+    )
     report_log(log)
-    fit = fit_drift_log(log, args.temperature_column, base_temperature=args.base_temperature)
+    fit = fit_drift_log(
+        log, args.temperature_column, base_temperature=args.base_temperature, diurnal=args.diurnal
+    )
     if args.base_temperature is None:  # the data are fine; only t0 is missing
         low, high = fit.temperature_range
         raise InputError(
@@ -112,6 +135,11 @@ def run_fit(args) -> int:
         f"b = {fit.b:.8g} +/- {fit.b_standard_error:.2g} nT, fit RMSE {fit.fit_rmse:.4g} nT, "
         f"n = {fit.n}, t = {fit.temperature_range[0]:g} .. {fit.temperature_range[1]:g} degC; "
         f"k(t) = 1 + {fit.k_slope:.6g} (t - {fit.base_temperature:g}) (Eq. 9)"
+        + (
+            f"; diurnal gain g = {fit.diurnal_gain:.5g} +/- {fit.diurnal_gain_standard_error:.2g}"
+            if fit.diurnal == "fitted" and fit.diurnal_gain_standard_error is not None
+            else ""
+        )
     )
     for message in fit.warnings:
         warning(message)

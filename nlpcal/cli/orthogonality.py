@@ -190,6 +190,7 @@ def _run_worst_case(args) -> int:
 def _run_map(args) -> int:
     from ..errors import InputError
     from ..io import Outputs, check_output_path
+    from ..io.strict import finite_table
     from ..orthogonality import error_map, error_table, worst_case
     from ..plots import orthogonality_map_png, require_matplotlib
 
@@ -218,7 +219,7 @@ def _run_map(args) -> int:
         if png is not None:
             outputs.bytes(args.output, png)
         if table is not None:
-            outputs.csv(args.csv, table, "%.10g")
+            outputs.csv(args.csv, finite_table(table), "%.10g")
     if png is not None:
         warn(f"wrote {args.output} (grid max |dB| = {abs(error).max():.4f} nT)")
     if table is not None and args.csv != "-":

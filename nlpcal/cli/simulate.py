@@ -6,7 +6,7 @@ from .common import add_command, add_field_argument, emit_csv, warn
 
 #: What --preset accepts (the library's `nlpcal.simulation.PRESETS` and `DIRECTORY_PRESETS`).
 PRESET_NAMES = ("zhou2010", "liu2022", "qiu2017")
-ATTITUDE_NAMES = ("clustered", "tilt_band", "turntable", "uniform")
+ATTITUDE_NAMES = ("clustered", "tilt", "tilt_band", "turntable", "uniform")
 
 
 def register(sub):
@@ -21,7 +21,8 @@ by, bz in nT. 'nlpcal calibrate' on it should find the truth again. The presets 
 qiu2017 write a folder of logs that replicate those papers' experiments.""",
         examples=(
             "nlpcal simulate -o log.csv && nlpcal calibrate log.csv",
-            "nlpcal simulate -n 500 --noise 5 --attitudes tilt_band --seed 3 -o tilted.csv",
+            "nlpcal simulate -n 500 --noise 5 --attitudes tilt --seed 3 -o tilted.csv",
+            "nlpcal simulate --noise 5 --attitudes tilt --max-tilt-deg 20 -o tilted.csv",
             "nlpcal simulate --preset liu2022 -o replica/",
         ),
     )
@@ -59,7 +60,14 @@ qiu2017 write a folder of logs that replicate those papers' experiments.""",
         default="uniform",
         choices=ATTITUDE_NAMES,
         help="how the orientations are spread: uniform over the sphere (default), turntable "
-        "(turns about a few axes), tilt_band (never far from level), clustered (a few spots)",
+        "(turns about a few axes), tilt (heading free, roll and pitch uniform within "
+        "--max-tilt-deg; tilt_band is its earlier name), clustered (a few spots)",
+    )
+    parser.add_argument(
+        "--max-tilt-deg",
+        type=float,
+        metavar="D",
+        help="with --attitudes tilt: the largest roll and pitch, 0 < D <= 90 [deg] (default 30)",
     )
     add_field_argument(
         parser, "field magnitude [nT], e.g. 48000 (default: the preset's)", legacy="--field"
@@ -108,6 +116,7 @@ def run(args) -> int:
         noise=1.0 if args.noise is None else args.noise,
         seed=args.seed,
         attitudes=args.attitudes,
+        max_tilt_deg=args.max_tilt_deg,
     )
     emit_csv(frame, args.output, "%.10g")  # 10 digits: 1e-5 nT in a 50 000 nT field
     if args.output:

@@ -37,6 +37,7 @@ from ..calibration.diagnostics import (
 from ..calibration.joint import joint_start, run_joint
 from ..calibration.problem import Problem
 from ..calibration.staged import StopRule, run_staged
+from ..defaults import CYCLES_DEFAULT, RTOL_DEFAULT
 from ..errors import QualityError, SolveError
 from ..io.logs import Log
 from ..models.zhou2010 import Zhou2010Parameters, correct
@@ -65,13 +66,15 @@ ROW_FIELDS = ("max", "min", "mean", "std", "range", "objective", "iterations", "
 class CompareSettings:
     """How `compare` runs the four methods.
 
-    cycles : the most cycles of the staged and the CG-staged runs.
-    rtol : both cycles stop when a cycle lowers the objective by less than this fraction. [1]
+    cycles : the most cycles of the staged and the CG-staged runs (the default of `calibrate`).
+    rtol : both cycles stop when a cycle lowers the objective by less than this fraction; the
+        staged cycle runs on to its limit when it cannot (no early stop on a predicted failure:
+        the comparison shows the whole path). [1]
     cg : settings of the conjugate gradient (step constant, eps, iteration cap).
     """
 
-    cycles: int = 50
-    rtol: float = 1e-9
+    cycles: int = CYCLES_DEFAULT
+    rtol: float = RTOL_DEFAULT
     cg: CGOptions = field(default_factory=lambda: CGOptions(max_iter=5000))
 
     def __post_init__(self):
@@ -220,7 +223,7 @@ def compare(
             problem.frozen = True
         moments = problem.moments
 
-        rule = StopRule(max_cycles=int(settings.cycles), rtol=settings.rtol)
+        rule = StopRule(max_cycles=int(settings.cycles), rtol=settings.rtol, predict=False)
         try:
             _, staged, stages, stop_reason = run_staged(problem, rule)
             start = joint_start(moments)

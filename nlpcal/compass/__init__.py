@@ -12,6 +12,8 @@ errors against a reference. The model is `nlpcal.models.qiu2017`; the NLPs are i
 `nlpcal.nlp.compass`; a replica of the experiment is `nlpcal.simulation.qiu2017`.
 """
 
+from __future__ import annotations
+
 from ..errors import InputError
 from ..io.sensors import SensorLog
 from ..io.tables import column_name

@@ -31,6 +31,13 @@ MIN_SPAN_DEGC = 0.5
 MAX_SLOPE_RELATIVE_ERROR = 0.1
 #: Warn when the field direction of a "static" drift log turns by more than this. [deg]
 STATIC_SPREAD_DEG = 1.0
+#: How the diurnal variation of the field leaves the modulus before the line of Eq. 1:
+#: "fitted" (default) estimates with the line how strongly the modulus follows the reference,
+#: |B_m,i| = a t_i + b + g (F_i - F_1); "paper" adds -(F_i - F_1) to the modulus (section 1 of
+#: [1]), which assumes g = 1. A raw modulus that is 1.8 % too large follows the field 1.8 % too
+#: strongly, so on the liu2022 replica "paper" biases a by about -0.05 nT/degC (2 standard errors;
+#: its +/-1.96 SE interval covers the truth in about half of the seeds).
+DIURNAL_METHODS = ("fitted", "paper")
 
 
 @dataclass
@@ -44,6 +51,9 @@ class DriftFit(Document):
         residual variance with n - 2 degrees of freedom.
     temperature_range : (min, max) of the log's temperatures. [degC]
     diurnal_base : F_1, the first reference value (base of the diurnal correction). [nT]
+    diurnal : how the diurnal variation was removed (`DIURNAL_METHODS`).
+    diurnal_gain, diurnal_gain_standard_error : g, how strongly the modulus follows the
+        reference (1 by assumption with "paper"; None where the reference does not vary). [1]
     direction_spread : largest angle of a raw vector from their mean direction. [deg]
     """
 
@@ -57,6 +67,9 @@ class DriftFit(Document):
     b_standard_error: float
     diurnal_base: float
     direction_spread: float = 0.0
+    diurnal: str = "paper"
+    diurnal_gain: float | None = 1.0
+    diurnal_gain_standard_error: float | None = 0.0
     base_temperature_source: str = "argument"
     unit: str = "nT"
     warnings: list = field(default_factory=list)
@@ -113,6 +126,9 @@ class DriftFit(Document):
             "k_slope_per_degC": self.k_slope,
             "base_temperature_source": self.base_temperature_source,
             "diurnal_base_nT": self.diurnal_base,
+            "diurnal": self.diurnal,
+            "diurnal_gain": self.diurnal_gain,
+            "diurnal_gain_standard_error": self.diurnal_gain_standard_error,
             "direction_spread_deg": self.direction_spread,
             "unit": self.unit,
             "warnings": list(self.warnings),
@@ -140,6 +156,9 @@ class DriftFit(Document):
                 f"but the modulus at the base temperature must be positive"
             )
         span = reader.array("temperature_range_degC", (2,), np.array([t0, t0]))
+        # files before the "fitted" correction hold the paper's, whose gain is 1 by assumption
+        diurnal = reader.string("diurnal", "paper", options=DIURNAL_METHODS)
+        assumed = (1.0, 0.0) if diurnal == "paper" else (None, None)
         nan = float("nan")
         return cls(
             a=a,
@@ -151,6 +170,11 @@ class DriftFit(Document):
             a_standard_error=reader.number("a_standard_error_nT_per_degC", nan, minimum=0.0),
             b_standard_error=reader.number("b_standard_error_nT", nan, minimum=0.0),
             diurnal_base=reader.number("diurnal_base_nT", nan),
+            diurnal=diurnal,
+            diurnal_gain=reader.number("diurnal_gain", assumed[0]),
+            diurnal_gain_standard_error=reader.number(
+                "diurnal_gain_standard_error", assumed[1], minimum=0.0
+            ),
             direction_spread=reader.number("direction_spread_deg", 0.0, minimum=0.0),
             base_temperature_source=reader.string("base_temperature_source", "argument"),
             unit=reader.string("unit", "nT"),
@@ -192,6 +216,7 @@ def fit_drift(
     base_temperature: float | None = None,
     unit: str = "nT",
     reference_unit: str | None = None,
+    diurnal: str = "fitted",
 ) -> DriftFit:
     """The paper's drift fit on a static log (section 1 of [1]).
 
@@ -202,10 +227,13 @@ def fit_drift(
     base_temperature : t0, the temperature of the system calibration, where k = 1. Without it the
         mean temperature of the log is used, with a warning. [degC]
     unit : the unit of the samples; the fit is in nT (a [nT/degC], b [nT]), or raw for counts.
+    diurnal : "fitted" (default): a, b and the gain g of |B_m,i| = a t_i + b + g (F_i - F_1) by
+        least squares; "paper": the modulus gets the diurnal correction -(F_i - F_1) of [1], then
+        a and b are the least-squares line through (t_i, corrected modulus_i) (`diurnal_line`).
 
-    The modulus gets the diurnal correction -(F_i - F_1), then a and b of Eq. 1 are the least-
-    squares line through (t_i, corrected modulus_i). Raises InputError for unusable input.
+    Raises InputError for unusable input.
     """
+    validation.choice(diurnal, "diurnal", DIURNAL_METHODS)
     samples = validation.finite_vectors(
         samples, minimum=MIN_DRIFT_SAMPLES, purpose="for the line of Eq. 1 and its standard errors"
     )
@@ -237,25 +265,15 @@ def fit_drift(
 
     modulus = np.linalg.norm(samples, axis=1)
     validation.reference_scale(reference, float(modulus.mean()), "the reference (proton) field")
-    corrected = liu2022.diurnal_correction(modulus, reference)  # section 1: -(F_i - F_1)
-    t_mean = float(temperature.mean())
-    dt = temperature - t_mean
-    sxx = float(dt @ dt)
-    a = float(dt @ (corrected - corrected.mean()) / sxx)  # Eq. 1, least squares
-    b = float(corrected.mean() - a * t_mean)
-    residual = corrected - modulus_line(temperature, a, b)
-    rss = float(residual @ residual)
-    fit_rmse = float(np.sqrt(rss / n))
-    # Standard errors of (a, b): the line's Jacobian is [t_i, 1] (Gauss-Newton is exact here).
-    design = np.column_stack([temperature, np.ones(n)])
-    line = inference.estimate(
-        design.T @ design,
-        residual_variance=rss / max(n - 2, 1),
-        dof=n - 2,
-        autocorrelation=inference.lag1_autocorrelation(residual),
-    )
-    errors = line.standard_errors if line.standard_errors is not None else np.full(2, np.nan)
-    a_se, b_se = float(errors[0]), float(errors[1])
+    line = diurnal_line(modulus, temperature, reference, diurnal)
+    a, b = line.a, line.b
+    a_se, b_se = line.a_standard_error, line.b_standard_error
+    if line.collinear:
+        warnings.append(
+            "the reference field changes in step with the temperature, so the slope a and "
+            "how strongly the modulus follows the reference cannot be told apart; "
+            "--diurnal paper assumes the modulus follows it one for one"
+        )
 
     if span < MIN_SPAN_DEGC or not a_se <= MAX_SLOPE_RELATIVE_ERROR * abs(a):
         warnings.append(
@@ -282,21 +300,98 @@ def fit_drift(
         a=a,
         b=b,
         base_temperature=float(base_temperature),
-        fit_rmse=fit_rmse,
+        fit_rmse=line.rmse,
         n=n,
         temperature_range=(t_low, t_high),
         a_standard_error=a_se,
         b_standard_error=b_se,
         diurnal_base=float(reference[0]),
         direction_spread=spread,
+        diurnal=diurnal,
+        diurnal_gain=line.gain,
+        diurnal_gain_standard_error=line.gain_standard_error,
         base_temperature_source=source,
         unit=units.base_unit(unit),
         warnings=warnings,
     )
 
 
+@dataclass(frozen=True)
+class DiurnalLine:
+    """The line of Eq. 1 through a static log with its diurnal variation removed: a [nT/degC],
+    b [nT], their standard errors, the gain g of the modulus on the reference [1] (with its
+    standard error; 1 and 0 with the paper's correction, None when the reference is constant),
+    the RMSE about the line [nT] and whether g and a could not be told apart."""
+
+    a: float
+    b: float
+    a_standard_error: float
+    b_standard_error: float
+    gain: float | None
+    gain_standard_error: float | None
+    rmse: float
+    collinear: bool = False
+
+
+def diurnal_line(modulus, temperature, reference, diurnal: str = "fitted") -> DiurnalLine:
+    """Least squares of Eq. 1 with the diurnal variation -(F_i - F_1) removed as `diurnal` says.
+
+    "paper" (section 1 of [1]): |B_m,i| - (F_i - F_1) = a t_i + b. "fitted": |B_m,i| =
+    a t_i + b + g (F_i - F_1), g estimated with a and b: the modulus of a sensor whose raw
+    output is too large by a factor follows the field by that factor, which the paper's g = 1
+    leaves in the slope wherever the field drifts with the temperature. The standard errors come
+    from the residual variance with n - p degrees of freedom, widened for the lag-1
+    autocorrelation of the residuals (`nlpcal.inference`).
+    modulus : |B_m,i| [nT]; temperature : t_i [degC]; reference : F_i [nT].
+    """
+    modulus = np.asarray(modulus, dtype=float)
+    temperature = np.asarray(temperature, dtype=float)
+    change = np.asarray(reference, dtype=float) - float(reference[0])  # F_i - F_1
+    columns = [temperature, np.ones_like(temperature)]
+    fitted = diurnal == "fitted" and bool(np.any(change != 0.0))
+    if fitted:
+        columns.append(change)
+    else:
+        modulus = liu2022.diurnal_correction(modulus, reference)  # section 1 of [1]
+    design = np.column_stack(columns)
+    t_mean = float(temperature.mean())
+    centred = design.copy()  # the temperature about its mean: a well-conditioned solve
+    centred[:, 0] -= t_mean
+    coefficients = np.linalg.lstsq(centred, modulus, rcond=None)[0]
+    residual = modulus - centred @ coefficients
+    a = float(coefficients[0])
+    b = float(coefficients[1] - a * t_mean)
+    rss = float(residual @ residual)
+    n, p = design.shape
+    # the line's Jacobian is the design (Gauss-Newton is exact here)
+    line = inference.estimate(
+        design.T @ design,
+        residual_variance=rss / max(n - p, 1),
+        dof=n - p,
+        autocorrelation=inference.lag1_autocorrelation(residual),
+    )
+    errors = line.standard_errors if line.standard_errors is not None else np.full(p, np.nan)
+    gain = float(coefficients[2]) if fitted else (1.0 if diurnal == "paper" else None)
+    gain_se = float(errors[2]) if fitted and np.isfinite(errors[2]) else None
+    gain_se = 0.0 if diurnal == "paper" else gain_se
+    return DiurnalLine(
+        a=a,
+        b=b,
+        a_standard_error=float(errors[0]),
+        b_standard_error=float(errors[1]),
+        gain=gain,
+        gain_standard_error=gain_se,
+        rmse=float(np.sqrt(rss / n)),
+        collinear=fitted and bool(line.weak),
+    )
+
+
 def fit_drift_log(
-    log, temperature_column: str, *, base_temperature: float | None = None
+    log,
+    temperature_column: str,
+    *,
+    base_temperature: float | None = None,
+    diurnal: str = "fitted",
 ) -> DriftFit:
     """`fit_drift` on a log read by `nlpcal.io.read_log` with its reference column and
     `temperature_column` [degC]; the fit records the log under `input`."""
@@ -312,6 +407,7 @@ def fit_drift_log(
         log.reference,
         base_temperature=base_temperature,
         unit=log.base_unit,
+        diurnal=diurnal,
     )
     fit.input = log.metadata(
         temperature_column=temperature_column, reference_column=log.reference_column

@@ -345,6 +345,7 @@ def calibrate_temperature(
             ],
         },
         unit=units.base_unit(unit),
+        unit_source="option",  # the caller's unit (nT by default); the reference fixes the scale
         standard_errors=errors,
         identifiability={
             "not_identifiable": not_identifiable,
@@ -426,5 +427,7 @@ def calibrate_temperature_log(
         temperature_column=temperature_column,
     )
     result.calibration.input = log.metadata(temperature_column=temperature_column)
+    result.calibration.unit_source = log.unit_source
+    result.calibration.warnings[:0] = [w for w in log.warnings if w not in result.warnings]
     result.calibration.reference["column"] = log.reference_column
     return result

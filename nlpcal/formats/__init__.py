@@ -9,11 +9,12 @@ route (`nlpcal.models.zhou2010.from_correction`) that `apply` and `stats` use li
 
 from __future__ import annotations
 
-from ..calibration.result import CalibrationResult
+from .. import units, validation
+from ..calibration.result import FIELD_LIMIT, CalibrationResult
 from ..errors import InputError
 from ..io.files import existing_file, sha256_file
 from . import ardupilot, c_header, matlab, matrix, px4
-from .affine import AffineCorrection, Export, polar, rotation_angle_deg
+from .affine import AffineCorrection, Export, expected_field, polar, rotation_angle_deg
 
 #: Format name -> module; every module has write(correction, ...) and read(text, source, ...).
 FORMATS = {
@@ -37,6 +38,8 @@ def _check(fmt: str, unit, instance) -> None:
         raise InputError(f"{fmt} parameters are in {fixed}; --unit applies to the other formats")
     if fmt not in AUTOPILOTS and instance is not None:
         raise InputError(f"--instance applies to ardupilot and px4, not to {fmt}")
+    if fmt in AUTOPILOTS and instance is not None:
+        FORMATS[fmt].names(instance)  # InputError for an instance the system does not have
 
 
 def export(
@@ -57,16 +60,57 @@ def export(
         autopilot formats (default `nlpcal.formats.autopilot.MAX_ROTATION_DEG`). [deg]
     """
     _check(fmt, unit, instance)
+    if max_rotation_deg is not None:
+        max_rotation_deg = validation.number(
+            max_rotation_deg, "--max-rotation-deg", minimum=0.0, maximum=180.0, unit="[deg]"
+        )
     if not isinstance(result, CalibrationResult):
         result = result.calibration  # a temperature calibration: the nine parameters at t0
-    correction = AffineCorrection.from_result(result, unit)
+    target = FORMATS[fmt].UNIT if fmt in AUTOPILOTS else unit or result.log_unit
+    notes = scale_notes(result, target)
+    correction = AffineCorrection.from_result(result, None if fmt in AUTOPILOTS else unit)
     if fmt in AUTOPILOTS:
         module = FORMATS[fmt]
         chosen = module.INSTANCES[0] if instance is None else instance
-        return module.write(correction, instance=chosen, max_rotation_deg=max_rotation_deg)
-    written = FORMATS[fmt].write(correction)
-    written.rotation_deg = rotation_angle_deg(correction.polar()[0])
+        written = module.write(correction, instance=chosen, max_rotation_deg=max_rotation_deg)
+    else:
+        written = FORMATS[fmt].write(correction)
+        written.rotation_deg = rotation_angle_deg(correction.polar()[0])
+    written.notes[:0] = notes
     return written
+
+
+def scale_notes(result: CalibrationResult, target: str) -> list:
+    """What the export must say about its physical scale (a list of notes), or InputError when
+    `result` cannot be written in the field unit `target`: its unit is raw counts, or was only
+    assumed (or not recorded) and no reference field fixed the scale
+    (`CalibrationResult.scale_fixed_by`)."""
+    if target == "raw":
+        return []
+    fixed_by = result.scale_fixed_by()
+    if fixed_by == "the unit":
+        return []
+    if fixed_by == "the reference field":
+        field = expected_field(result)
+        size = "" if field is None else f" ({field:.6g} {result.unit})"
+        return [
+            f"the unit of the calibrated log was assumed ({result.log_unit}), and its reference "
+            f"field{size} fixes the scale: the correction maps the log's numbers to "
+            f"{result.unit}, written in {target}"
+        ]
+    why = {
+        "raw": "it is in raw counts",
+        "assumed": f"its unit was only assumed ({result.log_unit}: the log's columns name none)",
+    }.get(
+        "raw" if result.unit == "raw" else result.unit_source or "",
+        "its file does not record where its unit came from (written before unit_source)",
+    )
+    raise InputError(
+        f"cannot write this calibration in {target}: {why}, so offsets in a field unit "
+        f"could be wrong by any factor; calibrate the log again with --unit (the unit of its "
+        f"field columns) or with a reference field (--reference-field, --reference-column or "
+        f"--reference-model) that fixes the scale"
+    )
 
 
 def import_file(
@@ -87,6 +131,8 @@ def import_file(
     instance : the compass instance (ardupilot 1-3, default 1) or slot (px4 0-3, default 0).
     """
     _check(fmt, unit, instance)
+    if field is not None:
+        field = validation.number(field, "--reference-field", positive=True)
     path = existing_file(path, f"a {fmt} file")
     try:
         text = path.read_text()
@@ -98,9 +144,15 @@ def import_file(
         correction = module.read(text, str(path), instance=chosen)
     else:
         correction = module.read(text, str(path), unit=unit)
+    correction.checked(str(path))
     notes = []
     scaled = None
     if field is not None:
+        validation.number(
+            units.to_base(field, correction.unit),
+            f"--reference-field in {units.base_unit(correction.unit)}",
+            maximum=FIELD_LIMIT,
+        )
         if correction.field is not None:
             correction, scaled = correction.rescaled(field)
             notes.append(
@@ -111,11 +163,14 @@ def import_file(
             correction.field = field
     result = correction.to_result(
         log_unit=None if fmt in AUTOPILOTS else correction.unit,
+        unit_source="format" if fmt in AUTOPILOTS else correction.source["unit_source"],
         imported_from=str(path),
         format=fmt,
         sha256=sha256_file(path),
         field_scale=scaled,
     )
+    # Read back as a parameters file is: the plausible ranges of its values are checked there.
+    result = CalibrationResult.from_dict(result.to_dict(), f"{path} (as nine parameters)")
     angle = result.input["rotation_not_carried"]["angle_deg"]
     if angle > ROTATION_NOTE_DEG:
         notes.append(

@@ -107,6 +107,20 @@ class AffineCorrection(Document):
             source={"nlpcal_version": __version__, **_provenance(result)},
         )
 
+    def checked(self, source: str) -> AffineCorrection:
+        """This correction read from `source`, refused (InputError naming the file and the
+        value) unless A is a finite invertible 3 x 3 matrix, b three finite numbers and the
+        field, when given, a positive finite number; the plausible ranges of the nine
+        parameters are those of a parameters file (`CalibrationResult`), applied on import."""
+        units.field_factor(self.unit)
+        validation.matrix(self.matrix, f"{source}: A", invertible=True)
+        offsets = np.asarray(self.offsets, dtype=float)
+        if offsets.shape != (3,) or not np.isfinite(offsets).all():
+            raise InputError(f"{source}: b must be three finite numbers, got {offsets.tolist()}")
+        if self.field is not None:
+            validation.number(self.field, f"{source}: the expected field", positive=True)
+        return self
+
     def in_unit(self, unit: str) -> AffineCorrection:
         """The same correction with b and the field in `unit` (A is dimensionless)."""
         units.check_compatible(self.unit, unit, f"unit {unit!r}")
@@ -138,10 +152,14 @@ class AffineCorrection(Document):
             factor,
         )
 
-    def to_result(self, log_unit: str | None = None, **input_block) -> CalibrationResult:
+    def to_result(
+        self, log_unit: str | None = None, unit_source: str = "format", **input_block
+    ) -> CalibrationResult:
         """A CalibrationResult holding the nine parameters of this correction (Cholesky route).
 
         log_unit : the unit of the logs it applies to (default: the base unit, nT or raw).
+        unit_source : where the file's unit came from (`read_unit_source`; "format" when the
+            format fixes it, as the autopilots' do).
         The rotation Q that the nine parameters do not carry (A = Q O_p S_p) is recorded under
         input.rotation_not_carried; |B1| is the same with or without it. The result's model is
         the smallest form of Eq. 4 that holds the correction exactly (a diagonal A: "diagonal").
@@ -151,6 +169,11 @@ class AffineCorrection(Document):
             params, rotation = from_correction(matrix, units.to_base(self.offsets, self.unit))
         except ValueError as exc:
             raise InputError(str(exc)) from None
+        if not all(np.isfinite(list(params.to_dict().values()))):
+            raise InputError(
+                "the correction matrix A is too far from a calibration (its gains overflow); "
+                "check the file's values and --reference-field"
+            )
         base = units.base_unit(self.unit)
         angle = rotation_angle_deg(rotation)
         reference: dict = {"mode": "none"}
@@ -165,6 +188,7 @@ class AffineCorrection(Document):
             # by nlpcal reads back as that model
             model_name=smallest_model(params.to_dict(), reference["mode"] != "none"),
             unit=base,
+            unit_source=unit_source,
             input={
                 **input_block,
                 "log_unit": log_unit or base,
@@ -208,10 +232,21 @@ class AffineCorrection(Document):
 
 
 def _provenance(result: CalibrationResult) -> dict:
-    block = {"method": result.method, "parameters_unit": result.unit}
+    block = {
+        "method": result.method,
+        "parameters_unit": result.unit,
+        "unit_source": result.unit_source,
+        "scale_fixed_by": result.scale_fixed_by(),
+    }
     if result.input.get("log"):
         block["log"] = result.input["log"]
     return block
+
+
+def read_unit_source(given, stated) -> str:
+    """Where the unit of a file read came from (`nlpcal.units.UNIT_SOURCES`): the unit `given`
+    (--unit) is "option", one the file `stated` "format", nlpcal's default nT "assumed"."""
+    return "option" if given else "format" if stated else "assumed"
 
 
 @dataclass

@@ -12,13 +12,15 @@ import re
 
 import numpy as np
 
+from .. import validation
 from ..errors import InputError
+from ..results import distinct
 from .affine import AffineCorrection, rotation_angle_deg
 
 #: Largest rotation R accepted between nlpcal's axes and those of the symmetric matrix. [deg]
 MAX_ROTATION_DEG = 5.0
-_LINE = re.compile(r"^\s*(?:param\s+set\s+)?([A-Za-z][A-Za-z0-9_]*)\s*[,\s]\s*([-+0-9.eE]+)")
-_QGC_LINE = re.compile(r"^\s*\d+\s+\d+\s+([A-Za-z][A-Za-z0-9_]*)\s+([-+0-9.eE]+)\s+\d+\s*$")
+_LINE = re.compile(r"^\s*(?:param\s+set\s+)?([A-Za-z][A-Za-z0-9_]*)\s*[,\s]\s*([^\s,]+)")
+_QGC_LINE = re.compile(r"^\s*\d+\s+\d+\s+([A-Za-z][A-Za-z0-9_]*)\s+(\S+)\s+\d+\s*$")
 
 
 def symmetric(
@@ -61,7 +63,7 @@ def parameters(text: str, source: str) -> dict:
     """Parameter names and values of a parameter file: "NAME,VALUE" (Mission Planner),
     "NAME VALUE" (MAVProxy), "param set NAME VALUE" (PX4 shell) or QGroundControl's tab-separated
     "VEHICLE COMPONENT NAME VALUE TYPE"; '#' starts a comment."""
-    values: dict = {}
+    pairs = []
     for number, line in enumerate(text.splitlines(), 1):
         line = line.split("#", 1)[0].strip()
         if not line:
@@ -69,11 +71,10 @@ def parameters(text: str, source: str) -> dict:
         match = _QGC_LINE.match(line) or _LINE.match(line)
         if not match:
             raise InputError(f"{source}: line {number} is not 'NAME,VALUE': {line[:60]!r}")
-        name, value = match.group(1).upper(), float(match.group(2))
-        if not np.isfinite(value):
-            raise InputError(f"{source}: line {number}: {name} is not finite")
-        values[name] = value
-    return values
+        name = match.group(1).upper()
+        value = validation.number(match.group(2), f"{source}: line {number}: {name}")
+        pairs.append((name, value))
+    return distinct(pairs, source, "parameter")
 
 
 def check_range(name: str, value: float, low: float, high: float, system: str, why: str) -> None:

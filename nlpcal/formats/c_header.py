@@ -12,12 +12,13 @@ import re
 
 import numpy as np
 
-from .. import units
+from .. import units, validation
 from ..errors import InputError
-from .affine import MODEL, AffineCorrection, Export
+from ..results import distinct
+from .affine import MODEL, AffineCorrection, Export, read_unit_source
 
 _UNIT = re.compile(r"b and B1 in (\S+?)[,;]")
-_ARRAY = re.compile(r"NLPCAL_(A|B|FIELD)\b[^=]*=\s*(\{.*?\}\s*\}|\{.*?\}|[-+0-9.eE]+)", re.DOTALL)
+_ARRAY = re.compile(r"NLPCAL_(A|B|FIELD)\b[^=]*=\s*(\{.*?\}\s*\}|\{.*?\}|[^;{]+)", re.DOTALL)
 
 
 def _c(value: float) -> str:
@@ -48,20 +49,15 @@ def write(correction: AffineCorrection) -> Export:
 def read(text: str, source: str, unit: str | None = None) -> AffineCorrection:
     """NLPCAL_A, NLPCAL_B (and NLPCAL_FIELD) of a header written by `write`."""
     written = _UNIT.search(text)
-    unit = unit or (written.group(1) if written else "nT")
+    given, unit = unit, unit or (written.group(1) if written else "nT")
     units.field_factor(unit)
     code = re.sub(r"/\*.*?\*/", " ", text, flags=re.DOTALL)
-    found = {name: body for name, body in _ARRAY.findall(code)}
-    if "A" not in found or "B" not in found:
+    found = [
+        (name, _numbers(body, f"{source}: NLPCAL_{name}")) for name, body in _ARRAY.findall(code)
+    ]
+    values = distinct(found, source, "constant")
+    if "A" not in values or "B" not in values:
         raise InputError(f"{source}: no NLPCAL_A[3][3] and NLPCAL_B[3] found")
-    values = {}
-    for name, body in found.items():
-        try:
-            values[name] = np.array(
-                [float(v) for v in re.split(r"[\s,{}]+", body) if v], dtype=float
-            )
-        except ValueError:
-            raise InputError(f"{source}: NLPCAL_{name} must hold numbers only") from None
     if values["A"].size != 9 or values["B"].size != 3:
         raise InputError(f"{source}: NLPCAL_A must hold 9 values and NLPCAL_B 3")
     field = float(values["FIELD"][0]) if "FIELD" in values and values["FIELD"].size else None
@@ -70,5 +66,16 @@ def read(text: str, source: str, unit: str | None = None) -> AffineCorrection:
         offsets=values["B"],
         unit=unit,
         field=field,
-        source={"file": source, "format": "c-header"},
+        source={
+            "file": source,
+            "format": "c-header",
+            "unit_source": read_unit_source(given, written),
+        },
+    )
+
+
+def _numbers(body: str, what: str) -> np.ndarray:
+    """The finite numbers of a C initialiser ({1, 2, 3}, {{...}, ...}) or of a scalar."""
+    return np.array(
+        [validation.number(v, what) for v in re.split(r"[\s,{}]+", body) if v], dtype=float
     )

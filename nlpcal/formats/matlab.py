@@ -19,10 +19,11 @@ import numpy as np
 
 from .. import units
 from ..errors import InputError
-from .affine import MODEL, AffineCorrection, Export, number_text
+from ..results import distinct
+from .affine import MODEL, AffineCorrection, Export, number_text, read_unit_source
 
 _UNIT = re.compile(r"^\s*%\s*unit:\s*(\S+)", re.MULTILINE)
-_ASSIGNMENT = re.compile(r"\b(A|b|expmfs)\s*=\s*(\[[^\]]*\]|[-+0-9.eE]+)", re.DOTALL)
+_ASSIGNMENT = re.compile(r"\b(A|b|expmfs)\s*=\s*(\[[^\]]*\]|[^;\n]+)", re.DOTALL)
 
 
 def write(correction: AffineCorrection) -> Export:
@@ -53,7 +54,11 @@ def read(text: str, source: str, unit: str | None = None) -> AffineCorrection:
     file_unit = unit or (written.group(1) if written else "nT")
     units.field_factor(file_unit)
     code = "\n".join(line.split("%", 1)[0] for line in text.splitlines()).replace("...", " ")
-    values = {name: _numbers(body, f"{source}: {name}") for name, body in _ASSIGNMENT.findall(code)}
+    values = distinct(
+        [(name, _numbers(body, f"{source}: {name}")) for name, body in _ASSIGNMENT.findall(code)],
+        source,
+        "variable",
+    )
     for name in ("A", "b"):
         if name not in values:
             raise InputError(
@@ -75,7 +80,7 @@ def read(text: str, source: str, unit: str | None = None) -> AffineCorrection:
         offsets=b.ravel(),
         unit=file_unit,
         field=field,
-        source={"file": source, "format": "matlab"},
+        source={"file": source, "format": "matlab", "unit_source": read_unit_source(unit, written)},
     )
 
 

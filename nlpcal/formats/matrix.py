@@ -12,11 +12,10 @@ written by hand needs only "A" and "b" (and "unit" when not nT).
 
 from __future__ import annotations
 
-import json
-
 from ..errors import InputError
 from ..io.files import json_text
-from .affine import AffineCorrection, Export
+from ..results import parse_json
+from .affine import AffineCorrection, Export, read_unit_source
 
 
 def write(correction: AffineCorrection) -> Export:
@@ -26,11 +25,17 @@ def write(correction: AffineCorrection) -> Export:
 def read(text: str, source: str, unit: str | None = None) -> AffineCorrection:
     """The correction of a matrix JSON file; `unit` overrides the file's "unit"."""
     try:
-        document = json.loads(text)
-    except (json.JSONDecodeError, RecursionError) as exc:
-        raise InputError(f"{source}: not valid JSON ({exc})") from None
+        document = parse_json(text, source)
+    except RecursionError:
+        raise InputError(f"{source}: nested too deeply; not valid JSON") from None
     correction = AffineCorrection.from_dict(document, source)
-    correction.source = {"file": source, "format": "matrix", "written_by": correction.source}
+    stated = isinstance(document, dict) and "unit" in document
+    correction.source = {
+        "file": source,
+        "format": "matrix",
+        "written_by": correction.source,
+        "unit_source": read_unit_source(unit, stated),
+    }
     if unit and unit != correction.unit:
         if isinstance(document, dict) and "unit" in document:
             raise InputError(

@@ -8,6 +8,7 @@ samples, reference and extra columns in base units.
 
 from .files import (
     Outputs,
+    check_distinct_outputs,
     check_output_path,
     json_text,
     plain,
@@ -39,6 +40,7 @@ __all__ = [
     "Outputs",
     "SensorLog",
     "Table",
+    "check_distinct_outputs",
     "check_output_path",
     "column_name",
     "csv_engine",

@@ -67,10 +67,11 @@ def check_output_path(path, *inputs) -> None:
     if not path or str(path) == "-":
         return
     path = Path(path)
-    directory = path.parent if str(path.parent) else Path(".")
-    if not directory.is_dir():
-        raise InputError(f"{path}: the folder {directory} does not exist")
     target = output_target(path)
+    if target.kind == "replace":  # the folder of the file replaced (a link's target)
+        directory = target.path.parent
+        if not directory.is_dir():
+            raise InputError(f"{path}: the folder {directory} does not exist")
     if target.kind != "replace" or not target.path.exists():
         return
     for source in inputs:
@@ -177,6 +178,42 @@ def output_target(path) -> Target:
         if os.path.samestat(os.stat(real), status):
             return Target("replace", real, mode=stat.S_IMODE(status.st_mode) & 0o777)
     return Target("through", path)  # a file reached by a link its name does not resolve to
+
+
+def destination(target: Target) -> tuple | None:
+    """Where an output of `target` ends, for outputs that would overwrite or interleave each
+    other there: stdout and descriptor 1 are one place; None for a character device (/dev/null
+    takes any number of outputs)."""
+    if target.kind == "stdout" or (target.kind == "descriptor" and target.fd == 1):
+        return ("stdout",)
+    if target.kind == "descriptor":
+        return ("descriptor", target.fd)
+    if target.kind == "through":
+        status = os.stat(target.path)
+        if stat.S_ISCHR(status.st_mode):
+            return None
+        return ("through", status.st_dev, status.st_ino)
+    return ("replace", str(target.path))
+
+
+def check_distinct_outputs(*paths) -> None:
+    """Fail before any work when two of a command's outputs (None or "-": stdout) go to the same
+    place (`destination`)."""
+    seen: dict = {}
+    for path in paths:
+        _claim(seen, destination(output_target(path)), path)
+
+
+def _claim(places: dict, place, path) -> None:
+    """Record that the output `path` goes to `place` in `places` (its destinations so far);
+    InputError when another output went there already."""
+    name = "-" if path is None else str(path)
+    if place is not None and place in places:
+        raise InputError(
+            f"{name}: {places[place]} is written there already; two outputs cannot share one "
+            f"destination, so give each its own"
+        )
+    places.setdefault(place, name)
 
 
 def passes_through(path) -> bool:
@@ -345,10 +382,14 @@ class Outputs:
 
     def __init__(self):
         self._pending: list = []
+        self._places: dict = {}
 
     def write(self, path, write, binary: bool = False) -> None:
-        """The output `write(handle)` writes, to `path` (a text handle, or binary)."""
+        """The output `write(handle)` writes, to `path` (a text handle, or binary); InputError
+        when another output of the same commit goes to the same place (stdout twice would
+        interleave a document and a figure)."""
         target = output_target(path)
+        _claim(self._places, destination(target), path)
         kind = _Replacement if target.kind == "replace" else _Passage
         self._pending.append(kind(path, target, write, binary))
 
@@ -372,18 +413,28 @@ class Outputs:
     def commit(self) -> None:
         """Put every output in place (see the class); nothing is left pending."""
         pending, self._pending = self._pending, []
+        self._places = {}
+        gone = None  # a reader that went away has what it wanted: the files still take place
         try:  # files first: nothing is written through before every file is complete
             for output in sorted(pending, key=lambda output: isinstance(output, _Passage)):
-                output.complete()
+                try:
+                    output.complete()
+                except BrokenPipeError as error:
+                    if not isinstance(output, _Passage):
+                        raise
+                    gone = error
             for output in pending:
                 output.place()
         finally:
             for output in pending:
                 output.discard()
+        if gone is not None:
+            raise gone
 
     def discard(self) -> None:
         """Forget every pending output: the existing ones stay as they are."""
         pending, self._pending = self._pending, []
+        self._places = {}
         for output in pending:
             output.discard()
 

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 from ..errors import InputError
 from .files import existing_file
@@ -29,6 +30,12 @@ HEAD_BYTES = 65536
 HEAD_LINES = 200
 #: What `-` stands for in messages and result documents.
 STDIN = "stdin"
+
+#: Numbers read back exactly as written: pandas 3 parses floats to the nearest double; before
+#: it, the C parser's default may miss by one ulp, and by different ulps on different paths
+#: (whole file, chunks, Dask blocks), unless asked to round-trip.
+EXACT_FLOATS = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
+
 #: Delimiters tried, in order of preference when several split every line the same way (a
 #: semicolon or tab file may hold decimal commas; a comma file never holds semicolons).
 DELIMITERS = ("\t", ";", ",")
@@ -104,6 +111,7 @@ class Layout:
             "skipinitialspace": self.delimiter != " ",
             "encoding": self.encoding,
             "compression": self.compression,
+            **EXACT_FLOATS,
         }
 
 

@@ -34,7 +34,7 @@ from .logs import (
     one_reference,
     reference_unit,
     sensor_unit,
-    unit_check,
+    settle_unit,
 )
 from .rows import QUOTED_ROWS, RowScreen
 from .tables import column_name, log_files, named, numeric_columns, resolve_columns, unreadable
@@ -282,7 +282,7 @@ def read_lazy_log(
     except ImportError:
         raise InputError("a log on a Dask cluster needs dask: pip install 'nlpcal[dask]'") from None
     notes: list = []
-    files = log_files(source, header)
+    files = log_files(source, header, notes=notes)
     first = files[0]
     chosen = first.field_columns(columns, notes)
     unit, how = sensor_unit(chosen, unit, fallback_unit, notes)
@@ -311,11 +311,17 @@ def read_lazy_log(
     samples.timings.append(("read", time.perf_counter() - started))
     reference: passes.LazySamples | float | None = None
     model = None
+    column = None
     if name is not None:
-        reference = passes.LazySamples(table[:, 3], None if survey is None else survey.columns(3))
-    passes.survey_together(samples, reference)
-    if name is not None:
-        reference = validation.reference(reference, samples.n, f"the reference column {name!r}")
+        column = passes.LazySamples(table[:, 3], None if survey is None else survey.columns(3))
+    passes.survey_together(samples, column)
+    samples, unit, check = settle_unit(samples, unit, how)
+    if column is not None and name is not None:
+        if unit == "raw" and units.unit_in_name(name) is None:  # read in the assumed unit
+            factor = units.field_factor(ref_unit)
+            column, ref_unit = (column if factor == 1.0 else column * (1.0 / factor)), "raw"
+        units.check_compatible(unit, ref_unit, f"reference column {name!r}")
+        reference = validation.reference(column, samples.n, f"the reference column {name!r}")
     elif reference_model is not None:
         reference, model = model_reference(reference_model, unit, notes)
     elif reference_field is not None:
@@ -323,12 +329,12 @@ def read_lazy_log(
     blocks = len(samples.block_offsets())
     what = "Parquet row groups" if all(part.parquet for part in files) else "blocks"
     notes.append(f"the log stays in its files: {blocks} {what} read in every pass")
-    check = unit_check(samples, unit, how)
     return Log(
         path=str(source),
         columns=list(chosen),
-        samples=samples,  # type: ignore[arg-type]  # rows that stay on the cluster
+        samples=samples,  # rows that stay on the cluster (LazySamples)
         unit=unit,
+        unit_source=how,
         reference=reference,
         reference_column=name,
         reference_source=model,

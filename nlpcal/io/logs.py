@@ -14,6 +14,7 @@ looks wrong in `Log.warnings`.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -43,7 +44,8 @@ class Log:
     path : where it came from ("stdin" for `-`).
     columns : the three field columns.
     samples : (N, 3) field samples in the base unit (nT, or raw counts). [base unit]
-    unit : the unit of the field columns in the file.
+    unit : the unit of the field columns in the file ("raw" when an assumed unit was ruled out).
+    unit_source : where the unit came from, one of `nlpcal.units.UNIT_SOURCES`.
     reference : None, a number or (N,) values of the reference field magnitude. [base unit]
     reference_column : the column the reference came from, if any.
     reference_source : what a geomagnetic-model reference came from (model, package), if any.
@@ -61,6 +63,7 @@ class Log:
     columns: list
     samples: np.ndarray
     unit: str
+    unit_source: str = "assumed"
     reference: object = None
     reference_column: str | None = None
     reference_source: dict | None = None
@@ -88,6 +91,7 @@ class Log:
             "log": self.path,
             "columns": list(self.columns),
             "log_unit": self.unit,
+            "unit_source": self.unit_source,
             "layout": self.layout.to_dict(),
             "csv_engine": self.engine,
             "rows_dropped": int(self.dropped),
@@ -135,12 +139,23 @@ class Log:
         return self.extras[self.column(column)]
 
 
-def sensor_unit(columns, unit, fallback, notes, what="magnetometer", flag="--unit") -> tuple:
-    """(unit, how) of a sensor's columns: `unit` ("given"), else the one their names carry
-    ("names"), else `fallback` ("assumed")."""
+def sensor_unit(
+    columns, unit, fallback, notes, what="magnetometer", flag="--unit", declared=None
+) -> tuple:
+    """(unit, source) of a sensor's columns, the source one of `nlpcal.units.UNIT_SOURCES`:
+    `unit` ("option"), else the unit the file format `declared` ("format"), else the one the
+    column names carry ("names"), else `fallback` ("assumed")."""
     prefixes = units.MAGNETIC_PREFIXES if what == "magnetometer" else units.ACC_PREFIXES
     suffixes = units.FIELD_SUFFIXES if what == "magnetometer" else units.ACC_SUFFIXES
     hinted = units.suggested_unit(columns, prefixes, suffixes)
+    if unit is None and declared is not None:
+        units.field_factor(declared)
+        if hinted and hinted != declared:
+            notes.append(
+                f"the {what} columns ({', '.join(columns)}) suggest {hinted}, but the file "
+                f"format fixes {declared}"
+            )
+        return declared, "format"
     if unit is None:
         if hinted:
             notes.append(f"{what} unit {hinted} taken from the column names ({', '.join(columns)})")
@@ -154,7 +169,7 @@ def sensor_unit(columns, unit, fallback, notes, what="magnetometer", flag="--uni
         notes.append(
             f"the {what} columns ({', '.join(columns)}) suggest {hinted}, but {flag} is {unit}"
         )
-    return unit, "given"
+    return unit, "option"
 
 
 def typical_magnitudes(samples) -> list:
@@ -252,7 +267,9 @@ def read_log(
 
     path : a delimited text log, "-" for stdin, or a `Table` already read.
     columns : the three field columns, names or 0-based positions (None: detected).
-    unit : the unit of the field columns (None: from their names, else `fallback_unit`).
+    unit : the unit of the field columns (None: the unit a file format fixes, `Table.field_unit`,
+        else the one their names carry, else `fallback_unit`; an assumed unit under which the
+        magnitudes are far from Earth's field gives way to raw counts, `settle_unit`).
     reference_column : a column of reference magnitudes, or reference_field : one number (in
         `reference_field_unit`, default the log's unit). The reference is converted to the base
         unit with the samples.
@@ -269,7 +286,8 @@ def read_log(
     notes: list = []
     model_columns = reference_model.numeric_columns() if reference_model else []
     time_column = reference_model.time_column if reference_model else None
-    extra = [c for c in dict.fromkeys([reference_column, *model_columns, *extra_columns]) if c]
+    roles = column_roles(reference_column, reference_model, extra_columns)
+    extra = list(dict.fromkeys(column for role, column in roles if role != TIME_ROLE))
     requested = list(extra)
     if low_memory and (model_columns or time_column):
         raise InputError(
@@ -286,6 +304,8 @@ def read_log(
             path, columns, extra, header=header, drop_invalid=drop_invalid, scale=scale
         )
         chosen, extra = mapped.columns[:3], mapped.columns[3:]
+        named = dict(zip(requested, extra))
+        distinct_roles(chosen, [(role, named[column]) for role, column in roles])
         unit, how = decided["unit"], decided["how"]
         notes.extend(mapped.notes)
         values, frame, kept, dropped = mapped.values, None, None, mapped.dropped
@@ -293,6 +313,7 @@ def read_log(
         samples = values[:, :3]
     else:
         table = path if isinstance(path, Table) else read_table(path, header=header, text=text)
+        notes.extend(table.notes)
         chosen = resolve_columns(
             table.frame,
             columns,
@@ -300,8 +321,8 @@ def read_log(
             decimal=table.layout.decimal,
             notes=notes,
         )
+        distinct_roles(chosen, [(role, column_name(table.frame, c)) for role, c in roles])
         extra = [column_name(table.frame, c) for c in extra]
-        _check_distinct(chosen, extra)
         checked, times_at = None, []
         if time_column:  # times enter the row checks as Unix seconds
             time_name = column_name(table.frame, time_column)
@@ -310,11 +331,12 @@ def read_log(
         values, kept, dropped = screened(
             table, chosen + extra + times_at, drop_invalid, notes, checked
         )
-        unit, how = sensor_unit(chosen, unit, fallback_unit, notes)
+        unit, how = sensor_unit(chosen, unit, fallback_unit, notes, declared=table.field_unit)
         frame, engine, layout, source = table.frame, table.engine, table.layout, table.source
         samples = values[:, :3] * units.field_factor(unit)
-    _check_distinct(chosen, extra)
-    check = unit_check(samples, unit, how)
+    if samples.shape[0]:
+        validation.sample_sizes(samples)
+    samples, unit, check = settle_unit(samples, unit, how)
     warnings = [check] if check else []
     resolved = dict(zip(requested, extra))  # the names asked for -> the log's own names
     extras = {name: np.asarray(values[:, 3 + k]) for k, name in enumerate(extra)}
@@ -340,6 +362,7 @@ def read_log(
         columns=list(chosen),
         samples=samples,
         unit=unit,
+        unit_source=how,
         reference=reference,
         reference_column=name,
         reference_source=source_of_reference,
@@ -372,14 +395,58 @@ def unit_check(
     return units.unit_warning(in_unit, unit, how, sensor=sensor, flag=flag, raw_allowed=raw_allowed)
 
 
-def _check_distinct(field_columns, extra_columns) -> None:
-    for name in extra_columns:
-        if name in field_columns:
+def settle_unit(samples, unit: str, how: str) -> tuple:
+    """(samples, unit, warning or None) after the plausibility check of a field log's unit.
+
+    samples : in the base unit of `unit`. [nT or raw]
+    An assumed unit (`how` "assumed") under which the magnitudes are far from Earth's field is
+    not kept: the samples are taken back to the file's numbers and recorded as raw counts, so no
+    result made from them claims a field unit. A unit given, fixed by the format or carried by the
+    names is kept, with the warning.
+    """
+    warning = unit_check(samples, unit, how)
+    if warning is None or how != "assumed":
+        return samples, unit, warning
+    factor = units.field_factor(unit)
+    return (samples if factor == 1.0 else samples * (1.0 / factor)), "raw", warning
+
+
+#: The role of the column of times, read apart from the numeric columns.
+TIME_ROLE = "--time-column"
+
+
+def column_roles(reference_column=None, reference_model=None, extra_columns=()) -> list:
+    """(role, column) of every column a log is read with besides the field columns: the
+    reference, the position and time columns of a geomagnetic model, and `extra_columns` (a
+    mapping of role to column, say {"--temperature-column": "temp_c"}, or a list)."""
+    if not isinstance(extra_columns, Mapping):
+        extra_columns = {f"extra column {k + 1}": c for k, c in enumerate(extra_columns)}
+    roles = [("--reference-column", reference_column)]
+    if reference_model is not None:
+        roles += [
+            ("--lat-column", reference_model.lat_column),
+            ("--lon-column", reference_model.lon_column),
+            ("--alt-column", reference_model.alt_column),
+            (TIME_ROLE, reference_model.time_column),
+        ]
+    roles += list(extra_columns.items())
+    return [(role, column) for role, column in roles if column is not None]
+
+
+def distinct_roles(field_columns, roles) -> None:
+    """One column, one role: InputError naming the column and both roles when the three field
+    columns and `roles`, pairs of (role, the column's name in the log), name a column twice."""
+    seen: dict = {}
+    for role, name in [
+        *zip(("field column x", "field column y", "field column z"), field_columns),
+        *roles,
+    ]:
+        if name in seen and seen[name] != role:
             raise InputError(
-                f"column {name!r} is one of the field columns "
-                f"({', '.join(field_columns)}); pass the temperature or reference "
-                f"column, or --columns X Y Z"
+                f"column {name!r} is given as both {seen[name]} and {role}; one column cannot be "
+                f"two things: pass another column for one of them"
             )
+        seen.setdefault(name, role)
 
 
 def read_columns(path, columns, *, header: bool | None = None) -> np.ndarray:
@@ -388,3 +455,17 @@ def read_columns(path, columns, *, header: bool | None = None) -> np.ndarray:
     table = path if isinstance(path, Table) else read_table(path, header=header)
     names = [column_name(table.frame, c) for c in columns]
     return np.column_stack([numbers(table.frame[name], table.layout.decimal) for name in names])
+
+
+def read_role_columns(path, groups: Mapping, *, header: bool | None = None) -> list:
+    """`read_columns` of each group of columns in `groups` (a mapping of option to columns, say
+    {"--truth-columns": [...], "--estimate-columns": [...]}), one array each, refusing a column
+    given in two places (`distinct_roles`)."""
+    table = path if isinstance(path, Table) else read_table(path, header=header)
+    roles = [
+        (f"{option} {k + 1}", column_name(table.frame, column))
+        for option, columns in groups.items()
+        for k, column in enumerate(columns)
+    ]
+    distinct_roles((), roles)
+    return [read_columns(table, columns) for columns in groups.values()]

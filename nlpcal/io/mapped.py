@@ -67,9 +67,9 @@ def csv_to_memmap(
     """
     spool = _spool_stdin(directory) if str(path) == "-" else None
     try:
-        files = log_files(spool.name if spool else path, header, STDIN if spool else None)
-        first = files[0]
         notes: list = []
+        files = log_files(spool.name if spool else path, header, STDIN if spool else None, notes)
+        first = files[0]
         chosen = first.field_columns(columns, notes)
         wanted = chosen + [column_name(first.preview, c) for c in extra_columns]
         factor = float(scale(chosen) if callable(scale) else scale)

@@ -10,6 +10,7 @@ units and validation as CSV (`nlpcal.io.tables` reads the columns it gets from h
 from __future__ import annotations
 
 import io
+import os
 from pathlib import Path
 
 import pandas as pd
@@ -20,6 +21,7 @@ from .files import (
     TEXT_SUFFIXES,
     existing_file,
     matching_files,
+    sha256_file,
 )
 
 #: The leading (and trailing) bytes of every Parquet file.
@@ -35,14 +37,15 @@ def is_pattern(source) -> bool:
     return any(ch in text for ch in "*?[") or Path(text).is_dir()
 
 
-def log_paths(source) -> list:
+def log_paths(source, notes: list | None = None) -> list:
     """The files of a log: [source] for one file; the sorted matches of a glob pattern; the
-    sorted log files (`is_log_file`) of a folder (`matching_files`). InputError when nothing
+    sorted log files (`is_log_file`) of a folder (`matching_files`), each once
+    (`distinct_files`, which says in `notes` what it left out). InputError when nothing
     matches."""
     text = str(source)
     found = matching_files(text)
     if found:
-        return found
+        return distinct_files(found, notes)
     if Path(text).is_dir():
         raise InputError(
             f"{text}: the folder has no CSV or Parquet files "
@@ -51,6 +54,36 @@ def log_paths(source) -> list:
     if is_pattern(text):
         raise InputError(f"{text}: no file matches the pattern")
     return [existing_file(text)]  # which says why the one file named is not there
+
+
+def distinct_files(paths, notes: list | None = None) -> list:
+    """`paths` with each file once: a file named twice (the same path, or a link to the same
+    file: the same device and inode) is read once and said in `notes`; two files with the same
+    content (the same SHA-256, compared among files of the same size) are refused, since their
+    rows would count twice."""
+    kept: list = []
+    first_of: dict = {}
+    for path in paths:
+        status = os.stat(path)
+        same = first_of.setdefault((status.st_dev, status.st_ino), path)
+        if same is not path:
+            if notes is not None:
+                notes.append(f"{path} is the same file as {same}: read once")
+            continue
+        kept.append(path)
+    by_size: dict = {}
+    for path in kept:
+        by_size.setdefault(os.stat(path).st_size, []).append(path)
+    for group in (group for group in by_size.values() if len(group) > 1):
+        digests: dict = {}
+        for path in group:
+            other = digests.setdefault(sha256_file(path), path)
+            if other is not path:
+                raise InputError(
+                    f"{other} and {path} have the same content (SHA-256): the same data "
+                    f"twice; leave the copy out"
+                )
+    return kept
 
 
 def is_parquet(path) -> bool:

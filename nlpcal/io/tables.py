@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import io
 import re
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
@@ -22,6 +22,7 @@ from ..errors import InputError
 from . import sources
 from .files import write_text_atomic
 from .layout import Layout, detect_layout, open_source
+from .strict import finite_table
 
 #: What each sensor's axis columns may be called, for `resolve_columns`:
 #: name -> (prefixes, unit suffixes, examples for messages, flag for messages).
@@ -61,6 +62,12 @@ class Table:
     layout : how the file is laid out (delimiter, header, decimal mark, comments).
     engine : the pandas engine that read it.
     text : whether the cells were kept as text (so that they can be written back unchanged).
+    field_unit : the unit of the field columns when the file format fixes it (a ROS
+        sensor_msgs/MagneticField is in tesla, an ArduPilot DataFlash MAG message in milligauss,
+        an ImagCDF file states its unit in its header), else None. A reader of such a format
+        sets it; `nlpcal.io.read_log` then records the unit with `unit_source` "format". The
+        delimited text and Parquet readers of today leave it None: nothing in those files fixes
+        a unit.
     """
 
     source: str
@@ -68,6 +75,8 @@ class Table:
     layout: Layout
     engine: str = "c"
     text: bool = False
+    notes: list = field(default_factory=list)
+    field_unit: str | None = None
 
     @property
     def columns(self) -> list:
@@ -142,10 +151,11 @@ def read_table(path, *, header: bool | None = None, text: bool = False) -> Table
     """
     # Hook: Parquet files, and the files of a glob pattern or a folder (nlpcal.io.sources).
     if sources.is_pattern(path):
-        paths = sources.log_paths(path)
+        notes: list = []
+        paths = sources.log_paths(path, notes)
         tables = [read_table(p, header=header, text=text) for p in paths]
         frame = sources.concatenated(paths, [table.frame for table in tables])
-        return replace(tables[0], source=str(path), frame=frame)
+        return replace(tables[0], source=str(path), frame=frame, notes=notes)
     if sources.is_parquet(path):
         frame = sources.read_parquet(path)
         if frame.empty:
@@ -346,11 +356,14 @@ class LogFile:
             yield chunk
 
 
-def log_files(path, header: bool | None = None, name: str | None = None) -> list:
-    """The files of a log (one file, a pattern or a folder: `nlpcal.io.sources`), each with its
-    layout and first rows; they must have the same columns."""
+def log_files(
+    path, header: bool | None = None, name: str | None = None, notes: list | None = None
+) -> list:
+    """The files of a log (one file, a pattern or a folder: `nlpcal.io.sources`, which says in
+    `notes` what it left out), each with its layout and first rows; they must have the same
+    columns."""
     found = []
-    for item in [path] if name else sources.log_paths(path):
+    for item in [path] if name else sources.log_paths(path, notes):
         if not name and sources.is_parquet(item):
             columns = sources.parquet_columns(item)
             found.append(LogFile(str(item), item, Layout(), pd.DataFrame(columns=columns), True))
@@ -379,5 +392,6 @@ def table_text(frame: pd.DataFrame, layout: Layout) -> str:
 
 
 def write_table(frame: pd.DataFrame, layout: Layout, output=None) -> None:
-    """`table_text` to `output` or to stdout (`nlpcal.io.files.Outputs`)."""
-    write_text_atomic(output, table_text(frame, layout))
+    """`table_text` to `output` or to stdout (`nlpcal.io.files.Outputs`); the numbers nlpcal
+    computed finite (`nlpcal.io.strict`)."""
+    write_text_atomic(output, table_text(finite_table(frame), layout))

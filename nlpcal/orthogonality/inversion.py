@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import inference, validation
+from ..calibration.joint import algebraic_start, joint_start
 from ..errors import InputError, QualityError, SolveError
 from ..models.wang2015 import ANGLE_NAMES
 from ..moments import accumulate
@@ -39,6 +40,14 @@ DEFAULT_BOUND_DEG = 0.5
 MIN_INVERSION_SAMPLES = 10
 #: A solution within this fraction of its bound counts as on the bound. [1]
 BOUND_ACTIVE_REL_TOL = 1e-3
+#: The three angles do not explain the data when the rms of their residuals exceeds this many
+#: times the rms left by the nine parameters of Eq. 4 in [2] on the same samples (the noise, when
+#: the nine explain the data). Nested models on the same samples differ by a fraction of the
+#: noise when the smaller one holds; offsets and scale errors left in the data raise the ratio to
+#: their size over the noise (150 for 100 nT offsets in 1 nT of noise). [1]
+UNEXPLAINED_RATIO = 3.0
+#: Residuals below this fraction of the field are rounding, not misfit, whatever their ratio. [1]
+UNEXPLAINED_FLOOR = 1e-9
 
 
 @dataclass
@@ -138,6 +147,7 @@ def invert(
     source: str | None = None,
     verbose: bool = False,
     require_identifiable: bool = True,
+    require_explained: bool = True,
 ) -> Inversion:
     """The three non-orthogonality angles from a rotation log, as a bounded IPOPT problem.
 
@@ -150,6 +160,11 @@ def invert(
     start_deg : IPOPT's start, (0, 0, 0) as in [1]. [deg]
     require_identifiable : raise QualityError (holding the result) when the attitudes leave an
         angle undetermined; False returns the result with a warning.
+    require_explained : raise QualityError (holding the result) when the three angles do not
+        explain the data: their residual is more than UNEXPLAINED_RATIO times the noise, the rms
+        the nine parameters of Eq. 4 in [2] leave on the same samples (offsets or scale errors
+        not removed: calibrate first); False returns the result with a warning. Not judged
+        when an angle lies on its bound (its warning names that cause first).
 
     A solution on a bound gets a warning: the true angle may lie outside the bounds.
     Raises InputError for unusable samples or options, SolveError when IPOPT fails.
@@ -210,6 +225,11 @@ def invert(
             f"{where}the attitudes do not determine {', '.join(weak)}; rotate the "
             f"probe through directions spread over the whole sphere"
         )
+    unexplained = None  # with an angle on its bound the bound is the first cause, said above
+    if not any(active):
+        unexplained = _unexplained(samples, moments, reference, math.sqrt(after["objective"]))
+    if unexplained:
+        warnings.append(f"{where}{unexplained}")
     result = Inversion(
         angles_deg=angles,
         angles_std_deg=uncertainty.standard_errors,
@@ -236,7 +256,42 @@ def invert(
             "Not_Identifiable",
             result=result,
         )
+    if unexplained and require_explained:
+        raise QualityError(
+            f"{where}{unexplained}",
+            "Model_Unexplained",
+            result=result,
+            overrides={"require_explained": False},
+        )
     return result
+
+
+def _unexplained(samples, moments, reference, rms_angles: float) -> str | None:
+    """Why three angles alone do not explain the samples, or None when they do.
+
+    The noise is the rms of |B1| about its centre left by the nine parameters of Eq. 4 in [2]
+    fitted to the same samples: the algebraic ellipsoid fit of the moments
+    (`nlpcal.calibration.joint.algebraic_start`), or the sphere fit where it gives no ellipsoid.
+    rms_angles : the rms the inversion leaves. [nT]
+    """
+    theta = algebraic_start(moments)
+    theta = joint_start(moments) if theta is None else theta
+    full = field_statistics(samples, theta, reference)
+    noise = math.sqrt(full["objective"])
+    if not rms_angles > UNEXPLAINED_RATIO * max(noise, UNEXPLAINED_FLOOR * full["mean"]):
+        return None
+    offsets, scales = theta[0:3], theta[3:6]
+    spread = "scale errors" if reference is not None else "differences of the axes' scales"
+    if reference is None:  # without a reference only the scales' differences are determined
+        scales = scales - scales.mean()
+    return (
+        f"the three angles do not explain the data: their residual ({rms_angles:.4g} nT rms) is "
+        f"{rms_angles / max(noise, 1e-300):.3g} times the noise ({noise:.3g} nT rms, what the "
+        f"nine parameters of a calibration leave), which finds offsets up to "
+        f"{np.abs(offsets).max():.3g} nT and {spread} up to {np.abs(scales).max():.2%}; the "
+        f"inversion assumes offsets and scales already removed: calibrate first (nlpcal "
+        f"calibrate, then nlpcal apply) and invert the corrected log"
+    )
 
 
 def _uncertainty(moments, angles_deg, after: dict, spread: bool) -> inference.Uncertainty:

@@ -9,6 +9,7 @@ from pathlib import Path
 from ..calibration.result import CalibrationResult
 from ..errors import InputError
 from ..io.files import sha256_file
+from ..io.layout import STDIN
 from ..io.logs import Log
 from ..models.zhou2010 import correct
 from ..plots import calibration_png, require_matplotlib
@@ -89,10 +90,16 @@ def report(
             "written_by_nlpcal": calibration.version,
             "calibration_input": calibration.input,
         },
-        "log": {"file": log.path, "sha256": sha256_file(log.path), **log.metadata(rows=log.n)},
+        "log": {"file": log.path, **_digest(log.path), **log.metadata(rows=log.n)},
         "options": options or {},
     }
     return Report(render_report(calibration, view, provenance, png, missing), notes)
+
+
+def _digest(path) -> dict:
+    """{"sha256": the digest of the log's file}; nothing for a log read from stdin, whose bytes
+    are gone."""
+    return {} if str(path) == STDIN else {"sha256": sha256_file(path)}
 
 
 __all__ = ["CalibrationView", "Report", "figure_png", "render_report", "report"]

@@ -24,7 +24,14 @@ from ..errors import InputError
 from ..models.zhou2010 import Zhou2010Parameters, forward
 from ..results import DocumentReader
 from . import liu2022, qiu2017
-from .attitudes import ATTITUDES, random_rotations, world_field
+from .attitudes import (
+    ATTITUDE_ALIASES,
+    ATTITUDES,
+    MAX_TILT_LIMIT_DEG,
+    TILTED,
+    random_rotations,
+    world_field,
+)
 
 __all__ = [
     "ATTITUDES",
@@ -90,20 +97,37 @@ def simulate(
     seed: int = 0,
     attitudes: str = "uniform",
     inclination_deg: float = 60.0,
+    max_tilt_deg: float | None = None,
 ) -> pd.DataFrame:
     """A log of n samples with columns bx, by, bz. [nT]
 
     parameters : the truth of Eq. 4 in [1].
     field : magnitude of the constant field. [nT]
     noise : standard deviation of white noise on each axis. [nT]
-    attitudes : a name in ATTITUDES.
+    attitudes : a name in ATTITUDES or ATTITUDE_ALIASES.
+    max_tilt_deg : with attitudes "tilt": the largest roll and pitch, each uniform within
+        +-max_tilt_deg, heading free (default MAX_TILT_DEFAULT_DEG; at most 90). [deg]
     """
     n = validation.count(n, "the number of samples (-n)")
     noise = validation.number(noise, "the noise (--noise)", minimum=0.0, unit="nT")
     field = validation.number(field, "the field", positive=True, unit="nT")
-    validation.choice(attitudes, "attitude set", list(ATTITUDES))
+    validation.choice(attitudes, "attitude set", [*ATTITUDES, *ATTITUDE_ALIASES])
+    attitudes = ATTITUDE_ALIASES.get(attitudes, attitudes)
     rng = np.random.default_rng(seed)
-    rotations = ATTITUDES[attitudes](n, rng)
+    options = {}
+    if max_tilt_deg is not None:
+        if attitudes != TILTED:
+            raise InputError(
+                f"the largest tilt (--max-tilt-deg) applies to --attitudes tilt, not {attitudes}"
+            )
+        options["max_tilt_deg"] = validation.number(
+            max_tilt_deg,
+            "the largest tilt (--max-tilt-deg)",
+            positive=True,
+            maximum=MAX_TILT_LIMIT_DEG,
+            unit="deg",
+        )
+    rotations = ATTITUDES[attitudes](n, rng, **options)
     true_field = rotations @ world_field(field, inclination_deg)  # A B, ideal sensor frame
     output = forward(true_field, parameters) + noise * rng.normal(size=(n, 3))
     return pd.DataFrame(output, columns=["bx", "by", "bz"])

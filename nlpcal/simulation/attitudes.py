@@ -83,8 +83,13 @@ def turntable_attitudes(
     return mount @ wobble @ heading
 
 
+#: Largest roll and pitch of the tilted attitudes by default, and the largest accepted. [deg]
+MAX_TILT_DEFAULT_DEG = 30.0
+MAX_TILT_LIMIT_DEG = 90.0
+
+
 def tilt_band_attitudes(
-    n: int, rng: np.random.Generator, *, max_tilt_deg: float = 30.0
+    n: int, rng: np.random.Generator, *, max_tilt_deg: float = MAX_TILT_DEFAULT_DEG
 ) -> np.ndarray:
     """Any heading, but roll and pitch limited to +-max_tilt_deg (a vehicle, a hand-held swing).
 
@@ -127,6 +132,10 @@ ATTITUDES = {
     "tilt_band": tilt_band_attitudes,
     "clustered": clustered_attitudes,
 }
+#: Other names of attitude sets: "tilt" (heading free, roll and pitch within +-max_tilt_deg).
+ATTITUDE_ALIASES = {"tilt": "tilt_band"}
+#: The attitude set whose largest roll and pitch can be chosen (max_tilt_deg).
+TILTED = "tilt_band"
 
 
 def world_field(field: float, inclination_deg: float = 60.0) -> np.ndarray:

@@ -14,6 +14,7 @@ import pandas as pd
 
 from ..errors import InputError
 from ..io.files import Outputs, read_json
+from ..io.strict import finite_table, strict
 from ..models import liu2022
 from ..models.liu2022 import TemperatureModel, modulus_line
 from ..models.zhou2010 import Zhou2010Parameters
@@ -191,8 +192,8 @@ def write_replica(
     }
     with Outputs() as outputs:  # the five files appear together, or none of them
         for name, frame in logs.items():
-            outputs.csv(out_dir / name, frame)
-        outputs.json(out_dir / "truth.json", truth)
+            outputs.csv(out_dir / name, finite_table(frame))
+        outputs.json(out_dir / "truth.json", strict(truth))
     return [out_dir / name for name in [*logs, "truth.json"]]
 
 

@@ -15,6 +15,7 @@ import pandas as pd
 
 from ..errors import InputError
 from ..io.files import Outputs
+from ..io.strict import finite_table, strict
 from ..models import qiu2017 as model
 
 #: Noise of the replica per axis at noise=None: magnetometer [nT], accelerometer [g].
@@ -142,7 +143,7 @@ def write_replica(
     data = replica(seed=seed, noise=noise, n=n)
     paths = [out_dir / "turns.csv", out_dir / "test.csv", out_dir / "truth.json"]
     with Outputs() as outputs:  # the three files appear together, or none of them
-        outputs.csv(paths[0], data["turns"])
-        outputs.csv(paths[1], data["test"])
-        outputs.json(paths[2], data["truth"])
+        outputs.csv(paths[0], finite_table(data["turns"]))
+        outputs.csv(paths[1], finite_table(data["test"]))
+        outputs.json(paths[2], strict(data["truth"]))
     return paths
