@@ -81,3 +81,43 @@ def test_the_second_order_bias_of_a_short_arc_is_removed():
     mean = np.mean(z, axis=0)
     assert np.all(np.abs(mean) < MEAN_ERROR), dict(zip(NAMES, mean))
     assert np.all(np.sum(covered, axis=0) >= COVERED)
+
+
+def test_the_jackknife_keeps_enough_groups_on_a_short_or_smooth_log():
+    """Scores alike across the whole log ask for groups as long as the log; one group would
+    give a variance of zero."""
+    from nlpcal import inference
+
+    for blocks in (6, 40, 100, 4096):
+        length = inference.group_length(1e9, blocks)
+        groups = len(range(0, blocks, length))
+        assert groups >= inference.MIN_GROUPS, blocks
+    assert inference.group_length(2.0, 4096) == 6  # otherwise GROUP_BANDWIDTHS bandwidths
+
+
+def test_the_floor_is_below_the_result_in_every_direction():
+    from nlpcal import inference
+
+    rng = np.random.default_rng(3)
+    basis = np.linalg.qr(rng.standard_normal((9, 8)))[0]
+    for _ in range(20):
+        a, b = rng.standard_normal((2, 9, 12))
+        meat, floor = a @ a.T, b @ b.T
+        top = inference.loewner_max(meat, floor, basis)
+        for other in (meat, floor):
+            gap = basis.T @ (top - other) @ basis
+            assert np.linalg.eigvalsh(gap)[0] >= -1e-9 * np.abs(gap).max()
+
+
+@pytest.mark.parametrize("loss", ["l2", "huber"])
+@pytest.mark.parametrize("reference", [None, 50_000.0])
+def test_few_samples_get_standard_errors_no_narrower_than_independent_ones(loss, reference):
+    """40 samples: the jackknife runs on 8 groups, and by chance its variance can fall below that
+    of independent samples (to 0.58 of their standard error, a huber fit, before the floor)."""
+    rng = np.random.default_rng(40)
+    samples = scenario_log(40, 5.0, rng, uniform_directions(40, rng), 50_000.0)
+    result = nlpcal.calibrate(samples, reference_field=reference, loss=loss, method="joint")
+    dependence = result.identifiability["score_dependence"]
+    assert dependence["groups"] >= 6
+    for name, error in result.standard_errors.items():
+        assert error >= dependence["standard_errors_independent"][name] * (1 - 1e-9), name

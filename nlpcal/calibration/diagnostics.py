@@ -95,12 +95,13 @@ def uncertainty(
         )
     else:
         meat, independent, dependence, noise = score_meat(problem, theta, centre, basis, n - fitted)
+        if not robust:  # s^2 A: the meat of independent samples of least squares, s^2 A^-1
+            independent = n * objective / max(n - fitted, 1) * np.asarray(information)
+        # never narrower than independent samples' in any direction: a jackknife on few groups
+        # can fall below them by chance, and dependence seldom makes a fit more precise
+        meat = inference.loewner_max(meat, independent, basis)
         result = inference.estimate(information, meat=meat, **options)
-        if robust:  # Huber's sandwich for independent samples
-            alone = inference.estimate(information, meat=independent, **options)
-        else:  # s^2 A^-1
-            variance = n * objective / max(n - fitted, 1)
-            alone = inference.estimate(information, residual_variance=variance, **options)
+        alone = inference.estimate(information, meat=independent, **options)
     estimated = problem.estimated
     index = [PARAMETER_NAMES.index(name) for name in estimated]
     errors = covariance = None
@@ -110,17 +111,24 @@ def uncertainty(
         full = to_units[:, None] * result.covariance * to_units[None, :]
         covariance = full[np.ix_(index, index)]  # the estimated parameters only
         errors = {name: float(np.sqrt(full[i, i])) for name, i in zip(estimated, index)}
-        if dependence is not None and alone.standard_errors is not None:
-            ratio = result.standard_errors / np.where(
-                alone.standard_errors > 0, alone.standard_errors, 1.0
-            )
-            dependence["standard_error_widening"] = {
-                name: float(ratio[i]) for name, i in zip(estimated, index)
-            }
+    # what the attitudes determine: the standard errors of independent samples (the same
+    # without `theta`), by which a parameter is undetermined; the dependence of neighbouring
+    # samples widens a standard error (poorly determined) but leaves no valley in the objective
+    independent = errors
+    if dependence is not None and errors is not None and alone.standard_errors is not None:
+        alone_errors = alone.standard_errors * to_units
+        independent = {name: float(alone_errors[i]) for name, i in zip(estimated, index)}
+        dependence["standard_errors_independent"] = independent
+        dependence["standard_error_widening"] = {
+            name: errors[name] / independent[name] if independent[name] > 0 else 1.0
+            for name in estimated
+        }
     radius = moments.frame.radius
     limits = np.concatenate([POORLY_DETERMINED[:3] * radius, POORLY_DETERMINED[3:]])
     far = np.concatenate([UNDETERMINED[:3] * radius, UNDETERMINED[3:]])
-    undetermined = [n for n in estimated if errors and errors[n] > far[PARAMETER_NAMES.index(n)]]
+    undetermined = [
+        n for n in estimated if independent and independent[n] > far[PARAMETER_NAMES.index(n)]
+    ]
     poorly = [
         n
         for n in estimated
@@ -190,7 +198,7 @@ def score_meat(problem: Problem, theta, centre: float | None, basis, dof: int) -
     projected = series @ basis
     shares = np.einsum("ji,kjl,lm->kim", basis, informations, basis)
     bandwidth = inference.bartlett_bandwidth(projected)
-    length = max(1, int(np.ceil(inference.GROUP_BANDWIDTHS * bandwidth)))
+    length = inference.group_length(bandwidth, len(projected))
     covariance, groups = inference.block_jackknife(projected, shares, length)
     widening = inference.t_widening(groups - 1)
     total = shares.sum(axis=0)
@@ -437,9 +445,10 @@ def undetermined_message(
     blind = flat.get("parameters", [])
     weak = [n for n in identifiability["not_identifiable"] if n not in undetermined + blind]
     parts = [planar_message(flat, _unit_word(unit))] if flat.get("planar") else []
-    if undetermined:
+    if undetermined:  # judged on what the attitudes determine (`uncertainty`)
+        dependence = identifiability.get("score_dependence", {})
         judged = _judged(
-            errors,
+            dependence.get("standard_errors_independent", errors),
             identifiability["undetermined_limits"],
             undetermined,
             unit,
