@@ -147,8 +147,13 @@ def uncertainty(
     }
     if dependence is not None:
         block["score_dependence"] = dependence
-    if dependence is not None and not robust and errors is not None and not result.weak:
-        variance = n * objective / max(n - fitted, 1)
+    if dependence is not None and errors is not None and not result.weak:
+        # the variance of the residuals: of the inliers (1.4826 MAD) for a robust loss
+        variance = (
+            robust_std(problem.residuals(theta, problem.centre)) ** 2
+            if robust
+            else n * objective / max(n - fitted, 1)
+        )
         shift = noise_bias(information, basis, noise, variance) * to_units
         block["second_order_bias"] = {
             "form": "errors in variables, second order in the sensor noise",
@@ -172,7 +177,9 @@ def noise_bias(information, basis, noise: dict, variance: float) -> np.ndarray:
     bias = -sigma^2 A^-1 sum(...) (on the directions the model estimates). It grows as sigma^2
     and as A^-1: along a direction the attitudes barely determine (a short arc) it reaches
     standard errors. sigma^2 = s^2 / mean |g|^2, s^2 the residual variance (the noise of |B1|
-    is sigma |g|).
+    is sigma |g|). A robust loss's equation sum psi(r_i) J_i = 0 is off by the same terms
+    weighted by psi'(r_i) (Stein's lemma, E[psi(x) x] = sigma_x^2 E[psi'(x)] for Gaussian x),
+    A = sum psi' J J^T, and s the inliers' spread (1.4826 MAD): spikes (psi' = 0) take no part.
     """
     reduced = basis.T @ np.asarray(information, dtype=float) @ basis
     sigma2 = variance / noise["mean_square_g"]

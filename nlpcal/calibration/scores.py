@@ -110,7 +110,9 @@ class ScoreBlock:
             r = magnitude - (ref if ref is not None else self.centre)
             psi, slope = self.loss.weight(r) * r, self.loss.slope(r)
             weighted = jacobian * slope[:, None]
-            # the noise terms of the bias (`noise_bias_gradient`): J's derivative along g, and
+            # the noise terms of the bias (`noise_bias`), weighted by psi' (Stein's lemma: the
+            # noise moves psi(r) by psi' times it; 1 for least squares): J's derivative along g,
+            # and
             # tr(d2|B1|/db2) = (|M|_F^2 - |g|^2) / |B1|
             h = self.step
             ahead = sensitivities(raw + h * gradient, self.theta, self.derivatives, self.scale)
@@ -125,9 +127,9 @@ class ScoreBlock:
                     weighted,
                     slope,
                     weighted[:, UPPER[0]] * jacobian[:, UPPER[1]],
-                    along,
-                    jacobian * trace[:, None],
-                    trace,
+                    along * slope[:, None],
+                    weighted * trace[:, None],
+                    trace * slope,
                     squares,
                 ]
             )
@@ -166,8 +168,8 @@ def score_block_sums(
     radius : the sphere frame's radius, for the scaled variables. [field unit]
 
     bias : the terms of the estimate's bias to second order in the sensor noise
-    (`nlpcal.calibration.diagnostics.noise_bias`): "gradient", E[sum r_i J_i] / sigma^2 =
-    sum (dJ_i/db g_i + tr(d2|B1_i|/db2) J_i / 2) (profiled without a reference), and
+    (`nlpcal.calibration.diagnostics.noise_bias`): "gradient", E[sum psi(r_i) J_i] / sigma^2 =
+    sum psi'(r_i) (dJ_i/db g_i + tr(d2|B1_i|/db2) J_i / 2) (profiled without a reference), and
     "mean_square_g", the mean of |g|^2 (the noise of |B1| is sigma |g|).
     """
     samples = as_rows(samples)
