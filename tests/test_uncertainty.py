@@ -123,3 +123,25 @@ def test_few_samples_get_standard_errors_no_narrower_than_independent_ones(loss,
     assert dependence["groups"] >= 6
     for name, error in result.standard_errors.items():
         assert error >= dependence["standard_errors_independent"][name] * (1 - 1e-9), name
+
+
+@pytest.mark.parametrize("widening", [1.0, 3.0])
+def test_a_bias_is_corrected_only_while_the_residuals_pass_for_white_noise(widening):
+    """Residuals alike in neighbours are a misfit the bias formula would take for noise: the
+    bias is then stated, not corrected."""
+    from nlpcal.calibration import correct_bias
+
+    parameters = {"z_x": 10.0, "z_z": 20.0}
+    block = {
+        "bias": {"z_x": 0.1, "z_z": -3.0},
+        "bias_in_standard_errors": {"z_x": 0.05, "z_z": -1.5},
+    }
+    dependence = {"standard_error_widening": {"z_x": 1.0, "z_z": widening}}
+    warnings: list = []
+    out = correct_bias(parameters, block, {"score_dependence": dependence}, warnings)
+    assert len(warnings) == 1 and "-1.50 standard errors (z_z)" in warnings[0]
+    if widening <= 2.0:
+        assert block["applied"] and out == {"z_x": 9.9, "z_z": 23.0}
+        assert block["parameters_uncorrected"] == parameters
+    else:
+        assert not block["applied"] and out == parameters and "not_applied" in block
