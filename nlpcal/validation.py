@@ -304,11 +304,3 @@ def matrix(values, what: str, shape=(3, 3), *, invertible: bool = False) -> np.n
     if invertible and not np.linalg.cond(array) < 1e12:
         raise InputError(f"{what} is singular (or nearly): it cannot be inverted")
     return array
-
-
-def same_rows(*pairs) -> None:
-    """Arrays that describe the same rows: pairs of (what, length)."""
-    lengths = {n for _, n in pairs}
-    if len(lengths) > 1:
-        listed = ", ".join(f"{n} {what}" for what, n in pairs)
-        raise InputError(f"got {listed}; they must be the same rows")

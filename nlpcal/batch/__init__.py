@@ -125,7 +125,6 @@ class BatchReport:
     rows: list
     summary: Path
     columns: tuple = CALIBRATION_COLUMNS
-    interrupted: bool = False
     total: int = 0
     notes: list = field(default_factory=list)
 
@@ -226,9 +225,6 @@ def _run(
     try:
         with cluster.scheduler(scheduler, workers) as client:
             cluster.run_tasks(task, todo, finished, client)
-    except KeyboardInterrupt:
-        report.interrupted = True
-        raise
     finally:
         report.rows = [rows[str(job[0])] for job in jobs if str(job[0]) in rows]
         with Outputs() as outputs:  # the summary and the record of the outputs, together

@@ -108,7 +108,7 @@ def calibrate(
     Returns a CalibrationResult. Raises InputError for unusable input, SolveError when IPOPT
     fails and QualityError as above.
     """
-    with chunks.call_threads(threads):
+    with chunks.call_threads(validation.optional_whole(threads, "threads")):
         validation.choice(method, "method", METHODS)
         validation.choice(model, "model", MODEL_CHOICES)
         unit_source = "assumed" if unit is None else "option"
@@ -399,14 +399,10 @@ def staged_message(stop_reason: str, cycles: int, gap: dict, last: dict | None =
             f"({gap['objective_joint']:.6g} against {gap['objective_staged']:.6g}) cannot be "
             f"judged"
         )
-    where = (
-        ""
-        if distance is None
-        else f"; its parameters lie up to {distance:.3g} standard errors from that optimum"
-    )
     return (
         f"{why}; its objective {gap['objective_staged']:.6g} lies above the joint optimum "
-        f"{gap['objective_joint']:.6g} of the same data{where}; {advice}"
+        f"{gap['objective_joint']:.6g} of the same data; its parameters lie up to "
+        f"{distance:.3g} standard errors from that optimum; {advice}"
     )
 
 

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 from .common import add_command, add_field_argument, emit_csv, warn
 
-#: What --preset accepts (the library's `nlpcal.simulation.PRESETS` and `DIRECTORY_PRESETS`).
-PRESET_NAMES = ("zhou2010", "liu2022", "qiu2017")
 ATTITUDE_NAMES = ("clustered", "tilt", "tilt_band", "turntable", "uniform")
 
 

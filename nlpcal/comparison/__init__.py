@@ -5,10 +5,12 @@ units and magnitudes make the stopping rule of its conjugate gradient hard to se
 cycling through the three stages of Fig. 1 fixes it. `compare` runs, on the same data and the same
 objective (Eq. 8, or its reference variant):
 
-    staged     the cycle of Fig. 1, every stage an IPOPT problem (`nlpcal.staged.run_staged`)
-    joint      the nine parameters in one IPOPT problem (`nlpcal.joint.run_joint`)
+    staged     the cycle of Fig. 1, every stage an IPOPT problem
+               (`nlpcal.calibration.staged.run_staged`)
+    joint      the nine parameters in one IPOPT problem (`nlpcal.calibration.joint.run_joint`)
     cg_joint   the conjugate gradient of section 5 on all nine at once, in the paper's units,
-               then the same on variables scaled to order one (`nlpcal.conjugate_gradient`)
+               then the same on variables scaled to order one
+               (`nlpcal.comparison.conjugate_gradient`)
     cg_staged  the cycle of Fig. 1 with every stage solved by that conjugate gradient
 
 and reports Table 1 rows for each (max, min, mean, std, range of |B1| [field unit], objective
@@ -208,7 +210,7 @@ def compare(
 
     Returns a Comparison. Raises InputError for unusable input and SolveError when IPOPT fails.
     """
-    with chunks.call_threads(threads):
+    with chunks.call_threads(validation.optional_whole(threads, "threads")):
         units.check_compatible(unit, reference_unit or unit)
         samples = validation.samples(samples)
         reference = validation.reference(reference_field, samples.shape[0])
