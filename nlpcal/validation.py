@@ -267,6 +267,20 @@ def angles(
     return array
 
 
+def renamed(value, former, name: str, former_name: str):
+    """A keyword renamed to mirror its command-line flag (`reference_field=` for
+    `--reference-field`): the value given under either name. The former name stays accepted;
+    both names with different values are an error."""
+    if former is None:
+        return value
+    if value is not None and not np.array_equal(value, former):
+        raise InputError(
+            f"{name}={value!r} and its former name {former_name}={former!r} differ; "
+            f"pass {name} alone"
+        )
+    return former
+
+
 def field(value, what: str = "field") -> float:
     """A positive finite field magnitude. [nT]"""
     return number(value, f"the {what}", positive=True, unit="in nT")

@@ -111,7 +111,8 @@ def test_the_check_finds_an_untyped_lazy_export(tmp_path):
     package = tmp_path / "root" / "lazypkg"
     package.mkdir(parents=True)
     (package / "py.typed").write_text("")
-    (package / "core.py").write_text("def typed(x: int) -> int:\n    return x\n\n\nuntyped = typed\n")
+    core = "def typed(x: int) -> int:\n    return x\n\n\nuntyped = typed\n"
+    (package / "core.py").write_text(core)
     (package / "__init__.py").write_text(
         textwrap.dedent(
             """\

@@ -110,7 +110,7 @@ def run(args) -> int:
     frame = sim.simulate(
         2000 if args.n is None else args.n,
         parameters=parameters,
-        field=field,
+        reference_field=field,
         noise=1.0 if args.noise is None else args.noise,
         seed=args.seed,
         attitudes=args.attitudes,

@@ -71,13 +71,29 @@ def expected_field(result: CalibrationResult) -> float | None:
 
 @dataclass
 class AffineCorrection(Document):
-    """B_out = A (B_M - b): an affine correction in one unit.
+    """B_out = A (B_M - b): an affine correction in one unit, the form every export format carries.
 
-    matrix : (3, 3) A, row-major, in the column-vector convention. [1]
-    offsets : (3,) b. [unit]
-    unit : the unit of b, of B_M and of B_out ("raw" for counts).
-    field : the total field |B_out| the correction maps to, or None. [unit]
-    source : where it came from (nlpcal version, parameters file, file read, ...).
+    Attributes
+    ----------
+    matrix : numpy.ndarray, shape (3, 3)
+        A, row-major, in the column-vector convention. [1]
+    offsets : numpy.ndarray, shape (3,)
+        b. [unit]
+    unit : str
+        The unit of b, of B_M and of B_out ("raw" for counts).
+    field : float or None
+        The total field |B_out| the correction maps to. [unit]
+    source : dict
+        Where it came from (nlpcal version, parameters file, file read, ...).
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> samples = nlpcal.simulate(300, seed=0)[["bx", "by", "bz"]].to_numpy()
+    >>> result = nlpcal.calibrate(samples, method="joint", unit="nT")
+    >>> affine = nlpcal.AffineCorrection.from_result(result)
+    >>> bool(abs(affine.apply(samples) - result.apply(samples)).max() < 1e-6)  # [nT]
+    True
     """
 
     FORMAT = "nlpcal-affine-correction"
