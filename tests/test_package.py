@@ -172,3 +172,29 @@ def test_the_reference_check_finds_a_stale_name():
         ("page", "nlpcal/compass.py"),
         ("page", "nlpcal.problems.objective_function"),
     ]
+
+
+# --- release metadata ---------------------------------------------------------------------------
+
+
+def requirement_floors(pyproject: str) -> dict:
+    """package -> the set of floors (>=X) that the dependencies and extras ask of it."""
+    floors: dict = {}
+    for name, floor in re.findall(r'"([A-Za-z0-9_.-]+)(?:\[[^\]]*\])?>=([^",<]+)', pyproject):
+        floors.setdefault(name.lower(), set()).add(floor)
+    return floors
+
+
+def test_every_extra_asks_the_same_floor_of_a_package():
+    floors = requirement_floors((ROOT / "pyproject.toml").read_text())
+    assert {name: found for name, found in floors.items() if len(found) > 1} == {}
+    assert requirement_floors('a = ["pyarrow>=10"]\nb = ["pyarrow>=14", "dask[array]>=1"]') == {
+        "pyarrow": {"10", "14"},
+        "dask": {"1"},
+    }
+
+
+def test_the_citation_names_this_version():
+    citation = (ROOT / "CITATION.cff").read_text()
+    assert re.search(r"^cff-version: 1\.2\.0$", citation, flags=re.MULTILINE)
+    assert re.findall(r"^version: (\S+)$", citation, flags=re.MULTILINE) == [nlpcal.__version__]
