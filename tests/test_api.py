@@ -23,6 +23,7 @@ FLAG_KEYWORDS = {
     "invert": ["reference_field", "bound_deg"],
     "repeatability": ["reference_field"],
     "fit_drift": ["base_temperature", "diurnal"],
+    "calibrate_temperature": ["temperature_model", "base_temperature", "temperature_column"],
     "calibrate_turns": ["reference_field"],
     "calibrate_free": ["reference_field"],
     "attitude": ["declination_deg"],
@@ -65,6 +66,20 @@ def test_the_former_field_names_are_still_accepted():
         == nlpcal.repeatability(runs, reference_field=field).field_nT
         == field
     )
+
+
+def test_the_former_temperature_model_name_is_still_accepted():
+    t = np.linspace(0.0, 20.0, 300)  # [degC]
+    samples = nlpcal.simulate(300, seed=2)[["bx", "by", "bz"]].to_numpy()
+    samples = samples * (1 + 2e-4 * (t - 10.0))[:, None]
+    new = nlpcal.calibrate_temperature(samples, t, 49462.0, temperature_model="per-axis")
+    old = nlpcal.calibrate_temperature(samples, t, 49462.0, model="per-axis")
+    assert new.temperature_model == old.temperature_model
+    assert new.temperature_model.kind == "per-axis"
+    with pytest.raises(nlpcal.InputError, match="temperature_model"):
+        nlpcal.calibrate_temperature(
+            samples, t, 49462.0, temperature_model="common", model="per-axis"
+        )
 
 
 def test_a_former_name_that_disagrees_is_refused():

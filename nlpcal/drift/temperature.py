@@ -237,11 +237,12 @@ def calibrate_temperature(
     temperature,
     reference,
     *,
-    model: str = "common",
+    temperature_model: str | None = None,
     base_temperature: float | None = None,
     unit: str = "nT",
     reference_unit: str | None = None,
     temperature_column: str | None = None,
+    model: str | None = None,
 ) -> TemperatureCalibrationResult:
     """The nine parameters and temperature coefficients from one log, estimated together.
 
@@ -256,9 +257,9 @@ def calibrate_temperature(
         Temperatures t_i (`--temperature-column`). [degC]
     reference : float or array_like of shape (N,)
         Reference magnitudes F_i (a proton magnetometer), or one number. [reference_unit]
-    model : {"common", "per-axis"}
-        "common" (Eq. 2 and 9 of [1]) or "per-axis" (linear scale and offset drift per axis)
-        (`--temperature-model`).
+    temperature_model : {"common", "per-axis"}
+        "common" (Eq. 2 and 9 of [1], the default) or "per-axis" (linear scale and offset drift
+        per axis) (`--temperature-model`).
     base_temperature : float, optional
         t0 of the returned nine parameters; default the log's mean temperature. [degC]
     unit : str
@@ -267,6 +268,8 @@ def calibrate_temperature(
         The unit of the reference (default: `unit`).
     temperature_column : str, optional
         The log column the temperatures came from, recorded for `nlpcal apply`.
+    model : str, optional
+        The former name of `temperature_model`, still accepted.
 
     Returns
     -------
@@ -295,6 +298,7 @@ def calibrate_temperature(
     >>> abs(result.temperature_model.k_slope_per_degC - 2e-4) < 1e-5  # [1/degC]
     True
     """
+    model = validation.renamed(temperature_model, model, "temperature_model", "model") or "common"
     validation.choice(model, "temperature model", TEMPERATURE_MODELS)
     samples = validation.samples(samples)
     n = samples.shape[0]
@@ -338,7 +342,7 @@ def calibrate_temperature(
     started = time.perf_counter()
     theta, sums, steps, iterations, status = minimise(model, start, scale, (samples, dt, reference))
     wall = time.perf_counter() - started
-    params, temperature_model = model_of(theta, model, float(base_temperature))
+    params, fitted = model_of(theta, model, float(base_temperature))
 
     names = PARAMETER_NAMES + coefficient_names(model)
     uncertainty = inference.estimate(
@@ -371,7 +375,7 @@ def calibrate_temperature(
         {
             **evaluation_row(
                 f"system + temperature ({model})",
-                liu2022.correct(samples, temperature, params, temperature_model),
+                liu2022.correct(samples, temperature, params, fitted),
                 reference,
             ),
             "iterations": iterations,
@@ -414,7 +418,7 @@ def calibrate_temperature(
     )
     return TemperatureCalibrationResult(
         calibration=calibration,
-        temperature_model=temperature_model,
+        temperature_model=fitted,
         temperature_column=temperature_column,
         temperature_range=(t_low, t_high),
         temperature_standard_errors=temperature_errors,
@@ -477,7 +481,7 @@ def calibrate_temperature_log(
         log.samples,
         log.values(temperature_column),
         log.reference,
-        model=model,
+        temperature_model=model,
         base_temperature=base_temperature,
         unit=log.base_unit,
         temperature_column=temperature_column,
