@@ -14,7 +14,11 @@ Every verb and result type of the four papers is importable from here:
     export, import_file, ReferenceModel                      other formats, IGRF/WMM references
 
 The names are resolved on first use, so `import nlpcal` (and the command line's --help) stays
-quick.
+quick; type checkers see them through the TYPE_CHECKING imports below.
+
+The public API is `__all__`: those names, their signatures, and the attributes and methods of
+what they return. Every other module is internal: importable, but free to change in any
+release (docs/api.md).
 """
 
 from __future__ import annotations
