@@ -62,7 +62,7 @@ PAPER_TABLE1 = [  # Table 1 of Zhou et al. (2010) [nT]
 def _row_line(row, extra=True) -> str:
     cells = [row["label"]] + [f"{row[k]:.2f}" for k in ("max", "min", "mean", "std", "range")]
     if extra:
-        status = row.get("status", "")
+        status = row.get("status") or row.get("ipopt_status", "")
         cells += [f"{row['objective']:.4g}", str(row["iterations"]), f"{row['wall_s']:.3f}", status]
     return "| " + " | ".join(cells) + " |"
 

@@ -60,7 +60,7 @@ def test_recovers_the_truth_from_noisy_data(noisy, method, with_reference):
         noisy, method=method, reference_field=PAPER_FIELD if with_reference else None
     )
     assert_recovered(result.parameters, absolute_scale=with_reference)
-    assert result.solver["success"]
+    assert result.solver.success
     # The truth lies within four standard errors of the estimate.
     for k in OFFSETS + ANGLES:
         assert abs(result.parameters[k] - PAPER_TRUTH[k]) < 4 * result.standard_errors[k], k
@@ -142,12 +142,12 @@ def test_table1_rows(noisy):
 
 def test_stop_rules(noisy):
     by_target = calibrate(noisy, target_std=100.0)
-    assert by_target.solver["stop_reason"] == "target_std"
+    assert by_target.solver.stop_reason == "target_std"
     assert len(by_target.statistics) == 2
     by_range = calibrate(noisy, target_range=1e5)
-    assert by_range.solver["stop_reason"] == "target_range"
+    assert by_range.solver.stop_reason == "target_range"
     converged = calibrate(noisy, rtol=1e-6)
-    assert converged.solver["stop_reason"] == "rtol"
+    assert converged.solver.stop_reason == "rtol"
 
 
 def test_array_likes_give_the_same_answer(noisy):
@@ -619,7 +619,7 @@ def test_a_start_not_re_solved_is_within_a_hundredth_of_a_standard_error(
 ):
     """The joint solve's stationary start against IPOPT forced to solve from it."""
     result = calibrate(noisy, method="joint", reference_field=reference)
-    assert result.solver["status"] == "At_Stationary_Point"
+    assert result.solver.status == "At_Stationary_Point"
     from nlpcal.calibration.joint import algebraic_start
     from nlpcal.models.zhou2010 import Zhou2010Parameters
     from nlpcal.moments import accumulate

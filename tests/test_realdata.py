@@ -233,7 +233,7 @@ def test_the_staged_huber_fit_of_the_rm3100_logs_ends_at_the_joint_one(real_data
     log = read_log(path)
     joint = calibrate_log(log, method="joint", loss="huber")
     staged = calibrate_log(log, method="staged", loss="huber")
-    assert staged.solver["stop_reason"] == "rtol"
+    assert staged.solver.stop_reason == "rtol"
     for key, value in joint.parameters.items():
         assert abs(staged.parameters[key] - value) <= 0.2 * joint.standard_errors[key], key
     for fit in (joint, staged):

@@ -23,6 +23,7 @@ from ..models.zhou2010 import (
     is_of_model,
     tied_parameters,
 )
+from ..nlp.solver import FINISHERS, NLPCAL_STATUSES
 from ..results import Document, DocumentReader
 from ..statistics import STD_DDOF, format_table
 from ..verdict import Verdict, judge
@@ -100,6 +101,176 @@ def read_covariance(reader: DocumentReader, estimated: list) -> np.ndarray | Non
     return matrix
 
 
+@dataclass
+class BlockSolve:
+    """One block solve of a calibration (a stage of a staged cycle, or the joint solve): what
+    finished it and how.
+
+    finished_by : "ipopt", "newton" (a Newton step verified to land within the resolution of
+        the data) or "start" (`nlpcal.nlp.solver.FINISHERS`).
+    iterations : IPOPT's iterations (0 when IPOPT did not run).
+    ipopt_status : IPOPT's return status, or None when IPOPT did not run.
+    nlpcal_status : nlpcal's own status when its checks decided the solve
+        (`nlpcal.nlp.solver.NLPCAL_STATUSES`), else None.
+    objective : the objective where the solve ended. [unit^2]
+    convergence_rate, predicted_cycles : on the last stage of a staged cycle stopped on its
+        prediction (`nlpcal.calibration.staged.cycles_to_converge`).
+    """
+
+    cycle: int
+    stage: str
+    finished_by: str
+    iterations: int
+    objective: float | None = None
+    ipopt_status: str | None = None
+    nlpcal_status: str | None = None
+    convergence_rate: float | None = None
+    predicted_cycles: int | None = None
+
+    @classmethod
+    def of(cls, step, cycle: int, stage: str) -> BlockSolve:
+        """The record of a `nlpcal.nlp.steps.Step`."""
+        outcome = step.outcome
+        return cls(
+            cycle=cycle,
+            stage=stage,
+            finished_by=outcome.finished_by,
+            iterations=int(outcome.iterations),
+            objective=float(step.f_end),
+            ipopt_status=outcome.status or None,
+            nlpcal_status=outcome.nlpcal_status,
+        )
+
+    @property
+    def status(self) -> str:
+        """nlpcal's status when its checks decided the solve, else IPOPT's."""
+        return self.nlpcal_status or self.ipopt_status or ""
+
+    def to_dict(self) -> dict:
+        return _present(
+            cycle=self.cycle,
+            stage=self.stage,
+            finished_by=self.finished_by,
+            ipopt_status=self.ipopt_status,
+            nlpcal_status=self.nlpcal_status,
+            iterations=self.iterations,
+            objective=self.objective,
+            convergence_rate=self.convergence_rate,
+            predicted_cycles=self.predicted_cycles,
+        )
+
+    @classmethod
+    def from_dict(cls, record: dict, source: str = "solver.stages") -> BlockSolve:
+        """A stage record, also as nlpcal 0.1.0 wrote it: one "status" shared by IPOPT's and
+        nlpcal's statuses (told apart by name), no "finished_by"."""
+        reader = DocumentReader(record, source)
+        status = reader.string("status", None)
+        own = status if status in NLPCAL_STATUSES else None
+        ipopt = reader.string("ipopt_status", None if own else status)
+        nlpcal = reader.string("nlpcal_status", own, options=NLPCAL_STATUSES)
+        finished = {"At_Stationary_Point": "newton", "At_Precision_Floor": "start"}
+        return cls(
+            cycle=reader.integer("cycle", 1),
+            stage=reader.string("stage", ""),
+            finished_by=reader.string(
+                "finished_by", finished.get(str(own), "ipopt"), options=FINISHERS
+            ),
+            iterations=reader.integer("iterations", 0),
+            objective=reader.number("objective", None),
+            ipopt_status=ipopt,
+            nlpcal_status=nlpcal,
+            convergence_rate=reader.number("convergence_rate", None),
+            predicted_cycles=reader.integer("predicted_cycles", None),
+        )
+
+
+@dataclass
+class SolverReport:
+    """How a calibration was solved: every block solve, why it stopped, IPOPT's options.
+
+    stages : the BlockSolve of every block solve, in order.
+    stop_reason : why the solve stopped ("solved" for a joint solve; a staged cycle's rule).
+    converged : False for a staged cycle stopped away from the optimum.
+    ipopt_options : the options IPOPT was given (`nlpcal.nlp.solver.IpoptOptions.settings`),
+        whether or not it ran; empty in a document that did not record them.
+    start : where a joint solve started: "algebraic" (the ellipsoid fit), "sphere" or "given";
+        None for a staged cycle (Fig. 1 in [1] starts at zero).
+    success : False only in a document written for a failed solve.
+    gauss_newton_steps : the Levenberg-Marquardt steps of a temperature calibration.
+    """
+
+    stages: list = field(default_factory=list)
+    stop_reason: str = "solved"
+    converged: bool = True
+    ipopt_options: dict = field(default_factory=dict)
+    start: str | None = None
+    success: bool = True
+    gauss_newton_steps: int | None = None
+
+    @property
+    def iterations(self) -> int:
+        """IPOPT's iterations over every block solve."""
+        return sum(s.iterations for s in self.stages)
+
+    @property
+    def last(self) -> BlockSolve | None:
+        return self.stages[-1] if self.stages else None
+
+    @property
+    def status(self) -> str:
+        """The status of the last block solve (nlpcal's when its checks decided it)."""
+        return self.last.status if self.last is not None else ""
+
+    def summary(self) -> dict:
+        """How the solve ended, the same for every command that reports it (`calibrate`'s
+        "solver" block, `compare`'s joint row): where it started, what finished its last block
+        solve with IPOPT's and nlpcal's statuses, IPOPT's iterations and solves over all."""
+        last = self.last
+        return _present(
+            start=self.start,
+            finished_by=None if last is None else last.finished_by,
+            ipopt_status=None if last is None else last.ipopt_status,
+            nlpcal_status=None if last is None else last.nlpcal_status,
+            iterations=self.iterations,
+            ipopt_solves=sum(s.ipopt_status is not None for s in self.stages),
+        )
+
+    def to_dict(self) -> dict:
+        """The "solver" block: success, convergence and stop reason, the `summary`, the
+        options, and every stage."""
+        return _present(
+            success=self.success,
+            converged=self.converged,
+            stop_reason=self.stop_reason,
+            **self.summary(),
+            gauss_newton_steps=self.gauss_newton_steps,
+            ipopt_options=dict(self.ipopt_options),
+            stages=[s.to_dict() for s in self.stages],
+        )
+
+    @classmethod
+    def from_dict(cls, block: dict, source: str = "document") -> SolverReport:
+        reader = DocumentReader(block, source, "solver.")
+        stages = reader.items("stages", [])
+        return cls(
+            stages=[
+                BlockSolve.from_dict(s, f"{source}: solver.stages[{i}]")
+                for i, s in enumerate(stages)
+            ],
+            stop_reason=reader.string("stop_reason", "solved"),
+            converged=reader.raw("converged", True) is not False,
+            ipopt_options=reader.mapping("ipopt_options", {}),
+            start=reader.string("start", None),
+            success=reader.raw("success", True) is not False,
+            gauss_newton_steps=reader.integer("gauss_newton_steps", None),
+        )
+
+
+def _present(**values) -> dict:
+    """The values that are not None (a document holds no null)."""
+    return {name: value for name, value in values.items() if value is not None}
+
+
 def check_model(parameters: dict, model_name: str, scale_known: bool, source: str) -> None:
     """InputError unless the parameters are of the form `model_name`: the ones it does not
     estimate at zero, the ones it ties equal."""
@@ -161,7 +332,7 @@ class CalibrationResult(Document):
     method: str = "staged"
     reference: dict = field(default_factory=lambda: {"mode": "none"})
     gauge: dict | None = None
-    solver: dict = field(default_factory=dict)
+    solver: SolverReport = field(default_factory=SolverReport)
     unit: str = "nT"
     unit_source: str | None = None
     standard_errors: dict | None = None
@@ -240,12 +411,12 @@ class CalibrationResult(Document):
         poorly determined when some standard errors exceed their limits, else ok or warnings."""
         block = self.identifiability or {}
         failures = []
-        if self.solver.get("success") is False:
-            failures.append(f"the solver failed ({self.solver.get('status')})")
-        elif self.solver.get("converged") is False:
+        if not self.solver.success:
+            failures.append(f"the solver failed ({self.solver.status})")
+        elif not self.solver.converged:
             failures.append(
                 f"not converged: the {self.method} solve stopped on "
-                f"{self.solver.get('stop_reason')}, away from the optimum"
+                f"{self.solver.stop_reason}, away from the optimum"
             )
         if block.get("not_identifiable"):
             failures.append(f"the data do not determine {', '.join(block['not_identifiable'])}")
@@ -264,7 +435,7 @@ class CalibrationResult(Document):
             "method": self.method,
             "reference": dict(self.reference),
             "gauge": self.gauge,
-            "solver": dict(self.solver),
+            "solver": self.solver.to_dict(),
             "unit": self.unit,
             "unit_source": self.unit_source,
             "model": self.model_name,
@@ -313,7 +484,7 @@ class CalibrationResult(Document):
             "method": reader.string("method", "staged"),
             "reference": reference,
             "gauge": reader.mapping("gauge", None),
-            "solver": reader.mapping("solver", {}),
+            "solver": SolverReport.from_dict(reader.mapping("solver", {}), reader.source),
             "unit": reader.string("unit", "nT", options=list(units.FIELD_UNITS_NT)),
             "unit_source": reader.string("unit_source", None, options=units.UNIT_SOURCES),
             "standard_errors": None

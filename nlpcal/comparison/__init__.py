@@ -86,8 +86,11 @@ class CompareSettings:
 class Comparison(Document):
     """The four methods on one log: Table 1 rows, trajectories and a summary.
 
-    staged : measured row, then one row per cycle. joint : one row. cg_joint : the CG on all nine,
-    unscaled (the paper's setting) then scaled. cg_staged : measured row, then one row per cycle.
+    staged : measured row, then one row per cycle. joint : one row, from the CG's start (the
+        sphere fit), with how its solve ended as `calibrate` reports it (`SolverReport.summary`:
+        start, finished_by, IPOPT's and nlpcal's statuses, IPOPT's iterations). cg_joint : the
+    CG on all nine, unscaled (the paper's setting) then scaled. cg_staged : measured row, then
+    one row per cycle.
     trajectories : method -> {"iterations": cumulative solver iterations, "objective": [field^2]}.
     samples : the log (in memory only: the figures need it; None for a comparison read back).
     """
@@ -227,12 +230,11 @@ def compare(
         try:
             _, staged, stages, stop_reason = run_staged(problem, rule)
             start = joint_start(moments)
-            joint_step, joint_rows, joint_stages = run_joint(problem, start)  # the CG's start
+            joint_step, joint_rows, joint_report = run_joint(problem, start, "sphere")
         except SolveError as failure:
             raise explain_failure(problem, failure, None) from None
         joint_theta = joint_step.theta
-        joint = joint_rows[-1]
-        joint["status"] = joint_stages[-1]["status"]
+        joint = {**joint_rows[-1], **joint_report.summary()}  # as `calibrate` reports it
         joint_path = joint_trajectory(joint_step, joint["iterations"], joint["objective"])
         hs = scaled_hessian(moments, joint_theta, joint_step)
         weak = uncertainty(problem, joint["objective"], hs)[1]["not_identifiable"]
