@@ -168,9 +168,9 @@ def test_json_round_trip(noisy, tmp_path):
     result.save(tmp_path / "p.json")
     assert CalibrationResult.load(tmp_path / "p.json").to_dict() == result.to_dict()
     doc = result.to_dict()
-    assert doc["format_version"] == 1 and doc["nlpcal_version"] == nlpcal.__version__
+    assert doc["format_version"] == 2 and doc["nlpcal_version"] == nlpcal.__version__
     with pytest.raises(InputError):
-        CalibrationResult.from_dict({"format_version": 2, "parameters": doc["parameters"]})
+        CalibrationResult.from_dict({"format_version": 3, "parameters": doc["parameters"]})
     with pytest.raises(InputError):
         CalibrationResult.from_dict({"format_version": 1, "parameters": {"z_x": 0}})
 

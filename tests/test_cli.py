@@ -45,7 +45,7 @@ def test_calibrate_recovers_the_truth(log_csv, tmp_path, capsys, method):
         exact = {"max", "min", "range"} if not row.get("from_moments") else set()
         assert {"label", "mean", "std", *exact} <= set(row)
     assert doc["statistics"][0]["label"] == "measured"
-    assert doc["method"] == method and doc["unit"] == "nT" and doc["format_version"] == 1
+    assert doc["method"] == method and doc["unit"] == "nT" and doc["format_version"] == 2
     assert doc["gauge"]["constraint"] == "s_x + s_y + s_z = 0"
     solver = doc["solver"]
     assert solver["finished_by"] in ("ipopt", "newton")
