@@ -102,7 +102,7 @@ def test_reference_series_identifies_all_nine():
     for method in ("staged", "joint"):
         result = calibrate(samples, method=method, reference_field=field)
         assert_recovered(result.parameters, absolute_scale=True)
-        assert result.reference["mode"] == "series"
+        assert result.reference.mode == "series"
     # Ignoring the drift (a constant reference) leaves a visibly worse fit.
     constant = calibrate(samples, method="joint", reference_field=float(field.mean()))
     assert constant.statistics[-1]["objective"] > 100 * result.statistics[-1]["objective"]
@@ -112,7 +112,7 @@ def test_gauge_without_reference(noisy):
     result = calibrate(noisy, method="joint")
     assert sum(result.parameters[k] for k in SCALES) == pytest.approx(0.0, abs=1e-12)
     assert result.gauge["constraint"] == "s_x + s_y + s_z = 0"
-    assert result.reference == {"mode": "none"}
+    assert result.reference.to_dict() == {"mode": "none"}
     # a note on the method, not a warning about the data
     assert any("no reference field" in n for n in result.notes)
     assert not any("reference field" in w for w in result.warnings)

@@ -453,9 +453,9 @@ def _record_log(result: CalibrationResult, log: Log) -> CalibrationResult:
     result.unit_source = log.unit_source
     result.warnings = [*log.warnings, *(w for w in result.warnings if w not in log.warnings)]
     if log.reference_column:
-        result.reference["column"] = log.reference_column
+        result.reference.column = log.reference_column
     if log.reference_source:
-        result.reference["model"] = dict(log.reference_source)
+        result.reference.model = dict(log.reference_source)
     return result
 
 

@@ -58,16 +58,55 @@ def read_parameters(reader: DocumentReader, key: str = "parameters") -> Zhou2010
     )
 
 
-def read_reference(reader: DocumentReader) -> dict:
-    """The "reference" block: its mode, and the field (or the mean of a series) as a positive
-    number within the plausible range of a field (FIELD_LIMIT). [result unit]"""
-    block = reader.reader("reference", None)
-    if block is None:
-        return {"mode": "none"}
-    block.string("mode", "none", options=REFERENCE_MODES)
-    for name in ("field", "field_mean"):
-        block.number(name, None, positive=True, maximum=FIELD_LIMIT)
-    return dict(block.document)
+@dataclass
+class Reference:
+    """The reference field a calibration was fitted to: none (Eq. 8 in [1], the scale fixed by
+    the gauge), a constant field, or a series of one value per sample.
+
+    mode : "none", "constant" or "series" (REFERENCE_MODES).
+    field : the constant field. [unit]  field_mean : the mean of a series. [unit]
+    column : the log's column the series came from. model : the geomagnetic model that gave it.
+    """
+
+    mode: str = "none"
+    field: float | None = None
+    field_mean: float | None = None
+    column: str | None = None
+    model: dict | None = None
+
+    @property
+    def scale_known(self) -> bool:
+        """Whether the reference fixes the physical scale (any mode but "none")."""
+        return self.mode != "none"
+
+    @property
+    def level(self) -> float | None:
+        """The field the calibration maps to: the constant field or the mean of the series."""
+        return self.field if self.field is not None else self.field_mean
+
+    def to_dict(self) -> dict:
+        return _present(
+            mode=self.mode,
+            field=self.field,
+            field_mean=self.field_mean,
+            column=self.column,
+            model=None if self.model is None else dict(self.model),
+        )
+
+    @classmethod
+    def read(cls, reader: DocumentReader) -> Reference:
+        """The "reference" block of a document: its mode, and the field (or the mean of a
+        series) as a positive number within the plausible range of a field (FIELD_LIMIT)."""
+        block = reader.reader("reference", None)
+        if block is None:
+            return cls()
+        return cls(
+            mode=block.string("mode", "none", options=REFERENCE_MODES),
+            field=block.number("field", None, positive=True, maximum=FIELD_LIMIT),
+            field_mean=block.number("field_mean", None, positive=True, maximum=FIELD_LIMIT),
+            column=block.string("column", None),
+            model=block.mapping("model", None),
+        )
 
 
 def read_robust(reader: DocumentReader) -> dict:
@@ -330,7 +369,7 @@ class CalibrationResult(Document):
     parameters: dict
     statistics: list
     method: str = "staged"
-    reference: dict = field(default_factory=lambda: {"mode": "none"})
+    reference: Reference = field(default_factory=Reference)
     gauge: dict | None = None
     solver: SolverReport = field(default_factory=SolverReport)
     unit: str = "nT"
@@ -350,7 +389,7 @@ class CalibrationResult(Document):
     @property
     def estimated_parameters(self) -> list:
         """The parameters the model estimates, in PARAMETER_NAMES order."""
-        return estimated_parameters(self.model_name, self.reference.get("mode", "none") != "none")
+        return estimated_parameters(self.model_name, self.reference.scale_known)
 
     @property
     def fixed_parameters(self) -> list:
@@ -380,7 +419,7 @@ class CalibrationResult(Document):
             return None
         if self.unit_source in units.FIXING_SOURCES:
             return "the unit"
-        if (self.reference or {}).get("mode", "none") != "none":
+        if self.reference.scale_known:
             return "the reference field"
         return None
 
@@ -433,7 +472,7 @@ class CalibrationResult(Document):
             "statistics": list(self.statistics),
             "std_ddof": STD_DDOF,
             "method": self.method,
-            "reference": dict(self.reference),
+            "reference": self.reference.to_dict(),
             "gauge": self.gauge,
             "solver": self.solver.to_dict(),
             "unit": self.unit,
@@ -447,7 +486,7 @@ class CalibrationResult(Document):
             "n_samples": self.n_samples,
             "nlpcal_version": self.version,
         }
-        tied = tied_parameters(self.model_name, self.reference.get("mode", "none") != "none")
+        tied = tied_parameters(self.model_name, self.reference.scale_known)
         if tied:
             document["tied_parameters"] = tied
         if self.model_selection:
@@ -473,8 +512,8 @@ class CalibrationResult(Document):
         """The constructor arguments stored in a document (shared with the temperature kind)."""
         errors = reader.reader("standard_errors") if reader.has("standard_errors") else None
         model_name = reader.string("model", "full", options=list(MODELS))
-        reference = read_reference(reader)
-        scale_known = reference.get("mode", "none") != "none"
+        reference = Reference.read(reader)
+        scale_known = reference.scale_known
         estimated = estimated_parameters(model_name, scale_known)
         parameters = read_parameters(reader).to_dict()
         check_model(parameters, model_name, scale_known, reader.source)

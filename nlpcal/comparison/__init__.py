@@ -302,7 +302,7 @@ def compare(
             cg_staged=cg_staged,
             trajectories=trajectories,
             summary=summary,
-            reference=problem.reference_document(),
+            reference=problem.reference_document().to_dict(),
             settings=settings,
             unit=units.base_unit(unit),
             warnings=warnings,

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import inference, units, validation
-from ..calibration.result import BlockSolve, CalibrationResult, SolverReport
+from ..calibration.result import BlockSolve, CalibrationResult, Reference, SolverReport
 from ..errors import InputError
 from ..models import liu2022
 from ..models.liu2022 import TEMPERATURE_MODELS, TemperatureModel
@@ -153,7 +153,7 @@ class TemperatureCalibrationResult(Document):
         return self.calibration.input
 
     @property
-    def reference(self) -> dict:
+    def reference(self) -> Reference:
         return self.calibration.reference
 
     @property
@@ -326,7 +326,7 @@ def calibrate_temperature(
         parameters=params.to_dict(),
         statistics=rows,
         method=f"joint-temperature-{model}",
-        reference={"mode": "series", "field_mean": float(np.mean(reference))},
+        reference=Reference("series", field_mean=float(np.mean(reference))),
         gauge=None,
         solver=SolverReport(
             stages=[
@@ -426,5 +426,5 @@ def calibrate_temperature_log(
     result.calibration.input = log.metadata(temperature_column=temperature_column)
     result.calibration.unit_source = log.unit_source
     result.calibration.warnings[:0] = [w for w in log.warnings if w not in result.warnings]
-    result.calibration.reference["column"] = log.reference_column
+    result.calibration.reference.column = log.reference_column
     return result

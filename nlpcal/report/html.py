@@ -242,7 +242,7 @@ def _pairs(block: dict) -> str:
 
 def _reference(result: CalibrationResult, view: CalibrationView) -> str:
     """The reference the calibration was fitted to, and the one this report judges against."""
-    stored = dict(result.reference or {"mode": "none"})
+    stored = result.reference.to_dict()
     judged = {
         "none": "none: the field's own mean is the only level, so the histograms show the spread "
         "of |B| about its mean",
