@@ -7,7 +7,7 @@ References
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
@@ -85,13 +85,7 @@ class Reference:
         return self.field if self.field is not None else self.field_mean
 
     def to_dict(self) -> dict:
-        return _present(
-            mode=self.mode,
-            field=self.field,
-            field_mean=self.field_mean,
-            column=self.column,
-            model=None if self.model is None else dict(self.model),
-        )
+        return _present(**asdict(self))
 
     @classmethod
     def read(cls, reader: DocumentReader) -> Reference:
@@ -186,17 +180,7 @@ class BlockSolve:
         return self.nlpcal_status or self.ipopt_status or ""
 
     def to_dict(self) -> dict:
-        return _present(
-            cycle=self.cycle,
-            stage=self.stage,
-            finished_by=self.finished_by,
-            ipopt_status=self.ipopt_status,
-            nlpcal_status=self.nlpcal_status,
-            iterations=self.iterations,
-            objective=self.objective,
-            convergence_rate=self.convergence_rate,
-            predicted_cycles=self.predicted_cycles,
-        )
+        return _present(**asdict(self))
 
     @classmethod
     def from_dict(cls, record: dict, source: str = "solver.stages") -> BlockSolve:
