@@ -180,3 +180,17 @@ def test_a_0_1_0_solver_block_is_read_with_its_statuses_told_apart():
     )
     assert report.iterations == 4
     assert BlockSolve.from_dict(last.to_dict()) == last  # the new form reads back as written
+
+
+def test_a_bad_ipopt_option_stops_a_batch_before_any_log(log_csv, tmp_path, capsys):
+    out_dir = tmp_path / "fleet"
+    argv = ["batch", "calibrate", log_csv, "--out-dir", out_dir, "--ipopt-option", "bogus=1"]
+    code, _, err = run(capsys, *argv)
+    assert code == 2 and not out_dir.exists() and "bogus" in err
+
+
+def test_ipopts_own_log_never_mixes_with_the_document_on_stdout(log_csv, capsys):
+    code, out, err = run(capsys, "calibrate", log_csv, "--ipopt-option", "print_level=5")
+    assert code == 0
+    assert json.loads(out)["solver"]["ipopt_options"]["print_level"] == 5
+    assert "Ipopt" in err  # IPOPT's log went to stderr

@@ -370,8 +370,12 @@ def ipopt_option(text: str) -> tuple:
 def calibration_options(args) -> dict:
     """The keyword arguments of `nlpcal.calibration.calibrate_log` that the options of
     `nlpcal calibrate` (and of `nlpcal batch calibrate`) give."""
+    from ..nlp.solver import check_ipopt_options
     from ..results import distinct
 
+    ipopt_options = distinct(args.ipopt_option or (), "--ipopt-option", "option") or None
+    if ipopt_options:  # checked before any log is read (a batch would fail every log)
+        check_ipopt_options(ipopt_options)
     return {
         "method": args.method,
         "model": args.model,
@@ -384,7 +388,7 @@ def calibration_options(args) -> dict:
         "require_identifiable": not args.allow_unidentifiable,
         "allow_unconverged": args.allow_unconverged,
         "threads": args.threads,
-        "ipopt_options": distinct(args.ipopt_option or (), "--ipopt-option", "option") or None,
+        "ipopt_options": ipopt_options,
     }
 
 
