@@ -96,6 +96,8 @@ def test_every_other_kind_validates(replicas, tmp_path, capsys):
         tmp_path, capsys, "back.json", "import", tmp_path / "m.json", "--format", "matrix"
     )
     made["parameters, unit given"] = unit_known
+    assert run("reproduce", "wang2015", "-o", tmp_path / "reproduced", "-q") == 0
+    made["reproduction"] = json.loads((tmp_path / "reproduced" / "wang2015.json").read_text())
     assert run("batch", "calibrate", *logs, "--out-dir", tmp_path / "batch", "-q") == 0
     made["batch record"] = json.loads((tmp_path / "batch" / "batch.json").read_text())
     kinds = {document["format"] for document in made.values()}
@@ -155,7 +157,7 @@ def calibration_document():
         lambda d: d["solver"]["stages"][0].update(finished_by="luck"),
         lambda d: d["statistics"][1].update(unknown_key=1.0),
         lambda d: d.update(format_version=3),
-        lambda d: d.update(sensor_id=7),
+        lambda d: d.update(sensor_id=["mag"]),
     ],
     ids=[
         "unknown key",
@@ -169,7 +171,7 @@ def calibration_document():
         "unknown finisher",
         "unknown row key",
         "future version",
-        "sensor id not text",
+        "sensor id a list",
     ],
 )
 def test_a_schema_refuses_what_nlpcal_never_writes(calibration_document, change):
@@ -182,7 +184,9 @@ def test_a_schema_refuses_what_nlpcal_never_writes(calibration_document, change)
 
 def test_keys_other_work_adds_are_accepted(calibration_document):
     document = copy.deepcopy(calibration_document)
-    document.update(sensor_id="mag-7", orientation={"x": "forward"})
+    document.update(
+        sensor_id="mag-7", orientation={"system": "px4", "parameter": "CAL_MAG0_ROT", "value": 0}
+    )
     document["identifiability"]["second_order_bias"] = {"bias": {"z_x": 0.1}}
     document["identifiability"]["score_dependence"] = {"method": "block-jackknife"}
     document["identifiability"].pop("standard_error_inflation", None)

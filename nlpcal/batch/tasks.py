@@ -134,7 +134,8 @@ class ApplyTask:
                     f"calibration failed, or it was not calibrated)"
                 )
             parameters = load_parameters(params_path) if params_path else None
-            table = read_table(log_path, header=self.read_options.get("header"), text=True)
+            options = {k: self.read_options.get(k) for k in ("header", "variable", "instance")}
+            table = read_table(log_path, **options, text=True)
             correction = Correction.plan(
                 parameters,
                 DriftFit.load(self.drift) if self.drift else None,

@@ -47,6 +47,17 @@ UNCONVERGED = ("max_cycles", "predicted_unconverged")
 #: Least squares warns when the standard deviation of the residuals exceeds their robust one
 #: (1.4826 MAD) by this factor: Gaussian residuals give 1. [1]
 HEAVY_TAIL_RATIO = 1.5
+#: A second-order bias above this many standard errors (of some parameter) is corrected: below
+#: it the correction is within the noise of its own estimate; the Table 1 rows end with the
+#: corrected estimate's. [1]
+BIAS_APPLY = 0.1
+#: A second-order bias above this many standard errors is a warning. [1]
+BIAS_WARN = 0.5
+#: The bias is corrected only while no standard error is widened by more than this for the
+#: dependence of neighbouring samples: its formula takes the residuals for white sensor noise,
+#: and residuals alike in neighbours are mostly a misfit (a disturbed field, a sensor beyond
+#: the model), whose spread it would take for noise. [1]
+BIAS_WHITE_WIDENING = 2.0
 
 
 def calibrate(
@@ -268,7 +279,7 @@ def estimate(
     samples = problem.samples
     final = rows[-1]
     errors, identifiability, covariance = uncertainty(
-        problem, final["objective"], hs, final["residual_lag1_autocorrelation"], theta
+        problem, final["objective"], hs, theta, final["mean"]
     )
     spread = residual_spread(problem, theta)
     flat = problem_flatness(problem, theta, spread)
@@ -336,8 +347,15 @@ def estimate(
     if flat["planar"]:  # along the plane's normal no linearisation describes the data
         errors = covariance = None
     mode = problem.moments.reference
+    parameters = Zhou2010Parameters.from_theta(theta).to_dict()
+    bias = identifiability.get("second_order_bias")
+    if errors is not None and bias is not None:
+        parameters = correct_bias(parameters, bias, identifiability, warnings)
+        if bias["applied"]:
+            corrected = Zhou2010Parameters.from_dict(parameters).theta
+            rows.append(problem.row("bias corrected", corrected, iterations=0, wall_s=0.0))
     result = CalibrationResult(
-        parameters=Zhou2010Parameters.from_theta(theta).to_dict(),
+        parameters=parameters,
         statistics=rows,
         method=method,
         reference=problem.reference_document(),
@@ -370,6 +388,42 @@ def estimate(
     if unconverged:
         raise QualityError(unconverged, "Staged_Unconverged", result=result, overrides=overrides)
     return result
+
+
+def correct_bias(parameters: dict, block: dict, identifiability: dict, warnings: list) -> dict:
+    """The parameters with their second-order bias (`diagnostics.noise_bias`) removed when it
+    exceeds BIAS_APPLY standard errors and the residuals pass for white noise (no standard
+    error widened beyond BIAS_WHITE_WIDENING); `block` records whether it was applied, the
+    estimate before the correction ("parameters_uncorrected") or why not ("not_applied"). A
+    bias above BIAS_WARN standard errors is a warning either way."""
+    in_errors = block["bias_in_standard_errors"]
+    widening = identifiability.get("score_dependence", {}).get("standard_error_widening", {})
+    white = max(widening.values(), default=1.0) <= BIAS_WHITE_WIDENING
+    block["applied"] = white and max(abs(v) for v in in_errors.values()) > BIAS_APPLY
+    large = {n: v for n, v in in_errors.items() if abs(v) > BIAS_WARN}
+    if not white:
+        block["not_applied"] = (
+            "neighbouring samples are alike: the residuals are not white sensor noise"
+        )
+    if large:
+        worst = max(large, key=lambda n: abs(large[n]))
+        what = (
+            "the parameters are corrected for it (identifiability.second_order_bias keeps the "
+            "uncorrected ones)"
+            if block["applied"]
+            else "not corrected, for the residuals are not white sensor noise (their "
+            "neighbours are alike), which its estimate assumes"
+        )
+        warnings.append(
+            f"the estimate's second-order bias from the sensor noise reaches "
+            f"{large[worst]:+.2f} standard errors ({worst}) along a direction the attitudes "
+            f"barely determine; {what}"
+        )
+    if not block["applied"]:
+        return parameters
+    block["parameters_uncorrected"] = dict(parameters)
+    bias = block["bias"]
+    return {name: value - bias.get(name, 0.0) for name, value in parameters.items()}
 
 
 def staged_message(stop_reason: str, cycles: int, gap: dict, last: BlockSolve | None = None) -> str:

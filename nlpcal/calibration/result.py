@@ -37,6 +37,8 @@ OFFSET_LIMIT = 1e9
 FIELD_LIMIT = OFFSET_LIMIT
 #: The kinds of reference a calibration has: none (Eq. 8), a constant field or a series.
 REFERENCE_MODES = ("none", "constant", "series")
+#: The systems whose orientation parameters a result can carry (`read_orientation`).
+ORIENTATION_SYSTEMS = ("ardupilot", "px4")
 
 
 def read_parameters(reader: DocumentReader, key: str = "parameters") -> Zhou2010Parameters:
@@ -294,6 +296,19 @@ def _present(**values) -> dict:
     return {name: value for name, value in values.items() if value is not None}
 
 
+def read_orientation(reader: DocumentReader) -> dict | None:
+    """The optional "orientation" block: the system and parameter that state the mounting, its
+    value (an integer of the system's rotation list; PX4's -1 is "the board's") and its name."""
+    block = reader.reader("orientation", None)
+    if block is None:
+        return None
+    block.string("system", options=ORIENTATION_SYSTEMS)
+    block.string("parameter")
+    block.integer("value", minimum=-1)
+    block.string("name", None)
+    return dict(block.document)
+
+
 def check_model(parameters: dict, model_name: str, scale_known: bool, source: str) -> None:
     """InputError unless the parameters are of the form `model_name`: the ones it does not
     estimate at zero, the ones it ties equal."""
@@ -334,6 +349,11 @@ class CalibrationResult(Document):
     model_name : the form of Eq. 4 estimated (`nlpcal.models.zhou2010.MODELS`), "model" in the
         document: the parameters it does not estimate are fixed at zero (`fixed_parameters`).
     model_selection : how model "auto" chose it (the reason, the richer forms rejected), or None.
+    sensor_id : the sensor calibrated: an autopilot device id (int) or a name (str), or None
+        (`nlpcal.validation.sensor_id`); "sensor_id" in the document, written when given.
+    orientation : how the sensor is mounted, as the file a calibration was imported from states
+        it ({"system", "parameter", "value"[, "name"]}, e.g. ArduPilot's COMPASS_ORIENT), or
+        None; carried, not applied. "orientation" in the document, written when given.
     warnings : what looks wrong with the data or the result, each a sentence.
     notes : what the user should know about how the problem was posed (the gauge without a
         reference field), each a sentence: not warnings.
@@ -369,6 +389,8 @@ class CalibrationResult(Document):
     robust: dict = field(default_factory=dict)
     model_name: str = "full"
     model_selection: dict | None = None
+    sensor_id: int | str | None = None
+    orientation: dict | None = None
 
     @property
     def estimated_parameters(self) -> list:
@@ -489,6 +511,10 @@ class CalibrationResult(Document):
             document["input"] = dict(self.input)
         if self.robust:
             document["robust"] = dict(self.robust)
+        if self.sensor_id is not None:
+            document["sensor_id"] = self.sensor_id
+        if self.orientation is not None:
+            document["orientation"] = dict(self.orientation)
         return document
 
     @classmethod
@@ -531,6 +557,10 @@ class CalibrationResult(Document):
             "robust": read_robust(reader),
             "model_name": model_name,
             "model_selection": reader.mapping("model_selection", None),
+            "sensor_id": None
+            if not reader.has("sensor_id")
+            else validation.sensor_id(reader.raw("sensor_id"), f"{reader.source}: sensor_id"),
+            "orientation": read_orientation(reader),
         }
 
     @classmethod

@@ -26,6 +26,7 @@ from .common import (
     emit_json,
     log_options,
     report_log,
+    table_options,
     tell,
     tell_written,
     warn,
@@ -126,7 +127,7 @@ def run_apply(args) -> int:
 
     check_output_path(args.output, args.log, args.params, args.drift)
     check_plot(args)
-    table = read_table(args.log, header=args.header, text=True)
+    table = read_table(args.log, **table_options(args), text=True)
     correction = correction_for(args, table, require_temperature=True)
     if args.plot and correction.parameters is None:
         raise InputError("--plot needs parameters (PARAMS.json), not a drift file alone")
@@ -192,7 +193,7 @@ def run_stats(args) -> int:
     from ..io import read_log, read_table
     from ..statistics import format_table
 
-    table = read_table(args.log, header=args.header)
+    table = read_table(args.log, **table_options(args))
     if args.params or args.drift or args.temperature_column:
         correction = correction_for(args, table, require_temperature=False)
         log = read_log_for(table, correction, **log_options(args))

@@ -30,6 +30,7 @@ from .common import (
     add_plot_argument,
     add_reference_arguments,
     add_scheduler_arguments,
+    add_sensor_id_argument,
     add_threads_argument,
     check_plot,
     log_options,
@@ -189,6 +190,7 @@ them (say, the sensor was never turned over); --allow-unidentifiable writes them
         "failing the quality check",
     )
     add_scheduler_arguments(parser)
+    add_sensor_id_argument(parser)
     parser.add_argument(
         "-o",
         "--output",
@@ -243,13 +245,15 @@ def _read_for_calibration(args, extra):
 
 
 def _run_calibrate(args) -> int:
+    from .. import validation
     from ..calibration import calibrate_log
-    from ..drift.temperature import calibrate_temperature_log
+    from ..drift.temperature import TemperatureCalibrationResult, calibrate_temperature_log
     from ..errors import InputError, QualityError
     from ..io import Outputs, check_output_path
 
     check_output_path(args.output, args.log)
     check_plot(args)
+    sensor_id = None if args.sensor_id is None else validation.sensor_id(args.sensor_id)
     temperature = args.temperature_column or args.temperature_model
     if args.temperature_model and not args.temperature_column:
         raise InputError("--temperature-model needs --temperature-column COL")
@@ -311,9 +315,13 @@ def _run_calibrate(args) -> int:
             result=failure.result,
         ) from None
     progress("")
+    if isinstance(result, TemperatureCalibrationResult):
+        result.calibration.sensor_id = sensor_id
+    else:
+        result.sensor_id = sensor_id
     say_verdict(result)
     warn(
-        f"read {log.n} rows in {read_s:.2f} s (pandas {log.engine} engine); calibrated in "
+        f"read {log.n} rows in {read_s:.2f} s ({log.read_by}); calibrated in "
         f"{time.perf_counter() - started:.2f} s"
     )
     say(result.table(most=table_rows()))

@@ -26,6 +26,7 @@ from ..geomagnetic import ReferenceModel, parse_times
 from ..moments import sphere_frame
 from .layout import Layout
 from .mapped import csv_to_memmap
+from .recorders import ENGINES, check_options, declared_unit, is_recorded
 from .rows import RowScreen
 from .tables import (
     Table,
@@ -80,6 +81,20 @@ class Log:
     def base_unit(self) -> str:
         """The unit of `samples` and `reference`: "nT", or "raw" for counts."""
         return units.base_unit(self.unit)
+
+    @property
+    def read_by(self) -> str:
+        """What read the log, for messages: "pandas c engine", "pymavlink DFReader" ..."""
+        return self.engine if self.recorded else f"pandas {self.engine} engine"
+
+    @property
+    def recorded(self) -> bool:
+        """Whether the log was read from a recorded format (`nlpcal.io.recorders`), not text."""
+        return self.engine in ENGINES.values()
+
+    def reading(self) -> str:
+        """How the log was read, for messages: its layout (of text) and its reader."""
+        return self.read_by if self.recorded else f"{self.layout.describe()} ({self.read_by})"
 
     @property
     def n(self) -> int:
@@ -262,10 +277,14 @@ def read_log(
     fallback_unit: str = "nT",
     header: bool | None = None,
     text: bool = False,
+    variable: str | None = None,
+    instance: int | None = None,
 ) -> Log:
     """Read, validate and convert a field log.
 
-    path : a delimited text log, "-" for stdin, or a `Table` already read.
+    path : a log (`nlpcal.io.tables.read_table`: delimited text, Parquet, a MotionCal capture,
+        a MATLAB .mat file, an ArduPilot DataFlash log), "-" for stdin, or a `Table` already
+        read.
     columns : the three field columns, names or 0-based positions (None: detected).
     unit : the unit of the field columns (None: the unit a file format fixes, `Table.field_unit`,
         else the one their names carry, else `fallback_unit`; an assumed unit under which the
@@ -278,9 +297,12 @@ def read_log(
     extra_columns : further numeric columns to read and validate (temperatures, say).
     drop_invalid : drop rows with missing or non-numeric values, and field vectors repeating the
         row before, instead of failing or keeping them. Exact-zero vectors are always left out.
-    low_memory : stream the columns into a memory-mapped temporary file, O(chunk) memory.
+    low_memory : stream the columns into a memory-mapped temporary file, O(chunk) memory
+        (text and Parquet logs; a recorded format is read whole, with a note).
     header : force (True) or deny (False) a header row; None detects it.
     text : keep the table's cells as text (for writing the log back unchanged).
+    variable : the variable of a .mat file that holds the field (None: detected).
+    instance : the compass of a DataFlash log, 0-based like its I field (None: the only one).
     """
     one_reference(reference_column, reference_field, reference_model)
     notes: list = []
@@ -293,11 +315,17 @@ def read_log(
         raise InputError(
             "a reference from position or time columns needs the log in memory; drop --low-memory"
         )
+    if low_memory and not isinstance(path, Table) and is_recorded(path):
+        notes.append(f"{path} is read whole: --low-memory streams text and Parquet logs only")
+        low_memory = False
     if low_memory:
+        check_options(str(path), None, variable=variable, instance=instance)
         decided: dict = {}
 
         def scale(chosen) -> float:  # the unit, once the columns are known
-            decided["unit"], decided["how"] = sensor_unit(chosen, unit, fallback_unit, notes)
+            decided["unit"], decided["how"] = sensor_unit(
+                chosen, unit, fallback_unit, notes, declared=declared_unit(chosen, notes)
+            )
             return units.field_factor(decided["unit"])
 
         mapped = csv_to_memmap(
@@ -312,11 +340,15 @@ def read_log(
         engine, layout, source = "c (chunked into a memory map)", mapped.layout, mapped.source
         samples = values[:, :3]
     else:
-        table = path if isinstance(path, Table) else read_table(path, header=header, text=text)
+        table = (
+            path
+            if isinstance(path, Table)
+            else read_table(path, header=header, text=text, variable=variable, instance=instance)
+        )
         notes.extend(table.notes)
         chosen = resolve_columns(
             table.frame,
-            columns,
+            columns or table.field_columns,
             header=table.layout.header,
             decimal=table.layout.decimal,
             notes=notes,
@@ -331,7 +363,10 @@ def read_log(
         values, kept, dropped = screened(
             table, chosen + extra + times_at, drop_invalid, notes, checked
         )
-        unit, how = sensor_unit(chosen, unit, fallback_unit, notes, declared=table.field_unit)
+        fixed = table.field_columns in (None, chosen)  # the unit of other columns is not
+        declared = table.field_unit if fixed else None
+        declared = declared or declared_unit(chosen, notes)
+        unit, how = sensor_unit(chosen, unit, fallback_unit, notes, declared=declared)
         frame, engine, layout, source = table.frame, table.engine, table.layout, table.source
         samples = values[:, :3] * units.field_factor(unit)
     if samples.shape[0]:

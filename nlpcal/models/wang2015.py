@@ -57,6 +57,18 @@ from .zhou2010 import axis_matrix_entries, correction_matrix_entries
 ANGLE_NAMES = ("alpha", "beta", "gamma")
 #: Field of the paper's forward modelling and synthetic inversion. [nT]
 PAPER_FIELD_NT = 55_000.0
+#: The forward-modelling example of [1] (section 1): its angles [deg] and the largest total-field
+#: error of its map over all directions, "about 95 nT". [nT]
+PAPER_WORST_ANGLES_DEG = (0.1, 0.1, 0.1)
+PAPER_WORST_CASE_NT = 95.0
+#: The synthetic inversion of [1] (section 2): the angles it recovers "exactly". [deg]
+PAPER_SYNTHETIC_ANGLES_DEG = (0.07, 0.04, 0.1)
+#: The real probe of [1] (section 3): alpha and 90 deg - gamma; beta is not given. [deg]
+PAPER_PROBE_ANGLES_DEG = {"alpha": 0.064, "gamma": 0.103}
+#: Repeated inversions of the probe agree with their mean within this angle [deg], which implies
+#: a total-field error of "at most 3.8 nT" [nT] (section 3 of [1]).
+PAPER_DEVIATION_DEG = 0.004
+PAPER_IMPLIED_NT = 3.8
 
 
 def direction(theta_deg, phi_deg) -> np.ndarray:

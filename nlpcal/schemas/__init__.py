@@ -28,6 +28,7 @@ SCHEMAS = {
     "nlpcal-comparison": "comparison.json",
     "nlpcal-affine-correction": "affine-correction.json",
     "nlpcal-batch": "batch.json",
+    "nlpcal-reproduction": "reproduction.json",
 }
 #: The schema of a row of a batch summary (DIR/summary.csv, empty cells read as "").
 BATCH_SUMMARY_ROW = "batch-summary-row.json"
