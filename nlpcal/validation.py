@@ -295,6 +295,20 @@ def angles(
     return array
 
 
+def renamed(value, former, name: str, former_name: str):
+    """A keyword renamed to mirror its command-line flag (`reference_field=` for
+    `--reference-field`): the value given under either name. The former name stays accepted;
+    both names with different values are an error."""
+    if former is None:
+        return value
+    if value is not None and not np.array_equal(value, former):
+        raise InputError(
+            f"{name}={value!r} and its former name {former_name}={former!r} differ; "
+            f"pass {name} alone"
+        )
+    return former
+
+
 def field(value, what: str = "field") -> float:
     """A positive finite field magnitude. [nT]"""
     return number(value, f"the {what}", positive=True, unit="in nT")
@@ -332,11 +346,3 @@ def matrix(values, what: str, shape=(3, 3), *, invertible: bool = False) -> np.n
     if invertible and not np.linalg.cond(array) < 1e12:
         raise InputError(f"{what} is singular (or nearly): it cannot be inverted")
     return array
-
-
-def same_rows(*pairs) -> None:
-    """Arrays that describe the same rows: pairs of (what, length)."""
-    lengths = {n for _, n in pairs}
-    if len(lengths) > 1:
-        listed = ", ".join(f"{n} {what}" for what, n in pairs)
-        raise InputError(f"got {listed}; they must be the same rows")

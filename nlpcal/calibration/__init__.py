@@ -83,49 +83,103 @@ def calibrate(
 ) -> CalibrationResult:
     """Estimate the nine parameters of Eq. 4 in [1] from a log of many attitudes.
 
-    samples : (N, 3) array-like of raw sensor output B_M. [unit]
-    method : "staged", the cycle of Fig. 1 in [1] (orthogonal -> scale -> offset), or "joint",
-        all nine in one IPOPT problem.
-    model : the form of Eq. 4 estimated: "full" (the nine, the paper's), "diagonal" (offsets
-        and scales, no angles), "offset" (offsets; with a reference also one common scale), or
-        "auto": the richest of them the attitudes determine (`selection.choose_model`), with
-        the reason under `model_selection`. The parameters a form does not estimate are fixed
-        at zero and listed under `fixed_parameters`.
-    reference_field : None (Eq. 8, absolute scale not identifiable), a number F, or an array of
-        N values F_i (for example a proton magnetometer sampled with the log). [reference_unit]
-    unit : the unit of the samples: nT, uT, mT, mG, G, T, or raw for counts. The result is in nT
-        (or raw), whatever the unit of the samples, and records the unit as given
+    The parameters minimise the spread of the corrected total field |B1| (Eq. 8), or its distance to
+    a reference field, as CasADi/IPOPT problems whose size does not depend on N.
+
+    Parameters
+    ----------
+    samples : array_like, shape (N, 3)
+        Raw sensor output B_M: a numpy or Dask array, or a pandas or Dask DataFrame whose field
+        columns are detected. [unit]
+    method : {"staged", "joint"}
+        "staged", the cycle of Fig. 1 in [1] (orthogonal -> scale -> offset), or "joint", all nine
+        in one IPOPT problem (`--method`).
+    model : {"full", "diagonal", "offset", "auto"}
+        The form of Eq. 4 estimated (`--model`): "full" (the nine, the paper's), "diagonal"
+        (offsets and scales, no angles), "offset" (offsets; with a reference also one common scale),
+        or "auto": the richest of them the attitudes determine, with the reason under
+        `model_selection`. The parameters a form does not estimate are fixed at zero and listed
+        under `fixed_parameters`.
+    reference_field : None, float or array_like of shape (N,)
+        None (Eq. 8, absolute scale not identifiable: the gauge s_x + s_y + s_z = 0 fixes it), a
+        number F, or N values F_i, for example a proton magnetometer sampled with the log
+        (`--reference-field`). [reference_unit]
+    unit : str, optional
+        The unit of the samples (`--unit`): nT, uT, mT, mG, G, T, or raw for counts. The result is
+        in nT (or raw), whatever the unit of the samples, and records the unit as given
         (`unit_source` "option"). None assumes nT ("assumed"): when the magnitudes are far from
         Earth's field in nT, the samples are taken as raw counts and the result is in raw, with
-        the warning (`nlpcal.io.logs.settle_unit`).
-    reference_unit : the unit of the reference (default: `unit`).
-    cycles : the most staged cycles. target_std, target_range : stop the cycle when |B1| meets
-        them [unit]. rtol : stop when a cycle lowers the objective by less than this fraction.
-    loss : "l2" (least squares, the paper's), "huber" or "cauchy" (`nlpcal.robust`): robust to
-        spikes and other outliers, by iteratively reweighted moments.
-    loss_scale : the residual beyond which a sample is down-weighted; default 1.345 (Huber) or
-        2.385 (Cauchy) times 1.4826 MAD of the residuals. [unit]
-    progress : None, or called with (cycle, Table 1 row) after every staged cycle.
-    threads : threads of the passes over the data (default: the cores available to the process,
-        its CPU affinity within its cgroup's quota); BLAS is held to one thread meanwhile.
-    require_identifiable : raise QualityError (holding the result) when the data leave parameters
-        undetermined (a direction along which |B1| does not change, or a standard error above
-        `diagnostics.UNDETERMINED`: 10 % of the field, 0.1, 10 deg); False returns the result
-        with its warnings.
-    allow_unconverged : return a staged result that stopped at its cycle limit, or away from the
-        joint optimum of the same objective, with a warning and without standard errors, instead
-        of raising QualityError.
-    verbose : print IPOPT's log of every solve (on stdout, as CasADi does).
-    ipopt_options : further IPOPT options (name -> int, float or str, as IPOPT types them:
-        {"max_iter": 50, "mu_strategy": "adaptive"}), over nlpcal's own
-        (`nlpcal.nlp.blocks.OPTIONS`); IPOPT checks them first (InputError for an option it does
-        not know or a value it refuses). The result records every option IPOPT was given under
+        the warning.
+    reference_unit : str, optional
+        The unit of the reference (default: `unit`).
+    cycles : int
+        The most staged cycles (`--cycles`).
+    target_std, target_range : float, optional
+        Stop the staged cycle when the std (or the range) of |B1| meets them. [unit]
+    rtol : float
+        Stop the staged cycle when a cycle lowers the objective by less than this fraction. [1]
+    loss : {"l2", "huber", "cauchy"}
+        "l2" (least squares, the paper's), or a loss robust to spikes and other outliers, by
+        iteratively reweighted moments (`--loss`).
+    loss_scale : float, optional
+        The residual beyond which a sample is down-weighted (`--loss-scale`); default 1.345 (Huber)
+        or 2.385 (Cauchy) times 1.4826 MAD of the residuals. [unit]
+    require_identifiable : bool
+        Raise QualityError (holding the result) when the data leave parameters undetermined (a
+        direction along which |B1| does not change, or a standard error above 10 % of the field,
+        0.1 or 10 deg); False returns the result with its warnings (`--allow-unidentifiable`).
+    allow_unconverged : bool
+        Return a staged result that stopped at its cycle limit, or away from the joint optimum of
+        the same objective, with a warning and without standard errors, instead of raising
+        QualityError (`--allow-unconverged`).
+    progress : callable, optional
+        Called with (cycle, Table 1 row) after every staged cycle.
+    verbose : bool
+        Print IPOPT's log of every solve (on stdout, as CasADi does).
+    threads : int, optional
+        Threads of the passes over the data (`--threads`; default: the cores available to the
+        process, its CPU affinity within its cgroup's quota); BLAS is held to one thread meanwhile.
+    ipopt_options : dict, optional
+        Further IPOPT options (`--ipopt-option KEY=VALUE`): name -> int, float or str, as IPOPT
+        types them ({"max_iter": 50, "mu_strategy": "adaptive"}), over nlpcal's own
+        (`nlpcal.nlp.blocks.OPTIONS`). IPOPT checks them first (InputError for an option it does
+        not know or a value it refuses); the result records every option IPOPT was given under
         `solver.ipopt_options`.
 
-    Returns a CalibrationResult. Raises InputError for unusable input, SolveError when IPOPT
-    fails and QualityError as above.
+    Returns
+    -------
+    CalibrationResult
+        The parameters (offsets [nT or raw], scale errors [1], angles [deg]), their standard errors,
+        Table 1 rows, the verdict and how the problem was posed.
+
+    Raises
+    ------
+    InputError
+        Unusable samples or options (too few rows, NaN, an unknown unit or method).
+    SolveError
+        IPOPT failed.
+    QualityError
+        The data leave parameters undetermined, or a staged cycle did not converge, as above.
+
+    References
+    ----------
+    [1] Zhou et al. (2010), see `nlpcal.models.zhou2010`.
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> log = nlpcal.simulate(2000, seed=1)  # the truth of Zhou et al.'s Table 1, 1 nT of noise
+    >>> samples = log[["bx", "by", "bz"]].to_numpy()
+    >>> result = nlpcal.calibrate(samples, reference_field=49462.0, method="joint")
+    >>> result.verdict.status
+    'ok'
+    >>> abs(result.parameters["z_x"] - (-71.55)) < 5 * result.standard_errors["z_x"]
+    True
+    >>> corrected = result.apply(samples)  # Eq. 4, in the unit of the samples [nT]
+    >>> corrected.shape
+    (2000, 3)
     """
-    with chunks.call_threads(threads):
+    with chunks.call_threads(validation.optional_whole(threads, "threads")):
         validation.choice(method, "method", METHODS)
         validation.choice(model, "model", MODEL_CHOICES)
         ipopt = (replace(OPTIONS, print_level=5) if verbose else OPTIONS).with_options(
@@ -458,14 +512,10 @@ def staged_message(stop_reason: str, cycles: int, gap: dict, last: BlockSolve | 
             f"({gap['objective_joint']:.6g} against {gap['objective_staged']:.6g}) cannot be "
             f"judged"
         )
-    where = (
-        ""
-        if distance is None
-        else f"; its parameters lie up to {distance:.3g} standard errors from that optimum"
-    )
     return (
         f"{why}; its objective {gap['objective_staged']:.6g} lies above the joint optimum "
-        f"{gap['objective_joint']:.6g} of the same data{where}; {advice}"
+        f"{gap['objective_joint']:.6g} of the same data; its parameters lie up to "
+        f"{distance:.3g} standard errors from that optimum; {advice}"
     )
 
 

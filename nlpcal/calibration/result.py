@@ -330,33 +330,77 @@ def check_model(parameters: dict, model_name: str, scale_known: bool, source: st
 class CalibrationResult(Document):
     """A calibration: the nine parameters of Eq. 4 in [1], Table 1 rows and how they were found.
 
-    parameters : z_x, z_y, z_z [unit], s_x, s_y, s_z [1], alpha_deg, beta_deg, gamma_deg [deg].
-    statistics : Table 1 rows (label, max, min, mean, std, range [unit], objective [unit^2],
-        iterations, wall_s [s]); the first is the measured |B_M|.
-    unit : the unit of offsets and rows: "nT", or "raw" for counts.
-    unit_source : where the unit of the log came from (`nlpcal.units.UNIT_SOURCES`: "option",
-        "names", "format" or "assumed"); None in a document written before results recorded it,
-        which is treated as "assumed" (`scale_fixed_by`).
-    standard_errors : per estimated parameter, in its unit; None when the data leave a direction
-        free. Parameters the model does not estimate have none (they are fixed, not estimated).
-    covariance : (k, k) covariance of the k estimated parameters in PARAMETER_NAMES order, in
-        their units (offsets [unit], scale errors [1], angles [deg]); None without standard
-        errors.
-    identifiability : what the attitude coverage determines (`nlpcal.calibration.diagnostics`).
-    input : where the samples came from (file, columns, the unit of the file).
-    robust : the loss and its scale, the samples it down-weighted, and the spread of the
-        residuals (their standard deviation and robust standard deviation). [unit]
-    model_name : the form of Eq. 4 estimated (`nlpcal.models.zhou2010.MODELS`), "model" in the
-        document: the parameters it does not estimate are fixed at zero (`fixed_parameters`).
-    model_selection : how model "auto" chose it (the reason, the richer forms rejected), or None.
-    sensor_id : the sensor calibrated: an autopilot device id (int) or a name (str), or None
-        (`nlpcal.validation.sensor_id`); "sensor_id" in the document, written when given.
-    orientation : how the sensor is mounted, as the file a calibration was imported from states
-        it ({"system", "parameter", "value"[, "name"]}, e.g. ArduPilot's COMPASS_ORIENT), or
-        None; carried, not applied. "orientation" in the document, written when given.
-    warnings : what looks wrong with the data or the result, each a sentence.
-    notes : what the user should know about how the problem was posed (the gauge without a
-        reference field), each a sentence: not warnings.
+    Returned by `calibrate`; `apply` corrects new samples, `to_json`, `save`, `from_json` and
+    `load` write and read the versioned JSON document (`params.json`).
+
+    Attributes
+    ----------
+    parameters : dict
+        z_x, z_y, z_z [unit], s_x, s_y, s_z [1], alpha_deg, beta_deg, gamma_deg [deg].
+    statistics : list of dict
+        Table 1 rows (label, max, min, mean, std, range [unit], objective [unit^2], iterations,
+        wall_s [s]); the first is the measured |B_M|.
+    method : str
+        "staged" or "joint".
+    reference : dict
+        The reference field used: mode "none", "constant" or "series", and its values.
+    gauge : dict or None
+        Without a reference field, the constraint that fixes the overall scale.
+    solver : dict
+        The solver's status, iterations and stop reason.
+    unit : str
+        The unit of offsets and rows: "nT", or "raw" for counts.
+    unit_source : str or None
+        Where the unit of the log came from ("option", "names", "format" or "assumed"); None in a
+        document written before results recorded it, which is treated as "assumed".
+    standard_errors : dict or None
+        Per estimated parameter, in its unit; None when the data leave a direction free.
+        Parameters the model does not estimate have none (they are fixed, not estimated).
+    covariance : numpy.ndarray or None
+        (k, k) covariance of the k estimated parameters in the order of `parameters`, in their
+        units (offsets [unit^2], scale errors [1], angles [deg^2]); None without standard errors.
+    identifiability : dict
+        What the attitude coverage determines, and the residuals' autocorrelation.
+    warnings : list of str
+        What looks wrong with the data or the result, each a sentence.
+    notes : list of str
+        How the problem was posed (the gauge without a reference field), each a sentence.
+    n_samples : int
+        Samples the calibration used.
+    version : str
+        The nlpcal version that made it ("nlpcal_version" in the document).
+    input : dict
+        Where the samples came from (file, columns, the unit of the file).
+    robust : dict
+        The loss and its scale, the samples it down-weighted, and the spread of the residuals.
+        [unit]
+    model_name : str
+        The form of Eq. 4 estimated ("model" in the document): the parameters it does not estimate
+        are fixed at zero (`fixed_parameters`).
+    model_selection : dict or None
+        How model "auto" chose it (the reason, the richer forms rejected), or None.
+    sensor_id : int, str or None
+        The sensor calibrated: an autopilot device id or a name (`--sensor-id`), or None
+        ("sensor_id" in the document, written when given).
+    orientation : dict or None
+        How the sensor is mounted, as the file a calibration was imported from states it
+        ({"system", "parameter", "value"[, "name"]}, e.g. ArduPilot's COMPASS_ORIENT); carried,
+        not applied ("orientation" in the document, written when given).
+
+    References
+    ----------
+    [1] Zhou et al. (2010), see `nlpcal.models.zhou2010`.
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> samples = nlpcal.simulate(500, seed=3)[["bx", "by", "bz"]].to_numpy()
+    >>> result = nlpcal.calibrate(samples, method="joint")
+    >>> sorted(result.parameters)[:3]
+    ['alpha_deg', 'beta_deg', 'gamma_deg']
+    >>> again = nlpcal.CalibrationResult.from_json(result.to_json())
+    >>> again.parameters == result.parameters
+    True
     """
 
     FORMAT = "nlpcal-calibration"

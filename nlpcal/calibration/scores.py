@@ -14,7 +14,7 @@ mean of J (the mean for least squares), so each block sum is sum psi J - Jbar su
 
 The block sums (blocks of `block_rows` consecutive samples, counted from the log's first row, so
 that the sums do not depend on how a pass splits the rows: threads, `--low-memory` or Dask) are
-the series `nlpcal.inference.long_run_covariance` turns into the meat of the sandwich covariance.
+the series `nlpcal.inference.block_jackknife` turns into the sandwich covariance.
 
 References
 ----------
@@ -34,8 +34,7 @@ from ..passes import as_rows, reduce, reference_chunk
 from ..statistics import correction
 
 #: Largest number of blocks of the score series: a log of more samples sums neighbours (the
-#: series stays small whatever the log's length, and Newey-West on block sums of a weakly
-#: dependent series estimates the same long-run covariance).
+#: series stays small whatever the log's length, and the jackknife's groups are whole blocks).
 MAX_BLOCKS = 4096
 #: Complex step for the derivatives of M's entries. [rad or 1]
 COMPLEX_STEP = 1e-30

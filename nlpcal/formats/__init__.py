@@ -88,22 +88,50 @@ def export(
     max_rotation_deg: float | None = None,
     drop_temperature: bool = False,
 ) -> Export:
-    """A calibration in one of `FORMATS`, as text with notes for the user.
+    """A calibration in one of `FORMATS` (matlab, matrix, ardupilot, px4, c-header), as text.
 
-    result : a CalibrationResult, or a temperature calibration: its temperature model goes where
-        the format has a place for it (px4's TC_M* when they represent it exactly, the C
-        header's function); elsewhere the parameters at t0 are written and a note says so.
-    unit : the unit of the offsets and field in matlab, matrix and c-header (default: the unit
-        of the log the calibration was estimated from); the autopilots' units are fixed.
-    instance : the compass instance (ardupilot 1-3, default 1) or slot (px4 0-3, default 0).
-    max_rotation_deg : the largest rotation between nlpcal's axes and the symmetric matrix of the
-        autopilot formats (default `nlpcal.formats.autopilot.MAX_ROTATION_DEG`). [deg]
-    drop_temperature : write a temperature calibration to px4 without its temperature model
-        when TC_M* cannot represent it (otherwise InputError).
+    Parameters
+    ----------
+    result : CalibrationResult or TemperatureCalibrationResult
+        The calibration. A temperature model goes where the format has a place for it (px4's
+        TC_M* when they represent it exactly, the C header's function); elsewhere the parameters
+        at t0 are written and a note says so.
+    fmt : str
+        The format (`--format`).
+    unit : str, optional
+        The unit of the offsets and field in matlab, matrix and c-header (default: the unit of the
+        log the calibration was estimated from); the autopilots' units are fixed.
+    instance : int, optional
+        The compass instance (ardupilot 1-3, default 1) or slot (px4 0-3, default 0)
+        (`--instance`).
+    max_rotation_deg : float, optional
+        The largest rotation between nlpcal's axes and the symmetric matrix of the autopilot
+        formats. [deg]
+    drop_temperature : bool
+        Write a temperature calibration to px4 without its temperature model when TC_M* cannot
+        represent it (`--drop-temperature`; otherwise InputError).
 
-    The notes end with one sentence naming what of the result the format has no place for
-    (`Export.dropped`): the temperature model, sensor_id, orientation, the expected field, the
-    model restriction, the standard errors.
+    Returns
+    -------
+    Export
+        The text, the notes for the user, and the rotation the format could not carry [deg].
+        The notes end with one sentence naming what of the result the format has no place for
+        (`Export.dropped`): the temperature model, sensor_id, orientation, the expected field,
+        the model restriction, the standard errors.
+
+    Raises
+    ------
+    InputError
+        An unknown format, or a calibration the format cannot carry (a unit only assumed, for a
+        field unit; a temperature model px4 cannot represent, without `drop_temperature`).
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> samples = nlpcal.simulate(300, seed=0)[["bx", "by", "bz"]].to_numpy()
+    >>> exported = nlpcal.export(nlpcal.calibrate(samples, unit="nT"), "matrix")
+    >>> '"model": "B1 = A (B_M - b)"' in exported.text
+    True
     """
     _check(fmt, unit, instance)
     if max_rotation_deg is not None:
@@ -205,12 +233,44 @@ def import_file(
 ) -> tuple[CalibrationResult, list]:
     """A calibration from a file of one of `FORMATS`, and notes for the user.
 
-    unit : the unit of the file's offsets and field, for matlab, matrix and c-header when the file
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to read.
+    fmt : str
+        Its format (`--format`).
+    unit : str, optional
+        The unit of the file's offsets and field, for matlab, matrix and c-header when the file
         does not say (default nT).
-    field : the total field the correction should map to [the file's unit]. A file that carries
-        its expected field (magcal's expmfs, the matrix "field") has A rescaled by field / expected;
-        otherwise it is recorded as the reference field.
-    instance : the compass instance (ardupilot 1-3, default 1) or slot (px4 0-3, default 0).
+    field : float, optional
+        The total field the correction should map to (`--reference-field`). A file that carries
+        its expected field (magcal's expmfs, the matrix "field") has A rescaled by field /
+        expected; otherwise it is recorded as the reference field. [the file's unit]
+    instance : int, optional
+        The compass instance (ardupilot 1-3, default 1) or slot (px4 0-3, default 0).
+
+    Returns
+    -------
+    tuple of (CalibrationResult, list of str)
+        The calibration, and the notes for the user.
+
+    Raises
+    ------
+    InputError
+        An unreadable file, or one that is not a calibration of that format.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import nlpcal
+    >>> samples = nlpcal.simulate(300, seed=0)[["bx", "by", "bz"]].to_numpy()
+    >>> result = nlpcal.calibrate(samples, method="joint", unit="nT")
+    >>> path = os.path.join(tempfile.mkdtemp(), "matrix.json")
+    >>> with open(path, "w") as handle:
+    ...     _ = handle.write(nlpcal.export(result, "matrix").text)
+    >>> again, notes = nlpcal.import_file(path, "matrix")
+    >>> abs(again.parameters["z_x"] - result.parameters["z_x"]) < 1e-9  # [nT]
+    True
     """
     _check(fmt, unit, instance)
     if field is not None:

@@ -27,8 +27,8 @@ follow the text's own references to Eq. 4, 6 and 9.
 
 The worst case over all directions (Eq. 9 in [1]) is a Rayleigh quotient in disguise:
 |T u|^2 = u^T (T^T T) u on the unit sphere, so its exact extremes are B (sigma_max - 1) and
-B (sigma_min - 1) with sigma the singular values of T (`exact_bracket`). To first order in the
-angles [rad], T^T T = I + G with
+B (sigma_min - 1) with sigma the singular values of T (the certificate of
+`nlpcal.orthogonality.worst_case`). To first order in the angles [rad], T^T T = I + G with
 
     G = [[0, gamma, -alpha], [gamma, 0, beta], [-alpha, beta, 0]]
 
@@ -118,17 +118,6 @@ def small_angle_worst_case(angles_deg, field_nT) -> float:
         * float(field_nT)
         * float(np.max(np.abs(np.linalg.eigvalsh(small_angle_form(angles_deg)))))
     )
-
-
-def exact_bracket(angles_deg, field_nT) -> tuple:
-    """(min dB, max dB) over all directions, exactly: B (sigma_min - 1), B (sigma_max - 1). [nT]
-
-    |T u|^2 = u^T (T^T T) u is a Rayleigh quotient, so its extremes on the unit sphere are the
-    extreme eigenvalues of T^T T, the squared singular values of T.
-    """
-    b = float(field_nT)
-    sigma = np.linalg.svd(axis_matrix_deg(angles_deg), compute_uv=False)
-    return b * (float(sigma.min()) - 1.0), b * (float(sigma.max()) - 1.0)
 
 
 def error_map(angles_deg, field_nT, step_deg: float = 1.0):
