@@ -33,7 +33,7 @@ SCHEMAS = {
 #: The schema of a row of a batch summary (DIR/summary.csv, empty cells read as "").
 BATCH_SUMMARY_ROW = "batch-summary-row.json"
 #: Where the schemas' "$id"s point: each file is found by its name after this.
-BASE_URI = "https://nlpcal.invalid/schemas/"
+BASE_URI = "https://example.org/nlpcal-schemas/"
 
 
 @cache
