@@ -51,7 +51,7 @@ MAX_PNG_BYTES = 200_000
 def _row_line(row, extra=True) -> str:
     cells = [row["label"]] + [f"{row[k]:.2f}" for k in ("max", "min", "mean", "std", "range")]
     if extra:
-        status = row.get("status", "")
+        status = row.get("status") or row.get("ipopt_status", "")
         cells += [f"{row['objective']:.4g}", str(row["iterations"]), f"{row['wall_s']:.3f}", status]
     return "| " + " | ".join(cells) + " |"
 

@@ -90,7 +90,7 @@ def tilt_table() -> str:
             result = nlpcal.calibrate(samples, method="staged", cycles=cycles)
         except nlpcal.QualityError as failure:
             gap = failure.result.identifiability["joint_gap"]["max_gap_in_standard_errors"]
-            ran, why = len(failure.result.statistics) - 1, failure.result.solver["stop_reason"]
+            ran, why = len(failure.result.statistics) - 1, failure.result.solver.stop_reason
             outcome = (
                 f"exit 1 after {ran} cycles ({why}), quality check: {gap:.3g} standard errors "
                 f"from the joint optimum"
@@ -98,7 +98,7 @@ def tilt_table() -> str:
         else:
             gap = result.identifiability["joint_gap"]["max_gap_in_standard_errors"]
             outcome = (
-                f"exit 0, stopped by {result.solver['stop_reason']} after "
+                f"exit 0, stopped by {result.solver.stop_reason} after "
                 f"{len(result.statistics) - 1} cycles, {gap:.2g} standard errors from the joint "
                 f"optimum"
             )

@@ -198,8 +198,8 @@ def outliers(correction: Correction, corrected) -> np.ndarray:
     constant reference field, else the median |B1| of this log."""
     magnitude = np.linalg.norm(corrected, axis=1)
     robust = correction.parameters.robust if correction.parameters is not None else {}
-    reference = correction.parameters.reference if correction.parameters is not None else {}
-    centre = reference.get("field") if reference.get("mode") == "constant" else None
+    reference = correction.parameters.reference if correction.parameters is not None else None
+    centre = reference.field if reference is not None and reference.mode == "constant" else None
     residual = magnitude - (np.median(magnitude) if centre is None else float(centre))
     spread = robust.get("residual_robust_std") or robust_std(residual)
     return np.abs(residual) > OUTLIER_ROBUST_STDS * spread
@@ -222,8 +222,8 @@ def read_log_for(path, correction: Correction, *, reference_column=None, **kw) -
 def _compare_references(correction: Correction, mean: float, unit: str) -> None:
     """A note when the log's reference [unit] is not the one the calibration was made against:
     the corrected |B1| follows the calibration's, and the RMSE then holds the difference."""
-    made = getattr(correction.parameters, "reference", None) or {}
-    calibrated = made.get("field", made.get("field_mean"))
+    made = correction.parameters.reference if correction.parameters is not None else None
+    calibrated = made.level if made is not None else None
     if calibrated and abs(mean / calibrated - 1.0) > REFERENCE_MISMATCH:
         correction.notes.append(
             f"the calibration was made against a reference of {calibrated:.6g} {unit}, and the "

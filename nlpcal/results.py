@@ -3,7 +3,7 @@
 Every result type is a dataclass that derives from `Document` and names its kind once:
 
     FORMAT = "nlpcal-calibration"     the discriminator written as "format"
-    FORMAT_VERSION = 1                written as "format_version"
+    FORMAT_VERSION = 2                written as "format_version" (READS_VERSIONS are read)
 
 and implements `body()` (the document without the envelope) and `from_body(reader)`; a kind
 with a notion of quality also has a `verdict` property (`nlpcal.verdict`), written right after the
@@ -14,6 +14,7 @@ and range and turns any malformed document into an `InputError` that names the f
 field, so a document read from disk is validated as strictly as a CSV.
 
 Documents written by nlpcal 0.1.0 had no "format" key; `load_any` recognises them by their keys.
+The JSON Schema of every kind ships in `nlpcal.schemas`.
 """
 
 from __future__ import annotations
@@ -187,7 +188,13 @@ class Document:
     """Base of every result nlpcal serialises (dataclasses that set FORMAT and FORMAT_VERSION)."""
 
     FORMAT: ClassVar[str] = ""
-    FORMAT_VERSION: ClassVar[int] = 1
+    #: The version written. A release bumps it once per kind whose document changed (not once
+    #: per change); 2 is that of nlpcal 0.2.0 (the solver report, the verdict, the unit's
+    #: source, the model and the other keys added since 0.1.0).
+    FORMAT_VERSION: ClassVar[int] = 2
+    #: The versions still read (1: written before 0.2.0; a document without "format_version",
+    #: from nlpcal 0.1.0, counts as 1).
+    READS_VERSIONS: ClassVar[tuple] = (1, 2)
     #: Earlier discriminators still read: (key, value) pairs that identify the same kind.
     LEGACY_FORMATS: ClassVar[tuple] = ()
     #: What the kind is called in messages.
@@ -255,11 +262,11 @@ class Document:
             raise InputError(
                 f"{source}: not an {cls.WHAT} (format {found!r}; expected {cls.FORMAT!r})"
             )
-        version = document.get("format_version", cls.FORMAT_VERSION)
-        if version != cls.FORMAT_VERSION:
+        version = document.get("format_version", 1)
+        if isinstance(version, bool) or version not in cls.READS_VERSIONS:
             raise InputError(
-                f"{source}: format_version {version!r}; this nlpcal reads "
-                f"format_version {cls.FORMAT_VERSION} of {cls.WHAT}s"
+                f"{source}: format_version {version!r}; this nlpcal reads format_version "
+                f"{' and '.join(map(str, cls.READS_VERSIONS))} of {cls.WHAT}s"
             )
         return cls.from_body(DocumentReader(document, source))
 

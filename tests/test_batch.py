@@ -161,7 +161,7 @@ def test_a_rerun_with_other_options_does_every_log_again(fleet, tmp_path):
     )
     assert all(r["action"] == "run" for r in again.rows)
     result = nlpcal.CalibrationResult.load(out_dir / "sensor_0.params.json")
-    assert result.reference["mode"] == "constant"  # not the first run's parameters
+    assert result.reference.mode == "constant"  # not the first run's parameters
     same = calibrate_many(
         fleet, out_dir, options={"method": "joint"}, read_options={"reference_field": 50000.0}
     )

@@ -371,7 +371,7 @@ def test_cli_compare_without_matplotlib_says_how_to_install(log_csv, tmp_path, m
 
 
 def test_cli_compare_solver_failure_exits_1(log_csv, monkeypatch, capsys):
-    def failing(problem, start=None):
+    def failing(problem, start=None, start_name="given"):
         raise SolveError("IPOPT did not solve the joint problem", "Maximum_Iterations_Exceeded")
 
     monkeypatch.setattr(compare_module, "run_joint", failing)

@@ -191,7 +191,7 @@ def test_calibrate_parquet_files_on_a_cluster_as_in_memory(parquet_log, cluster,
     assert "9 Parquet row groups" in err and "Dask cluster at tcp://" in err
     first, second = (nlpcal.CalibrationResult.load(path) for path in (memory, lazy))
     assert_same_calibration(first, second)
-    assert second.input["log"] == pattern and second.reference["column"] == "proton_nT"
+    assert second.input["log"] == pattern and second.reference.column == "proton_nT"
 
 
 def test_calibrate_on_dask_refuses_what_needs_the_log_in_memory(parquet_log, capsys):

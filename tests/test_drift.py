@@ -280,7 +280,7 @@ def test_nlp_is_built_once_per_model_whatever_the_size():
         base_temperature=T0,
     )
     assert builds() == misses
-    assert result.calibration.solver["status"] in ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+    assert result.calibration.solver.status in ("Solve_Succeeded", "Solved_To_Acceptable_Level")
     assert result.temperature_model.k_slope_per_degC == pytest.approx(C_TRUE, rel=0.02)
 
 

@@ -26,6 +26,7 @@ LAYERS = {
     "validation": 1,
     "inference": 1,
     "results": 1,
+    "schemas": 1,
     "verdict": 1,
     "robust": 1,
     "io": 1,

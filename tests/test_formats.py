@@ -209,7 +209,7 @@ def test_imports_of_files_written_elsewhere(tmp_path):
         scale * np.array([[1.02, 0.01, 0], [0.01, 0.98, 0], [0, 0, 1.0]])
     )
     assert np.linalg.norm(corrected) == pytest.approx(np.linalg.norm(expected), rel=1e-12)
-    assert result.reference == {"mode": "constant", "field": pytest.approx(48794.7)}
+    assert result.reference.to_dict() == {"mode": "constant", "field": pytest.approx(48794.7)}
     assert result.parameters["z_x"] == pytest.approx(12500.0)  # uT -> nT
     assert "scaled by" in notes[0]
 

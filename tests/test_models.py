@@ -59,7 +59,7 @@ def _gauged(truth):
 
 
 def _assert_recovers(result, truth):
-    if result.reference["mode"] == "none" and "s_x" in result.estimated_parameters:
+    if result.reference.mode == "none" and "s_x" in result.estimated_parameters:
         truth = _gauged(truth)
     estimated = result.estimated_parameters
     assert set(result.standard_errors) == set(estimated)
@@ -139,7 +139,7 @@ def test_restricted_models_take_robust_losses_and_a_reference_series(loss, model
         result = nlpcal.calibrate(
             samples, method=method, model=model, loss=loss, reference_field=series
         )
-        assert result.reference["mode"] == "series" and result.robust["loss"] == loss
+        assert result.reference.mode == "series" and result.robust["loss"] == loss
         assert result.model_name == model
         _assert_recovers(result, truth)
 

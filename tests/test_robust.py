@@ -166,13 +166,13 @@ def test_a_staged_cycle_far_from_the_joint_optimum_fails_the_quality_check(tilte
     for name, value in gap["joint_parameters"].items():
         assert value == pytest.approx(joint.parameters[name], abs=1e-3 * max(1, abs(value)))
     allowed = nlpcal.calibrate(tilted, method="staged", cycles=50, allow_unconverged=True)
-    assert allowed.solver["stop_reason"] == "max_cycles" and allowed.standard_errors is None
+    assert allowed.solver.stop_reason == "max_cycles" and allowed.standard_errors is None
     assert any("above the joint optimum" in w for w in allowed.warnings)
 
 
 def test_a_target_stop_is_the_users_but_reports_no_standard_errors(tilted):
     result = nlpcal.calibrate(tilted, method="staged", target_std=30.0)
-    assert result.solver["stop_reason"] == "target_std"
+    assert result.solver.stop_reason == "target_std"
     assert result.standard_errors is None
     assert any("above the joint optimum" in w for w in result.warnings)
 

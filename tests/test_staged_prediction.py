@@ -42,23 +42,23 @@ def test_a_tilt_limited_log_fails_after_a_few_cycles_with_advice(tilted):
     failure = caught.value
     assert failure.status == "Staged_Unconverged" and "allow_unconverged" in failure.overrides
     result = failure.result
-    assert result.solver["stop_reason"] == "predicted_unconverged"
+    assert result.solver.stop_reason == "predicted_unconverged"
     assert len(result.statistics) - 1 < 50  # of the 500 allowed
-    last = result.solver["stages"][-1]
-    assert last["predicted_cycles"] > 500 and 0 < last["convergence_rate"] < 1
+    last = result.solver.stages[-1]
+    assert last.predicted_cycles > 500 and 0 < last.convergence_rate < 1
     assert "--method joint" in failure.reason and "--allow-unconverged" in failure.reason
 
 
 def test_allow_unconverged_runs_to_the_limit(tilted):
     result = nlpcal.calibrate(tilted, unit="nT", cycles=60, allow_unconverged=True)
-    assert result.solver["stop_reason"] == "max_cycles" and len(result.statistics) - 1 == 60
+    assert result.solver.stop_reason == "max_cycles" and len(result.statistics) - 1 == 60
 
 
 @pytest.mark.parametrize("attitudes", ["uniform", "turntable", "clustered"])
 def test_the_prediction_never_stops_a_cycle_that_converges(attitudes):
     samples = simulate(2000, seed=1, noise=1.0, attitudes=attitudes).to_numpy()
     predicted = nlpcal.calibrate(samples, unit="nT", require_identifiable=False)
-    assert predicted.solver["stop_reason"] == "rtol"
+    assert predicted.solver.stop_reason == "rtol"
     unpredicted = nlpcal.calibrate(
         samples, unit="nT", require_identifiable=False, allow_unconverged=True
     )

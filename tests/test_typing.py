@@ -92,7 +92,7 @@ def untyped_names(
 def test_py_typed_ships_with_the_package():
     assert (PACKAGE / "py.typed").is_file()
     config = (ROOT / "pyproject.toml").read_text()
-    assert 'nlpcal = ["py.typed"]' in config
+    assert 'nlpcal = ["py.typed"' in config  # the schemas ship beside it
 
 
 def test_the_type_checking_imports_are_the_lazy_exports():

@@ -31,9 +31,9 @@ from .diagnostics import (
     undetermined_message,
     warnings_for,
 )
-from .joint import run_joint
+from .joint import reweighting_limit_warning, run_joint
 from .problem import Problem
-from .result import CalibrationResult
+from .result import BlockSolve, CalibrationResult, SolverReport
 from .selection import MODEL_CHOICES, choose_model, restriction_warning, selection_warning
 from .staged import CYCLES_DEFAULT, RTOL_DEFAULT, StopRule, run_staged
 
@@ -79,6 +79,7 @@ def calibrate(
     progress=None,
     verbose: bool = False,
     threads: int | None = None,
+    ipopt_options: dict | None = None,
 ) -> CalibrationResult:
     """Estimate the nine parameters of Eq. 4 in [1] from a log of many attitudes.
 
@@ -138,6 +139,12 @@ def calibrate(
     threads : int, optional
         Threads of the passes over the data (`--threads`; default: the cores available to the
         process, its CPU affinity within its cgroup's quota); BLAS is held to one thread meanwhile.
+    ipopt_options : dict, optional
+        Further IPOPT options (`--ipopt-option KEY=VALUE`): name -> int, float or str, as IPOPT
+        types them ({"max_iter": 50, "mu_strategy": "adaptive"}), over nlpcal's own
+        (`nlpcal.nlp.blocks.OPTIONS`). IPOPT checks them first (InputError for an option it does
+        not know or a value it refuses); the result records every option IPOPT was given under
+        `solver.ipopt_options`.
 
     Returns
     -------
@@ -175,6 +182,9 @@ def calibrate(
     with chunks.call_threads(validation.optional_whole(threads, "threads")):
         validation.choice(method, "method", METHODS)
         validation.choice(model, "model", MODEL_CHOICES)
+        ipopt = (replace(OPTIONS, print_level=5) if verbose else OPTIONS).with_options(
+            ipopt_options
+        )
         unit_source = "assumed" if unit is None else "option"
         unit = "nT" if unit is None else unit
         units.field_factor(unit)
@@ -213,7 +223,7 @@ def calibrate(
                 reference=reference,
                 moments=moments,
                 loss=chosen_loss,
-                ipopt=replace(OPTIONS, print_level=5) if verbose else OPTIONS,
+                ipopt=ipopt,
                 model=form,
             )
 
@@ -312,10 +322,11 @@ def estimate(
     try:
         if method == "staged":
             theta, rows, stages, stop_reason = run_staged(problem, rule, progress)
+            report = SolverReport(stages, ipopt_options=problem.ipopt.settings())
             hs = scaled_hessian(problem.moments, theta)
         else:
-            step, rows, stages = run_joint(problem)
-            theta, stop_reason = step.theta, "solved"
+            step, rows, report = run_joint(problem)
+            theta, stop_reason, stages = step.theta, report.stop_reason, report.stages
             hs = scaled_hessian(problem.moments, theta, step)
     except SolveError as failure:
         raise explain_failure(problem, failure, method, base) from None
@@ -350,6 +361,9 @@ def estimate(
             downweighted_fraction=final["downweighted"] / len(samples),
             centre=problem.centre,
         )
+        limit = reweighting_limit_warning(report)
+        if limit:
+            warnings.append(limit)
     elif spread["residual_std"] > HEAVY_TAIL_RATIO * spread["residual_robust_std"]:
         warnings.append(
             f"the residuals are heavy-tailed (std {spread['residual_std']:.3g}, robust std "
@@ -400,15 +414,7 @@ def estimate(
         method=method,
         reference=problem.reference_document(),
         gauge=dict(GAUGE) if mode == "none" else None,
-        solver={
-            "name": "ipopt",
-            "status": stages[-1]["status"],
-            "success": True,
-            "iterations": sum(s["iterations"] for s in stages),
-            "stop_reason": stop_reason,
-            "converged": unconverged is None,
-            "stages": stages,
-        },
+        solver=replace(report, stop_reason=stop_reason, converged=unconverged is None),
         unit=base,
         standard_errors=errors,
         covariance=covariance,
@@ -474,16 +480,16 @@ def correct_bias(parameters: dict, block: dict, identifiability: dict, warnings:
     return {name: value - bias.get(name, 0.0) for name, value in parameters.items()}
 
 
-def staged_message(stop_reason: str, cycles: int, gap: dict, last: dict | None = None) -> str:
+def staged_message(stop_reason: str, cycles: int, gap: dict, last: BlockSolve | None = None) -> str:
     """Why a staged result is not at the optimum, with both objectives and what to do.
 
     last : the record of the last stage (its predicted cycles when the cycle stopped early).
     """
     if stop_reason == "predicted_unconverged" and last is not None:
         why = (
-            f"the staged cycle stopped after {last['cycle']} cycles, predicting from its rate of "
-            f"convergence (each cycle's improvement {last['convergence_rate']:.4g} times the one "
-            f"before) that its rtol rule would need about {last['predicted_cycles']} cycles, "
+            f"the staged cycle stopped after {last.cycle} cycles, predicting from its rate of "
+            f"convergence (each cycle's improvement {last.convergence_rate:.4g} times the one "
+            f"before) that its rtol rule would need about {last.predicted_cycles} cycles, "
             f"more than its limit of {cycles}"
         )
         advice = "use --method joint, or --allow-unconverged to run to the limit"
@@ -551,9 +557,9 @@ def _record_log(result: CalibrationResult, log: Log) -> CalibrationResult:
     result.unit_source = log.unit_source
     result.warnings = [*log.warnings, *(w for w in result.warnings if w not in log.warnings)]
     if log.reference_column:
-        result.reference["column"] = log.reference_column
+        result.reference.column = log.reference_column
     if log.reference_source:
-        result.reference["model"] = dict(log.reference_source)
+        result.reference.model = dict(log.reference_source)
     return result
 
 

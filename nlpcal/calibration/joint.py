@@ -8,8 +8,9 @@ Start: the algebraic ellipsoid fit (`algebraic_start`), else offsets at the cent
 fitted to the raw samples, angles zero, and scales zero (Eq. 8) or the common scale that maps the
 sphere radius onto the reference field. A start whose Newton step is shorter than
 `nlpcal.nlp.steps.STATIONARY_SE` standard errors is the optimum to the resolution of the data
-and is not handed to IPOPT: the Newton step finishes it (status At_Stationary_Point). On a
-near-spherical log the algebraic fit often is.
+and is not handed to IPOPT: the Newton step finishes it (its solver report says
+`finished_by` "newton", nlpcal status At_Stationary_Point). On a near-spherical log the
+algebraic fit often is.
 
 References
 ----------
@@ -27,6 +28,7 @@ from ..models.zhou2010 import from_correction
 from ..moments import PSI_EXPONENTS
 from ..nlp.blocks import variable_scale
 from ..nlp.steps import block_step
+from .result import BlockSolve, SolverReport
 
 
 @cache
@@ -101,53 +103,68 @@ IRLS_XTOL = 1e-6
 MAX_REWEIGHTS = 100
 
 
-def run_joint(problem, start=None):
+def run_joint(problem, start=None, start_name: str = "given"):
     """Solve all nine at once; with a robust loss, reweight and re-solve from the least-squares
     solution until the weights no longer move the parameters (iteratively reweighted least
-    squares, each solve warm-started).
+    squares, each solve warm-started), for at most MAX_REWEIGHTS reweightings: a reweighting
+    that stops there, still moving the parameters, is said in `reweighting_limit_warning`.
 
     start : the first solve's start (internal units); default the algebraic ellipsoid fit
         (`algebraic_start`), else the sphere fit (`joint_start`), projected onto the model's
         parameters (`nlpcal.nlp.blocks.Variables.project`).
+    start_name : what a given `start` is, for the report ("sphere" for `joint_start`).
 
-    Returns (step, rows, stages): the `nlpcal.nlp.steps.Step` of the last solve, the measured
-    and the joint Table 1 rows, and the record of every solve.
+    Returns (step, rows, report): the `nlpcal.nlp.steps.Step` of the last solve, the measured
+    and the joint Table 1 rows, and the `SolverReport` of every solve (where the first started,
+    what finished each, IPOPT's options).
     """
     rows = [problem.measured_row()]
     started = time.perf_counter()
+    kind = start_name
     if start is None:
-        start = algebraic_start(problem.moments)
+        start, kind = algebraic_start(problem.moments), "algebraic"
     if start is None:
-        start = joint_start(problem.moments)
+        start, kind = joint_start(problem.moments), "sphere"
     start = problem.free.project(start)
     step = block_step(problem.moments, "joint", start, problem.ipopt, model=problem.model)
-    records = [(step, "joint")]
+    records = [BlockSolve.of(step, 1, "joint")]
     scale = variable_scale(problem.moments.frame.radius)
+    settled = not problem.loss.robust
     for _ in range(MAX_REWEIGHTS if problem.loss.robust else 0):
         changed = problem.reweight(step.theta)
         new = block_step(problem.moments, "joint", step.theta, problem.ipopt, model=problem.model)
         move = float(np.max(np.abs(new.theta - step.theta) / scale))
         step = new
-        records.append((step, "joint (reweighted)"))
+        records.append(BlockSolve.of(step, len(records) + 1, "joint (reweighted)"))
         if move < IRLS_XTOL and not changed:
+            settled = True
             break
+    report = SolverReport(
+        stages=records,
+        stop_reason="solved" if settled else "reweighting_limit",
+        ipopt_options=problem.ipopt.settings(),
+        start=kind,
+    )
     rows.append(
         problem.row(
             "joint",
             step.theta,
             step.f_end,
-            iterations=sum(s.iterations for s, _ in records),
+            iterations=report.iterations,
             wall_s=time.perf_counter() - started,
         )
     )
-    stages = [
-        {
-            "cycle": k,
-            "stage": stage,
-            "status": s.status,
-            "iterations": s.iterations,
-            "objective": s.f_end,
-        }
-        for k, (s, stage) in enumerate(records, start=1)
-    ]
-    return step, rows, stages
+    return step, rows, report
+
+
+def reweighting_limit_warning(report: SolverReport) -> str | None:
+    """The warning of a joint robust solve whose reweighting stopped at its limit
+    (MAX_REWEIGHTS) with the parameters still moving by more than IRLS_XTOL of their typical
+    sizes, or the loss scale still changing; None otherwise."""
+    if report.stop_reason != "reweighting_limit":
+        return None
+    return (
+        f"the robust reweighting stopped at its limit of {MAX_REWEIGHTS} reweightings with the "
+        f"parameters still moving: the weights had not settled, so the estimate is that of the "
+        f"last weighting, not the optimum of the robust loss"
+    )

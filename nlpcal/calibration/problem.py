@@ -29,6 +29,7 @@ from ..nlp.solver import IpoptOptions
 from ..passes import reduce
 from ..robust import MAD_SAMPLES, Loss
 from ..statistics import corrected_magnitude, correction, field_statistics, reference_chunk
+from .result import Reference
 
 #: A loss scale estimated from the residuals is re-estimated at every reweighting until it
 #: changes by less than this fraction, then kept, so that the last steps minimise one objective.
@@ -135,15 +136,14 @@ class Problem:
         series (a robust loss and a series weight the samples in ways the mean cannot show)."""
         return not self.loss.robust and self.moments.reference in ("none", "constant")
 
-    def reference_document(self) -> dict:
-        """The "reference" block of a result: the mode and the field (or its mean)."""
+    def reference_document(self) -> Reference:
+        """The reference of a result: the mode and the field (or its mean)."""
         mode = self.moments.reference
-        document: dict = {"mode": mode}
         if mode == "constant":
-            document["field"] = float(self.reference)  # type: ignore[arg-type]
-        elif mode == "series":
-            document["field_mean"] = float(self.reference.mean())  # type: ignore[union-attr]
-        return document
+            return Reference(mode, field=float(self.reference))  # type: ignore[arg-type]
+        if mode == "series":
+            return Reference(mode, field_mean=float(self.reference.mean()))  # type: ignore[union-attr]
+        return Reference(mode)
 
     # --- robust losses: iteratively reweighted moments ----------------------------------------
 

@@ -7,7 +7,7 @@ References
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
@@ -23,6 +23,7 @@ from ..models.zhou2010 import (
     is_of_model,
     tied_parameters,
 )
+from ..nlp.solver import FINISHERS, NLPCAL_STATUSES
 from ..results import Document, DocumentReader
 from ..statistics import STD_DDOF, format_table
 from ..verdict import Verdict, judge
@@ -59,16 +60,49 @@ def read_parameters(reader: DocumentReader, key: str = "parameters") -> Zhou2010
     )
 
 
-def read_reference(reader: DocumentReader) -> dict:
-    """The "reference" block: its mode, and the field (or the mean of a series) as a positive
-    number within the plausible range of a field (FIELD_LIMIT). [result unit]"""
-    block = reader.reader("reference", None)
-    if block is None:
-        return {"mode": "none"}
-    block.string("mode", "none", options=REFERENCE_MODES)
-    for name in ("field", "field_mean"):
-        block.number(name, None, positive=True, maximum=FIELD_LIMIT)
-    return dict(block.document)
+@dataclass
+class Reference:
+    """The reference field a calibration was fitted to: none (Eq. 8 in [1], the scale fixed by
+    the gauge), a constant field, or a series of one value per sample.
+
+    mode : "none", "constant" or "series" (REFERENCE_MODES).
+    field : the constant field. [unit]  field_mean : the mean of a series. [unit]
+    column : the log's column the series came from. model : the geomagnetic model that gave it.
+    """
+
+    mode: str = "none"
+    field: float | None = None
+    field_mean: float | None = None
+    column: str | None = None
+    model: dict | None = None
+
+    @property
+    def scale_known(self) -> bool:
+        """Whether the reference fixes the physical scale (any mode but "none")."""
+        return self.mode != "none"
+
+    @property
+    def level(self) -> float | None:
+        """The field the calibration maps to: the constant field or the mean of the series."""
+        return self.field if self.field is not None else self.field_mean
+
+    def to_dict(self) -> dict:
+        return _present(**asdict(self))
+
+    @classmethod
+    def read(cls, reader: DocumentReader) -> Reference:
+        """The "reference" block of a document: its mode, and the field (or the mean of a
+        series) as a positive number within the plausible range of a field (FIELD_LIMIT)."""
+        block = reader.reader("reference", None)
+        if block is None:
+            return cls()
+        return cls(
+            mode=block.string("mode", "none", options=REFERENCE_MODES),
+            field=block.number("field", None, positive=True, maximum=FIELD_LIMIT),
+            field_mean=block.number("field_mean", None, positive=True, maximum=FIELD_LIMIT),
+            column=block.string("column", None),
+            model=block.mapping("model", None),
+        )
 
 
 def read_robust(reader: DocumentReader) -> dict:
@@ -100,6 +134,166 @@ def read_covariance(reader: DocumentReader, estimated: list) -> np.ndarray | Non
             f"{reader.source}: covariance.matrix must be symmetric with a non-negative diagonal"
         )
     return matrix
+
+
+@dataclass
+class BlockSolve:
+    """One block solve of a calibration (a stage of a staged cycle, or the joint solve): what
+    finished it and how.
+
+    finished_by : "ipopt", "newton" (a Newton step verified to land within the resolution of
+        the data) or "start" (`nlpcal.nlp.solver.FINISHERS`).
+    iterations : IPOPT's iterations (0 when IPOPT did not run).
+    ipopt_status : IPOPT's return status, or None when IPOPT did not run.
+    nlpcal_status : nlpcal's own status when its checks decided the solve
+        (`nlpcal.nlp.solver.NLPCAL_STATUSES`), else None.
+    objective : the objective where the solve ended. [unit^2]
+    convergence_rate, predicted_cycles : on the last stage of a staged cycle stopped on its
+        prediction (`nlpcal.calibration.staged.cycles_to_converge`).
+    """
+
+    cycle: int
+    stage: str
+    finished_by: str
+    iterations: int
+    objective: float | None = None
+    ipopt_status: str | None = None
+    nlpcal_status: str | None = None
+    convergence_rate: float | None = None
+    predicted_cycles: int | None = None
+
+    @classmethod
+    def of(cls, step, cycle: int, stage: str) -> BlockSolve:
+        """The record of a `nlpcal.nlp.steps.Step`."""
+        outcome = step.outcome
+        return cls(
+            cycle=cycle,
+            stage=stage,
+            finished_by=outcome.finished_by,
+            iterations=int(outcome.iterations),
+            objective=float(step.f_end),
+            ipopt_status=outcome.status or None,
+            nlpcal_status=outcome.nlpcal_status,
+        )
+
+    @property
+    def status(self) -> str:
+        """nlpcal's status when its checks decided the solve, else IPOPT's."""
+        return self.nlpcal_status or self.ipopt_status or ""
+
+    def to_dict(self) -> dict:
+        return _present(**asdict(self))
+
+    @classmethod
+    def from_dict(cls, record: dict, source: str = "solver.stages") -> BlockSolve:
+        """A stage record, also as nlpcal 0.1.0 wrote it: one "status" shared by IPOPT's and
+        nlpcal's statuses (told apart by name), no "finished_by"."""
+        reader = DocumentReader(record, source)
+        status = reader.string("status", None)
+        own = status if status in NLPCAL_STATUSES else None
+        ipopt = reader.string("ipopt_status", None if own else status)
+        nlpcal = reader.string("nlpcal_status", own, options=NLPCAL_STATUSES)
+        finished = {"At_Stationary_Point": "newton", "At_Precision_Floor": "start"}
+        return cls(
+            cycle=reader.integer("cycle", 1),
+            stage=reader.string("stage", ""),
+            finished_by=reader.string(
+                "finished_by", finished.get(str(own), "ipopt"), options=FINISHERS
+            ),
+            iterations=reader.integer("iterations", 0),
+            objective=reader.number("objective", None),
+            ipopt_status=ipopt,
+            nlpcal_status=nlpcal,
+            convergence_rate=reader.number("convergence_rate", None),
+            predicted_cycles=reader.integer("predicted_cycles", None),
+        )
+
+
+@dataclass
+class SolverReport:
+    """How a calibration was solved: every block solve, why it stopped, IPOPT's options.
+
+    stages : the BlockSolve of every block solve, in order.
+    stop_reason : why the solve stopped ("solved" for a joint solve; a staged cycle's rule).
+    converged : False for a staged cycle stopped away from the optimum.
+    ipopt_options : the options IPOPT was given (`nlpcal.nlp.solver.IpoptOptions.settings`),
+        whether or not it ran; empty in a document that did not record them.
+    start : where a joint solve started: "algebraic" (the ellipsoid fit), "sphere" or "given";
+        None for a staged cycle (Fig. 1 in [1] starts at zero).
+    success : False only in a document written for a failed solve.
+    gauss_newton_steps : the Levenberg-Marquardt steps of a temperature calibration.
+    """
+
+    stages: list = field(default_factory=list)
+    stop_reason: str = "solved"
+    converged: bool = True
+    ipopt_options: dict = field(default_factory=dict)
+    start: str | None = None
+    success: bool = True
+    gauss_newton_steps: int | None = None
+
+    @property
+    def iterations(self) -> int:
+        """IPOPT's iterations over every block solve."""
+        return sum(s.iterations for s in self.stages)
+
+    @property
+    def last(self) -> BlockSolve | None:
+        return self.stages[-1] if self.stages else None
+
+    @property
+    def status(self) -> str:
+        """The status of the last block solve (nlpcal's when its checks decided it)."""
+        return self.last.status if self.last is not None else ""
+
+    def summary(self) -> dict:
+        """How the solve ended, the same for every command that reports it (`calibrate`'s
+        "solver" block, `compare`'s joint row): where it started, what finished its last block
+        solve with IPOPT's and nlpcal's statuses, IPOPT's iterations and solves over all."""
+        last = self.last
+        return _present(
+            start=self.start,
+            finished_by=None if last is None else last.finished_by,
+            ipopt_status=None if last is None else last.ipopt_status,
+            nlpcal_status=None if last is None else last.nlpcal_status,
+            iterations=self.iterations,
+            ipopt_solves=sum(s.ipopt_status is not None for s in self.stages),
+        )
+
+    def to_dict(self) -> dict:
+        """The "solver" block: success, convergence and stop reason, the `summary`, the
+        options, and every stage."""
+        return _present(
+            success=self.success,
+            converged=self.converged,
+            stop_reason=self.stop_reason,
+            **self.summary(),
+            gauss_newton_steps=self.gauss_newton_steps,
+            ipopt_options=dict(self.ipopt_options),
+            stages=[s.to_dict() for s in self.stages],
+        )
+
+    @classmethod
+    def from_dict(cls, block: dict, source: str = "document") -> SolverReport:
+        reader = DocumentReader(block, source, "solver.")
+        stages = reader.items("stages", [])
+        return cls(
+            stages=[
+                BlockSolve.from_dict(s, f"{source}: solver.stages[{i}]")
+                for i, s in enumerate(stages)
+            ],
+            stop_reason=reader.string("stop_reason", "solved"),
+            converged=reader.raw("converged", True) is not False,
+            ipopt_options=reader.mapping("ipopt_options", {}),
+            start=reader.string("start", None),
+            success=reader.raw("success", True) is not False,
+            gauss_newton_steps=reader.integer("gauss_newton_steps", None),
+        )
+
+
+def _present(**values) -> dict:
+    """The values that are not None (a document holds no null)."""
+    return {name: value for name, value in values.items() if value is not None}
 
 
 def read_orientation(reader: DocumentReader) -> dict | None:
@@ -223,9 +417,9 @@ class CalibrationResult(Document):
     parameters: dict
     statistics: list
     method: str = "staged"
-    reference: dict = field(default_factory=lambda: {"mode": "none"})
+    reference: Reference = field(default_factory=Reference)
     gauge: dict | None = None
-    solver: dict = field(default_factory=dict)
+    solver: SolverReport = field(default_factory=SolverReport)
     unit: str = "nT"
     unit_source: str | None = None
     standard_errors: dict | None = None
@@ -245,7 +439,7 @@ class CalibrationResult(Document):
     @property
     def estimated_parameters(self) -> list:
         """The parameters the model estimates, in PARAMETER_NAMES order."""
-        return estimated_parameters(self.model_name, self.reference.get("mode", "none") != "none")
+        return estimated_parameters(self.model_name, self.reference.scale_known)
 
     @property
     def fixed_parameters(self) -> list:
@@ -275,7 +469,7 @@ class CalibrationResult(Document):
             return None
         if self.unit_source in units.FIXING_SOURCES:
             return "the unit"
-        if (self.reference or {}).get("mode", "none") != "none":
+        if self.reference.scale_known:
             return "the reference field"
         return None
 
@@ -306,12 +500,12 @@ class CalibrationResult(Document):
         poorly determined when some standard errors exceed their limits, else ok or warnings."""
         block = self.identifiability or {}
         failures = []
-        if self.solver.get("success") is False:
-            failures.append(f"the solver failed ({self.solver.get('status')})")
-        elif self.solver.get("converged") is False:
+        if not self.solver.success:
+            failures.append(f"the solver failed ({self.solver.status})")
+        elif not self.solver.converged:
             failures.append(
                 f"not converged: the {self.method} solve stopped on "
-                f"{self.solver.get('stop_reason')}, away from the optimum"
+                f"{self.solver.stop_reason}, away from the optimum"
             )
         if block.get("not_identifiable"):
             failures.append(f"the data do not determine {', '.join(block['not_identifiable'])}")
@@ -328,9 +522,9 @@ class CalibrationResult(Document):
             "statistics": list(self.statistics),
             "std_ddof": STD_DDOF,
             "method": self.method,
-            "reference": dict(self.reference),
+            "reference": self.reference.to_dict(),
             "gauge": self.gauge,
-            "solver": dict(self.solver),
+            "solver": self.solver.to_dict(),
             "unit": self.unit,
             "unit_source": self.unit_source,
             "model": self.model_name,
@@ -342,7 +536,7 @@ class CalibrationResult(Document):
             "n_samples": self.n_samples,
             "nlpcal_version": self.version,
         }
-        tied = tied_parameters(self.model_name, self.reference.get("mode", "none") != "none")
+        tied = tied_parameters(self.model_name, self.reference.scale_known)
         if tied:
             document["tied_parameters"] = tied
         if self.model_selection:
@@ -372,8 +566,8 @@ class CalibrationResult(Document):
         """The constructor arguments stored in a document (shared with the temperature kind)."""
         errors = reader.reader("standard_errors") if reader.has("standard_errors") else None
         model_name = reader.string("model", "full", options=list(MODELS))
-        reference = read_reference(reader)
-        scale_known = reference.get("mode", "none") != "none"
+        reference = Reference.read(reader)
+        scale_known = reference.scale_known
         estimated = estimated_parameters(model_name, scale_known)
         parameters = read_parameters(reader).to_dict()
         check_model(parameters, model_name, scale_known, reader.source)
@@ -383,7 +577,7 @@ class CalibrationResult(Document):
             "method": reader.string("method", "staged"),
             "reference": reference,
             "gauge": reader.mapping("gauge", None),
-            "solver": reader.mapping("solver", {}),
+            "solver": SolverReport.from_dict(reader.mapping("solver", {}), reader.source),
             "unit": reader.string("unit", "nT", options=list(units.FIELD_UNITS_NT)),
             "unit_source": reader.string("unit_source", None, options=units.UNIT_SOURCES),
             "standard_errors": None

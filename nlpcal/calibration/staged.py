@@ -24,6 +24,7 @@ import numpy as np
 from ..defaults import CYCLES_DEFAULT, RTOL_DEFAULT
 from ..nlp.blocks import STAGE_ORDER, variables
 from ..nlp.steps import block_step
+from .result import BlockSolve
 
 #: The prediction of the rtol rule (`cycles_to_converge`) reads the rate of convergence from the
 #: last RATE_WINDOW ratios of successive decreases of the objective, and trusts it only when they
@@ -121,7 +122,7 @@ def run_staged(problem, rule: StopRule, progress=None):
     its cycle limit.
     progress : None, or called with (cycle, its Table 1 row) after every cycle.
     Returns (theta, rows, stages, stop_reason): the last parameters, one Table 1 row per cycle
-    (after the measured row), the record of every stage solve and why the cycle stopped.
+    (after the measured row), the `BlockSolve` of every stage solve and why the cycle stopped.
     """
     theta = np.zeros(9)  # Fig. 1: the first pass starts with every other block at zero
     # a restricted model has no stage for the blocks it does not estimate (the diagonal model no
@@ -147,15 +148,7 @@ def run_staged(problem, rule: StopRule, progress=None):
             step = block_step(problem.moments, stage, theta, problem.ipopt, model=problem.model)
             theta = step.theta
             iterations += step.iterations
-            stages.append(
-                {
-                    "cycle": cycle,
-                    "stage": stage,
-                    "status": step.status,
-                    "iterations": step.iterations,
-                    "objective": step.f_end,
-                }
-            )
+            stages.append(BlockSolve.of(step, cycle, stage))
         exact = (
             rule.every_row_exact
             or cycle == 1
@@ -196,7 +189,8 @@ def run_staged(problem, rule: StopRule, progress=None):
         predicted = cycles_to_converge(objectives, rule.rtol) if predicting else None
         if predicted and cycle + predicted[1] / PREDICTION_MARGIN > rule.max_cycles:
             stop_reason = "predicted_unconverged"
-            stages[-1].update(convergence_rate=predicted[0], predicted_cycles=cycle + predicted[1])
+            stages[-1].convergence_rate = predicted[0]
+            stages[-1].predicted_cycles = cycle + predicted[1]
             break
     if rows[-1].get("from_moments"):  # the last cycle's row is always a pass over the data
         last = rows[-1]

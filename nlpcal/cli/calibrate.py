@@ -168,6 +168,15 @@ them (say, the sensor was never turned over); --allow-unidentifiable writes them
     add_loss_arguments(parser)
     add_threads_argument(parser)
     parser.add_argument(
+        "--ipopt-option",
+        action="append",
+        type=ipopt_option,
+        metavar="KEY=VALUE",
+        help="an IPOPT option for every solve, e.g. max_iter=50 or mu_strategy=adaptive "
+        "(repeatable; the value is an integer, a number or a word, as IPOPT types the option; "
+        "IPOPT checks it). The result records every IPOPT option under solver.ipopt_options",
+    )
+    parser.add_argument(
         "--allow-unidentifiable",
         action="store_true",
         help="write the result even when the data cannot determine some parameters (exit 0, "
@@ -252,6 +261,11 @@ def _run_calibrate(args) -> int:
         raise InputError(
             "--model applies to the nine-parameter calibration; the temperature calibration "
             "estimates the full model"
+        )
+    if temperature and args.ipopt_option:
+        raise InputError(
+            "--ipopt-option applies to the nine-parameter calibration; the temperature "
+            "calibration takes IPOPT's settings of its own"
         )
     if temperature and not args.reference_column:
         raise InputError(
@@ -348,9 +362,28 @@ def table_rows() -> int | None:
     return None if common.VERBOSITY >= 1 else SUMMARY_ROWS
 
 
+def ipopt_option(text: str) -> tuple:
+    """(name, value) of a --ipopt-option KEY=VALUE (`nlpcal.nlp.solver.ipopt_value` types the
+    value)."""
+    import argparse
+
+    from ..nlp.solver import ipopt_value
+
+    name, sep, value = text.partition("=")
+    if not sep or not name.strip() or not value.strip():
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE (e.g. max_iter=50), got {text!r}")
+    return name.strip(), ipopt_value(value)
+
+
 def calibration_options(args) -> dict:
     """The keyword arguments of `nlpcal.calibration.calibrate_log` that the options of
     `nlpcal calibrate` (and of `nlpcal batch calibrate`) give."""
+    from ..nlp.solver import check_ipopt_options
+    from ..results import distinct
+
+    ipopt_options = distinct(args.ipopt_option or (), "--ipopt-option", "option") or None
+    if ipopt_options:  # checked before any log is read (a batch would fail every log)
+        check_ipopt_options(ipopt_options)
     return {
         "method": args.method,
         "model": args.model,
@@ -363,6 +396,7 @@ def calibration_options(args) -> dict:
         "require_identifiable": not args.allow_unidentifiable,
         "allow_unconverged": args.allow_unconverged,
         "threads": args.threads,
+        "ipopt_options": ipopt_options,
     }
 
 

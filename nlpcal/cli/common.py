@@ -175,8 +175,9 @@ def report_log(log) -> None:
 
 
 def solver_log():
-    """With -v, IPOPT's log (printed through Python's stdout by CasADi) goes to stderr."""
-    return contextlib.redirect_stdout(sys.stderr) if VERBOSITY >= 1 else contextlib.nullcontext()
+    """IPOPT's log (printed through Python's stdout by CasADi: with -v, or a print_level given by
+    --ipopt-option) goes to stderr, never into the data on stdout."""
+    return contextlib.redirect_stdout(sys.stderr)
 
 
 def add_input_arguments(parser) -> None:

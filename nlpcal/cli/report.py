@@ -54,7 +54,8 @@ def stored_reference_column(parameters, options: dict, columns) -> str | None:
         return None
     if options.get("reference_column") is not None:
         return None
-    column = (getattr(parameters, "reference", None) or {}).get("column")
+    reference = getattr(parameters, "reference", None)  # a CalibrationResult's, or none
+    column = reference.column if reference is not None else None
     return column if column is not None and column in list(columns) else None
 
 

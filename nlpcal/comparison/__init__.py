@@ -111,7 +111,9 @@ class Comparison(Document):
     staged : list of dict
         Table 1 rows of the staged cycle: the measured row, then one row per cycle.
     joint : dict
-        The Table 1 row of the joint IPOPT solve.
+        The Table 1 row of the joint solve, from the CG's start (the sphere fit), with how its
+        solve ended as `calibrate` reports it (`SolverReport.summary`: start, finished_by,
+        IPOPT's and nlpcal's statuses, IPOPT's iterations).
     cg_joint : list of dict
         The CG on all nine, unscaled (the paper's setting) then scaled.
     cg_staged : list of dict
@@ -311,12 +313,11 @@ def compare(
         try:
             _, staged, stages, stop_reason = run_staged(problem, rule)
             start = joint_start(moments)
-            joint_step, joint_rows, joint_stages = run_joint(problem, start)  # the CG's start
+            joint_step, joint_rows, joint_report = run_joint(problem, start, "sphere")
         except SolveError as failure:
             raise explain_failure(problem, failure, None) from None
         joint_theta = joint_step.theta
-        joint = joint_rows[-1]
-        joint["status"] = joint_stages[-1]["status"]
+        joint = {**joint_rows[-1], **joint_report.summary()}  # as `calibrate` reports it
         joint_path = joint_trajectory(joint_step, joint["iterations"], joint["objective"])
         hs = scaled_hessian(moments, joint_theta, joint_step)
         weak = uncertainty(problem, joint["objective"], hs)[1]["not_identifiable"]
@@ -384,7 +385,7 @@ def compare(
             cg_staged=cg_staged,
             trajectories=trajectories,
             summary=summary,
-            reference=problem.reference_document(),
+            reference=problem.reference_document().to_dict(),
             settings=settings,
             unit=units.base_unit(unit),
             warnings=warnings,

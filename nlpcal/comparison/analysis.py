@@ -53,12 +53,13 @@ def joint_trajectory(step, iterations: int, f_end: float) -> dict:
 
 
 def staged_trajectory(rows, stages) -> dict:
-    """Objective after every stage (or every cycle, when the stages do not record it)."""
+    """Objective after every stage (`nlpcal.calibration.result.BlockSolve`; or every cycle,
+    when the stages do not record it)."""
     path = {"iterations": [0], "objective": [rows[0]["objective"]]}
-    if stages and all("objective" in s for s in stages):
+    if stages and all(s.objective is not None for s in stages):
         for stage in stages:
-            path["iterations"].append(path["iterations"][-1] + int(stage["iterations"]))
-            path["objective"].append(float(stage["objective"]))
+            path["iterations"].append(path["iterations"][-1] + stage.iterations)
+            path["objective"].append(float(stage.objective))
         return path
     for row in rows[1:]:
         path["iterations"].append(path["iterations"][-1] + row["iterations"])

@@ -110,6 +110,11 @@ class SensorCalibration:
         )
 
 
+#: The "version" key of a compass calibration, as nlpcal 0.1.0 wrote it (kept, and checked,
+#: beside "format_version").
+LEGACY_VERSION = 1
+
+
 @dataclass
 class CompassCalibration(Document):
     """Both sensors' corrections, how they were found, and what could not be identified.
@@ -164,7 +169,7 @@ class CompassCalibration(Document):
 
     def body(self) -> dict:
         doc = {
-            "version": self.FORMAT_VERSION,  # the key of nlpcal 0.1, kept beside format_version
+            "version": LEGACY_VERSION,  # the key of nlpcal 0.1, kept beside format_version
             "mode": self.mode,
             "conventions": {
                 "world": "NED (x magnetic north, y east, z down)",
@@ -188,11 +193,11 @@ class CompassCalibration(Document):
 
     @classmethod
     def from_body(cls, reader: DocumentReader) -> CompassCalibration:
-        version = reader.integer("version", cls.FORMAT_VERSION)
-        if version != cls.FORMAT_VERSION:
+        version = reader.integer("version", LEGACY_VERSION)
+        if version != LEGACY_VERSION:
             raise InputError(
                 f"{reader.source}: compass calibration version {version!r} is not "
-                f"supported (expected {cls.FORMAT_VERSION})"
+                f"supported (expected {LEGACY_VERSION})"
             )
         return cls(
             mode=reader.string("mode", ""),

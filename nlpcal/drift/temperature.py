@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import inference, units, validation
-from ..calibration.result import CalibrationResult
+from ..calibration.result import BlockSolve, CalibrationResult, Reference, SolverReport
 from ..errors import InputError
 from ..models import liu2022
 from ..models.liu2022 import TEMPERATURE_MODELS, TemperatureModel
@@ -28,7 +28,7 @@ from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
 from ..models.zhou2010 import correct as zhou_correct
 from ..moments import sphere_frame
 from ..nlp.blocks import variable_scale
-from ..nlp.temperature import gauss_newton_pass, minimise, n_coefficients
+from ..nlp.temperature import STEP_OPTIONS, gauss_newton_pass, minimise, n_coefficients
 from ..results import Document, DocumentReader
 from ..statistics import format_table
 from ..verdict import Verdict
@@ -171,7 +171,7 @@ class TemperatureCalibrationResult(Document):
         return self.calibration.input
 
     @property
-    def reference(self) -> dict:
+    def reference(self) -> Reference:
         return self.calibration.reference
 
     @property
@@ -386,24 +386,21 @@ def calibrate_temperature(
         parameters=params.to_dict(),
         statistics=rows,
         method=f"joint-temperature-{model}",
-        reference={"mode": "series", "field_mean": float(np.mean(reference))},
+        reference=Reference("series", field_mean=float(np.mean(reference))),
         gauge=None,
-        solver={
-            "name": "ipopt",
-            "status": status,
-            "success": True,
-            "iterations": iterations,
-            "stop_reason": "solved",
-            "gauss_newton_steps": steps,
-            "stages": [
-                {
-                    "cycle": 1,
-                    "stage": f"joint-temperature-{model}",
-                    "status": status,
-                    "iterations": iterations,
-                }
+        solver=SolverReport(
+            stages=[
+                BlockSolve(
+                    cycle=1,
+                    stage=f"joint-temperature-{model}",
+                    finished_by="ipopt",
+                    iterations=iterations,
+                    ipopt_status=status,
+                )
             ],
-        },
+            ipopt_options=STEP_OPTIONS.settings(),
+            gauss_newton_steps=steps,
+        ),
         unit=units.base_unit(unit),
         unit_source="option",  # the caller's unit (nT by default); the reference fixes the scale
         standard_errors=errors,
@@ -489,5 +486,5 @@ def calibrate_temperature_log(
     result.calibration.input = log.metadata(temperature_column=temperature_column)
     result.calibration.unit_source = log.unit_source
     result.calibration.warnings[:0] = [w for w in log.warnings if w not in result.warnings]
-    result.calibration.reference["column"] = log.reference_column
+    result.calibration.reference.column = log.reference_column
     return result

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import units, validation
-from ..calibration.result import CalibrationResult, read_orientation
+from ..calibration.result import CalibrationResult, Reference, read_orientation
 from ..errors import InputError
 from ..models.zhou2010 import correction_matrix, from_correction, smallest_model
 from ..results import Document, DocumentReader
@@ -60,10 +60,8 @@ def rotation_angle_deg(rotation) -> float:
 def expected_field(result: CalibrationResult) -> float | None:
     """The total field a calibration maps to: its reference field (or the mean of a reference
     series), else the mean |B1| of its last Table 1 row, else None. [result unit]"""
-    reference = result.reference or {}
-    for key in ("field", "field_mean"):
-        if isinstance(reference.get(key), (int, float)):
-            return float(reference[key])
+    if result.reference.level is not None:
+        return float(result.reference.level)
     if result.statistics and isinstance(result.statistics[-1].get("mean"), (int, float)):
         return float(result.statistics[-1]["mean"])
     return None
@@ -264,9 +262,9 @@ class AffineCorrection(Document):
             )
         base = units.base_unit(self.unit)
         angle = rotation_angle_deg(rotation)
-        reference: dict = {"mode": "none"}
+        reference = Reference()
         if self.field is not None:
-            reference = {"mode": "constant", "field": units.to_base(self.field, self.unit)}
+            reference = Reference("constant", field=units.to_base(self.field, self.unit))
         return CalibrationResult(
             sensor_id=self.sensor_id,
             orientation=self.orientation,
@@ -276,7 +274,7 @@ class AffineCorrection(Document):
             reference=reference,
             # the smallest form that holds the correction exactly: a restricted model exported
             # by nlpcal reads back as that model
-            model_name=smallest_model(params.to_dict(), reference["mode"] != "none"),
+            model_name=smallest_model(params.to_dict(), reference.scale_known),
             unit=base,
             unit_source=unit_source,
             input={

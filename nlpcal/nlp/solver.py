@@ -15,14 +15,19 @@ for any log. IPOPT does not raise on failure: `solve` always reads `stats()["suc
 
 from __future__ import annotations
 
+import io
+import os
+import re
+import tempfile
 import threading
-from dataclasses import dataclass
+from contextlib import redirect_stdout
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import casadi as ca
 import numpy as np
 
-from ..errors import SolveError
+from ..errors import InputError, SolveError
 
 
 @dataclass(frozen=True)
@@ -39,8 +44,9 @@ class IpoptOptions:
     hessian_approximation: str = "exact"
     extra: tuple = ()  # further (name, value) IPOPT options; a tuple keeps the settings hashable
 
-    def as_casadi(self) -> dict:
-        ipopt = {
+    def settings(self) -> dict:
+        """IPOPT's options as IPOPT is given them (the `extra` ones last, overriding)."""
+        return {
             "tol": self.tol,
             "acceptable_tol": self.acceptable_tol,
             "acceptable_iter": self.acceptable_iter,
@@ -48,9 +54,78 @@ class IpoptOptions:
             "print_level": self.print_level,
             "sb": "yes",
             "hessian_approximation": self.hessian_approximation,
+            **dict(self.extra),
         }
-        ipopt.update(dict(self.extra))
-        return {"ipopt": ipopt, "print_time": False}
+
+    def as_casadi(self) -> dict:
+        return {"ipopt": self.settings(), "print_time": False}
+
+    def with_options(self, options: dict | None) -> IpoptOptions:
+        """These settings with the further IPOPT `options` (name -> int, float or str), each
+        checked by IPOPT itself (`check_ipopt_options`)."""
+        if not options:
+            return self
+        check_ipopt_options(options)
+        merged = {**dict(self.extra), **options}
+        return replace(self, extra=tuple(sorted(merged.items())))
+
+
+def ipopt_value(text: str) -> int | float | str:
+    """The value of an IPOPT option given as text: an integer, else a number, else the text
+    (IPOPT's option types: Integer, Number, String)."""
+    text = text.strip()
+    if re.fullmatch(r"[+-]?\d+", text):
+        return int(text)
+    try:
+        value = float(text)
+    except ValueError:
+        return text
+    return value if np.isfinite(value) else text
+
+
+def check_ipopt_options(options: dict) -> None:
+    """InputError, in IPOPT's words, unless IPOPT knows every option and accepts its value.
+
+    IPOPT checks its options when a solver is created; a one-variable problem is created with
+    them, IPOPT's printed complaint captured (it writes to the process's standard output).
+    """
+    for name, value in options.items():
+        if not isinstance(name, str) or isinstance(value, bool):
+            raise InputError(f"IPOPT option {name!r}: expected a name and a number or a string")
+        if not isinstance(value, (int, float, str)):
+            raise InputError(f"IPOPT option {name}: expected a number or a string, got {value!r}")
+    x = ca.SX.sym("x")
+    settings = {**options, "print_level": 0, "sb": "yes"}
+    python_side = io.StringIO()  # CasADi hands IPOPT's messages to Python's stdout
+    with tempfile.TemporaryFile(mode="w+b") as captured, redirect_stdout(python_side):
+        saved = os.dup(1)
+        try:
+            os.dup2(captured.fileno(), 1)
+            try:
+                ca.nlpsol("check", "ipopt", {"x": x, "f": x * x}, {"ipopt": settings})
+                error = None
+            except RuntimeError as exc:
+                error = str(exc)
+        finally:
+            os.dup2(saved, 1)
+            os.close(saved)
+        captured.seek(0)
+        printed = captured.read().decode(errors="replace") + python_side.getvalue()
+    if error is None:
+        return
+    said = re.search(
+        r'Setting: "(.*?)" is not a valid setting for Option: (\S+?)\.?(?=\s|$)', printed
+    )
+    unknown = re.search(r"No such IPOPT option: (\S+)", error)
+    if said:
+        reason = f"IPOPT refuses {said.group(1)} for its option {said.group(2)}"
+    elif unknown:
+        reason = f"IPOPT has no option {unknown.group(1)}"
+    elif "type mismatch" in error:
+        reason = f"a value of the wrong type for IPOPT (given: {options})"
+    else:
+        reason = error.strip().splitlines()[-1]
+    raise InputError(f"bad IPOPT option: {reason}")
 
 
 #: Every registered problem builder: name -> (cached builder, example argument tuples).
@@ -175,9 +250,24 @@ def build_nlpsol(name: str, x, f, p, g=None, options: IpoptOptions | None = None
     return ca.nlpsol(name, "ipopt", nlp, (options or IpoptOptions()).as_casadi())
 
 
+#: What finished a block solve (`nlpcal.nlp.steps.block_step`): IPOPT, a Newton step verified
+#: to land within the resolution of the data, or the start itself (nothing to improve on).
+FINISHERS = ("ipopt", "newton", "start")
+#: nlpcal's own statuses of a block solve, beside IPOPT's: the start at the precision of the
+#: float64 moments, a Newton step within the resolution of the data (IPOPT not run), IPOPT given
+#: up where Newton steps reach that resolution, and a solve that ended above its start.
+NLPCAL_STATUSES = ("At_Precision_Floor", "At_Stationary_Point", "At_Data_Resolution", "Start_Kept")
+
+
 @dataclass
 class SolveOutcome:
-    """What one IPOPT solve returned."""
+    """What one solve returned.
+
+    status : IPOPT's return status; "" when IPOPT did not run (`finished_by` "newton" or
+        "start"). iterations : IPOPT's iterations (0 when it did not run).
+    finished_by : what finished the solve (FINISHERS). nlpcal_status : nlpcal's own status
+        (NLPCAL_STATUSES) when its checks, not IPOPT's, decided the solve; None otherwise.
+    """
 
     x: np.ndarray
     f: float
@@ -186,6 +276,8 @@ class SolveOutcome:
     iterations: int
     # IPOPT's objective at its start and after each iteration (of its problem, as scaled there)
     objectives: tuple = ()
+    finished_by: str = "ipopt"
+    nlpcal_status: str | None = None
 
     def record(self) -> dict:
         """IPOPT's status and iteration count, for a result document."""

@@ -72,7 +72,8 @@ class Step:
 
     @property
     def status(self) -> str:
-        return self.outcome.status
+        """nlpcal's status of the solve when its checks decided it, else IPOPT's."""
+        return self.outcome.nlpcal_status or self.outcome.status
 
 
 #: The smallest Newton decrease, as a fraction of the objective, that float64 moments resolve. [1]
@@ -208,14 +209,17 @@ def block_step(
     A block already at its optimum (a Newton step would gain less than the fraction
     `stationary` of the objective, by default `resolution`: a step shorter than STATIONARY_SE
     standard errors) is not handed to IPOPT, whose problem is then not even built: the Newton
-    step finishes it (status At_Stationary_Point, zero iterations). Otherwise IPOPT solves it,
-    from where that Newton step lands if it is a finishing one (`_Newton.taken`), and Newton
-    steps finish IPOPT's answer (`_Newton.finished`). Statuses besides IPOPT's:
-    At_Precision_Floor (noise-free data, the objective below what float64 moments resolve) and
-    At_Data_Resolution (IPOPT gave up, whatever its reason, where Newton steps reach the
-    resolution). Raises SolveError when IPOPT fails otherwise, or when the objective goes
-    negative (status Negative_Objective). A solve that ends above its start, and not within the
-    resolution, keeps the start: a stage never makes the objective worse.
+    step finishes it (nlpcal status At_Stationary_Point, zero iterations). Otherwise IPOPT
+    solves it, from where that Newton step lands if it is a finishing one (`_Newton.taken`),
+    and Newton steps finish IPOPT's answer (`_Newton.finished`). The outcome says what finished
+    the solve (`finished_by`: "ipopt", "newton" or "start") and keeps IPOPT's status apart from
+    nlpcal's own (`nlpcal_status`, `nlpcal.nlp.solver.NLPCAL_STATUSES`): At_Precision_Floor
+    (noise-free data, the objective below what float64 moments resolve), At_Stationary_Point
+    (the Newton step from the start), At_Data_Resolution (IPOPT gave up, whatever its reason,
+    where Newton steps reach the resolution) and Start_Kept (the solve ended above its start).
+    Raises SolveError when IPOPT fails otherwise, or when the objective goes negative (status
+    Negative_Objective). A solve that ends above its start, and not within the resolution,
+    keeps the start: a stage never makes the objective worse.
     """
     theta = np.asarray(theta, dtype=float)
     free = variables(block, moments.reference, model)
@@ -226,13 +230,25 @@ def block_step(
     if abs(f_start) <= floor:
         # Noise-free data at their optimum: nothing left that float64 moments can resolve.
         outcome = SolveOutcome(
-            x=zero, f=f_start, status="At_Precision_Floor", success=True, iterations=0
+            x=zero,
+            f=f_start,
+            status="",
+            success=True,
+            iterations=0,
+            finished_by="start",
+            nlpcal_status="At_Precision_Floor",
         )
         return _step(moments, free, theta, outcome, f_start, 1.0, start.hess)
     if start.within(stationary):
         landed = start.taken()
         outcome = SolveOutcome(
-            x=landed.x, f=landed.f, status="At_Stationary_Point", success=True, iterations=0
+            x=landed.x,
+            f=landed.f,
+            status="",
+            success=True,
+            iterations=0,
+            finished_by="newton",
+            nlpcal_status="At_Stationary_Point",
         )
         return _step(moments, free, theta, outcome, f_start, 1.0, start.hess, start.decrease)
     problem = block_problem(block, moments.reference, model, options)
@@ -261,11 +277,13 @@ def block_step(
     # last point is solved all the same when the Newton steps from it reach the resolution.
     if abs(end.f) <= floor and end.f <= f_start:
         if not outcome.success:
-            outcome = replace(outcome, status="At_Precision_Floor", success=True)
+            outcome = replace(outcome, nlpcal_status="At_Precision_Floor", success=True)
     else:
         end = end.finished()
         if not outcome.success and end.within():
-            outcome = replace(outcome, status="At_Data_Resolution", success=True)
+            outcome = replace(
+                outcome, nlpcal_status="At_Data_Resolution", success=True, finished_by="newton"
+            )
     if not outcome.success:
         raise SolveError(
             f"IPOPT did not solve the {block} problem", outcome.status, result=theta
@@ -274,7 +292,9 @@ def block_step(
     # Newton steps place within the resolution of the block's optimum is better than a start
     # that was not (else the start would not have been solved).
     if end.f > f_start + 1e-12 * f_ref and not end.within():
-        outcome = replace(outcome, x=zero, f=f_start / f_ref)
+        outcome = replace(
+            outcome, x=zero, f=f_start / f_ref, finished_by="start", nlpcal_status="Start_Kept"
+        )
         return _step(
             moments, free, theta, outcome, f_start, f_ref, start.hess / f_ref, problem=problem
         )

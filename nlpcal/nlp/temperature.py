@@ -91,8 +91,12 @@ def residual_function(kind: str) -> ca.Function:
     )
 
 
+#: IPOPT's settings of every Gauss-Newton step (recorded in the result's solver report).
+STEP_OPTIONS = IpoptOptions()
+
+
 @problem("liu2022.step", examples=[(kind,) for kind in TEMPERATURE_MODELS])
-def step_solver(kind: str, options: IpoptOptions = IpoptOptions()):
+def step_solver(kind: str, options: IpoptOptions = STEP_OPTIONS):
     """min_d (c + 2 b.d + d^T (A + lambda I) d) / c over the scaled step d (Levenberg-Marquardt).
 
     p = (vec(A), b, c, lambda): the Gauss-Newton sums of one pass and the damping.

@@ -242,7 +242,7 @@ def _pairs(block: dict) -> str:
 
 def _reference(result: CalibrationResult, view: CalibrationView) -> str:
     """The reference the calibration was fitted to, and the one this report judges against."""
-    stored = dict(result.reference or {"mode": "none"})
+    stored = result.reference.to_dict()
     judged = {
         "none": "none: the field's own mean is the only level, so the histograms show the spread "
         "of |B| about its mean",
@@ -332,8 +332,10 @@ def render_report(
         "<h2>Parameters (Zhou et al. 2010, Eq. 4: B1 = O<sub>p</sub> S<sub>p</sub> "
         f"(B<sub>M</sub> &minus; Z<sub>p</sub>))</h2>{_parameters(result)}"
         f"<p class='small'>Values rounded to two significant digits of their standard errors. "
-        f"Method: {_e(result.method)}; solver: {_e(result.solver.get('status', 'none'))}, "
-        f"{_e(result.solver.get('iterations', 0))} iterations.</p>",
+        f"Method: {_e(result.method)}; finished by "
+        f"{_e(result.solver.last.finished_by if result.solver.last else 'none')} "
+        f"({_e(result.solver.status or 'no status')}), {result.solver.iterations} IPOPT "
+        f"iterations.</p>",
         f"<h2>Before and after</h2>{figure}",
         f"<h2>Table 1 rows of this log</h2>{_rows(view.rows(), view.unit)}"
         f"<p class='small'>std with ddof = 0; RMSE against the reference field when there is "

@@ -86,9 +86,9 @@ class CalibrationView:
         after = np.linalg.norm(corrected, axis=1)
         cycles, coverage = [], None
         reference, source = log.reference, "none" if log.reference is None else "given"
-        stored = (result.reference or {}) if result is not None else {}
-        if reference is None and stored.get("mode") == "constant" and result.unit == log.base_unit:
-            reference, source = float(stored["field"]), "stored"
+        stored = result.reference.field if result is not None else None
+        if reference is None and stored is not None and result.unit == log.base_unit:
+            reference, source = float(stored), "stored"  # a constant reference field
         if result is not None:
             cycles = [r for r in result.statistics if str(r.get("label", "")).startswith("cycle")]
             if cycles:
