@@ -54,6 +54,9 @@ CHECK_COVERED = 26
 #: In --check, emp sd / SE must lie within this band (the ratio of standard deviations of 40
 #: replicas scatters by about 11 %: the band is the issue's 0.8-1.25 widened by three of those).
 CHECK_RATIO = (0.6, 1.6)
+#: In --check, emp sd / CRLB on uniform attitudes must stay below this (the issue's 1.1 widened
+#: by three times the 11 % scatter of a standard deviation of 40 replicas).
+CHECK_CRLB = 1.45
 
 
 @dataclass(frozen=True)
@@ -223,6 +226,9 @@ def check_case(case: Case, r: dict) -> list:
             problems.append(f"{case.name}: {name} covered in {count} of {r['replicas']}")
         if not CHECK_RATIO[0] <= ratio <= CHECK_RATIO[1]:
             problems.append(f"{case.name}: {name} emp sd / SE {ratio:.2f}")
+    for name, efficiency in zip(NAMES, r["crlb"] if r["crlb"] is not None else []):
+        if efficiency > CHECK_CRLB:
+            problems.append(f"{case.name}: {name} emp sd / CRLB {efficiency:.2f}")
     return problems
 
 

@@ -15,15 +15,19 @@ with p the number of parameters. `estimate` does this once for everyone:
   the largest marks a direction the data do not determine; the parameters that take part in it
   (|component| > INVOLVED) are reported, and no standard errors are given;
 * optionally from the scores of the samples (a residual times its sensitivity to each
-  parameter) by a block jackknife (`block_jackknife`), its groups as long as the scores'
-  dependence (`bartlett_bandwidth`): a log is a time series, and when the scores of neighbouring
-  samples are alike the samples carry less information than their number says.
+  parameter): when they show dependence (`scores_dependent`), by a grouped jackknife
+  (`block_jackknife`), its groups as long as the scores' dependence (`bartlett_bandwidth`): a
+  log is a time series, and when the scores of neighbouring samples are alike the samples carry
+  less information than their number says. Independent samples keep s^2 A^-1.
 
 The widening by the residuals' lag-1 autocorrelation that other estimators still use
 (`standard_error_inflation`) is the AR(1) variance inflation sqrt((1 + rho) / (1 - rho)).
 
 References
 ----------
+[CJ] Carlstein, E. (1986). The use of subseries values for estimating the variance of a general
+    statistic from a stationary sequence. Annals of Statistics 14(3), 1171-1179; the
+    delete-a-group jackknife of non-overlapping batches.
 [K89] Kunsch, H. R. (1989). The jackknife and the bootstrap for general stationary
     observations. Annals of Statistics 17(3), 1217-1241.
 [A91] Andrews, D. W. K. (1991). Heteroskedasticity and autocorrelation consistent covariance
@@ -100,6 +104,28 @@ def bartlett_bandwidth(series) -> float:
     return float(min(1.1447 * (alpha * t) ** (1 / 3), t - 1))
 
 
+#: The scores' lag-1 autocorrelation counts as dependence above this many standard errors of an
+#: independent series' (1 / sqrt(K)): with nine score series, by chance in about 1 % of logs. [1]
+DEPENDENCE_Z = 3.0
+
+
+def scores_dependent(series) -> bool:
+    """Whether the (K, q) block sums of the scores are clearly dependent: the largest lag-1
+    autocorrelation of a column above DEPENDENCE_Z / sqrt(K). Independent samples get the
+    independent-sample sandwich (s^2 A^-1 for least squares) rather than a jackknife whose few
+    groups of a short log state standard errors wider than the spread. [1]"""
+    series = np.asarray(series, dtype=float)
+    count = series.shape[0]
+    if count < 3:
+        return False
+    lead, lag = series[1:], series[:-1]
+    spread = np.sqrt(np.einsum("ij,ij->j", lead, lead) * np.einsum("ij,ij->j", lag, lag))
+    rho = np.divide(
+        np.einsum("ij,ij->j", lead, lag), spread, out=np.zeros_like(spread), where=spread > 0
+    )
+    return bool(rho.max() > DEPENDENCE_Z / np.sqrt(count))
+
+
 def group_length(bandwidth: float, blocks: int) -> int:
     """Blocks per group of the jackknife: GROUP_BANDWIDTHS automatic bandwidths, but no longer
     than leaves MIN_GROUPS groups (a short log, or scores alike across most of it: the variance
@@ -109,8 +135,9 @@ def group_length(bandwidth: float, blocks: int) -> int:
 
 
 def block_jackknife(series, informations, length: int) -> tuple:
-    """(V, G): the covariance of an estimate by the delete-a-group jackknife over groups of
-    consecutive samples [K89], and the number of groups G.
+    """(V, G): the covariance of an estimate by the delete-a-group jackknife over G = K // length
+    non-overlapping groups of consecutive blocks, as near equal in length as K allows (the
+    grouped, batch-means jackknife [CJ]; [K89] is its moving-block relative).
 
     series : (K, q) block sums of the scores psi(r_i) J_i at the estimate. informations :
     (K, q, q) the blocks' shares A_k of the information A = sum A_k. length : blocks per group.
@@ -121,17 +148,18 @@ def block_jackknife(series, informations, length: int) -> tuple:
     dependence of the scores; and since each delta_g is the estimate refitted without its group,
     V keeps what the fit absorbs of slow errors (a smooth trajectory in a slowly changing field:
     the parameters take up part of the slow errors, and sandwich estimates from the residuals
-    fall short of the spread). For independent samples it is the sandwich A^-1 (sum S S^T) A^-1
-    with a leverage correction, s^2 A^-1 to within its noise.
+    fall short of the spread). For independent samples on few groups it is biased upwards (a
+    leverage correction), which is why they are left to the sandwich (`scores_dependent`).
     """
     series = np.asarray(series, dtype=float)
     blocks = np.asarray(informations, dtype=float)
-    starts = np.arange(0, series.shape[0], max(1, int(length)))
+    count = series.shape[0]
+    groups = max(1, count // max(1, int(length)))  # near-equal groups: no short leftover one
+    starts = np.array([part[0] for part in np.array_split(np.arange(count), groups)])
     sums = np.add.reduceat(series, starts, axis=0)
     shares = np.add.reduceat(blocks, starts, axis=0)
     total = blocks.sum(axis=0)
     deltas = np.array([np.linalg.lstsq(total - a, s, rcond=None)[0] for a, s in zip(shares, sums)])
-    groups = len(starts)
     centred = deltas - deltas.mean(axis=0)
     return (groups - 1) / groups * centred.T @ centred, groups
 

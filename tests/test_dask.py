@@ -4,9 +4,11 @@ The tolerances: the Dask pass adds the same numbers in another order (per block,
 which changes the Gram matrix by rounding (1e-12 relative, checked below). The solvers turn that
 into differences of their own stopping tolerance, exactly as running in memory on one core instead
 of two does (docs/scale.md measures both): parameters within 0.02 standard errors, the resolution
-every block solve promises (`resolution.SAME_OPTIMUM_SE`), Table 1 rows and standard errors
-within 1e-6 relative (the scores' block sums do not depend on how the rows are split); the same
-number of cycles, the same coverage, identifiability and warnings.
+every block solve promises (`resolution.SAME_OPTIMUM_SE`), Table 1 rows within 1e-6 relative;
+the same number of cycles, the same coverage, identifiability and warnings. The scores' block
+sums at one theta do not depend on how the rows are split (1e-9, checked below); the standard
+errors, taken at parameters 0.02 standard errors apart, differ by what that moves them:
+ERROR_TOLERANCE.
 """
 
 import json
@@ -29,7 +31,10 @@ dask = pytest.importorskip("dask")
 da = pytest.importorskip("dask.array")
 
 ROW_TOLERANCE = 1e-6
-ERROR_TOLERANCE = 1e-6
+#: Parameters 0.02 SE apart move s^2 A^-1 (independent samples: these logs) by about 1e-4
+#: relative, and the jackknife of dependent scores by up to 5 % (its group length can change
+#: by one block besides).
+ERROR_TOLERANCE = {"independent": 1e-3, "block-jackknife": 0.05}
 
 
 @pytest.fixture(scope="module")
@@ -53,8 +58,10 @@ def assert_same_calibration(memory, lazy):
             else:
                 assert again[key] == pytest.approx(row[key], rel=ROW_TOLERANCE, abs=1e-9), key
     if memory.standard_errors is not None:
+        method = memory.identifiability["score_dependence"]["method"]
+        assert lazy.identifiability["score_dependence"]["method"] == method
         for name, value in memory.standard_errors.items():
-            assert lazy.standard_errors[name] == pytest.approx(value, rel=ERROR_TOLERANCE)
+            assert lazy.standard_errors[name] == pytest.approx(value, rel=ERROR_TOLERANCE[method])
     for key in ("coverage", "not_identifiable", "poorly_determined", "weakest_combination"):
         assert lazy.identifiability[key] == memory.identifiability[key], key
     assert lazy.warnings == memory.warnings
@@ -342,7 +349,7 @@ def test_the_scores_block_sums_do_not_depend_on_how_the_rows_are_split(monkeypat
         spread = scores.score_block_sums(lazy, *options, chunk_rows=333)
     assert whole[2] == threads[2] == spread[2] == 104 and whole[0].shape == (97, 9)
     for other in (threads, spread):
-        for mine, theirs in zip(whole[:2], other[:2]):
+        for mine, theirs in zip(whole[:2] + whole[4:], other[:2] + other[4:]):
             np.testing.assert_allclose(theirs, mine, rtol=1e-9, atol=1e-9 * np.abs(mine).max())
 
 

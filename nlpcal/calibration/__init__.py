@@ -13,6 +13,7 @@ import numpy as np
 
 from .. import chunks, passes, units, validation
 from ..errors import QualityError, SolveError
+from ..inference import Z_975
 from ..io.lazy import field_samples
 from ..io.logs import Log, settle_unit
 from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
@@ -403,11 +404,13 @@ def estimate(
     mode = problem.moments.reference
     parameters = Zhou2010Parameters.from_theta(theta).to_dict()
     bias = identifiability.get("second_order_bias")
-    if errors is not None and bias is not None:
-        parameters = correct_bias(parameters, bias, identifiability, warnings)
+    if bias is not None:
+        parameters = correct_bias(parameters, bias, identifiability, warnings, errors is not None)
         if bias["applied"]:
             corrected = Zhou2010Parameters.from_dict(parameters).theta
             rows.append(problem.row("bias corrected", corrected, iterations=0, wall_s=0.0))
+        elif bias.get("widened"):
+            errors, covariance = widened_for_bias(errors, covariance, bias["bias"])
     result = CalibrationResult(
         parameters=parameters,
         statistics=rows,
@@ -444,40 +447,71 @@ def estimate(
     return result
 
 
-def correct_bias(parameters: dict, block: dict, identifiability: dict, warnings: list) -> dict:
+def correct_bias(
+    parameters: dict, block: dict, identifiability: dict, warnings: list, stated: bool = True
+) -> dict:
     """The parameters with their second-order bias (`diagnostics.noise_bias`) removed when it
-    exceeds BIAS_APPLY standard errors and the residuals pass for white noise (no standard
-    error widened beyond BIAS_WHITE_WIDENING); `block` records whether it was applied, the
-    estimate before the correction ("parameters_uncorrected") or why not ("not_applied"). A
-    bias above BIAS_WARN standard errors is a warning either way."""
+    exceeds BIAS_APPLY standard errors, the residuals pass for white noise (no standard error
+    widened beyond BIAS_WHITE_WIDENING) and the sensor's noise is told apart from a reference
+    series' (`noise_separable`); `block` records whether it was applied, the estimate before
+    the correction ("parameters_uncorrected") or why not ("not_applied"), and whether the
+    standard errors are to be widened by it instead ("widened": the noise cannot be told
+    apart). `stated` : False when the result states no standard errors (then nothing is
+    corrected). A bias above BIAS_WARN standard errors is a warning either way."""
     in_errors = block["bias_in_standard_errors"]
     widening = identifiability.get("score_dependence", {}).get("standard_error_widening", {})
     white = max(widening.values(), default=1.0) <= BIAS_WHITE_WIDENING
-    block["applied"] = white and max(abs(v) for v in in_errors.values()) > BIAS_APPLY
-    large = {n: v for n, v in in_errors.items() if abs(v) > BIAS_WARN}
-    if not white:
+    separable = block.get("noise_separable", True)
+    large_enough = max(abs(v) for v in in_errors.values()) > BIAS_APPLY
+    block["applied"] = stated and white and separable and large_enough
+    block["widened"] = stated and white and not separable and large_enough
+    if not stated:
+        block["not_applied"] = "the result states no standard errors"
+        why = "not corrected, for the result states no standard errors at this point"
+    elif not white:
         block["not_applied"] = (
             "neighbouring samples are alike: the residuals are not white sensor noise"
         )
-    if large:
-        worst = max(large, key=lambda n: abs(large[n]))
-        what = (
+        why = (
+            "not corrected, for the residuals are not white sensor noise (their neighbours "
+            "are alike), which its estimate assumes"
+        )
+    elif not separable:
+        block["not_applied"] = (
+            "the reference's own noise cannot be told apart from the sensor's: the standard "
+            "errors are widened by the bias instead"
+        )
+        why = (
+            "not corrected, for the reference series' own noise cannot be told apart from the "
+            "sensor's, which its estimate assumes; the standard errors are widened by it"
+        )
+    else:
+        why = (
             "the parameters are corrected for it (identifiability.second_order_bias keeps the "
             "uncorrected ones)"
-            if block["applied"]
-            else "not corrected, for the residuals are not white sensor noise (their "
-            "neighbours are alike), which its estimate assumes"
         )
+    large = {n: v for n, v in in_errors.items() if abs(v) > BIAS_WARN}
+    if large:
+        worst = max(large, key=lambda n: abs(large[n]))
         warnings.append(
             f"the estimate's second-order bias from the sensor noise reaches "
             f"{large[worst]:+.2f} standard errors ({worst}) along a direction the attitudes "
-            f"barely determine; {what}"
+            f"barely determine; {why}"
         )
     if not block["applied"]:
         return parameters
     block["parameters_uncorrected"] = dict(parameters)
     bias = block["bias"]
     return {name: value - bias.get(name, 0.0) for name, value in parameters.items()}
+
+
+def widened_for_bias(errors: dict, covariance, bias: dict) -> tuple:
+    """(errors, covariance) with each standard error widened by |bias| / Z_975, so that its
+    +/-1.96 SE interval is wider by |bias| on either side; the covariance scaled alike
+    (correlations kept)."""
+    widened = {name: se + abs(bias.get(name, 0.0)) / Z_975 for name, se in errors.items()}
+    factor = np.array([widened[name] / se if se > 0 else 1.0 for name, se in errors.items()])
+    return widened, np.asarray(covariance) * np.outer(factor, factor)
 
 
 def staged_message(stop_reason: str, cycles: int, gap: dict, last: BlockSolve | None = None) -> str:

@@ -40,6 +40,10 @@ CORRELATED_INFLATION = 2.0
 SERIES_CHECK = 1e-8
 #: An estimated distance to the exact optimum above this many standard errors is a warning.
 SHIFT_WARN = 0.1
+#: The sensor's noise is told apart from a reference series' only while the reference's white
+#: variance is at most this share of the residuals': beyond, their difference rests on too
+#: little and the bias is not corrected (`correct_bias`). [1]
+REFERENCE_NOISE_SHARE = 0.5
 
 
 def scaled_hessian(moments: Moments, theta, step=None) -> np.ndarray:
@@ -72,9 +76,11 @@ def uncertainty(
     the sandwich A^-1 Omega A^-1 with Omega = A V A, V the block jackknife of the scores
     psi(r_i) J_i
     (`score_meat`): it follows the dependence of the scores of neighbouring samples (a smooth
-    trajectory in a slowly changing field), and for independent samples it is s^2 A^-1 to
-    within its noise. Without `theta` (identifiability alone) it is s^2 A^-1. `centre` : without
-    a reference, the mean |B1| the least-squares residuals are taken from. [field unit]
+    trajectory in a slowly changing field); scores without clear dependence
+    (`inference.scores_dependent`) keep s^2 A^-1 (A^-1 B A^-1, B = sum psi^2 J J^T, for a robust
+    loss), widened by Student's t on N - p. Without `theta` (identifiability alone) it is
+    s^2 A^-1. `centre` : without a reference, the mean |B1| the least-squares residuals are
+    taken from. [field unit]
     """
     moments = problem.moments
     n = problem.samples.shape[0]
@@ -97,9 +103,13 @@ def uncertainty(
         meat, independent, dependence, noise = score_meat(problem, theta, centre, basis, n - fitted)
         if not robust:  # s^2 A: the meat of independent samples of least squares, s^2 A^-1
             independent = n * objective / max(n - fitted, 1) * np.asarray(information)
-        # never narrower than independent samples' in any direction: a jackknife on few groups
-        # can fall below them by chance, and dependence seldom makes a fit more precise
-        meat = inference.loewner_max(meat, independent, basis)
+        # scores without clear dependence: the sandwich of independent samples; else never
+        # narrower than it in any direction: a jackknife on few groups can fall below it by
+        # chance, and dependence seldom makes a fit more precise (deliberately conservative)
+        if meat is None:  # Student's t on N - p degrees of freedom, as for a linear fit
+            meat = independent * dependence["t_widening"] ** 2
+        else:
+            meat = inference.loewner_max(meat, independent, basis)
         result = inference.estimate(information, meat=meat, **options)
         alone = inference.estimate(information, meat=independent, **options)
     estimated = problem.estimated
@@ -148,22 +158,32 @@ def uncertainty(
     if dependence is not None:
         block["score_dependence"] = dependence
     if dependence is not None and errors is not None and not result.weak:
-        # the variance of the residuals: of the inliers (1.4826 MAD) for a robust loss
-        variance = (
-            robust_std(problem.residuals(theta, problem.centre)) ** 2
-            if robust
-            else n * objective / max(n - fitted, 1)
-        )
+        white = white_variance(problem.residuals(theta, problem.centre), robust)
+        series = problem.reference_series()
+        reference = 0.0 if series is None else white_variance(series, robust)
+        variance = max(white - reference, 0.0)  # the sensor's share of the white residuals
         shift = noise_bias(information, basis, noise, variance) * to_units
         block["second_order_bias"] = {
             "form": "errors in variables, second order in the sensor noise",
             "noise_std": float(np.sqrt(variance / noise["mean_square_g"])),
+            "reference_noise_std": float(np.sqrt(reference)),
+            "noise_separable": bool(reference <= REFERENCE_NOISE_SHARE * white),
             "bias": {name: float(shift[i]) for name, i in zip(estimated, index)},
             "bias_in_standard_errors": {
                 name: float(shift[i] / errors[name]) for name, i in zip(estimated, index)
             },
         }
     return errors, block, covariance
+
+
+def white_variance(series, robust: bool) -> float:
+    """The variance of the white part of a time series: half the mean square of its successive
+    differences (1.4826 MAD of them, squared, for a robust loss), which a slowly changing part
+    (a field that drifts, the misfit along a smooth trajectory) hardly enters. [unit^2]"""
+    steps = np.diff(np.asarray(series, dtype=float))
+    if steps.size == 0:
+        return 0.0
+    return 0.5 * (robust_std(steps) ** 2 if robust else float(np.mean(steps**2)))
 
 
 def noise_bias(information, basis, noise: dict, variance: float) -> np.ndarray:
@@ -176,8 +196,11 @@ def noise_bias(information, basis, noise: dict, variance: float) -> np.ndarray:
     is then off by sigma^2 times their sum (`scores.score_block_sums`), and the estimate by
     bias = -sigma^2 A^-1 sum(...) (on the directions the model estimates). It grows as sigma^2
     and as A^-1: along a direction the attitudes barely determine (a short arc) it reaches
-    standard errors. sigma^2 = s^2 / mean |g|^2, s^2 the residual variance (the noise of |B1|
-    is sigma |g|). A robust loss's equation sum psi(r_i) J_i = 0 is off by the same terms
+    standard errors. The formula assumes the noise is the sensor's: sigma^2 = s^2 / mean |g|^2
+    (the noise of |B1| is sigma |g|), s^2 the white part of the residuals' variance
+    (`white_variance`: a slowly changing field is no sensor noise) less the white part of a
+    reference series' (its own noise, which enters the residuals but not the raw samples). A
+    robust loss's equation sum psi(r_i) J_i = 0 is off by the same terms
     weighted by psi'(r_i) (Stein's lemma, E[psi(x) x] = sigma_x^2 E[psi'(x)] for Gaussian x),
     A = sum psi' J J^T, and s the inliers' spread (1.4826 MAD): spikes (psi' = 0) take no part.
     """
@@ -190,11 +213,13 @@ def score_meat(problem: Problem, theta, centre: float | None, basis, dof: int) -
     """(Omega, G_0, description, noise): the meat of the sandwich covariance in the scaled
     variables, A V A with V the block jackknife's covariance of the estimated directions (`basis`;
     `inference.block_jackknife`, groups of GROUP_BANDWIDTHS automatic Bartlett bandwidths,
-    widened by `inference.t_widening` for its number of groups), the sum of the squares of the
-    block sums times N / dof (the meat for independent samples), and what the result says of it
-    (`score_dependence`), and the noise terms of the bias (`noise_bias`)."""
+    widened by `inference.t_widening` for its number of groups), or None when the scores show
+    no clear dependence (`inference.scores_dependent`: the sandwich of independent samples is
+    then the meat); sum psi(r_i)^2 J_i J_i^T times N / dof (the meat for independent samples);
+    what the result says of it (`score_dependence`); and the noise terms of the bias
+    (`noise_bias`)."""
     n = problem.samples.shape[0]
-    series, informations, block_rows, noise = score_block_sums(
+    series, informations, block_rows, noise, squares = score_block_sums(
         problem.samples,
         theta,
         problem.reference,
@@ -205,20 +230,25 @@ def score_meat(problem: Problem, theta, centre: float | None, basis, dof: int) -
     projected = series @ basis
     shares = np.einsum("ji,kjl,lm->kim", basis, informations, basis)
     bandwidth = inference.bartlett_bandwidth(projected)
+    independent = basis @ (basis.T @ squares @ basis) @ basis.T * n / max(dof, 1)
+    description = {
+        "method": "independent",
+        "bandwidth_blocks": bandwidth,
+        "block_samples": block_rows,
+        "group_blocks": 1,
+        "groups": len(projected),
+        "t_widening": inference.t_widening(dof),
+    }
+    if not inference.scores_dependent(projected):
+        return None, independent, description, noise
     length = inference.group_length(bandwidth, len(projected))
     covariance, groups = inference.block_jackknife(projected, shares, length)
     widening = inference.t_widening(groups - 1)
     total = shares.sum(axis=0)
     meat = basis @ (total @ covariance @ total) @ basis.T * widening**2
-    independent = basis @ (projected.T @ projected) @ basis.T * n / max(dof, 1)
-    description = {
-        "method": "block-jackknife",
-        "bandwidth_blocks": bandwidth,
-        "block_samples": block_rows,
-        "group_blocks": length,
-        "groups": int(groups),
-        "t_widening": widening,
-    }
+    description.update(
+        method="block-jackknife", group_blocks=length, groups=int(groups), t_widening=widening
+    )
     return meat, independent, description, noise
 
 

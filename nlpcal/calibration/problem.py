@@ -38,6 +38,8 @@ SCALE_SETTLED = 1e-3
 #: is below this: the truncation error of its mean is then of the order of 1e-8 and of its std
 #: 1e-5, relative (`nlp.objective.centred_expansion`). [1]
 MOMENT_ROW_SPREAD = 0.05
+#: Rows of the chunks `Problem.residuals` computes |B1| in (8 192 rows of a few buffers: 0.3 MB).
+CHUNK_ROWS = 8192
 
 
 @dataclass
@@ -151,13 +153,27 @@ class Problem:
         """Residuals |B1_i| - F_i (or - centre) on an even stride of at most MAD_SAMPLES samples.
         [field unit]"""
         step = max(1, self.samples.shape[0] // MAD_SAMPLES)
-        magnitude = corrected_magnitude(self.samples[::step], *correction(theta))
+        strided, rows = self.samples[::step], CHUNK_ROWS  # in chunks: a few buffers of memory
+        magnitude = np.concatenate(
+            [
+                corrected_magnitude(np.asarray(strided[i : i + rows]), *correction(theta))
+                for i in range(0, strided.shape[0], rows)
+            ]
+        )
         if self.reference is None:
             return magnitude - (np.median(magnitude) if centre is None else centre)
         if np.ndim(self.reference) == 0:
             return magnitude - float(self.reference)
         series: Any = self.reference  # an array in memory or LazySamples
         return magnitude - series[::step]
+
+    def reference_series(self) -> np.ndarray | None:
+        """A reference series on the stride of `residuals`, or None (a constant or none).
+        [field unit]"""
+        if self.reference is None or np.ndim(self.reference) == 0:
+            return None
+        series: Any = self.reference
+        return np.asarray(series[:: max(1, self.samples.shape[0] // MAD_SAMPLES)], dtype=float)
 
     def weight_function(self, theta, weight):
         """(raw chunk, its reference) -> weight(r) of the chunk's residuals at theta."""

@@ -14,7 +14,8 @@ mean of J (the mean for least squares), so each block sum is sum psi J - Jbar su
 
 The block sums (blocks of `block_rows` consecutive samples, counted from the log's first row, so
 that the sums do not depend on how a pass splits the rows: threads, `--low-memory` or Dask) are
-the series `nlpcal.inference.block_jackknife` turns into the sandwich covariance.
+the series `nlpcal.inference.block_jackknife` turns into the meat of the sandwich covariance;
+the same pass sums psi(r_i)^2 J_i J_i^T over every sample, the meat of independent samples.
 
 References
 ----------
@@ -34,7 +35,8 @@ from ..passes import as_rows, reduce, reference_chunk
 from ..statistics import correction
 
 #: Largest number of blocks of the score series: a log of more samples sums neighbours (the
-#: series stays small whatever the log's length, and the jackknife's groups are whole blocks).
+#: series stays small whatever the log's length, and a jackknife over groups of consecutive
+#: blocks estimates the same long-run covariance as over groups of samples).
 MAX_BLOCKS = 4096
 #: Complex step for the derivatives of M's entries. [rad or 1]
 COMPLEX_STEP = 1e-30
@@ -43,8 +45,13 @@ SCORE_CHUNK_ROWS = 512
 #: The entries of psi' J J^T a block sums: its upper triangle (row <= column).
 UPPER = np.triu_indices(9)
 #: Columns of a block's sums: psi J (9), psi, psi' J (9), psi', the upper triangle of
-#: psi' J J^T (45), then the noise terms: dJ/db g (9), tr J (9), tr, |g|^2.
-WIDTH = 20 + len(UPPER[0]) + 20
+#: psi' J J^T (45), the noise terms: dJ/db g (9), tr J (9), tr, |g|^2, then the terms of the
+#: meat of independent samples: psi^2 J (9), psi^2, the upper triangle of psi^2 J J^T (45).
+WIDTH = 20 + len(UPPER[0]) + 20 + 10 + len(UPPER[0])
+#: The columns summed per block; the rest (the noise and meat terms) only over the whole log.
+BLOCK_WIDTH = 20 + len(UPPER[0])
+#: The first column of the meat's terms.
+MEAT = 40 + len(UPPER[0])
 #: The step of the derivative of J along g, relative to the sphere's radius. [1]
 NOISE_STEP = 1e-5
 #: The upper-triangular entries of M, as (row, column).
@@ -81,7 +88,8 @@ def sensitivities(raw, theta, derivatives, scale) -> tuple:
 @dataclass(frozen=True)
 class ScoreBlock:
     """The work of the scores pass on one block of rows starting at row `start` of the log:
-    (index of its first score block, the sums of the WIDTH columns per score block (k, WIDTH))."""
+    (index of its first score block, the sums of the first BLOCK_WIDTH columns per score block
+    (k, BLOCK_WIDTH), the sums of the others over the rows (WIDTH - BLOCK_WIDTH,))."""
 
     theta: np.ndarray
     derivatives: np.ndarray
@@ -98,7 +106,8 @@ class ScoreBlock:
         n = samples.shape[0]
         first = start // self.block_rows
         count = (start + n - 1) // self.block_rows - first + 1 if n else 0
-        sums = np.zeros((count, WIDTH))
+        sums = np.zeros((count, BLOCK_WIDTH))
+        totals = np.zeros(WIDTH - BLOCK_WIDTH)
         for begin in range(0, n, self.chunk_rows):
             stop = min(begin + self.chunk_rows, n)
             raw = samples[begin:stop]
@@ -130,33 +139,37 @@ class ScoreBlock:
                     weighted * trace[:, None],
                     trace * slope,
                     squares,
+                    jacobian * (psi**2)[:, None],
+                    psi**2,
+                    jacobian[:, UPPER[0]] * jacobian[:, UPPER[1]] * (psi**2)[:, None],
                 ]
             )
             index = (start + np.arange(begin, stop)) // self.block_rows - first
             edges = np.flatnonzero(np.diff(index, prepend=-1))  # the rows that open a block
-            sums[index[edges]] += np.add.reduceat(values, edges, axis=0)
-        return first, sums
+            sums[index[edges]] += np.add.reduceat(values[:, :BLOCK_WIDTH], edges, axis=0)
+            totals += values[:, BLOCK_WIDTH:].sum(axis=0)
+        return first, sums, totals
 
 
 def _merge(earlier: tuple, later: tuple) -> tuple:
     """Two partial results of neighbouring rows: their block sums joined, a block split between
-    them added."""
-    (first, sums), (second, more) = earlier, later
+    them added; their totals added."""
+    (first, sums, totals), (second, more, others) = earlier, later
     if not len(sums):
-        return second, more
+        return second, more, totals + others
     if not len(more):
-        return first, sums
+        return first, sums, totals + others
     overlap = first + len(sums) - second  # 1 when a block straddles the boundary, else 0
     joined = np.concatenate([sums, more[overlap:]])
     if overlap:
         joined[len(sums) - 1] += more[0]
-    return first, joined
+    return first, joined, totals + others
 
 
 def score_block_sums(
     samples, theta, reference, loss, centre: float | None, radius: float, chunk_rows: int = 16384
 ) -> tuple:
-    """(S, A, block_rows, bias): per block of `block_rows` consecutive samples, the sum S_k
+    """(S, A, block_rows, bias, B): per block of `block_rows` consecutive samples, the sum S_k
     (K, 9) of the scores psi(r_i) J_i at theta and the sum A_k (K, 9, 9) of psi'(r_i) J_i J_i^T (the
     block's share of the information), in the scaled variables and, without a reference, with
     the centre profiled out (J_i - Jbar); one pass over the samples.
@@ -170,6 +183,10 @@ def score_block_sums(
     (`nlpcal.calibration.diagnostics.noise_bias`): "gradient", E[sum psi(r_i) J_i] / sigma^2 =
     sum psi'(r_i) (dJ_i/db g_i + tr(d2|B1_i|/db2) J_i / 2) (profiled without a reference), and
     "mean_square_g", the mean of |g|^2 (the noise of |B1| is sigma |g|).
+
+    B : (9, 9) sum psi(r_i)^2 J_i J_i^T over the samples (profiled without a reference), the
+    meat of the sandwich for independent samples: the sum of S_k S_k^T over blocks of several
+    samples would add their dependence within each block.
     """
     samples = as_rows(samples)
     n = samples.shape[0]
@@ -187,14 +204,18 @@ def score_block_sums(
         float(np.sum(matrix * matrix)),
         min(chunk_rows, SCORE_CHUNK_ROWS),
     )
-    _, sums = reduce(samples, reference, work, _merge, chunk_rows, indexed=True)
+    _, sums, totals = reduce(samples, reference, work, _merge, chunk_rows, indexed=True)
     scores, psi = sums[:, 0:9], sums[:, 9]
     weighted, slopes = sums[:, 10:19], sums[:, 19]
     upper = sums[:, 20 : 20 + len(UPPER[0])]
     information = np.zeros((len(sums), 9, 9))
     information[:, UPPER[0], UPPER[1]] = upper
     information[:, UPPER[1], UPPER[0]] = upper
-    noise = sums[:, 20 + len(UPPER[0]) :].sum(axis=0)
+    noise, terms = totals[: MEAT - BLOCK_WIDTH], totals[MEAT - BLOCK_WIDTH :]
+    squared, square = terms[0:9], terms[9]
+    meat = np.zeros((9, 9))
+    meat[UPPER[0], UPPER[1]] = terms[10:]
+    meat[UPPER[1], UPPER[0]] = terms[10:]
     along, traced, trace, squares = noise[0:9], noise[9:18], noise[18], noise[19]
     mean = weighted.sum(axis=0) / slopes.sum()
     if reference is None:  # the centre profiled out: J_i - Jbar, Jbar the psi'-weighted mean
@@ -207,5 +228,7 @@ def score_block_sums(
             + slopes[:, None, None] * np.outer(mean, mean)
         )
         traced = traced - mean * trace
+        outer = np.outer(squared, mean)
+        meat = meat - outer - outer.T + square * np.outer(mean, mean)
     bias = {"gradient": along + 0.5 * traced, "mean_square_g": squares / n}
-    return scores, information, block_rows, bias
+    return scores, information, block_rows, bias, meat
