@@ -3,7 +3,9 @@
 `files` writes outputs (files atomically, devices and pipes through, several together) and
 strict JSON (no NaN), `layout` detects how a delimited text log is laid out, `tables` reads it
 and picks its columns, `rows` screens rows that are not readings, `logs` turns a table into
-samples, reference and extra columns in base units.
+samples, reference and extra columns in base units, `stream` reads a log in chunks with every
+row in its place, `output` writes tables (Parquet or text by the extension, at the precision
+the data warrant), `progress` shows how far a long pass has got.
 """
 
 from .files import (
@@ -22,6 +24,7 @@ from .files import (
 from .layout import Layout, detect_layout
 from .logs import Log, read_columns, read_log
 from .mapped import csv_to_memmap
+from .output import Precision, is_parquet_output, write_frames, write_table
 from .sensors import SensorLog, read_sensor_log
 from .tables import (
     Table,
@@ -31,13 +34,13 @@ from .tables import (
     read_table,
     resolve_columns,
     table_text,
-    write_table,
 )
 
 __all__ = [
     "Layout",
     "Log",
     "Outputs",
+    "Precision",
     "SensorLog",
     "Table",
     "check_distinct_outputs",
@@ -46,6 +49,7 @@ __all__ = [
     "csv_engine",
     "csv_to_memmap",
     "detect_layout",
+    "is_parquet_output",
     "json_text",
     "numeric_columns",
     "plain",
@@ -59,6 +63,7 @@ __all__ = [
     "table_text",
     "write_bytes_atomic",
     "write_csv_atomic",
+    "write_frames",
     "write_json_atomic",
     "write_table",
     "write_text_atomic",

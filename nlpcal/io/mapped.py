@@ -37,7 +37,7 @@ class MappedColumns:
     source: str = ""
 
 
-def _spool_stdin(directory=None):
+def spool_stdin(directory=None):
     """Standard input copied into a temporary file, so that it can be read in chunks."""
     spool = tempfile.NamedTemporaryFile(dir=directory, suffix=".log")
     shutil.copyfileobj(sys.stdin.buffer, spool)
@@ -65,7 +65,7 @@ def csv_to_memmap(
     as they are. Rows are screened as in `read_log`: zero vectors
     left out, repeated vectors counted (dropped with drop_invalid).
     """
-    spool = _spool_stdin(directory) if str(path) == "-" else None
+    spool = spool_stdin(directory) if str(path) == "-" else None
     try:
         notes: list = []
         files = log_files(spool.name if spool else path, header, STDIN if spool else None, notes)

@@ -11,6 +11,7 @@ was received and how to fix it.
 from __future__ import annotations
 
 import io
+import os
 import re
 from dataclasses import dataclass, field, replace
 
@@ -20,9 +21,7 @@ import pandas as pd
 from .. import units
 from ..errors import InputError
 from . import sources
-from .files import write_text_atomic
 from .layout import Layout, detect_layout, open_source
-from .strict import finite_table
 
 #: What each sensor's axis columns may be called, for `resolve_columns`:
 #: name -> (prefixes, unit suffixes, examples for messages, flag for messages).
@@ -342,18 +341,47 @@ class LogFile:
             notes=notes,
         )
 
-    def chunks(self, wanted: list, chunk_rows: int):
-        """The `wanted` columns of the file, chunk after chunk, every column checked (ragged
-        rows are errors)."""
+    def chunks(self, wanted: list | None, chunk_rows: int, *, text: bool = False, read=None):
+        """The `wanted` columns of the file (None: all of them), chunk after chunk, every column
+        checked (ragged rows are errors). text : keep a text file's cells as text. read : a
+        function called after each chunk with the share of the file read so far (0 to 1)."""
         if self.parquet:
-            yield from sources.parquet_chunks(self.source, chunk_rows, wanted)
+            total = max(sum(sources.parquet_row_groups(self.source)), 1)
+            done = 0
+            for chunk in sources.parquet_chunks(self.source, chunk_rows, wanted):
+                done += len(chunk)
+                if read is not None:
+                    read(done / total)
+                yield chunk
             return
-        positions = sorted({list(self.preview.columns).index(c) for c in wanted})
+        columns = list(self.preview.columns)
+        positions = sorted({columns.index(c) for c in wanted}) if wanted else None
         options = {**self.layout.pandas_options(), "chunksize": chunk_rows}
-        for chunk in pd.read_csv(self.source, engine="c", **options):
-            chunk = chunk.iloc[:, positions]
-            chunk.columns = [self.preview.columns[k] for k in positions]
-            yield chunk
+        if text:
+            options.update(dtype=str, keep_default_na=False)
+        size = _size(self.source)
+        with _opened(self.source) as handle:
+            for chunk in pd.read_csv(handle, engine="c", **options):
+                if positions is None:
+                    chunk.columns = columns
+                else:
+                    chunk = chunk.iloc[:, positions]
+                    chunk.columns = [columns[k] for k in positions]
+                if read is not None and size:
+                    read(min(handle.tell() / size, 1.0))
+                yield chunk
+
+
+def _size(source) -> int:
+    """The bytes of a file (0 for bytes in memory: their share read is not followed)."""
+    return 0 if isinstance(source, (bytes, bytearray)) else os.stat(source).st_size
+
+
+def _opened(source):
+    """A binary handle on a file's bytes (its position: how far a reader has got)."""
+    if isinstance(source, (bytes, bytearray)):
+        return io.BytesIO(source)
+    return open(source, "rb")
 
 
 def log_files(
@@ -389,9 +417,3 @@ def table_text(frame: pd.DataFrame, layout: Layout) -> str:
     )
     preamble = "".join(line + layout.newline for line in layout.preamble)
     return preamble + body
-
-
-def write_table(frame: pd.DataFrame, layout: Layout, output=None) -> None:
-    """`table_text` to `output` or to stdout (`nlpcal.io.files.Outputs`); the numbers nlpcal
-    computed finite (`nlpcal.io.strict`)."""
-    write_text_atomic(output, table_text(finite_table(frame), layout))
