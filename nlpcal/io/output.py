@@ -165,7 +165,7 @@ def _text_chunk(handle, frame: pd.DataFrame, layout: Layout, first: bool, digits
     one line per row, the numbers nlpcal computed `rounded` to `digits` (None: every digit) and
     written in their shortest form. With pyarrow the cells are made by its compute functions,
     an order of magnitude faster than pandas' `to_csv` on floats; without it by `to_csv`, to
-    the same text."""
+    the same numbers (pandas writes a whole float as "12.0", pyarrow as "12")."""
     if first:
         handle.write("".join(line + layout.newline for line in layout.preamble))
     if digits is not None:

@@ -57,13 +57,14 @@ class LogStream:
     `dropped` (rows with missing values left out), `dropped_rows` (their data row numbers, the
     first QUOTED_ROWS).
 
+    chunk_rows : rows read at a time (default CHUNK_ROWS).
     progress : an object with `update(done, total)` (`nlpcal.io.progress.Progress`) told how
         many bytes of the log's files were read, of how many.
     """
 
-    def __init__(self, path, *, header: bool | None = None, progress=None, chunk_rows=CHUNK_ROWS):
+    def __init__(self, path, *, header: bool | None = None, progress=None, chunk_rows=None):
         self.path, self.header, self.progress = path, header, progress
-        self.chunk_rows = int(chunk_rows)
+        self.chunk_rows = int(chunk_rows or CHUNK_ROWS)
         self._spool = None
         self.notes: list = []
         self.warnings: list = []
@@ -164,6 +165,8 @@ class LogStream:
                 for chunk in part.chunks(None, self.chunk_rows, text=True, read=read):
                     yield self._chunk(chunk, wanted, part, before)
                     before += len(chunk)
+            except InputError:
+                raise
             except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
                 raise unreadable(part.name, part.layout, exc) from None
             done += size
