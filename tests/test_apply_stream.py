@@ -125,7 +125,7 @@ def test_a_bad_line_without_drop_invalid_fails_and_keeps_the_output(
     out.write_text("precious\n")
     code, _, err = run(capsys, "apply", params, log, "-o", out)
     assert code == 2 and "--drop-invalid" in err and "Traceback" not in err
-    assert out.read_text() == "precious\n" and os.listdir(tmp_path) == sorted(os.listdir(tmp_path))
+    assert out.read_text() == "precious\n"
     assert sorted(os.listdir(tmp_path)) == ["log.csv", "out.csv"]
 
 
