@@ -14,8 +14,6 @@ prints the paper's three rows. Parameters with a "temperature_model" object (fro
 
 from __future__ import annotations
 
-import sys
-
 from .common import (
     CALIBRATED_LOG_UNIT,
     LOG_HELP,
@@ -29,6 +27,7 @@ from .common import (
     emit_json,
     log_options,
     report_log,
+    show_progress,
     tell,
     tell_written,
     warn,
@@ -130,17 +129,6 @@ def correction_for(args, columns, require_temperature: bool):
         log_columns=columns,
         require_temperature=require_temperature,
     )
-
-
-def show_progress(label: str, output=None):
-    """The progress line of a pass (`nlpcal.io.progress`): on a terminal stderr, not with -q,
-    and not while the data go to the same terminal on stdout."""
-    from ..io.progress import Progress
-    from . import common
-
-    on_screen = (output is None or str(output) == "-") and sys.stdout.isatty()
-    enabled = common.VERBOSITY >= 0 and sys.stderr.isatty() and not on_screen
-    return Progress(label, enabled=enabled)
 
 
 def run_apply(args) -> int:

@@ -133,6 +133,17 @@ def progress(message: str, done: bool = False) -> None:
     sys.stderr.flush()
 
 
+def show_progress(label: str, output=None):
+    """The progress line of a pass (`nlpcal.io.progress`): on a terminal stderr, not with -q,
+    and not while the data go to the same terminal on stdout."""
+    from ..io.progress import Progress
+    from . import common
+
+    on_screen = (output is None or str(output) == "-") and sys.stdout.isatty()
+    enabled = common.VERBOSITY >= 0 and sys.stderr.isatty() and not on_screen
+    return Progress(label, enabled=enabled)
+
+
 def tell_written(*paths) -> None:
     """ "wrote PATH" for each output written to a path (not stdout), silent with -q."""
     for path in paths:

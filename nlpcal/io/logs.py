@@ -262,6 +262,7 @@ def read_log(
     fallback_unit: str = "nT",
     header: bool | None = None,
     text: bool = False,
+    progress=None,
 ) -> Log:
     """Read, validate and convert a field log.
 
@@ -278,7 +279,8 @@ def read_log(
     extra_columns : further numeric columns to read and validate (temperatures, say).
     drop_invalid : drop rows with missing or non-numeric values, and field vectors repeating the
         row before, instead of failing or keeping them. Exact-zero vectors are always left out.
-    low_memory : stream the columns into a memory-mapped temporary file, O(chunk) memory.
+    low_memory : stream the columns into a memory-mapped temporary file, O(chunk) memory,
+        telling `progress` (`nlpcal.io.progress.Progress`) how far it has read.
     header : force (True) or deny (False) a header row; None detects it.
     text : keep the table's cells as text (for writing the log back unchanged).
     """
@@ -301,7 +303,13 @@ def read_log(
             return units.field_factor(decided["unit"])
 
         mapped = csv_to_memmap(
-            path, columns, extra, header=header, drop_invalid=drop_invalid, scale=scale
+            path,
+            columns,
+            extra,
+            header=header,
+            drop_invalid=drop_invalid,
+            scale=scale,
+            progress=progress,
         )
         chosen, extra = mapped.columns[:3], mapped.columns[3:]
         named = dict(zip(requested, extra))

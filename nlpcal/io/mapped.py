@@ -15,7 +15,7 @@ import pandas as pd
 from ..errors import InputError
 from .layout import STDIN, Layout
 from .rows import RowScreen
-from .tables import column_name, log_files, numeric_columns, unreadable
+from .tables import column_name, file_shares, log_files, numeric_columns, unreadable
 
 
 @dataclass
@@ -55,6 +55,7 @@ def csv_to_memmap(
     scale=1.0,
     chunk_rows: int = 250_000,
     directory=None,
+    progress=None,
 ) -> MappedColumns:
     """Stream the field columns (and `extra_columns`) of a log into a memory-mapped array.
 
@@ -63,7 +64,8 @@ def csv_to_memmap(
     The three field columns come first and are multiplied by `scale` (a unit conversion) on the
     way (`scale` a number, or a function of the three column names); the extra columns are kept
     as they are. Rows are screened as in `read_log`: zero vectors
-    left out, repeated vectors counted (dropped with drop_invalid).
+    left out, repeated vectors counted (dropped with drop_invalid). `progress`
+    (`nlpcal.io.progress.Progress`) is told how many bytes of the files were read.
     """
     spool = spool_stdin(directory) if str(path) == "-" else None
     try:
@@ -79,9 +81,9 @@ def csv_to_memmap(
         rows = dropped = 0
         part = first
         try:
-            for part in files:
+            for part, read in file_shares(files, progress):
                 before = 0  # data rows of this file in the chunks before
-                for chunk in part.chunks(wanted, chunk_rows):
+                for chunk in part.chunks(wanted, chunk_rows, read=read):
                     numeric = numeric_columns(
                         chunk,
                         wanted,

@@ -14,7 +14,6 @@ the first chunk (`nlpcal.io.logs.settle_unit` on its readings).
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,7 +25,7 @@ from .layout import STDIN, Layout
 from .logs import distinct_roles, sensor_unit, settle_unit
 from .mapped import spool_stdin
 from .rows import QUOTED_ROWS, RowScreen
-from .tables import column_name, log_files, numeric_columns, unreadable
+from .tables import column_name, file_shares, log_files, numeric_columns, unreadable
 
 #: Rows read at a time: about 60 MB of text cells for a log of ten columns.
 CHUNK_ROWS = 100_000
@@ -151,15 +150,7 @@ class LogStream:
 
     def _read(self):
         wanted = self.columns + self.extra
-        total = sum(os.stat(part.source).st_size for part in self.files) or 1
-        done = 0
-        for part in self.files:
-            size = os.stat(part.source).st_size
-
-            def read(share, done=done, size=size):
-                if self.progress is not None:
-                    self.progress.update(done + share * size, total)
-
+        for part, read in file_shares(self.files, self.progress):
             before = 0  # data rows of this file in the chunks before
             try:
                 for chunk in part.chunks(None, self.chunk_rows, text=True, read=read):
@@ -169,7 +160,6 @@ class LogStream:
                 raise
             except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
                 raise unreadable(part.name, part.layout, exc) from None
-            done += size
 
     def _chunk(self, chunk: pd.DataFrame, wanted: list, part, before: int) -> LogChunk:
         numeric = numeric_columns(

@@ -393,6 +393,22 @@ class LogFile:
                 yield chunk
 
 
+def file_shares(files: list, progress=None):
+    """(file, read) for each of a log's files (`log_files`), `read(share)` telling `progress`
+    (`nlpcal.io.progress.Progress`, or None) how many bytes of all the files were read once
+    `share` of that file was."""
+    sizes = [_size(part.source) for part in files]
+    total, done = sum(sizes) or 1, 0
+    for part, size in zip(files, sizes):
+
+        def read(share, done=done, size=size):
+            if progress is not None:
+                progress.update(done + share * size, total)
+
+        yield part, read
+        done += size
+
+
 def _size(source) -> int:
     """The bytes of a file (0 for bytes in memory: their share read is not followed)."""
     return 0 if isinstance(source, (bytes, bytearray)) else os.stat(source).st_size
