@@ -228,9 +228,7 @@ def _read_for_calibration(args, extra):
         # table for what needs it (a figure's time axis, a model's position and time columns)
         lean = args.low_memory or not (per_sample or args.plot)
         with show_progress(f"reading {args.log}") as bar:
-            return read_log(
-                args.log, **options, extra_columns=extra, low_memory=lean, progress=bar
-            )
+            return read_log(args.log, **options, extra_columns=extra, low_memory=lean, progress=bar)
     if args.low_memory or args.plot:
         flag = "--low-memory" if args.low_memory else "--plot"
         raise InputError(

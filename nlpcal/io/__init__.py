@@ -33,7 +33,6 @@ from .tables import (
     numeric_columns,
     read_table,
     resolve_columns,
-    table_text,
 )
 
 __all__ = [
@@ -60,7 +59,6 @@ __all__ = [
     "read_table",
     "resolve_columns",
     "sha256_file",
-    "table_text",
     "write_bytes_atomic",
     "write_csv_atomic",
     "write_frames",

@@ -78,7 +78,7 @@ def csv_to_memmap(
         factors = np.array([factor] * 3 + [1.0] * (len(wanted) - 3))
         screen = RowScreen(drop_repeats=drop_invalid)
         store = tempfile.TemporaryFile(dir=directory)
-        rows = dropped = 0
+        rows = dropped = missing = 0
         part = first
         try:
             for part, read in file_shares(files, progress):
@@ -96,6 +96,7 @@ def csv_to_memmap(
                     data_rows = rows + dropped + np.flatnonzero(numeric.kept) + 1
                     keep = screen.keep(numeric.values[:, :3], data_rows)
                     dropped += numeric.dropped + int((~keep).sum())
+                    missing += numeric.dropped
                     values = numeric.values[keep]
                     rows += values.shape[0]
                     store.write(np.ascontiguousarray(values * factors).tobytes())
@@ -113,6 +114,8 @@ def csv_to_memmap(
     if rows == 0:
         store.close()
         raise InputError(f"{name}: no data rows")
+    if missing:  # as `nlpcal.io.logs.screened` says it
+        notes.append(f"dropped {missing} row(s) with missing or non-numeric values")
     mapped = np.memmap(store, dtype=np.float64, mode="r", shape=(rows, len(wanted)))
     return MappedColumns(
         values=mapped,

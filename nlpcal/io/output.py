@@ -26,6 +26,7 @@ import pandas as pd
 from ..errors import InputError
 from .files import PARQUET_SUFFIXES, Outputs, output_target
 from .layout import Layout
+from .sources import pyarrow_parquet
 from .strict import finite_table
 from .tables import csv_engine
 
@@ -239,9 +240,7 @@ class _ParquetSchema:
 
 
 def _write_parquet(handle, frames) -> int:
-    from .sources import _parquet
-
-    parquet = _parquet()
+    parquet = pyarrow_parquet()
     import pyarrow
 
     writer = schema = None

@@ -146,7 +146,7 @@ def read_table(path, *, header: bool | None = None, text: bool = False) -> Table
 
     header : force (True) or deny (False) a header row; None detects it.
     text : keep every cell as text, so that columns not used pass through unchanged when the
-        table is written back (`table_text`).
+        table is written back (`nlpcal.io.output`).
     """
     # Hook: Parquet files, and the files of a glob pattern or a folder (nlpcal.io.sources).
     if sources.is_pattern(path):
@@ -439,18 +439,3 @@ def log_files(
         found.append(LogFile(name or label, source, layout, preview))
     sources.same_columns([(part.name, [str(c) for c in part.preview.columns]) for part in found])
     return found
-
-
-def table_text(frame: pd.DataFrame, layout: Layout) -> str:
-    """A table as text in `layout`: the same delimiter, decimal mark, line ending and header row
-    (or none), the comment lines that preceded the data first. Text cells are written as they
-    are; numbers exactly (shortest round-trip form)."""
-    body = frame.to_csv(
-        sep=" " if layout.delimiter == " " else layout.delimiter,
-        header=layout.header,
-        index=False,
-        decimal=layout.decimal,
-        lineterminator=layout.newline,
-    )
-    preamble = "".join(line + layout.newline for line in layout.preamble)
-    return preamble + body
