@@ -16,10 +16,18 @@ import numpy as np
 import pandas as pd
 import pytest
 
+import nlpcal.io.output
 import nlpcal.io.stream
 from nlpcal.cli import main
 from nlpcal.errors import InputError
-from nlpcal.io.output import Precision, check_table_output, rounded, significant_digits
+from nlpcal.io.layout import Layout
+from nlpcal.io.output import (
+    Precision,
+    check_table_output,
+    rounded,
+    significant_digits,
+    write_table,
+)
 from nlpcal.io.progress import Progress
 from synthetic import PAPER_FIELD, make_log, sensor_axes
 
@@ -321,3 +329,27 @@ def test_progress_on_a_terminal_and_a_killed_apply_leaves_nothing(tmp_path, para
         assert done.returncode == 0 and "\r" not in done.stderr and "left" not in done.stderr
     assert len(pd.read_csv(out)) == BIG_ROWS
     assert out.stat().st_size <= 1.5 * big_log.stat().st_size
+
+
+def test_the_pandas_writer_gives_the_same_numbers(tmp_path, monkeypatch):
+    """Without pyarrow, pandas' to_csv writes the table: the same cells but whole floats."""
+    frame = pd.DataFrame(
+        {
+            "t": ["0.5", "1,5", 'say "hi"'],
+            "x": [30617.5776, -0.000123456, 12.0],
+            "flag": [True, False, True],
+            "valid": np.array([1, 0, 1], dtype=np.int8),
+        }
+    )
+    texts = {}
+    for engine in ("pyarrow", "c"):
+        monkeypatch.setattr(nlpcal.io.output, "csv_engine", lambda engine=engine: engine)
+        out = tmp_path / f"{engine}.csv"
+        write_table(frame, Layout(), out, Precision(6))
+        texts[engine] = out.read_text()
+        pd.testing.assert_frame_equal(
+            pd.read_csv(out, dtype={"t": str}),
+            frame.assign(x=[30617.6, -0.000123456, 12.0]),
+            check_dtype=False,
+        )
+    assert texts["pyarrow"].replace("12,", "12.0,") == texts["c"]
