@@ -121,7 +121,8 @@ def test_every_row_of_numbers_in_place_readings_corrected(tmp_path, capsys, para
     assert "nan" not in out.read_text().lower() and "inf" not in out.read_text().lower()
     # the dropped lines are counted and named by their data rows; the others said
     assert re.search(r"dropped 2 row\(s\).*data row 5, 1202", err)
-    assert f"{(~readings).sum()} row(s) that are not readings" in err
+    assert f"{(kinds == 'zero').sum()} row(s) whose field vector is exactly (0, 0, 0)" in err
+    assert "marked the repeats valid 0" in err
 
 
 def test_a_bad_line_without_drop_invalid_fails_and_keeps_the_output(

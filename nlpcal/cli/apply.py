@@ -174,12 +174,6 @@ def run_apply(args) -> int:
     tell(correction.notes)
     if args.flag_outliers:
         warn(f"{flagged.flags} of {stream.readings} readings flagged as outliers")
-    not_readings = stream.rows - stream.readings
-    if not_readings:
-        warn(
-            f"{not_readings} row(s) that are not readings keep their raw values, "
-            f"marked 0 in the column '{VALID_COLUMN}'"
-        )
     if args.output:
         what = "Parquet" if is_parquet_output(args.output) else stream.layout.describe()
         warn(f"wrote {stream.rows} rows to {args.output} ({what})")

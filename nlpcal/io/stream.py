@@ -24,7 +24,7 @@ from ..errors import InputError
 from .layout import STDIN, Layout
 from .logs import distinct_roles, sensor_unit, settle_unit
 from .mapped import spool_stdin
-from .rows import QUOTED_ROWS, RowScreen
+from .rows import QUOTED_ROWS, RowScreen, quoted_rows
 from .tables import column_name, file_shares, log_files, numeric_columns, unreadable
 
 #: Rows read at a time: about 60 MB of text cells for a log of ten columns.
@@ -184,12 +184,11 @@ class LogStream:
 
     def summary(self) -> list:
         """What was left out or marked, one sentence each, once the log is read."""
-        notes = list(self._screen.notes())
+        notes = list(self._screen.notes(kept=True))
         if self.dropped:
-            where = ", ".join(str(r) for r in self.dropped_rows)
-            more = ", ..." if self.dropped > len(self.dropped_rows) else ""
+            where = quoted_rows(self.dropped, self.dropped_rows)
             notes.append(
                 f"dropped {self.dropped} row(s) with missing or non-numeric values "
-                f"(--drop-invalid; data row {where}{more})"
+                f"(--drop-invalid; data row {where})"
             )
         return notes
