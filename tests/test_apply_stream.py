@@ -2,6 +2,7 @@
 the output's extension, the digits the data warrant, a log streamed in chunks, progress on a
 terminal only, and nothing left behind by a run that fails or is killed."""
 
+import io
 import json
 import os
 import pty
@@ -354,3 +355,15 @@ def test_the_pandas_writer_gives_the_same_numbers(tmp_path, monkeypatch):
             check_dtype=False,
         )
     assert texts["pyarrow"].replace("12,", "12.0,") == texts["c"]
+
+
+def test_parquet_through_a_fifo(tmp_path, capsys, params):
+    log = tmp_path / "log.csv"
+    pd.DataFrame(np.round(SAMPLES[:300], 3), columns=["bx", "by", "bz"]).to_csv(log, index=False)
+    fifo = tmp_path / "pipe.parquet"
+    os.mkfifo(fifo)
+    reader = subprocess.Popen(["cat", str(fifo)], stdout=subprocess.PIPE)
+    code, _, err = run(capsys, "apply", params, log, "-o", fifo)
+    data = reader.communicate(timeout=60)[0]
+    assert code == 0, err
+    assert data[:4] == b"PAR1" and len(pd.read_parquet(io.BytesIO(data))) == 300

@@ -165,7 +165,7 @@ def run_apply(args) -> int:
             if args.flag_outliers:
                 bounds = outlier_bounds(correction, np.linalg.norm(corrected, axis=1))
         chunks = corrected_chunks(stream, correction, precision, bounds)
-        flagged = counted(chunks, OUTLIER_COLUMN if args.flag_outliers else None)
+        flagged = FlagCount(chunks, OUTLIER_COLUMN if args.flag_outliers else None)
         with progress, Outputs() as outputs:
             write_frames(outputs, args.output, flagged, stream.layout, precision)
             if log is not None:
@@ -181,7 +181,7 @@ def run_apply(args) -> int:
     return 0
 
 
-class counted:
+class FlagCount:
     """The chunks of a corrected log passed on, the True values of their `column` counted."""
 
     def __init__(self, chunks, column: str | None):
