@@ -5,8 +5,8 @@
 
 The log is written as `nlpcal simulate` writes one (10 significant digits, about 37 bytes a row)
 into a temporary folder. Every measurement runs in a fresh process, its peak resident memory
-taken from the kernel when it ends (wait4), its stderr on a pseudo-terminal as a user's would
-be (so the progress lines are drawn, and counted):
+and CPU time taken from the kernel when it ends (wait4), its stderr on a pseudo-terminal as a
+user's would be (so the progress lines are drawn, and counted):
 
 - reading the log in memory (`read_log`) and chunked into a memory map (`low_memory=True`,
   calibrate's default reading): seconds and peak memory, and their ratios;
@@ -63,6 +63,7 @@ def measured(argv: list) -> dict:
     text = shown.decode(errors="replace")
     return {
         "seconds": seconds,
+        "cpu_seconds": usage.ru_utime + usage.ru_stime,
         "peak_MB": usage.ru_maxrss / 1024,  # KiB on Linux
         "status": os.waitstatus_to_exitcode(status),
         "progress": "left" in text and "MB/s" in text,
@@ -108,7 +109,9 @@ def main() -> int:
         if failed:
             print(f"failed: {', '.join(failed)}")
             return 1
-        print(f"{'':28s}{'seconds':>8s} (spread)   {'peak MB':>8s} (spread)")
+        print(
+            f"{'':28s}{'seconds':>8s} (spread)   {'CPU s':>8s} (spread)   {'peak MB':>8s} (spread)"
+        )
         labels = {
             "in memory": "read_log, in memory",
             "lean": "read_log, chunked (lean)",
@@ -117,7 +120,11 @@ def main() -> int:
             "parquet": "nlpcal apply -o out.parquet",
         }
         for name, label in labels.items():
-            print(f"{label:28s}{summary(runs[name], 'seconds')}   {summary(runs[name], 'peak_MB')}")
+            done = runs[name]
+            print(
+                f"{label:28s}{summary(done, 'seconds')}   {summary(done, 'cpu_seconds')}   "
+                f"{summary(done, 'peak_MB')}"
+            )
         lean, whole = runs["lean"], runs["in memory"]
         ratio_s = statistics.median(a["seconds"] / b["seconds"] for a, b in zip(lean, whole))
         ratio_m = statistics.median(a["peak_MB"] / b["peak_MB"] for a, b in zip(lean, whole))
