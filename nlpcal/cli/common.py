@@ -137,10 +137,9 @@ def show_progress(label: str, output=None):
     """The progress line of a pass (`nlpcal.io.progress`): on a terminal stderr, not with -q,
     and not while the data go to the same terminal on stdout."""
     from ..io.progress import Progress
-    from . import common
 
     on_screen = (output is None or str(output) == "-") and sys.stdout.isatty()
-    enabled = common.VERBOSITY >= 0 and sys.stderr.isatty() and not on_screen
+    enabled = VERBOSITY >= 0 and sys.stderr.isatty() and not on_screen
     return Progress(label, enabled=enabled)
 
 
