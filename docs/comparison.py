@@ -14,7 +14,6 @@ Needs matplotlib (pip install 'nlpcal[plot]').
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from dataclasses import replace
@@ -25,13 +24,14 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))  # run from a checkout without installing
 
-from generated import check_page, replace_block, update_page  # noqa: E402
+from generated import check_page, check_parser, replace_block, update_page  # noqa: E402
 from nlpcal.calibration.joint import joint_start  # noqa: E402
 from nlpcal.calibration.problem import Problem  # noqa: E402
 from nlpcal.comparison import CompareSettings, compare  # noqa: E402
 from nlpcal.comparison.conjugate_gradient import CGOptions, run_cg_joint  # noqa: E402
 from nlpcal.moments import accumulate  # noqa: E402
 from nlpcal.plots import comparison_png  # noqa: E402
+from nlpcal.reproduce.zhou2010 import PAPER_TABLE1  # noqa: E402
 from nlpcal.simulation import ATTITUDES, PRESETS, simulate  # noqa: E402
 
 PAGE = HERE / "comparison.md"
@@ -46,17 +46,6 @@ SHOWN_CYCLES = 7
 STEP_FACTORS = (0.25, 1.0, 4.0)
 #: Largest PNG written. [bytes]
 MAX_PNG_BYTES = 200_000
-
-PAPER_TABLE1 = [  # Table 1 of Zhou et al. (2010) [nT]
-    ("measured", 50776, 48147, 49506, 744.38, 2629.30),
-    ("1 pass", 49528, 49303, 49434, 53.06, 219.55),
-    ("cycle 2", 49510, 49377, 49451, 23.93, 132.94),
-    ("cycle 3", 49513, 49392, 49458, 17.61, 120.42),
-    ("cycle 4", 49514, 49397, 49461, 16.51, 116.73),
-    ("cycle 5", 49514, 49399, 49462, 16.34, 115.60),
-    ("cycle 6", 49515, 49399, 49462, 16.30, 115.13),
-    ("cycle 7", 49515, 49400, 49462, 16.29, 115.08),
-]
 
 
 def _row_line(row, extra=True) -> str:
@@ -168,14 +157,7 @@ def paper_table() -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument(
-        "--check",
-        action="store_true",
-        help="compare the page's tables (statistics to their last digit, counts within a few) "
-        "without writing anything; exit 1 when they are out of date",
-    )
-    args = parser.parse_args(argv)
+    args = check_parser(__doc__.splitlines()[0]).parse_args(argv)
     FIGURES.mkdir(exist_ok=True)
     preset = PRESETS["zhou2010"]
     results, blocks = {}, {}

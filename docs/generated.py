@@ -24,6 +24,7 @@ moments) changes last digits and the stop decisions that compare them (`differen
 
 from __future__ import annotations
 
+import argparse
 import re
 import sys
 from pathlib import Path
@@ -41,6 +42,18 @@ def replace_block(page: str, name: str, body: str, where: str = "the page") -> s
     if not pattern.search(page):
         raise SystemExit(f"{where}: the markers of block {name!r} are missing")
     return pattern.sub(lambda m: m.group(1) + body.rstrip() + "\n" + m.group(2), page)
+
+
+def check_parser(description: str) -> argparse.ArgumentParser:
+    """The parser of a page's script, with its --check option."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument(
+        "--check",
+        action="store_true",
+        help="compare the page's tables (statistics to their last printed digit, counts within "
+        "a few) without writing anything; exit 1 when they are out of date",
+    )
+    return parser
 
 
 #: Cycle counts agree within this many counts or this fraction, whichever is larger.
@@ -110,12 +123,17 @@ def _pieces(text: str, title: str = ""):
     return NUMBER.sub("#", text), numbers
 
 
+def _cells(line: str) -> list:
+    """The cells of a Markdown table row (an escaped \\| stays inside its cell)."""
+    return re.split(r"(?<!\\)\|", line)
+
+
 def _line_pieces(line: str, header: list | None):
     """The words and numbers of a line; in a table row cell by cell, with its column's header
     telling counts, and wall-time cells left out."""
     if header is None or not line.startswith("|"):
         return [_pieces(line)]
-    cells = line.split("|")
+    cells = _cells(line)
     if len(cells) != len(header):
         return [(line, [])]
     pieces = []
@@ -138,7 +156,7 @@ def differences(page: str, updated: str) -> list:
         if old.startswith("|") and not old.startswith("|-"):
             following = old_lines[number] if number < len(old_lines) else ""
             if following.startswith("|-") or following.startswith("|:"):
-                header = old.split("|")  # a table's header row: the same on both sides
+                header = _cells(old)  # a table's header row: the same on both sides
         elif not old.startswith("|"):
             header = None
         agree = old == new

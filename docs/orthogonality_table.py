@@ -19,6 +19,7 @@ import numpy as np
 
 from generated import replace_block, update_page
 from nlpcal import orthogonality as ortho
+from nlpcal.models import wang2015
 
 HERE = Path(__file__).resolve().parent
 PAGE = HERE / "orthogonality.md"
@@ -43,8 +44,9 @@ TYPICAL_ANGLES = (
     (0.064, 0.0, 0.103),
     (-2.34, 1.29, -0.27),
 )
-PAPER_ANGLES = (0.07, 0.04, 0.1)  # the synthetic inversion of section 2 [deg]
-REPEAT_ANGLES = (0.064, 0.0, 0.103)  # close to the paper's real probe [deg]
+PAPER_ANGLES = wang2015.PAPER_SYNTHETIC_ANGLES_DEG  # the synthetic inversion of section 2 [deg]
+#: The paper's real probe (section 3), beta not given: 0. [deg]
+REPEAT_ANGLES = tuple(wang2015.PAPER_PROBE_ANGLES_DEG.get(name, 0.0) for name in ortho.ANGLE_NAMES)
 
 
 def _g(value, digits=4) -> str:

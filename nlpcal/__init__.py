@@ -14,14 +14,51 @@ Every verb and result type of the four papers is importable from here:
     export, import_file, ReferenceModel                      other formats, IGRF/WMM references
 
 The names are resolved on first use, so `import nlpcal` (and the command line's --help) stays
-quick.
+quick; type checkers see them through the TYPE_CHECKING imports below.
+
+The public API is `__all__`: those names, their signatures, and the attributes and methods of
+what they return. Every other module is internal: importable, but free to change in any
+release (docs/api.md).
 """
 
 from __future__ import annotations
 
 import importlib
+from typing import TYPE_CHECKING
 
 from .version import __version__
+
+if TYPE_CHECKING:  # what the lazy __getattr__ below returns, for type checkers
+    from .batch import BatchReport, apply_many, calibrate_many
+    from .calibration import CalibrationResult, StopRule, calibrate
+    from .comparison import CompareSettings, Comparison, compare
+    from .compass import CompassCalibration, attitude, calibrate_free, calibrate_turns, evaluate
+    from .correction import Correction, load_parameters
+    from .drift import (
+        DriftFit,
+        TemperatureCalibrationResult,
+        TemperatureModel,
+        calibrate_temperature,
+        fit_drift,
+        rmse_rows,
+    )
+    from .errors import InputError, QualityError, SolveError
+    from .formats import AffineCorrection, export, import_file
+    from .geomagnetic import ReferenceModel
+    from .io import Log, read_log
+    from .models.zhou2010 import Zhou2010Parameters
+    from .orthogonality import (
+        Inversion,
+        Repeatability,
+        WorstCase,
+        error_map,
+        implied_worst_case,
+        invert,
+        repeatability,
+        synthetic_rotation,
+    )
+    from .orthogonality.worst_case import worst_case  # the function, not its module
+    from .simulation import simulate
 
 #: Public name -> the module that defines it.
 _EXPORTS = {
@@ -112,4 +149,50 @@ def __dir__():
     return sorted([*globals(), *_EXPORTS, *_SUBMODULES])
 
 
-__all__ = ["__version__", *_EXPORTS]
+#: The public API: these names, their signatures and the attributes and methods of what they
+#: return. Every other module of the package is internal (see the API reference).
+__all__ = [  # noqa: RUF022 (grouped by paper, as in the API reference)
+    "__version__",
+    "calibrate",
+    "CalibrationResult",
+    "StopRule",
+    "compare",
+    "Comparison",
+    "CompareSettings",
+    "worst_case",
+    "WorstCase",
+    "invert",
+    "Inversion",
+    "repeatability",
+    "Repeatability",
+    "error_map",
+    "implied_worst_case",
+    "synthetic_rotation",
+    "fit_drift",
+    "DriftFit",
+    "calibrate_temperature",
+    "TemperatureCalibrationResult",
+    "TemperatureModel",
+    "rmse_rows",
+    "calibrate_turns",
+    "calibrate_free",
+    "CompassCalibration",
+    "attitude",
+    "evaluate",
+    "simulate",
+    "export",
+    "import_file",
+    "AffineCorrection",
+    "ReferenceModel",
+    "Correction",
+    "load_parameters",
+    "calibrate_many",
+    "apply_many",
+    "BatchReport",
+    "read_log",
+    "Log",
+    "Zhou2010Parameters",
+    "InputError",
+    "SolveError",
+    "QualityError",
+]

@@ -23,8 +23,6 @@ from functools import lru_cache
 
 from threadpoolctl import ThreadpoolController
 
-from . import validation
-
 
 def available_cores() -> int:
     """The cores this process may use: its CPU affinity, within its cgroup's CPU quota."""
@@ -66,13 +64,14 @@ _threads: ContextVar[int | None] = ContextVar("nlpcal_pass_threads", default=Non
 
 
 @contextlib.contextmanager
-def call_threads(threads=None):
-    """The passes inside the block use `threads` threads (None: the available cores), and BLAS
+def call_threads(threads: int | None = None):
+    """The passes inside the block use `threads` threads (None: the available cores; a count the
+    caller has checked, `validation.optional_whole`: this layer sits below validation), and BLAS
     stays at one thread for the whole block, not only inside the passes: the small products
     between them gain nothing from BLAS threads, and OpenBLAS threads woken by one of them keep
     spinning into the next pass, taking a core from it. More threads than cores oversubscribe
     them: that is the caller's choice."""
-    token = _threads.set(validation.optional_whole(threads, "threads"))
+    token = _threads.set(threads)
     try:
         with single_blas():
             yield

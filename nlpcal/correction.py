@@ -43,18 +43,58 @@ OUTLIER_ROBUST_STDS = 4.0
 
 
 def load_parameters(path) -> CalibrationResult | TemperatureCalibrationResult:
-    """A parameters file: the nine parameters, with or without a temperature model."""
+    """A parameters file: the nine parameters, with or without a temperature model.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A document written by `calibrate` (`params.json`) or by a temperature calibration.
+
+    Returns
+    -------
+    CalibrationResult or TemperatureCalibrationResult
+        The result the file holds, checked field by field.
+
+    Raises
+    ------
+    InputError
+        A file that is not such a document, or holds unusable values.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import nlpcal
+    >>> samples = nlpcal.simulate(300, seed=0)[["bx", "by", "bz"]].to_numpy()
+    >>> path = os.path.join(tempfile.mkdtemp(), "params.json")
+    >>> nlpcal.calibrate(samples, method="joint").save(path)
+    >>> type(nlpcal.load_parameters(path)).__name__
+    'CalibrationResult'
+    """
     return load_any(path, (TemperatureCalibrationResult, CalibrationResult))
 
 
 @dataclass
 class Correction:
-    """What is applied to a log.
+    """What is applied to a log (`nlpcal apply`): the nine parameters, a temperature drift, or both.
 
-    parameters : a CalibrationResult or a TemperatureCalibrationResult, or None (drift alone).
-    drift : a DriftFit whose k(t) divides the raw vector first (Eq. 9), or None.
-    temperature_column : the log's temperature column [degC], or None (no temperature step).
-    notes : what was decided on the user's behalf.
+    Attributes
+    ----------
+    parameters : CalibrationResult, TemperatureCalibrationResult or None
+        The calibration, or None (drift alone).
+    drift : DriftFit or None
+        A drift fit whose k(t) divides the raw vector first (Eq. 9 of Liu et al. 2022), or None.
+    temperature_column : str or None
+        The log's temperature column [degC], or None (no temperature step).
+    notes : list of str
+        What was decided on the user's behalf.
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> samples = nlpcal.simulate(300, seed=0)[["bx", "by", "bz"]].to_numpy()
+    >>> correction = nlpcal.Correction(parameters=nlpcal.calibrate(samples, unit="nT"))
+    >>> correction.unit
+    'nT'
     """
 
     parameters: CalibrationResult | TemperatureCalibrationResult | None = None

@@ -243,13 +243,33 @@ def _knots(model: str, years: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class ReferenceModel:
-    """A reference field from a geomagnetic model: each of the position and the time either a
-    constant or a log column.
+    """A reference field from a geomagnetic model; position and time constants or log columns.
 
-    model : "igrf" or "wmm".
-    lat_deg, lon_deg [deg], alt_m [m], date : constants (alt_m 0 when neither it nor a column is
-        given).
-    lat_column, lon_column, alt_column [m], time_column : log columns, one value per sample.
+    Attributes
+    ----------
+    model : str
+        "igrf" (IGRF-14, ppigrf) or "wmm" (WMM2025, pygeomag) (`--reference-model`).
+    lat_deg, lon_deg : float, optional
+        Constant latitude and longitude (`--lat`, `--lon`). [deg]
+    alt_m : float, optional
+        Constant altitude above the WGS 84 ellipsoid (`--alt-m`; 0 when neither it nor a column is
+        given). [m]
+    date : str, optional
+        Constant date, YYYY-MM-DD (`--date`).
+    lat_column, lon_column : str, optional
+        Log columns of latitude and longitude, one value per sample. [deg]
+    alt_column : str, optional
+        Log column of the altitude. [m]
+    time_column : str, optional
+        Log column of the time of each sample.
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> model = nlpcal.ReferenceModel("igrf", lat_deg=52.0, lon_deg=4.9, date="2025-06-01")
+    >>> total, provenance = model.field({})  # needs nlpcal[geomag]
+    >>> bool(45_000 < total < 55_000), provenance["name"]  # [nT]
+    (True, 'IGRF-14')
     """
 
     model: str

@@ -10,7 +10,7 @@ scaled sample and gamma_i = (L / F_i)^2,
 
 where psi'_i = gamma_i psi(d_i) holds the ten quadratic monomials of d_i (x^2, y^2, z^2, xy, xz,
 yz, x, y, z, 1), a_i = gamma_i |d_i|^2 - 1 is the value of u_i for the sphere of the frame, and
-e(theta) are ten coefficients that depend on the nine parameters only (`nlpcal.objective`).
+e(theta) are ten coefficients that depend on the nine parameters only (`nlpcal.nlp.objective`).
 Every power u^k with k <= 4 is a linear function of the products
 
     h_i = [1, psi'_i, psi'_i psi'_i^T (upper triangle), a_i, a_i psi'_i, a_i^2]

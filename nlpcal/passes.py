@@ -300,7 +300,7 @@ def reference_chunk(reference, start: int, stop: int):
     return reference[start:stop]
 
 
-def reduce(samples, reference, work, merge, chunk_rows: int):
+def reduce(samples, reference, work, merge, chunk_rows: int, indexed: bool = False):
     """One pass over the samples: work(rows, reference rows) per block, merged in row order.
 
     samples : (N, k) rows, in memory or `LazySamples`. [unit]
@@ -308,21 +308,23 @@ def reduce(samples, reference, work, merge, chunk_rows: int):
     work : (block of rows, its reference) -> a partial result; it must loop over chunks of
         `chunk_rows` itself, the blocks being shares of the rows in memory and Dask chunks.
     merge : (earlier partial, later partial) -> the partial of both.
+    indexed : work takes a third argument, the index of the block's first row in the log.
     """
     if isinstance(samples, LazySamples) or isinstance(reference, LazySamples):
-        return _reduce_dask(samples, reference, work, merge)
-    parts = chunks.map_shares(
-        lambda begin, end: work(samples[begin:end], reference_chunk(reference, begin, end)),
-        samples.shape[0],
-        chunk_rows,
-    )
+        return _reduce_dask(samples, reference, work, merge, indexed)
+
+    def share(begin: int, end: int):
+        where = (begin,) if indexed else ()
+        return work(samples[begin:end], reference_chunk(reference, begin, end), *where)
+
+    parts = chunks.map_shares(share, samples.shape[0], chunk_rows)
     result = parts[0]
     for part in parts[1:]:
         result = merge(result, part)
     return result
 
 
-def _reduce_dask(samples, reference, work, merge):
+def _reduce_dask(samples, reference, work, merge, indexed: bool = False):
     import dask
     import dask.array as da
 
@@ -335,7 +337,10 @@ def _reduce_dask(samples, reference, work, merge):
         references = reference.blocks(None if reference.array.chunks[0] == rows else rows)
     else:  # in memory: each task takes its own rows of the reference
         references = [reference_chunk(reference, start, stop) for start, stop in offsets]
-    parts = [dask.delayed(work)(block, ref) for block, ref in zip(samples.blocks(), references)]
+    parts = [
+        dask.delayed(work)(block, ref, *((start,) if indexed else ()))
+        for block, ref, (start, _) in zip(samples.blocks(), references, offsets)
+    ]
     started = time.perf_counter()
     with chunks.single_blas():  # Dask threads run blocks side by side
         result = dask.compute(tree(parts, merge))[0]

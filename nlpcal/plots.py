@@ -260,6 +260,94 @@ def orthogonality_map_png(
     return _png(figure, dpi, palette=False)
 
 
+# --- the reproductions of Liu et al. (2022) and Qiu et al. (2017) ------------------------------
+
+#: Resolution of the reproduction figures. [dpi]
+REPRODUCTION_DPI = 100
+
+
+def drift_reproduction_png(
+    temperature, modulus, *, fitted, published, rmse, paper_rmse, rows, dpi: int = REPRODUCTION_DPI
+) -> bytes:
+    """PNG of the drift experiment of Liu et al. (2022) beside its RMSE table.
+
+    (a) the diurnal-corrected modulus [nT] of the static log against temperature [degC], with
+    the fitted line of Eq. 1 and the published one (`fitted`, `published`: (a [nT/degC],
+    b [nT])); (b) the RMSE of Eq. 10 [nT] of each row (`rows`) for each log, nlpcal's (`rmse`)
+    beside the paper's (`paper_rmse`, both {log: values}), on a log scale.
+    """
+    require_matplotlib()
+    from matplotlib import rc_context
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    t = np.asarray(temperature, dtype=float)
+    line_t = np.array([t.min(), t.max()])
+    with rc_context(STYLE):
+        figure = Figure(figsize=(11.0, 4.2), dpi=dpi, layout="constrained")
+        FigureCanvasAgg(figure)
+        line, bars = figure.subplots(1, 2)
+        line.plot(t, modulus, ".", ms=2, color="0.55", label="replica, diurnal-corrected")
+        for (a, b), label, colour in (
+            (fitted, "nlpcal fit", "C0"),
+            (published, "paper", "C3"),
+        ):
+            line.plot(line_t, a * line_t + b, color=colour, label=f"{label}: {a:.4f} t + {b:.2f}")
+        line.set_xlabel("temperature [degC]")
+        line.set_ylabel("|B_m| - (F_i - F_1) [nT]")
+        line.set_title("(a) Eq. 1 on the static log")
+        line.legend(loc="best")
+        width = 0.2
+        x = np.arange(len(rows))
+        for k, log in enumerate(rmse):
+            for j, (values, source, hatch) in enumerate(
+                ((paper_rmse[log], "paper", "//"), (rmse[log], "nlpcal", ""))
+            ):
+                bars.bar(
+                    x + (2 * k + j - 1.5) * width,
+                    values,
+                    width,
+                    color=f"C{k}",
+                    hatch=hatch,
+                    alpha=0.5 if hatch else 1.0,
+                    label=f"{log} log, {source}",
+                )
+        bars.set_yscale("log")
+        bars.set_xticks(x, list(rows))
+        bars.set_ylabel("RMSE of Eq. 10 [nT]")
+        bars.set_title("(b) raw -> system -> system + temperature")
+        bars.legend(loc="upper right")
+    return _png(figure, dpi)
+
+
+def attitude_errors_png(
+    true_pitch, errors, bounds, *, dpi: int = REPRODUCTION_DPI, title: str | None = None
+) -> bytes:
+    """PNG of roll, pitch and heading errors [deg] against the true pitch [deg], with the bounds
+    that Qiu et al. (2017) publish for each (`bounds`: roll, pitch, heading [deg])."""
+    require_matplotlib()
+    from matplotlib import rc_context
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    errors = np.asarray(errors, dtype=float)
+    with rc_context(STYLE):
+        figure = Figure(figsize=(11.0, 3.6), dpi=dpi, layout="constrained")
+        FigureCanvasAgg(figure)
+        for k, (axes, name, bound) in enumerate(
+            zip(figure.subplots(1, 3, sharex=True), ("roll", "pitch", "heading"), bounds)
+        ):
+            axes.plot(true_pitch, errors[:, k], ".", ms=2, color="C0")
+            for sign in (1, -1):
+                axes.axhline(sign * bound, color="C3", ls="--", lw=1)
+            axes.set_xlabel("true pitch [deg]")
+            axes.set_ylabel(f"{name} error [deg]")
+            axes.set_title(f"{name} (paper: within +-{bound:g} deg)")
+        if title:
+            figure.suptitle(title)
+    return _png(figure, dpi)
+
+
 # --- a calibration at a glance: before and after, residuals, directions, cycles --------------
 
 #: Most points drawn on the direction map (a strided subsample of longer logs).

@@ -3,7 +3,7 @@
 A row holds max, min, mean, std and range (max - min) of |B1|. The std is the population standard
 deviation (ddof = 0, the 1/N of Eq. 8), so that std^2 equals the Eq. 8 objective. Each row also
 carries the exact per-sample objective of the run (Eq. 8 or its reference variant), which is how
-the moment expansion of `nlpcal.objective` is checked on every run.
+the moment expansion of `nlpcal.nlp.objective` is checked on every run.
 
 References
 ----------

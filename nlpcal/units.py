@@ -23,6 +23,8 @@ ACC_UNITS_G = {"g": 1.0, "mg": 1e-3, "m/s2": 1.0 / 9.80665}
 FIELD_SUFFIXES = {
     "nt": "nT",
     "ut": "uT",
+    "µt": "uT",  # the micro sign (phyphox: "Magnetic field x (µT)")
+    "μt": "uT",  # the Greek letter mu
     "mt": "mT",
     "mg": "mG",
     "gauss": "G",
@@ -137,6 +139,8 @@ MAGNETIC_PREFIXES = (
     "field",
     "compass",
     "b1",
+    "magneticfield",  # phyphox "Magnetic field x (µT)", ROS 2 magnetic_field.x
+    "fieldmagneticfield",  # ROS 1 `rostopic echo -p`: field.magnetic_field.x
 )
 #: Prefixes of accelerometer axes (ax, acc_x, accel_x, "Accelerometer X (g)").
 ACC_PREFIXES = ("a", "acc", "accel", "accelerometer", "acceleration", "f")
@@ -149,11 +153,16 @@ def is_axis_template(template, prefixes, suffixes) -> bool:
 
 
 def suggested_unit(columns, prefixes=MAGNETIC_PREFIXES, suffixes=FIELD_SUFFIXES):
-    """The unit a column suffix such as _uT, (uT) or _gauss suggests for an axis triple, or None."""
+    """The unit a column suffix such as _uT, (uT) or _gauss suggests for an axis triple, or None;
+    also for three columns of any prefix that differ only in their axis letter and end in the
+    same unit ("flight.B_x_nT", "flight.B_y_nT", "flight.B_z_nT")."""
     low = columns[0].lower()
     for i, ch in enumerate(low):
         if ch in "xyz" and is_axis_template((low[:i], low[i + 1 :]), prefixes, suffixes):
             return suffixes.get(clean(low[i + 1 :]))
+    named = {unit_in_name(str(c), suffixes) for c in columns}
+    if len(named) == 1 and tuple(map(str, columns)) in axis_templates(map(str, columns)).values():
+        return named.pop()
     return None
 
 

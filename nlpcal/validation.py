@@ -88,6 +88,34 @@ def optional_whole(value, what: str) -> int | None:
     return count(value, what)
 
 
+#: Largest device id: ArduPilot's COMPASS_DEV_ID and PX4's CAL_MAGn_ID are 32-bit signed
+#: parameters (AP_Int32, int32), and 0 means "no device" in both.
+MAX_SENSOR_ID = 2**31 - 1
+#: Longest sensor name accepted as a sensor id. [characters]
+MAX_SENSOR_NAME = 100
+
+
+def sensor_id(value, what: str = "--sensor-id") -> int | str:
+    """A sensor's identity: an autopilot device id (an integer 1 .. 2^31 - 1; a string of
+    decimal digits is read as one) or a name (1 to MAX_SENSOR_NAME printable characters)."""
+    if isinstance(value, str) and value.strip().lstrip("+-").isdigit():
+        value = int(value.strip())
+    if isinstance(value, bool) or not isinstance(value, (Integral, str)):
+        raise InputError(f"{what} must be a device id (an integer) or a name, got {value!r:.40}")
+    if isinstance(value, Integral):
+        if not 1 <= int(value) <= MAX_SENSOR_ID:
+            raise InputError(
+                f"{what} must be a device id from 1 to {MAX_SENSOR_ID} (0 means no device), "
+                f"got {value}"
+            )
+        return int(value)
+    if not value.strip() or len(value) > MAX_SENSOR_NAME or not value.isprintable():
+        raise InputError(
+            f"{what} must be 1 to {MAX_SENSOR_NAME} printable characters, got {value!r:.40}"
+        )
+    return value
+
+
 def choice(value, what: str, options) -> str:
     if value not in options:
         raise InputError(f"unknown {what} {value!r}; expected one of {', '.join(options)}")
@@ -267,6 +295,20 @@ def angles(
     return array
 
 
+def renamed(value, former, name: str, former_name: str):
+    """A keyword renamed to mirror its command-line flag (`reference_field=` for
+    `--reference-field`): the value given under either name. The former name stays accepted;
+    both names with different values are an error."""
+    if former is None:
+        return value
+    if value is not None and not np.array_equal(value, former):
+        raise InputError(
+            f"{name}={value!r} and its former name {former_name}={former!r} differ; "
+            f"pass {name} alone"
+        )
+    return former
+
+
 def field(value, what: str = "field") -> float:
     """A positive finite field magnitude. [nT]"""
     return number(value, f"the {what}", positive=True, unit="in nT")
@@ -304,11 +346,3 @@ def matrix(values, what: str, shape=(3, 3), *, invertible: bool = False) -> np.n
     if invertible and not np.linalg.cond(array) < 1e12:
         raise InputError(f"{what} is singular (or nearly): it cannot be inverted")
     return array
-
-
-def same_rows(*pairs) -> None:
-    """Arrays that describe the same rows: pairs of (what, length)."""
-    lengths = {n for _, n in pairs}
-    if len(lengths) > 1:
-        listed = ", ".join(f"{n} {what}" for what, n in pairs)
-        raise InputError(f"got {listed}; they must be the same rows")

@@ -100,3 +100,47 @@ def tilt_directions(n, rng, max_tilt_deg=20.0, inclination_deg=60.0):
         -np.sin(roll) * v[1] + np.cos(roll) * v[2],
     )
     return np.column_stack(v)
+
+
+def smooth_directions(n, rng, coefficient=0.98, rate=0.03, start=None):
+    """Field directions in the frame of a sensor turned smoothly (by hand, by a vehicle): body
+    rates an AR(1) process with `coefficient` and about `rate` rad per sample in magnitude, each
+    sample's direction the last one turned by the rate (Rodrigues' formula)."""
+    spread = rate / np.sqrt(3.0)
+    innovation = np.sqrt(1.0 - coefficient**2) * spread
+    omega = spread * rng.standard_normal(3)
+    v = uniform_directions(1, rng)[0] if start is None else np.asarray(start, dtype=float)
+    out = np.empty((n, 3))
+    for i in range(n):
+        out[i] = v
+        omega = coefficient * omega + innovation * rng.standard_normal(3)
+        angle = np.linalg.norm(omega)
+        axis = omega / angle
+        v = (
+            v * np.cos(angle)
+            + np.cross(axis, v) * np.sin(angle)
+            + axis * (axis @ v) * (1.0 - np.cos(angle))
+        )
+        v /= np.linalg.norm(v)
+    return out
+
+
+def slow_field(n, rng, mean=50_000.0, amplitude=30.0, cycles=1.5):
+    """A field magnitude that changes slowly over the log (a survey day): mean + amplitude
+    sin(2 pi cycles t / T + phase), the phase uniform. [nT]"""
+    t = np.arange(n) / n
+    return mean + amplitude * np.sin(2 * np.pi * cycles * t + rng.uniform(0, 2 * np.pi))
+
+
+def scenario_log(n, noise, rng, directions, magnitude, truth=PAPER_TRUTH):
+    """B_M for unit field `directions` (n, 3) in the ideal frame and field `magnitude` (a number
+    or (n,)) with white noise of `noise` nT on each axis. [nT]"""
+    field_ideal = np.asarray(magnitude, dtype=float).reshape(-1, 1) * directions
+    return sensor_output(field_ideal, truth) + noise * rng.standard_normal(field_ideal.shape)
+
+
+def gauge_truth(truth=PAPER_TRUTH):
+    """The true parameters as a calibration without a reference reports them: the scale factors
+    1 + s divided by their mean, so that s_x + s_y + s_z = 0."""
+    mean = np.mean([1.0 + truth[f"s_{a}"] for a in "xyz"])
+    return {**truth, **{f"s_{a}": (1.0 + truth[f"s_{a}"]) / mean - 1.0 for a in "xyz"}}

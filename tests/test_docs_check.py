@@ -56,3 +56,9 @@ def test_a_real_change_is_one(old, new):
     changed = PAGE.replace(old, new, 1)
     assert changed != PAGE
     assert len(differences(PAGE, changed)) == 1
+
+
+def test_an_escaped_bar_stays_in_its_cell():
+    page = "| quantity | nlpcal |\n|---|---|\n| largest roll error, \\|pitch\\| 0-60 | 0.070 |\n"
+    assert differences(page, page.replace("0.070", "0.071")) == []
+    assert len(differences(page, page.replace("0.070", "0.072"))) == 1

@@ -522,6 +522,8 @@ def test_joint_temperature_calibration_from_one_sweep_log(replica, tmp_path, cap
             model,
             "--base-temperature",
             T0,
+            "--sensor-id",
+            97539,
             "-o",
             params,
         ],
@@ -529,6 +531,7 @@ def test_joint_temperature_calibration_from_one_sweep_log(replica, tmp_path, cap
     )
     assert status == 0, err
     document = json.loads(params.read_text())
+    assert document["sensor_id"] == 97539  # recorded in a temperature result too
     block = document["temperature_model"]
     assert block["kind"] == model and block["temperature_column"] == "temperature"
     assert block["base_temperature_degC"] == T0

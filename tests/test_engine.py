@@ -47,6 +47,7 @@ LAYERS = {
     "formats": 2,
     "report": 2,
     "batch": 2,
+    "reproduce": 2,
     "cli": 3,
     "__main__": 3,
     "__init__": 3,

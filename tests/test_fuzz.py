@@ -1161,3 +1161,60 @@ def test_random_scheduler_files(documents, tmp_path_factory, text, suffix):
     with mock.patch.object(cluster, "CONNECT_TIMEOUT_S", 2):
         status, _, _ = run(["calibrate", log, "--scheduler", scheduler, "-o", output])
     assert status == 2 and output.read_text() == "previous"
+
+
+# --- recorded formats: MotionCal Raw: lines, MATLAB .mat, ArduPilot DataFlash .bin -------------
+
+RAW_CELLS = st.one_of(
+    st.integers(min_value=-40000, max_value=40000).map(str),
+    st.sampled_from(["", "-", "1.5", "x", "--3", " 7", "1e3", "nan"]),
+)
+RAW_LINES = st.one_of(
+    st.lists(RAW_CELLS, min_size=0, max_size=11).map(lambda cells: "Raw:" + ",".join(cells)),
+    st.sampled_from(["Uni:0.1,0.2", "Cal1:1,2", "Cal2:", "Ori:1,2,3", "Raw:", "garbage", ""]),
+)
+
+
+@pytest.fixture(scope="module")
+def recorded_samples(tmp_path_factory):
+    """Valid bytes of each recorded format, to be cut and mutated."""
+    from test_recorders import dataflash_log, write_v5, write_v73
+
+    samples, _ = make_log(n=60, noise=1.0, seed=5)
+    folder = tmp_path_factory.mktemp("recorded")
+    found = {"bin": dataflash_log([np.rint(samples / 100.0), np.rint(samples / 90.0)])}
+    for name, writer in (("v5", write_v5), ("v73", write_v73)):
+        writer(folder / f"{name}.mat", {"mag": samples, "t": np.arange(60.0)})
+        found[name] = (folder / f"{name}.mat").read_bytes()
+    return found
+
+
+@FUZZ
+@given(data=st.data())
+def test_garbage_recorded_logs_are_bad_input(recorded_samples, tmp_path_factory, data):
+    """Cut or mutated .mat and .bin files and random Raw: lines: exit 0, 1 or 2, one sentence,
+    never a traceback."""
+    folder = tmp_path_factory.mktemp("recorded_fuzz")
+    kind = data.draw(st.sampled_from(["raw", "v5", "v73", "bin"]))
+    if kind == "raw":
+        lines = data.draw(st.lists(RAW_LINES, min_size=0, max_size=30))
+        content = ("\r\n".join(lines) + "\n").encode()
+        log = folder / "capture.txt"
+        if not any(line.startswith("Raw:") for line in lines):
+            content = b"Raw:" + content
+    else:
+        content = bytearray(recorded_samples[kind])
+        cut = data.draw(st.integers(min_value=3, max_value=len(content)))
+        for _ in range(data.draw(st.integers(min_value=0, max_value=8))):
+            at = data.draw(st.integers(min_value=0, max_value=len(content) - 1))
+            content[at] = data.draw(st.integers(min_value=0, max_value=255))
+        content = bytes(content[:cut])
+        log = folder / ("log.bin" if kind == "bin" else "log.mat")
+    log.write_bytes(content)
+    event(kind)
+    output = folder / "out.json"
+    output.write_text("previous")
+    extra = ["--instance", "1"] if kind == "bin" and data.draw(st.booleans()) else []
+    status, _, _ = run(["calibrate", log, "-o", output, *extra])
+    if status:
+        assert output.read_text() == "previous"

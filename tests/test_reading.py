@@ -131,7 +131,6 @@ def test_stdin_streams_into_a_memory_map_too(monkeypatch):
     "name, head, what",
     [
         ("log.h5", b"\x89HDF\r\n\x1a\n\x00\x00\x00" * 50, "an HDF5 file"),
-        ("log.mat", b"MATLAB 5.0 MAT-file\x00\x01\x02" * 30, "a MATLAB .mat file"),
         ("magnetom.float", np.arange(30, dtype=">f4").tobytes(), "a binary file"),
     ],
 )

@@ -234,8 +234,11 @@ def test_the_staged_huber_fit_of_the_rm3100_logs_ends_at_the_joint_one(real_data
     joint = calibrate_log(log, method="joint", loss="huber")
     staged = calibrate_log(log, method="staged", loss="huber")
     assert staged.solver["stop_reason"] == "rtol"
+    # at the resolution of the solves: the standard errors of independent samples (the stated
+    # ones are up to 1 000 times wider here, for the dependence of neighbouring samples)
+    resolution = joint.identifiability["score_dependence"]["standard_errors_independent"]
     for key, value in joint.parameters.items():
-        assert abs(staged.parameters[key] - value) <= 0.2 * joint.standard_errors[key], key
+        assert abs(staged.parameters[key] - value) <= 0.2 * resolution[key], key
     for fit in (joint, staged):
         assert fit.identifiability["exact_optimum_shift_in_standard_errors"] < 0.1
         assert not any("exact optimum" in w for w in fit.warnings)

@@ -119,13 +119,36 @@ INTEGER_COLUMNS = {"exit_status", "n_samples", "outliers"}
 
 @dataclass
 class BatchReport:
-    """What a batch did: one row per log (dicts with the summary's columns), in the order of the
-    logs, and where the summary was written."""
+    """What a batch did: one row per log, in the order of the logs, and where the summary went.
+
+    Attributes
+    ----------
+    rows : list of dict
+        One row per log, with the summary's columns (log, status, verdict, the nine parameters
+        and their standard errors, ...).
+    summary : pathlib.Path
+        Where the summary table was written.
+    columns : tuple of str
+        The summary's columns.
+    total : int
+        Logs in the batch.
+    notes : list of str
+        What the batch decided on the user's behalf (logs named twice, outputs skipped).
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import nlpcal
+    >>> folder = tempfile.mkdtemp()
+    >>> nlpcal.simulate(300, seed=0).to_csv(os.path.join(folder, "a.csv"), index=False)
+    >>> report = nlpcal.calibrate_many(os.path.join(folder, "a.csv"), os.path.join(folder, "out"))
+    >>> report.rows[0]["status"], report.exit_status
+    ('ok', 0)
+    """
 
     rows: list
     summary: Path
     columns: tuple = CALIBRATION_COLUMNS
-    interrupted: bool = False
     total: int = 0
     notes: list = field(default_factory=list)
 
@@ -226,9 +249,6 @@ def _run(
     try:
         with cluster.scheduler(scheduler, workers) as client:
             cluster.run_tasks(task, todo, finished, client)
-    except KeyboardInterrupt:
-        report.interrupted = True
-        raise
     finally:
         report.rows = [rows[str(job[0])] for job in jobs if str(job[0]) in rows]
         with Outputs() as outputs:  # the summary and the record of the outputs, together
@@ -248,15 +268,53 @@ def calibrate_many(
     workers: int | None = None,
     progress=None,
 ) -> BatchReport:
-    """Calibrate every log of `source` (a glob pattern, a folder, a file or a list of files).
+    """Calibrate every log of `source` and write `<name>.params.json` per log and `summary.csv`.
 
-    read_options : keyword arguments of `nlpcal.io.read_log` (columns, unit, reference ...).
-    options : keyword arguments of `nlpcal.calibration.calibrate_log` (method, loss ...).
-    force : calibrate logs whose parameters file is newer than the log too.
-    scheduler : None (one log after another in this process), "threads", "processes", "local",
-        the address of a running Dask scheduler, or a dask.distributed Client (`nlpcal.cluster`).
-    progress : None, or called with (logs done, logs in all, the row of the latest) as each
-        log finishes.
+    One bad log never stops the others; a log whose output is newer and was written with the same
+    options is skipped unless `force`.
+
+    Parameters
+    ----------
+    source : str, os.PathLike or sequence of them
+        A glob pattern, a folder, a file or a list of files.
+    out_dir : str or os.PathLike
+        The output folder (`--out-dir`).
+    read_options : dict, optional
+        Keyword arguments of `read_log` (columns, unit, reference ...).
+    options : dict, optional
+        Keyword arguments of the calibration, as of `calibrate` (method, model, loss ...).
+    force : bool
+        Calibrate logs whose parameters file is newer than the log too (`--force`).
+    scheduler : str or dask.distributed.Client, optional
+        None (one log after another in this process), "threads", "processes", "local", the
+        address of a running Dask scheduler, or a Client (`--scheduler`).
+    workers : int, optional
+        Workers of a local cluster (`--workers`).
+    progress : callable, optional
+        Called with (logs done, logs in all, the row of the latest) as each log finishes.
+
+    Returns
+    -------
+    BatchReport
+        One summary row per log, and where the summary was written.
+
+    Raises
+    ------
+    InputError
+        A source that names no log, or unusable options.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import nlpcal
+    >>> folder = tempfile.mkdtemp()
+    >>> for k in range(2):
+    ...     nlpcal.simulate(300, seed=k).to_csv(os.path.join(folder, f"log{k}.csv"), index=False)
+    >>> report = nlpcal.calibrate_many(
+    ...     os.path.join(folder, "*.csv"), os.path.join(folder, "out"), options={"method": "joint"}
+    ... )
+    >>> report.counts()
+    {'ok': 2}
     """
     out_dir = _out_dir(out_dir)
     notes: list = []
@@ -299,9 +357,52 @@ def apply_many(
 ) -> BatchReport:
     """Correct every log of `source` with Eq. 4 and write `<name>.corrected.csv` (or .parquet).
 
-    parameters : a parameters file applied to every log, or a folder of `<name>.params.json`
-        (the output folder of `calibrate_many`), one per log; or None with `drift` alone.
-    The other arguments as in `calibrate_many` and `nlpcal apply`.
+    Parameters
+    ----------
+    parameters : str, os.PathLike or None
+        A parameters file applied to every log, or a folder of `<name>.params.json` (the output
+        folder of `calibrate_many`), one per log; or None with `drift` alone.
+    source : str, os.PathLike or sequence of them
+        A glob pattern, a folder, a file or a list of files.
+    out_dir : str or os.PathLike
+        The output folder (`--out-dir`).
+    read_options : dict, optional
+        Keyword arguments of `read_log`.
+    flag_outliers : bool
+        Add a boolean `outlier` column (`--flag-outliers`).
+    drift : str or os.PathLike, optional
+        A drift file whose k(t) is applied first (`--drift`).
+    temperature_column : str, optional
+        The logs' temperature column, with `drift` (`--temperature-column`). [degC]
+    force : bool
+        Correct logs whose output is newer than the log too (`--force`).
+    scheduler : str or dask.distributed.Client, optional
+        As in `calibrate_many`.
+    workers : int, optional
+        Workers of a local cluster.
+    progress : callable, optional
+        As in `calibrate_many`.
+
+    Returns
+    -------
+    BatchReport
+        One summary row per log, and where the summary was written.
+
+    Raises
+    ------
+    InputError
+        A source that names no log, or unusable parameters.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import nlpcal
+    >>> folder = tempfile.mkdtemp()
+    >>> nlpcal.simulate(300, seed=0).to_csv(os.path.join(folder, "log0.csv"), index=False)
+    >>> logs, out = os.path.join(folder, "*.csv"), os.path.join(folder, "out")
+    >>> _ = nlpcal.calibrate_many(logs, out, options={"method": "joint"})
+    >>> nlpcal.apply_many(out, logs, os.path.join(folder, "corrected")).counts()
+    {'ok': 1}
     """
     out_dir = _out_dir(out_dir)
     notes: list = []

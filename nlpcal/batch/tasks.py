@@ -135,7 +135,8 @@ class ApplyTask:
             parameters = load_parameters(params_path) if params_path else None
             drift = DriftFit.load(self.drift) if self.drift else None
             options = dict(self.read_options)
-            with LogStream(log_path, header=options.pop("header", None)) as stream:
+            formats = {key: options.get(key) for key in ("header", "variable", "instance")}
+            with LogStream(log_path, **formats) as stream:
                 correction = Correction.plan(
                     parameters, drift, self.temperature_column, log_columns=stream.table_columns
                 )

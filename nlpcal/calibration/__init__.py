@@ -47,6 +47,17 @@ UNCONVERGED = ("max_cycles", "predicted_unconverged")
 #: Least squares warns when the standard deviation of the residuals exceeds their robust one
 #: (1.4826 MAD) by this factor: Gaussian residuals give 1. [1]
 HEAVY_TAIL_RATIO = 1.5
+#: A second-order bias above this many standard errors (of some parameter) is corrected: below
+#: it the correction is within the noise of its own estimate; the Table 1 rows end with the
+#: corrected estimate's. [1]
+BIAS_APPLY = 0.1
+#: A second-order bias above this many standard errors is a warning. [1]
+BIAS_WARN = 0.5
+#: The bias is corrected only while no standard error is widened by more than this for the
+#: dependence of neighbouring samples: its formula takes the residuals for white sensor noise,
+#: and residuals alike in neighbours are mostly a misfit (a disturbed field, a sensor beyond
+#: the model), whose spread it would take for noise. [1]
+BIAS_WHITE_WIDENING = 2.0
 
 
 def calibrate(
@@ -71,44 +82,97 @@ def calibrate(
 ) -> CalibrationResult:
     """Estimate the nine parameters of Eq. 4 in [1] from a log of many attitudes.
 
-    samples : (N, 3) array-like of raw sensor output B_M. [unit]
-    method : "staged", the cycle of Fig. 1 in [1] (orthogonal -> scale -> offset), or "joint",
-        all nine in one IPOPT problem.
-    model : the form of Eq. 4 estimated: "full" (the nine, the paper's), "diagonal" (offsets
-        and scales, no angles), "offset" (offsets; with a reference also one common scale), or
-        "auto": the richest of them the attitudes determine (`selection.choose_model`), with
-        the reason under `model_selection`. The parameters a form does not estimate are fixed
-        at zero and listed under `fixed_parameters`.
-    reference_field : None (Eq. 8, absolute scale not identifiable), a number F, or an array of
-        N values F_i (for example a proton magnetometer sampled with the log). [reference_unit]
-    unit : the unit of the samples: nT, uT, mT, mG, G, T, or raw for counts. The result is in nT
-        (or raw), whatever the unit of the samples, and records the unit as given
+    The parameters minimise the spread of the corrected total field |B1| (Eq. 8), or its distance to
+    a reference field, as CasADi/IPOPT problems whose size does not depend on N.
+
+    Parameters
+    ----------
+    samples : array_like, shape (N, 3)
+        Raw sensor output B_M: a numpy or Dask array, or a pandas or Dask DataFrame whose field
+        columns are detected. [unit]
+    method : {"staged", "joint"}
+        "staged", the cycle of Fig. 1 in [1] (orthogonal -> scale -> offset), or "joint", all nine
+        in one IPOPT problem (`--method`).
+    model : {"full", "diagonal", "offset", "auto"}
+        The form of Eq. 4 estimated (`--model`): "full" (the nine, the paper's), "diagonal"
+        (offsets and scales, no angles), "offset" (offsets; with a reference also one common scale),
+        or "auto": the richest of them the attitudes determine, with the reason under
+        `model_selection`. The parameters a form does not estimate are fixed at zero and listed
+        under `fixed_parameters`.
+    reference_field : None, float or array_like of shape (N,)
+        None (Eq. 8, absolute scale not identifiable: the gauge s_x + s_y + s_z = 0 fixes it), a
+        number F, or N values F_i, for example a proton magnetometer sampled with the log
+        (`--reference-field`). [reference_unit]
+    unit : str, optional
+        The unit of the samples (`--unit`): nT, uT, mT, mG, G, T, or raw for counts. The result is
+        in nT (or raw), whatever the unit of the samples, and records the unit as given
         (`unit_source` "option"). None assumes nT ("assumed"): when the magnitudes are far from
         Earth's field in nT, the samples are taken as raw counts and the result is in raw, with
-        the warning (`nlpcal.io.logs.settle_unit`).
-    reference_unit : the unit of the reference (default: `unit`).
-    cycles : the most staged cycles. target_std, target_range : stop the cycle when |B1| meets
-        them [unit]. rtol : stop when a cycle lowers the objective by less than this fraction.
-    loss : "l2" (least squares, the paper's), "huber" or "cauchy" (`nlpcal.robust`): robust to
-        spikes and other outliers, by iteratively reweighted moments.
-    loss_scale : the residual beyond which a sample is down-weighted; default 1.345 (Huber) or
-        2.385 (Cauchy) times 1.4826 MAD of the residuals. [unit]
-    progress : None, or called with (cycle, Table 1 row) after every staged cycle.
-    threads : threads of the passes over the data (default: the cores available to the process,
-        its CPU affinity within its cgroup's quota); BLAS is held to one thread meanwhile.
-    require_identifiable : raise QualityError (holding the result) when the data leave parameters
-        undetermined (a direction along which |B1| does not change, or a standard error above
-        `diagnostics.UNDETERMINED`: 10 % of the field, 0.1, 10 deg); False returns the result
-        with its warnings.
-    allow_unconverged : return a staged result that stopped at its cycle limit, or away from the
-        joint optimum of the same objective, with a warning and without standard errors, instead
-        of raising QualityError.
-    verbose : print IPOPT's log of every solve (on stdout, as CasADi does).
+        the warning.
+    reference_unit : str, optional
+        The unit of the reference (default: `unit`).
+    cycles : int
+        The most staged cycles (`--cycles`).
+    target_std, target_range : float, optional
+        Stop the staged cycle when the std (or the range) of |B1| meets them. [unit]
+    rtol : float
+        Stop the staged cycle when a cycle lowers the objective by less than this fraction. [1]
+    loss : {"l2", "huber", "cauchy"}
+        "l2" (least squares, the paper's), or a loss robust to spikes and other outliers, by
+        iteratively reweighted moments (`--loss`).
+    loss_scale : float, optional
+        The residual beyond which a sample is down-weighted (`--loss-scale`); default 1.345 (Huber)
+        or 2.385 (Cauchy) times 1.4826 MAD of the residuals. [unit]
+    require_identifiable : bool
+        Raise QualityError (holding the result) when the data leave parameters undetermined (a
+        direction along which |B1| does not change, or a standard error above 10 % of the field,
+        0.1 or 10 deg); False returns the result with its warnings (`--allow-unidentifiable`).
+    allow_unconverged : bool
+        Return a staged result that stopped at its cycle limit, or away from the joint optimum of
+        the same objective, with a warning and without standard errors, instead of raising
+        QualityError (`--allow-unconverged`).
+    progress : callable, optional
+        Called with (cycle, Table 1 row) after every staged cycle.
+    verbose : bool
+        Print IPOPT's log of every solve (on stdout, as CasADi does).
+    threads : int, optional
+        Threads of the passes over the data (`--threads`; default: the cores available to the
+        process, its CPU affinity within its cgroup's quota); BLAS is held to one thread meanwhile.
 
-    Returns a CalibrationResult. Raises InputError for unusable input, SolveError when IPOPT
-    fails and QualityError as above.
+    Returns
+    -------
+    CalibrationResult
+        The parameters (offsets [nT or raw], scale errors [1], angles [deg]), their standard errors,
+        Table 1 rows, the verdict and how the problem was posed.
+
+    Raises
+    ------
+    InputError
+        Unusable samples or options (too few rows, NaN, an unknown unit or method).
+    SolveError
+        IPOPT failed.
+    QualityError
+        The data leave parameters undetermined, or a staged cycle did not converge, as above.
+
+    References
+    ----------
+    [1] Zhou et al. (2010), see `nlpcal.models.zhou2010`.
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> log = nlpcal.simulate(2000, seed=1)  # the truth of Zhou et al.'s Table 1, 1 nT of noise
+    >>> samples = log[["bx", "by", "bz"]].to_numpy()
+    >>> result = nlpcal.calibrate(samples, reference_field=49462.0, method="joint")
+    >>> result.verdict.status
+    'ok'
+    >>> abs(result.parameters["z_x"] - (-71.55)) < 5 * result.standard_errors["z_x"]
+    True
+    >>> corrected = result.apply(samples)  # Eq. 4, in the unit of the samples [nT]
+    >>> corrected.shape
+    (2000, 3)
     """
-    with chunks.call_threads(threads):
+    with chunks.call_threads(validation.optional_whole(threads, "threads")):
         validation.choice(method, "method", METHODS)
         validation.choice(model, "model", MODEL_CHOICES)
         unit_source = "assumed" if unit is None else "option"
@@ -258,7 +322,7 @@ def estimate(
     samples = problem.samples
     final = rows[-1]
     errors, identifiability, covariance = uncertainty(
-        problem, final["objective"], hs, final["residual_lag1_autocorrelation"], theta
+        problem, final["objective"], hs, theta, final["mean"]
     )
     spread = residual_spread(problem, theta)
     flat = problem_flatness(problem, theta, spread)
@@ -323,8 +387,15 @@ def estimate(
     if flat["planar"]:  # along the plane's normal no linearisation describes the data
         errors = covariance = None
     mode = problem.moments.reference
+    parameters = Zhou2010Parameters.from_theta(theta).to_dict()
+    bias = identifiability.get("second_order_bias")
+    if errors is not None and bias is not None:
+        parameters = correct_bias(parameters, bias, identifiability, warnings)
+        if bias["applied"]:
+            corrected = Zhou2010Parameters.from_dict(parameters).theta
+            rows.append(problem.row("bias corrected", corrected, iterations=0, wall_s=0.0))
     result = CalibrationResult(
-        parameters=Zhou2010Parameters.from_theta(theta).to_dict(),
+        parameters=parameters,
         statistics=rows,
         method=method,
         reference=problem.reference_document(),
@@ -367,6 +438,42 @@ def estimate(
     return result
 
 
+def correct_bias(parameters: dict, block: dict, identifiability: dict, warnings: list) -> dict:
+    """The parameters with their second-order bias (`diagnostics.noise_bias`) removed when it
+    exceeds BIAS_APPLY standard errors and the residuals pass for white noise (no standard
+    error widened beyond BIAS_WHITE_WIDENING); `block` records whether it was applied, the
+    estimate before the correction ("parameters_uncorrected") or why not ("not_applied"). A
+    bias above BIAS_WARN standard errors is a warning either way."""
+    in_errors = block["bias_in_standard_errors"]
+    widening = identifiability.get("score_dependence", {}).get("standard_error_widening", {})
+    white = max(widening.values(), default=1.0) <= BIAS_WHITE_WIDENING
+    block["applied"] = white and max(abs(v) for v in in_errors.values()) > BIAS_APPLY
+    large = {n: v for n, v in in_errors.items() if abs(v) > BIAS_WARN}
+    if not white:
+        block["not_applied"] = (
+            "neighbouring samples are alike: the residuals are not white sensor noise"
+        )
+    if large:
+        worst = max(large, key=lambda n: abs(large[n]))
+        what = (
+            "the parameters are corrected for it (identifiability.second_order_bias keeps the "
+            "uncorrected ones)"
+            if block["applied"]
+            else "not corrected, for the residuals are not white sensor noise (their "
+            "neighbours are alike), which its estimate assumes"
+        )
+        warnings.append(
+            f"the estimate's second-order bias from the sensor noise reaches "
+            f"{large[worst]:+.2f} standard errors ({worst}) along a direction the attitudes "
+            f"barely determine; {what}"
+        )
+    if not block["applied"]:
+        return parameters
+    block["parameters_uncorrected"] = dict(parameters)
+    bias = block["bias"]
+    return {name: value - bias.get(name, 0.0) for name, value in parameters.items()}
+
+
 def staged_message(stop_reason: str, cycles: int, gap: dict, last: dict | None = None) -> str:
     """Why a staged result is not at the optimum, with both objectives and what to do.
 
@@ -399,14 +506,10 @@ def staged_message(stop_reason: str, cycles: int, gap: dict, last: dict | None =
             f"({gap['objective_joint']:.6g} against {gap['objective_staged']:.6g}) cannot be "
             f"judged"
         )
-    where = (
-        ""
-        if distance is None
-        else f"; its parameters lie up to {distance:.3g} standard errors from that optimum"
-    )
     return (
         f"{why}; its objective {gap['objective_staged']:.6g} lies above the joint optimum "
-        f"{gap['objective_joint']:.6g} of the same data{where}; {advice}"
+        f"{gap['objective_joint']:.6g} of the same data; its parameters lie up to "
+        f"{distance:.3g} standard errors from that optimum; {advice}"
     )
 
 

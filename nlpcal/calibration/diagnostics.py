@@ -20,6 +20,7 @@ from ..robust import robust_std
 from ..statistics import exact_objectives, field_statistics
 from .coverage import COVERAGE_WARN, direction_coverage, flatness, planar_message
 from .problem import Problem
+from .scores import score_block_sums
 
 #: Standard errors above these are "poorly determined": offsets 1 % of the field, scale errors
 #: 0.01, angles 1 deg (a calibration that changes |B| by about 1 % either way).
@@ -31,10 +32,8 @@ UNDETERMINED = 10.0 * POORLY_DETERMINED
 #: Above this relative spread of |B1| after calibration, the field or the sensor is disturbed
 #: beyond what the nine parameters describe (a clean fluxgate reaches 1e-4). [1]
 DISTURBED_SPREAD = 5e-3
-#: A meat matrix of the sandwich with an eigenvalue below -this x its largest is not a sum of
-#: squares (`sandwich`).
-MEAT_TOLERANCE = 1e-9
-#: Above this widening of the standard errors, neighbouring residuals are worth mentioning. [1]
+#: Above this widening of a standard error for the dependence of neighbouring samples' scores,
+#: more independent samples are advice worth giving. [1]
 CORRELATED_INFLATION = 2.0
 #: Above this relative gap between the moment objective and the exact one at the solution, the
 #: distance to the exact optimum is estimated (`exact_optimum_shift`).
@@ -61,92 +60,166 @@ def _names(indices) -> list:
 
 
 def uncertainty(
-    problem: Problem, objective: float, hs: np.ndarray, autocorrelation: float = 0.0, theta=None
+    problem: Problem, objective: float, hs: np.ndarray, theta=None, centre: float | None = None
 ):
     """Standard errors [parameter units], the identifiability block of a result and the
     covariance of the nine parameters in their units (angles in deg), or None.
 
-    For f = (1/N) sum r_i^2 the Gauss-Newton information is N H / 2 (`nlpcal.inference`), here
-    in the scaled variables of the problems, on the directions the model estimates (without a
-    reference, within the gauge's null space: `nlpcal.nlp.blocks.Variables.basis`). With a
-    robust loss (and `theta`), the covariance is the sandwich A^-1 B A^-1 of an M-estimate,
-    A = sum psi'(r) J J^T and B = sum psi(r)^2 J J^T (`sandwich`). Standard errors, the
-    covariance and the judgements are given for the parameters the model estimates only.
+    For f = (1/N) sum r_i^2 the Gauss-Newton information is A = N H / 2 (`nlpcal.inference`),
+    here in the scaled variables of the problems, on the directions the model estimates (without
+    a reference, within the gauge's null space: `nlpcal.nlp.blocks.Variables.basis`); with a
+    robust loss A = sum psi'(r) J J^T (`weighted_information`). With `theta` the covariance is
+    the sandwich A^-1 Omega A^-1 with Omega = A V A, V the block jackknife of the scores
+    psi(r_i) J_i
+    (`score_meat`): it follows the dependence of the scores of neighbouring samples (a smooth
+    trajectory in a slowly changing field), and for independent samples it is s^2 A^-1 to
+    within its noise. Without `theta` (identifiability alone) it is s^2 A^-1. `centre` : without
+    a reference, the mean |B1| the least-squares residuals are taken from. [field unit]
     """
     moments = problem.moments
     n = problem.samples.shape[0]
     basis = problem.free.basis
     # the parameters fitted: the model's free directions, and without a reference the mean |B1|
     fitted = basis.shape[1] + (1 if moments.reference == "none" else 0)
-    options: dict = {"basis": basis, "autocorrelation": autocorrelation, "dof": n - fitted}
-    form = "gauss-newton"
-    if problem.loss.robust and theta is not None:
-        information, meat, form = sandwich(problem, theta)
-        result = inference.estimate(information, meat=meat, **options)
-    else:
+    options: dict = {"basis": basis, "dof": n - fitted}
+    robust = problem.loss.robust and theta is not None
+    information = (
+        weighted_information(problem, theta, problem.loss.slope)[1]
+        if robust
+        else inference.information_from_hessian(hs, n)
+    )
+    dependence = None
+    if theta is None:
         result = inference.estimate(
-            inference.information_from_hessian(hs, n),
-            residual_variance=n * objective / max(n - fitted, 1),
-            **options,
+            information, residual_variance=n * objective / max(n - fitted, 1), **options
         )
+    else:
+        meat, independent, dependence, noise = score_meat(problem, theta, centre, basis, n - fitted)
+        if not robust:  # s^2 A: the meat of independent samples of least squares, s^2 A^-1
+            independent = n * objective / max(n - fitted, 1) * np.asarray(information)
+        # never narrower than independent samples' in any direction: a jackknife on few groups
+        # can fall below them by chance, and dependence seldom makes a fit more precise
+        meat = inference.loewner_max(meat, independent, basis)
+        result = inference.estimate(information, meat=meat, **options)
+        alone = inference.estimate(information, meat=independent, **options)
     estimated = problem.estimated
     index = [PARAMETER_NAMES.index(name) for name in estimated]
     errors = covariance = None
+    to_units = variable_scale(moments.frame.radius).copy()  # scaled -> parameter units
+    to_units[6:9] = np.degrees(to_units[6:9])
     if result.covariance is not None and np.all(np.isfinite(result.covariance)):
-        to_units = variable_scale(moments.frame.radius).copy()  # scaled -> parameter units
-        to_units[6:9] = np.degrees(to_units[6:9])
         full = to_units[:, None] * result.covariance * to_units[None, :]
         covariance = full[np.ix_(index, index)]  # the estimated parameters only
         errors = {name: float(np.sqrt(full[i, i])) for name, i in zip(estimated, index)}
+    # what the attitudes determine: the standard errors of independent samples (the same
+    # without `theta`), by which a parameter is undetermined; the dependence of neighbouring
+    # samples widens a standard error (poorly determined) but leaves no valley in the objective
+    independent = errors
+    if dependence is not None and errors is not None and alone.standard_errors is not None:
+        alone_errors = alone.standard_errors * to_units
+        independent = {name: float(alone_errors[i]) for name, i in zip(estimated, index)}
+        dependence["standard_errors_independent"] = independent
+        dependence["standard_error_widening"] = {
+            name: errors[name] / independent[name] if independent[name] > 0 else 1.0
+            for name in estimated
+        }
     radius = moments.frame.radius
     limits = np.concatenate([POORLY_DETERMINED[:3] * radius, POORLY_DETERMINED[3:]])
     far = np.concatenate([UNDETERMINED[:3] * radius, UNDETERMINED[3:]])
-    undetermined = [n for n in estimated if errors and errors[n] > far[PARAMETER_NAMES.index(n)]]
+    undetermined = [
+        n for n in estimated if independent and independent[n] > far[PARAMETER_NAMES.index(n)]
+    ]
     poorly = [
         n
         for n in estimated
         if errors and errors[n] > limits[PARAMETER_NAMES.index(n)] and n not in undetermined
     ]
     weak = _names(result.weak)
-    return (
-        errors,
-        {
-            "not_identifiable": [n for n in PARAMETER_NAMES if n in weak or n in undetermined],
-            "undetermined": undetermined,
-            "poorly_determined": poorly,
-            "weakest_combination": _names(result.weakest),
-            "hessian_eigenvalues_scaled": [float(v) for v in result.eigenvalues * 2.0 / n],
-            "covariance_form": form,
-            "residual_lag1_autocorrelation": float(autocorrelation),
-            "standard_error_inflation": result.inflation,
-            "poorly_determined_limits": {n: float(limits[i]) for n, i in zip(estimated, index)},
-            "undetermined_limits": {n: float(far[i]) for n, i in zip(estimated, index)},
-        },
-        covariance,
-    )
+    block: dict = {
+        "not_identifiable": [n for n in PARAMETER_NAMES if n in weak or n in undetermined],
+        "undetermined": undetermined,
+        "poorly_determined": poorly,
+        "weakest_combination": _names(result.weakest),
+        "hessian_eigenvalues_scaled": [float(v) for v in result.eigenvalues * 2.0 / n],
+        "covariance_form": "sandwich" if theta is not None else "gauss-newton",
+        "poorly_determined_limits": {n: float(limits[i]) for n, i in zip(estimated, index)},
+        "undetermined_limits": {n: float(far[i]) for n, i in zip(estimated, index)},
+    }
+    if dependence is not None:
+        block["score_dependence"] = dependence
+    if dependence is not None and errors is not None and not result.weak:
+        # the variance of the residuals: of the inliers (1.4826 MAD) for a robust loss
+        variance = (
+            robust_std(problem.residuals(theta, problem.centre)) ** 2
+            if robust
+            else n * objective / max(n - fitted, 1)
+        )
+        shift = noise_bias(information, basis, noise, variance) * to_units
+        block["second_order_bias"] = {
+            "form": "errors in variables, second order in the sensor noise",
+            "noise_std": float(np.sqrt(variance / noise["mean_square_g"])),
+            "bias": {name: float(shift[i]) for name, i in zip(estimated, index)},
+            "bias_in_standard_errors": {
+                name: float(shift[i] / errors[name]) for name, i in zip(estimated, index)
+            },
+        }
+    return errors, block, covariance
 
 
-def sandwich(problem: Problem, theta) -> tuple:
-    """(A, B, form) of the covariance A^-1 B A^-1 of an M-estimate, in the scaled variables.
+def noise_bias(information, basis, noise: dict, variance: float) -> np.ndarray:
+    """The bias of the estimate to second order in white sensor noise of sigma on each axis, in
+    the scaled variables (9,).
 
-    A = sum psi'(r_i) J_i J_i^T and B = sum psi(r_i)^2 J_i J_i^T, each from the Hessian of the
-    moment objective with the samples weighted by psi'(r) and by psi(r)^2: for a weighted mean of
-    squares with weights g, sum(g) H_g / 2 = sum g J J^T up to terms in the curvature of r.
-    Along a direction the data barely determine those curvature terms can outweigh J J^T and
-    leave B indefinite; B is then taken proportional to A, B = A sum psi^2 / sum psi' N / (N - 9)
-    (Huber's covariance of an M-estimate for residuals alike in spread), and `form` says so.
+    The residual r_i = |M (b_i + n_i - Z_p)| - F_i depends on the noise n_i of the raw sample,
+    and so does its sensitivity J_i: E[r_i J_i] = sigma^2 (dJ_i/db g_i + tr(d2 r_i/db2) J_i / 2)
+    with g_i = dr_i/db = M^T u_i, which does not vanish. The estimating equation sum r_i J_i = 0
+    is then off by sigma^2 times their sum (`scores.score_block_sums`), and the estimate by
+    bias = -sigma^2 A^-1 sum(...) (on the directions the model estimates). It grows as sigma^2
+    and as A^-1: along a direction the attitudes barely determine (a short arc) it reaches
+    standard errors. sigma^2 = s^2 / mean |g|^2, s^2 the residual variance (the noise of |B1|
+    is sigma |g|). A robust loss's equation sum psi(r_i) J_i = 0 is off by the same terms
+    weighted by psi'(r_i) (Stein's lemma, E[psi(x) x] = sigma_x^2 E[psi'(x)] for Gaussian x),
+    A = sum psi' J J^T, and s the inliers' spread (1.4826 MAD): spikes (psi' = 0) take no part.
     """
-    loss = problem.loss
-    slopes, bread = weighted_information(problem, theta, loss.slope)
-    squares, meat = weighted_information(problem, theta, lambda r: (loss.weight(r) * r) ** 2)
-    basis = problem.free.basis
-    values = np.linalg.eigvalsh(basis.T @ (0.5 * (meat + meat.T)) @ basis)
-    if values[0] >= -MEAT_TOLERANCE * max(values[-1], 0.0):
-        return bread, meat, "sandwich"
+    reduced = basis.T @ np.asarray(information, dtype=float) @ basis
+    sigma2 = variance / noise["mean_square_g"]
+    return -sigma2 * basis @ np.linalg.solve(reduced, basis.T @ noise["gradient"])
+
+
+def score_meat(problem: Problem, theta, centre: float | None, basis, dof: int) -> tuple:
+    """(Omega, G_0, description, noise): the meat of the sandwich covariance in the scaled
+    variables, A V A with V the block jackknife's covariance of the estimated directions (`basis`;
+    `inference.block_jackknife`, groups of GROUP_BANDWIDTHS automatic Bartlett bandwidths,
+    widened by `inference.t_widening` for its number of groups), the sum of the squares of the
+    block sums times N / dof (the meat for independent samples), and what the result says of it
+    (`score_dependence`), and the noise terms of the bias (`noise_bias`)."""
     n = problem.samples.shape[0]
-    p = len(problem.estimated)
-    ratio = squares / slopes * n / max(n - p, 1) if slopes > 0 else np.inf
-    return bread, ratio * bread, "huber"
+    series, informations, block_rows, noise = score_block_sums(
+        problem.samples,
+        theta,
+        problem.reference,
+        problem.loss,
+        problem.centre if problem.loss.robust else centre,
+        problem.moments.frame.radius,
+    )
+    projected = series @ basis
+    shares = np.einsum("ji,kjl,lm->kim", basis, informations, basis)
+    bandwidth = inference.bartlett_bandwidth(projected)
+    length = inference.group_length(bandwidth, len(projected))
+    covariance, groups = inference.block_jackknife(projected, shares, length)
+    widening = inference.t_widening(groups - 1)
+    total = shares.sum(axis=0)
+    meat = basis @ (total @ covariance @ total) @ basis.T * widening**2
+    independent = basis @ (projected.T @ projected) @ basis.T * n / max(dof, 1)
+    description = {
+        "method": "block-jackknife",
+        "bandwidth_blocks": bandwidth,
+        "block_samples": block_rows,
+        "group_blocks": length,
+        "groups": int(groups),
+        "t_widening": widening,
+    }
+    return meat, independent, description, noise
 
 
 def weighted_information(problem: Problem, theta, weight) -> tuple:
@@ -351,12 +424,12 @@ def what_would_help(identifiability: dict, final: dict, reference: str, model: s
             f"a steadier field: |B1| still varies by {spread:.1%} (a clean field gives 0.1 %): "
             f"iron, electronics or motion nearby, or sensor errors beyond the nine parameters"
         )
-    inflation = identifiability.get("standard_error_inflation", 1.0)
+    widening = identifiability.get("score_dependence", {}).get("standard_error_widening", {})
+    inflation = max(widening.values(), default=1.0)
     if inflation > CORRELATED_INFLATION:
-        rho = identifiability.get("residual_lag1_autocorrelation", 0.0)
         advice.append(
-            f"more independent samples: neighbouring residuals are alike (lag-1 correlation "
-            f"{rho:.2f}, standard errors x{inflation:.1f})"
+            f"more independent samples: the scores of neighbouring samples are alike (standard "
+            f"errors up to x{inflation:.1f} for it)"
         )
     if reference == "none":
         advice.append("a known field magnitude (--reference-field F) to fix the overall scale")
@@ -379,9 +452,10 @@ def undetermined_message(
     blind = flat.get("parameters", [])
     weak = [n for n in identifiability["not_identifiable"] if n not in undetermined + blind]
     parts = [planar_message(flat, _unit_word(unit))] if flat.get("planar") else []
-    if undetermined:
+    if undetermined:  # judged on what the attitudes determine (`uncertainty`)
+        dependence = identifiability.get("score_dependence", {})
         judged = _judged(
-            errors,
+            dependence.get("standard_errors_independent", errors),
             identifiability["undetermined_limits"],
             undetermined,
             unit,

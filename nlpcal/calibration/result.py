@@ -36,6 +36,8 @@ OFFSET_LIMIT = 1e9
 FIELD_LIMIT = OFFSET_LIMIT
 #: The kinds of reference a calibration has: none (Eq. 8), a constant field or a series.
 REFERENCE_MODES = ("none", "constant", "series")
+#: The systems whose orientation parameters a result can carry (`read_orientation`).
+ORIENTATION_SYSTEMS = ("ardupilot", "px4")
 
 
 def read_parameters(reader: DocumentReader, key: str = "parameters") -> Zhou2010Parameters:
@@ -100,6 +102,19 @@ def read_covariance(reader: DocumentReader, estimated: list) -> np.ndarray | Non
     return matrix
 
 
+def read_orientation(reader: DocumentReader) -> dict | None:
+    """The optional "orientation" block: the system and parameter that state the mounting, its
+    value (an integer of the system's rotation list; PX4's -1 is "the board's") and its name."""
+    block = reader.reader("orientation", None)
+    if block is None:
+        return None
+    block.string("system", options=ORIENTATION_SYSTEMS)
+    block.string("parameter")
+    block.integer("value", minimum=-1)
+    block.string("name", None)
+    return dict(block.document)
+
+
 def check_model(parameters: dict, model_name: str, scale_known: bool, source: str) -> None:
     """InputError unless the parameters are of the form `model_name`: the ones it does not
     estimate at zero, the ones it ties equal."""
@@ -121,28 +136,77 @@ def check_model(parameters: dict, model_name: str, scale_known: bool, source: st
 class CalibrationResult(Document):
     """A calibration: the nine parameters of Eq. 4 in [1], Table 1 rows and how they were found.
 
-    parameters : z_x, z_y, z_z [unit], s_x, s_y, s_z [1], alpha_deg, beta_deg, gamma_deg [deg].
-    statistics : Table 1 rows (label, max, min, mean, std, range [unit], objective [unit^2],
-        iterations, wall_s [s]); the first is the measured |B_M|.
-    unit : the unit of offsets and rows: "nT", or "raw" for counts.
-    unit_source : where the unit of the log came from (`nlpcal.units.UNIT_SOURCES`: "option",
-        "names", "format" or "assumed"); None in a document written before results recorded it,
-        which is treated as "assumed" (`scale_fixed_by`).
-    standard_errors : per estimated parameter, in its unit; None when the data leave a direction
-        free. Parameters the model does not estimate have none (they are fixed, not estimated).
-    covariance : (k, k) covariance of the k estimated parameters in PARAMETER_NAMES order, in
-        their units (offsets [unit], scale errors [1], angles [deg]); None without standard
-        errors.
-    identifiability : what the attitude coverage determines (`nlpcal.calibration.diagnostics`).
-    input : where the samples came from (file, columns, the unit of the file).
-    robust : the loss and its scale, the samples it down-weighted, and the spread of the
-        residuals (their standard deviation and robust standard deviation). [unit]
-    model_name : the form of Eq. 4 estimated (`nlpcal.models.zhou2010.MODELS`), "model" in the
-        document: the parameters it does not estimate are fixed at zero (`fixed_parameters`).
-    model_selection : how model "auto" chose it (the reason, the richer forms rejected), or None.
-    warnings : what looks wrong with the data or the result, each a sentence.
-    notes : what the user should know about how the problem was posed (the gauge without a
-        reference field), each a sentence: not warnings.
+    Returned by `calibrate`; `apply` corrects new samples, `to_json`, `save`, `from_json` and
+    `load` write and read the versioned JSON document (`params.json`).
+
+    Attributes
+    ----------
+    parameters : dict
+        z_x, z_y, z_z [unit], s_x, s_y, s_z [1], alpha_deg, beta_deg, gamma_deg [deg].
+    statistics : list of dict
+        Table 1 rows (label, max, min, mean, std, range [unit], objective [unit^2], iterations,
+        wall_s [s]); the first is the measured |B_M|.
+    method : str
+        "staged" or "joint".
+    reference : dict
+        The reference field used: mode "none", "constant" or "series", and its values.
+    gauge : dict or None
+        Without a reference field, the constraint that fixes the overall scale.
+    solver : dict
+        The solver's status, iterations and stop reason.
+    unit : str
+        The unit of offsets and rows: "nT", or "raw" for counts.
+    unit_source : str or None
+        Where the unit of the log came from ("option", "names", "format" or "assumed"); None in a
+        document written before results recorded it, which is treated as "assumed".
+    standard_errors : dict or None
+        Per estimated parameter, in its unit; None when the data leave a direction free.
+        Parameters the model does not estimate have none (they are fixed, not estimated).
+    covariance : numpy.ndarray or None
+        (k, k) covariance of the k estimated parameters in the order of `parameters`, in their
+        units (offsets [unit^2], scale errors [1], angles [deg^2]); None without standard errors.
+    identifiability : dict
+        What the attitude coverage determines, and the residuals' autocorrelation.
+    warnings : list of str
+        What looks wrong with the data or the result, each a sentence.
+    notes : list of str
+        How the problem was posed (the gauge without a reference field), each a sentence.
+    n_samples : int
+        Samples the calibration used.
+    version : str
+        The nlpcal version that made it ("nlpcal_version" in the document).
+    input : dict
+        Where the samples came from (file, columns, the unit of the file).
+    robust : dict
+        The loss and its scale, the samples it down-weighted, and the spread of the residuals.
+        [unit]
+    model_name : str
+        The form of Eq. 4 estimated ("model" in the document): the parameters it does not estimate
+        are fixed at zero (`fixed_parameters`).
+    model_selection : dict or None
+        How model "auto" chose it (the reason, the richer forms rejected), or None.
+    sensor_id : int, str or None
+        The sensor calibrated: an autopilot device id or a name (`--sensor-id`), or None
+        ("sensor_id" in the document, written when given).
+    orientation : dict or None
+        How the sensor is mounted, as the file a calibration was imported from states it
+        ({"system", "parameter", "value"[, "name"]}, e.g. ArduPilot's COMPASS_ORIENT); carried,
+        not applied ("orientation" in the document, written when given).
+
+    References
+    ----------
+    [1] Zhou et al. (2010), see `nlpcal.models.zhou2010`.
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> samples = nlpcal.simulate(500, seed=3)[["bx", "by", "bz"]].to_numpy()
+    >>> result = nlpcal.calibrate(samples, method="joint")
+    >>> sorted(result.parameters)[:3]
+    ['alpha_deg', 'beta_deg', 'gamma_deg']
+    >>> again = nlpcal.CalibrationResult.from_json(result.to_json())
+    >>> again.parameters == result.parameters
+    True
     """
 
     FORMAT = "nlpcal-calibration"
@@ -175,6 +239,8 @@ class CalibrationResult(Document):
     robust: dict = field(default_factory=dict)
     model_name: str = "full"
     model_selection: dict | None = None
+    sensor_id: int | str | None = None
+    orientation: dict | None = None
 
     @property
     def estimated_parameters(self) -> list:
@@ -295,6 +361,10 @@ class CalibrationResult(Document):
             document["input"] = dict(self.input)
         if self.robust:
             document["robust"] = dict(self.robust)
+        if self.sensor_id is not None:
+            document["sensor_id"] = self.sensor_id
+        if self.orientation is not None:
+            document["orientation"] = dict(self.orientation)
         return document
 
     @classmethod
@@ -337,6 +407,10 @@ class CalibrationResult(Document):
             "robust": read_robust(reader),
             "model_name": model_name,
             "model_selection": reader.mapping("model_selection", None),
+            "sensor_id": None
+            if not reader.has("sensor_id")
+            else validation.sensor_id(reader.raw("sensor_id"), f"{reader.source}: sensor_id"),
+            "orientation": read_orientation(reader),
         }
 
     @classmethod

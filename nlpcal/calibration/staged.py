@@ -42,19 +42,38 @@ PREDICTION_MARGIN = 1.1
 
 @dataclass(frozen=True)
 class StopRule:
-    """Stop rules of step 7 of Fig. 1 in [1].
+    """Stop rules of step 7 of Fig. 1 in [1], for the staged cycle of `calibrate`.
 
-    max_cycles : the most cycles to run.
-    target_std : stop when the std of |B1| is at or below this. [field unit]
-    target_range : stop when max - min of |B1| is at or below this. [field unit]
-    rtol : stop when a cycle lowers the objective by less than this fraction. [1]
-    predict : stop early, with stop reason "predicted_unconverged", when the rate of convergence
-        shows that the rtol rule cannot hold within max_cycles (`cycles_to_converge`); False
-        runs to the limit. Never with a target, a robust loss or rtol = 0.
-    every_row_exact : a pass over the data for the Table 1 row of every cycle; False takes the
-        rows between the first and the last cycle from the moments (mean and std of |B1| without
-        max, min and range) where they hold, which makes a cycle cost a few small solves whatever
-        N. A target is always judged on exact rows.
+    Attributes
+    ----------
+    max_cycles : int
+        The most cycles to run (`--cycles`).
+    target_std : float, optional
+        Stop when the std of |B1| is at or below this. [field unit]
+    target_range : float, optional
+        Stop when max - min of |B1| is at or below this. [field unit]
+    rtol : float
+        Stop when a cycle lowers the objective by less than this fraction. [1]
+    predict : bool
+        Stop early, with stop reason "predicted_unconverged", when the rate of convergence shows
+        that the rtol rule cannot hold within max_cycles; False runs to the limit. Never with a
+        target, a robust loss or rtol = 0.
+    every_row_exact : bool
+        A pass over the data for the Table 1 row of every cycle; False takes the rows between the
+        first and the last cycle from the moments (mean and std of |B1| without max, min and
+        range) where they hold, which makes a cycle cost a few small solves whatever N. A target
+        is always judged on exact rows.
+
+    References
+    ----------
+    [1] Zhou et al. (2010), see `nlpcal.models.zhou2010`.
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> rule = nlpcal.StopRule(max_cycles=50, rtol=1e-9)
+    >>> rule.max_cycles, rule.target_std is None
+    (50, True)
     """
 
     max_cycles: int = CYCLES_DEFAULT

@@ -29,6 +29,7 @@ from . import (
     imports,
     orthogonality,
     report,
+    reproduce,
     simulate,
 )
 from .common import HelpFormatter, Parser, UsageError, add_verbosity, set_verbosity
@@ -46,6 +47,7 @@ COMMANDS = (
     imports,
     report,
     simulate,
+    reproduce,
 )
 
 DESCRIPTION = """\

@@ -28,6 +28,7 @@ from .common import (
     log_options,
     report_log,
     show_progress,
+    table_options,
     tell,
     tell_written,
     warn,
@@ -145,7 +146,7 @@ def run_apply(args) -> int:
     check_table_output(args.output)
     precision = Precision(args.precision)
     progress = show_progress(f"applying {args.log}", args.output)
-    with LogStream(args.log, header=args.header, progress=progress) as stream:
+    with LogStream(args.log, **table_options(args), progress=progress) as stream:
         correction = correction_for(args, stream.table_columns, require_temperature=True)
         if args.plot and correction.parameters is None:
             raise InputError("--plot needs parameters (PARAMS.json), not a drift file alone")
@@ -238,7 +239,7 @@ def run_stats(args) -> int:
     from ..io import read_log, read_table
     from ..statistics import format_table
 
-    table = read_table(args.log, header=args.header)
+    table = read_table(args.log, **table_options(args))
     if args.params or args.drift or args.temperature_column:
         correction = correction_for(args, table.columns, require_temperature=False)
         log = read_log_for(table, correction, **log_options(args))

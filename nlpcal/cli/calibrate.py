@@ -30,6 +30,7 @@ from .common import (
     add_plot_argument,
     add_reference_arguments,
     add_scheduler_arguments,
+    add_sensor_id_argument,
     add_threads_argument,
     check_plot,
     log_options,
@@ -163,8 +164,9 @@ them (say, the sensor was never turned over); --allow-unidentifiable writes them
         "--low-memory",
         action="store_true",
         help="stream the log into a memory-mapped temporary file in chunks, so "
-        "that logs larger than memory can be calibrated (the default, unless --plot or a "
-        "geomagnetic model with position or time columns needs the whole table)",
+        "that logs larger than memory can be calibrated (the default for text and Parquet "
+        "files, unless --plot or a geomagnetic model with position or time columns needs the "
+        "whole table; stdin and recorded formats are read whole)",
     )
     add_loss_arguments(parser)
     add_threads_argument(parser)
@@ -182,6 +184,7 @@ them (say, the sensor was never turned over); --allow-unidentifiable writes them
         "failing the quality check",
     )
     add_scheduler_arguments(parser)
+    add_sensor_id_argument(parser)
     parser.add_argument(
         "-o",
         "--output",
@@ -219,6 +222,7 @@ def _read_for_calibration(args, extra):
     from ..errors import InputError
     from ..io import read_log
     from ..io.lazy import read_lazy_log
+    from ..io.recorders import is_recorded
 
     if not args.scheduler:
         options = log_options(args)
@@ -226,7 +230,9 @@ def _read_for_calibration(args, extra):
         per_sample = model is not None and (model.numeric_columns() or model.time_column)
         # the lean chunked reading by default: as fast, a fraction of the memory; the whole
         # table for what needs it (a figure's time axis, a model's position and time columns)
-        lean = args.low_memory or not (per_sample or args.plot)
+        # and for logs read whole anyway (recorded formats; stdin, which may be one)
+        whole = per_sample or args.plot or args.log == "-" or is_recorded(args.log)
+        lean = args.low_memory or not whole
         with show_progress(f"reading {args.log}") as bar:
             return read_log(args.log, **options, extra_columns=extra, low_memory=lean, progress=bar)
     if args.low_memory or args.plot:
@@ -241,13 +247,15 @@ def _read_for_calibration(args, extra):
 
 
 def _run_calibrate(args) -> int:
+    from .. import validation
     from ..calibration import calibrate_log
-    from ..drift.temperature import calibrate_temperature_log
+    from ..drift.temperature import TemperatureCalibrationResult, calibrate_temperature_log
     from ..errors import InputError, QualityError
     from ..io import Outputs, check_output_path
 
     check_output_path(args.output, args.log)
     check_plot(args)
+    sensor_id = None if args.sensor_id is None else validation.sensor_id(args.sensor_id)
     temperature = args.temperature_column or args.temperature_model
     if args.temperature_model and not args.temperature_column:
         raise InputError("--temperature-model needs --temperature-column COL")
@@ -302,9 +310,13 @@ def _run_calibrate(args) -> int:
             result=failure.result,
         ) from None
     progress("")
+    if isinstance(result, TemperatureCalibrationResult):
+        result.calibration.sensor_id = sensor_id
+    else:
+        result.sensor_id = sensor_id
     say_verdict(result)
     warn(
-        f"read {log.n} rows in {read_s:.2f} s (pandas {log.engine} engine); calibrated in "
+        f"read {log.n} rows in {read_s:.2f} s ({log.read_by}); calibrated in "
         f"{time.perf_counter() - started:.2f} s"
     )
     say(result.table(most=table_rows()))

@@ -60,15 +60,23 @@ def add_command(sub, name: str, *, help: str, description: str, examples=(), **o
     )
 
 
-def at_least_one(text: str) -> int:
-    """An argparse type: a whole number of at least 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected at least 1, got {value}")
-    return value
+def at_least(minimum: int):
+    """An argparse type: a whole number of at least `minimum`."""
+
+    def whole_number(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"expected at least {minimum}, got {value}")
+        return value
+
+    return whole_number
+
+
+#: A count (threads, workers, cycles ...). A 0-based index (a compass instance).
+at_least_one, at_least_zero = at_least(1), at_least(0)
 
 
 def add_verbosity(parser) -> None:
@@ -143,6 +151,17 @@ def show_progress(label: str, output=None):
     return Progress(label, enabled=enabled)
 
 
+def add_sensor_id_argument(parser) -> None:
+    """--sensor-id: the identity of the sensor, recorded in the result and in exports."""
+    parser.add_argument(
+        "--sensor-id",
+        metavar="ID",
+        help="the sensor calibrated: its autopilot device id (an integer, as in ArduPilot's "
+        "COMPASS_DEV_ID or PX4's CAL_MAGn_ID) or a name; recorded as sensor_id in the result "
+        "and written by the ardupilot and px4 exports",
+    )
+
+
 def tell_written(*paths) -> None:
     """ "wrote PATH" for each output written to a path (not stdout), silent with -q."""
     for path in paths:
@@ -158,8 +177,8 @@ def tell(notes) -> None:
 
 def report_log(log) -> None:
     """How a log was read (-v), what the reader decided and what looks wrong (not with -q)."""
-    engine = getattr(log, "engine", "c")
-    detail(f"read {log.path}: {log.layout.describe()} (pandas {engine} engine)")
+    reading = log.reading() if hasattr(log, "reading") else log.layout.describe()
+    detail(f"read {log.path}: {reading}")
     tell(log.notes)
     for message in log.warnings:
         warning(message)
@@ -217,6 +236,7 @@ def add_log_arguments(
         "that would fit; a unit given here is used as given",
     )
     add_input_arguments(parser)
+    add_recorded_arguments(parser)
     parser.add_argument(
         "--drop-invalid",
         action="store_true",
@@ -225,6 +245,33 @@ def add_log_arguments(
         "instead of failing on the first and keeping the second. Rows reading exactly "
         "(0, 0, 0) are always left out",
     )
+
+
+def add_recorded_arguments(parser) -> None:
+    """--variable (a MATLAB .mat file) and --instance (an ArduPilot DataFlash log)."""
+    parser.add_argument(
+        "--variable",
+        metavar="NAME",
+        help="the variable of a MATLAB .mat file that holds the field: an N x 3 array or a "
+        "struct with magnetometer fields (default: the only one, or the only one whose name "
+        "says mag)",
+    )
+    parser.add_argument(
+        "--instance",
+        type=at_least_zero,
+        metavar="N",
+        help="the compass of an ArduPilot DataFlash .bin log, 0-based like the I field of its "
+        "MAG messages (MAG2 is 1, MAG3 is 2 in older logs); needed when it has several",
+    )
+
+
+def table_options(args) -> dict:
+    """The keyword arguments of `nlpcal.io.read_table` that the common arguments give."""
+    return {
+        "header": getattr(args, "header", None),
+        "variable": getattr(args, "variable", None),
+        "instance": getattr(args, "instance", None),
+    }
 
 
 def add_field_argument(
@@ -384,7 +431,7 @@ def log_options(args) -> dict:
         "columns": args.columns,
         "unit": args.unit,
         "drop_invalid": args.drop_invalid,
-        "header": getattr(args, "header", None),
+        **table_options(args),
         "reference_column": getattr(args, "reference_column", None),
         "reference_field": getattr(args, "reference_field", None),
         "reference_model": reference_model(args),
@@ -438,7 +485,8 @@ def add_params_argument(parser) -> None:
 #: The help of a LOG argument.
 LOG_HELP = (
     "the log: a delimited text file (comma, semicolon, tab or whitespace), a Parquet file, a "
-    "quoted pattern or a folder of them, or - for stdin"
+    "quoted pattern or a folder of them, or - for stdin; or a MotionCal capture (Raw: lines), "
+    "a MATLAB .mat file or an ArduPilot DataFlash .bin log"
 )
 
 

@@ -239,7 +239,7 @@ def _run_invert(args) -> int:
         report_log(log)
     with solver_log():
         result = invert_logs(
-            logs, field_nT=logs[0].reference, bound_deg=args.bound_deg, verbose=args.verbose
+            logs, reference_field=logs[0].reference, bound_deg=args.bound_deg, verbose=args.verbose
         )
     for message in result.warnings:
         warning(message)

@@ -21,6 +21,7 @@ from .common import (
     log_options,
     report_log,
     say,
+    table_options,
     tell,
 )
 
@@ -63,7 +64,7 @@ def run(args) -> int:
     from ..report import report
 
     check_output_path(args.output, args.params, args.log, args.drift)
-    table = read_table(args.log, header=args.header)
+    table = read_table(args.log, **table_options(args))
     correction = correction_for(args, table.columns, require_temperature=True)
     options = log_options(args)
     stored = stored_reference_column(correction.parameters, options, table.columns)

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 from .common import add_command, add_field_argument, emit_table, warn
 
-#: What --preset accepts (the library's `nlpcal.simulation.PRESETS` and `DIRECTORY_PRESETS`).
-PRESET_NAMES = ("zhou2010", "liu2022", "qiu2017")
 ATTITUDE_NAMES = ("clustered", "tilt", "tilt_band", "turntable", "uniform")
 
 
@@ -121,7 +119,7 @@ def run(args) -> int:
     frame = sim.simulate(
         2000 if args.n is None else args.n,
         parameters=parameters,
-        field=field,
+        reference_field=field,
         noise=1.0 if args.noise is None else args.noise,
         seed=args.seed,
         attitudes=args.attitudes,

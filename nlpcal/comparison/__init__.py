@@ -5,10 +5,12 @@ units and magnitudes make the stopping rule of its conjugate gradient hard to se
 cycling through the three stages of Fig. 1 fixes it. `compare` runs, on the same data and the same
 objective (Eq. 8, or its reference variant):
 
-    staged     the cycle of Fig. 1, every stage an IPOPT problem (`nlpcal.staged.run_staged`)
-    joint      the nine parameters in one IPOPT problem (`nlpcal.joint.run_joint`)
+    staged     the cycle of Fig. 1, every stage an IPOPT problem
+               (`nlpcal.calibration.staged.run_staged`)
+    joint      the nine parameters in one IPOPT problem (`nlpcal.calibration.joint.run_joint`)
     cg_joint   the conjugate gradient of section 5 on all nine at once, in the paper's units,
-               then the same on variables scaled to order one (`nlpcal.conjugate_gradient`)
+               then the same on variables scaled to order one
+               (`nlpcal.comparison.conjugate_gradient`)
     cg_staged  the cycle of Fig. 1 with every stage solved by that conjugate gradient
 
 and reports Table 1 rows for each (max, min, mean, std, range of |B1| [field unit], objective
@@ -66,11 +68,27 @@ ROW_FIELDS = ("max", "min", "mean", "std", "range", "objective", "iterations", "
 class CompareSettings:
     """How `compare` runs the four methods.
 
-    cycles : the most cycles of the staged and the CG-staged runs (the default of `calibrate`).
-    rtol : both cycles stop when a cycle lowers the objective by less than this fraction; the
-        staged cycle runs on to its limit when it cannot (no early stop on a predicted failure:
-        the comparison shows the whole path). [1]
-    cg : settings of the conjugate gradient (step constant, eps, iteration cap).
+    Attributes
+    ----------
+    cycles : int
+        The most cycles of the staged and the CG-staged runs (the default of `calibrate`).
+    rtol : float
+        Both cycles stop when a cycle lowers the objective by less than this fraction; the staged
+        cycle runs on to its limit when it cannot (no early stop on a predicted failure: the
+        comparison shows the whole path). [1]
+    cg : CGOptions
+        Settings of the conjugate gradient (step constant, eps, iteration cap).
+
+    Raises
+    ------
+    InputError
+        A cycle count below one or a negative rtol.
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> nlpcal.CompareSettings(cycles=20).cycles
+    20
     """
 
     cycles: int = CYCLES_DEFAULT
@@ -86,10 +104,43 @@ class CompareSettings:
 class Comparison(Document):
     """The four methods on one log: Table 1 rows, trajectories and a summary.
 
-    staged : measured row, then one row per cycle. joint : one row. cg_joint : the CG on all nine,
-    unscaled (the paper's setting) then scaled. cg_staged : measured row, then one row per cycle.
-    trajectories : method -> {"iterations": cumulative solver iterations, "objective": [field^2]}.
-    samples : the log (in memory only: the figures need it; None for a comparison read back).
+    Attributes
+    ----------
+    samples : numpy.ndarray or None
+        The log (in memory only: the figures need it; None for a comparison read back). [unit]
+    staged : list of dict
+        Table 1 rows of the staged cycle: the measured row, then one row per cycle.
+    joint : dict
+        The Table 1 row of the joint IPOPT solve.
+    cg_joint : list of dict
+        The CG on all nine, unscaled (the paper's setting) then scaled.
+    cg_staged : list of dict
+        The staged cycle with the CG: the measured row, then one row per cycle.
+    trajectories : dict
+        Method -> {"iterations": cumulative solver iterations, "objective": [unit^2]}.
+    summary : dict
+        Cycles, iterations and wall times of each method, and whether the cycles reached the
+        joint optimum.
+    reference : dict
+        The reference field used.
+    settings : CompareSettings
+        How the methods ran.
+    unit : str
+        The unit of the rows ("nT" or "raw").
+    warnings : list of str
+        What looks wrong with the data, each a sentence.
+    n_samples : int
+        Samples compared.
+    input : dict
+        Where the samples came from.
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> samples = nlpcal.simulate(500, seed=1)[["bx", "by", "bz"]].to_numpy()
+    >>> comparison = nlpcal.compare(samples, settings=nlpcal.CompareSettings(cycles=3))
+    >>> sorted(comparison.trajectories)
+    ['cg_joint', 'cg_joint_scaled', 'cg_staged', 'joint', 'staged']
     """
 
     FORMAT = "nlpcal-comparison"
@@ -196,19 +247,52 @@ def compare(
 ) -> Comparison:
     """Run the staged cycle, the joint solve and the paper's CG (joint and staged) on one log.
 
-    samples : (N, 3) raw sensor output B_M. [unit]
-    reference_field : None (Eq. 8), a number F or N values F_i. [reference_unit, default unit]
-    settings : cycles, rtol and the CG settings.
-    unit : the unit of the samples; the comparison is in nT (or raw for counts).
-    loss, loss_scale : a robust loss (`nlpcal.calibration.calibrate`); its weights are fixed at
-        the reweighted joint solution, and every method then minimises that weighted objective.
-        [loss_scale: unit]
-    require_identifiable : raise QualityError when the attitudes leave parameters undetermined.
-    threads : threads of the passes over the data (default: the cores available).
+    Parameters
+    ----------
+    samples : array_like, shape (N, 3)
+        Raw sensor output B_M. [unit]
+    reference_field : None, float or array_like of shape (N,)
+        None (Eq. 8), a number F or N values F_i (`--reference-field`). [reference_unit]
+    settings : CompareSettings
+        Cycles, rtol and the CG settings (`--cycles`, `--rtol`, `--cg-*`).
+    unit : str
+        The unit of the samples; the comparison is in nT (or raw for counts).
+    reference_unit : str, optional
+        The unit of the reference (default: `unit`).
+    loss : {"l2", "huber", "cauchy"}
+        A robust loss, as in `calibrate`; its weights are fixed at the reweighted joint solution,
+        and every method then minimises that weighted objective.
+    loss_scale : float, optional
+        The residual beyond which a sample is down-weighted. [unit]
+    require_identifiable : bool
+        Raise QualityError when the attitudes leave parameters undetermined.
+    threads : int, optional
+        Threads of the passes over the data (default: the cores available).
 
-    Returns a Comparison. Raises InputError for unusable input and SolveError when IPOPT fails.
+    Returns
+    -------
+    Comparison
+        Table 1 rows of the four methods, the objective against the cumulative solver iterations
+        of each, and a summary.
+
+    Raises
+    ------
+    InputError
+        Unusable input.
+    SolveError
+        IPOPT failed.
+    QualityError
+        The attitudes leave parameters undetermined.
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> samples = nlpcal.simulate(500, seed=1)[["bx", "by", "bz"]].to_numpy()
+    >>> comparison = nlpcal.compare(samples, settings=nlpcal.CompareSettings(cycles=5))
+    >>> len(comparison.staged)  # the measured row and one row per cycle
+    6
     """
-    with chunks.call_threads(threads):
+    with chunks.call_threads(validation.optional_whole(threads, "threads")):
         units.check_compatible(unit, reference_unit or unit)
         samples = validation.samples(samples)
         reference = validation.reference(reference_field, samples.shape[0])

@@ -121,6 +121,7 @@ def calibrate_free(
     mag,
     acc,
     *,
+    reference_field: float | None = None,
     field_nt: float | None = None,
     ellipsoid_seed: str = "linear",
     rest_tolerance: float | None = DEFAULT_REST_TOLERANCE,
@@ -129,12 +130,15 @@ def calibrate_free(
 
     Parameters
     ----------
-    mag : (N, 3) array
+    mag : array_like, shape (N, 3)
         Magnetometer readings, taken at rest (or moving slowly) in many attitudes. [nT]
-    acc : (N, 3) array
+    acc : array_like, shape (N, 3)
         Accelerometer readings of the same rows. [g]
+    reference_field : float, optional
+        Local total field (`--reference-field`); default estimated under
+        det(correction_matrix) = 1. [nT]
     field_nt : float, optional
-        Local total field; default estimated under det(correction_matrix) = 1. [nT]
+        The former name of `reference_field`, still accepted. [nT]
     ellipsoid_seed : {"linear", "centroid"}
         Start of the ellipsoid NLPs.
     rest_tolerance : float or None
@@ -142,6 +146,27 @@ def calibrate_free(
         moving: they are left out of the accelerometer fit (refitted until the kept set no longer
         changes, at most REST_ITERATIONS times) and of the dip alignment, and kept for the
         magnetometer fit. None keeps every sample. [g]
+
+    Returns
+    -------
+    CompassCalibration
+        Both sensors' corrections and the rotation between them.
+
+    Raises
+    ------
+    InputError
+        Unusable readings.
+    SolveError
+        IPOPT failed.
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> from nlpcal.simulation.qiu2017 import replica
+    >>> test = replica(seed=0, n=300)["test"]  # random attitudes, pitch within +-85 deg
+    >>> mag, acc = test[["mx_nT", "my_nT", "mz_nT"]], test[["ax_g", "ay_g", "az_g"]]
+    >>> nlpcal.calibrate_free(mag.to_numpy(), acc.to_numpy()).mode
+    'free-rotation'
     """
     mag = validation.finite_vectors(mag, "magnetometer readings", minimum=MIN_FREE_SAMPLES)
     acc = validation.finite_vectors(acc, "accelerometer readings", minimum=MIN_FREE_SAMPLES)
@@ -150,6 +175,7 @@ def calibrate_free(
             f"got {len(mag)} magnetometer and {len(acc)} accelerometer samples; they "
             f"must be the same rows"
         )
+    field_nt = validation.renamed(reference_field, field_nt, "reference_field", "field_nt")
     if field_nt is not None and not (np.isfinite(field_nt) and field_nt > 0):
         raise InputError(f"the field must be a positive number of nT, got {field_nt}")
     if rest_tolerance is not None and not (np.isfinite(rest_tolerance) and rest_tolerance > 0):

@@ -41,12 +41,43 @@ def attitude(
 
     Parameters
     ----------
-    mag : (N, 3) array
+    calibration : CompassCalibration
+        The sensors' corrections.
+    mag : array_like, shape (N, 3)
         Magnetometer readings. [nT]
-    acc : (N, 3) array
+    acc : array_like, shape (N, 3)
         Accelerometer readings. [g]
     declination_deg : float
-        Added to the magnetic heading to give true heading. [deg]
+        Added to the magnetic heading to give true heading (`--declination-deg`). [deg]
+
+    Returns
+    -------
+    Attitude
+        roll_deg, pitch_deg, heading_deg per sample [deg], and warnings (attitudes near vertical,
+        where heading is undefined).
+
+    Raises
+    ------
+    InputError
+        Unusable readings.
+
+    References
+    ----------
+    [1] Qiu et al. (2017), see `nlpcal.models.qiu2017`.
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> from nlpcal.simulation.qiu2017 import replica
+    >>> data = replica(seed=0, n=200)
+    >>> turns, test = data["turns"], data["test"]
+    >>> mag, acc = ["mx_nT", "my_nT", "mz_nT"], ["ax_g", "ay_g", "az_g"]
+    >>> calibration = nlpcal.calibrate_turns(
+    ...     turns[mag].to_numpy(), turns[acc].to_numpy(), turns["turn"].tolist()
+    ... )
+    >>> estimate = nlpcal.attitude(calibration, test[mag].to_numpy(), test[acc].to_numpy())
+    >>> estimate.heading_deg.shape
+    (200,)
     """
     mag = validation.finite_vectors(mag, "magnetometer readings", minimum=1)
     acc = validation.finite_vectors(acc, "accelerometer readings", minimum=1)
@@ -88,17 +119,42 @@ def evaluate(
 ) -> dict:
     """Attitude error statistics overall and per band of |true pitch|, like Table 2 of [1].
 
+    Errors are estimate - truth wrapped to [-180, 180).
+
     Parameters
     ----------
-    estimate, truth : (N, 3) arrays
-        Roll, pitch, heading. [deg]
-    pitch_bands : sequence
+    estimate : array_like, shape (N, 3)
+        Estimated roll, pitch, heading. [deg]
+    truth : array_like, shape (N, 3)
+        True roll, pitch, heading (`--truth-columns`). [deg]
+    pitch_bands : sequence of float
         Increasing edges of |true pitch|; the last band includes its upper edge. [deg]
     remove_heading_offset : bool
         Subtract the circular mean heading error first (a reference whose north is arbitrary).
 
-    Returns a dict with the count, per angle max |error|, RMS and mean [deg], overall and per band;
-    errors are estimate - truth wrapped to [-180, 180).
+    Returns
+    -------
+    dict
+        The count, and per angle max |error|, RMS and mean [deg], overall and per band.
+
+    Raises
+    ------
+    InputError
+        Estimate and truth of different shapes, or bands not increasing.
+
+    References
+    ----------
+    [1] Qiu et al. (2017), see `nlpcal.models.qiu2017`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import nlpcal
+    >>> truth = np.array([[0.0, 10.0, 359.0], [5.0, 40.0, 90.0]])
+    >>> estimate = truth + [0.1, -0.1, 2.0]  # heading wraps: 361 deg is 1 deg
+    >>> errors = nlpcal.evaluate(estimate, truth)
+    >>> errors["overall"]["n"], round(errors["overall"]["heading"]["max_abs"], 6)
+    (2, 2.0)
     """
     estimate = np.atleast_2d(np.asarray(estimate, dtype=float))
     truth = np.atleast_2d(np.asarray(truth, dtype=float))

@@ -112,7 +112,35 @@ class SensorCalibration:
 
 @dataclass
 class CompassCalibration(Document):
-    """Both sensors' corrections, how they were found, and what could not be identified."""
+    """Both sensors' corrections, how they were found, and what could not be identified.
+
+    Attributes
+    ----------
+    mode : str
+        "turns" or "free-rotation".
+    magnetometer, accelerometer : SensorCalibration
+        Each sensor's correction: mounting angles [deg], bias [nT or g], sensitivity [1].
+    identifiability : str
+        What the mode identifies and what it does not, a sentence.
+    alignment : dict or None
+        Free-rotation mode: the magnetometer-to-accelerometer rotation.
+    warnings : list of str
+        What looks wrong, each a sentence.
+    input : dict
+        Where the readings came from.
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> from nlpcal.simulation.qiu2017 import replica
+    >>> turns = replica(seed=0, n=10)["turns"]
+    >>> mag = turns[["mx_nT", "my_nT", "mz_nT"]].to_numpy()
+    >>> acc = turns[["ax_g", "ay_g", "az_g"]].to_numpy()
+    >>> calibration = nlpcal.calibrate_turns(mag, acc, turns["turn"].tolist())
+    >>> field, force = calibration.apply(mag, acc)  # calibrated [nT] and [g]
+    >>> field.shape
+    (48, 3)
+    """
 
     FORMAT = "nlpcal-compass"
     WHAT = "nlpcal compass calibration"

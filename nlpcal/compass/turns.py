@@ -259,23 +259,58 @@ TURN_IDENTIFIABILITY = (
 
 
 def calibrate_turns(
-    mag, acc, turn_labels, *, field_nt: float | None = None, ellipsoid_seed: str = "linear"
+    mag,
+    acc,
+    turn_labels,
+    *,
+    reference_field: float | None = None,
+    field_nt: float | None = None,
+    ellipsoid_seed: str = "linear",
 ) -> CompassCalibration:
-    """The paper's protocol: turns about the housing axes, then ellipsoid fits. [1]
+    """The paper's protocol: turns about the housing axes, then ellipsoid fits [1].
 
     Parameters
     ----------
-    mag : (N, 3) array
-        Magnetometer readings. [nT]
-    acc : (N, 3) array
-        Accelerometer readings. [g]
+    mag : array_like, shape (N, 3)
+        Magnetometer readings (`--mag-columns`). [nT]
+    acc : array_like, shape (N, 3)
+        Accelerometer readings (`--acc-columns`). [g]
     turn_labels : sequence of N str
         Housing axis of each sample's turn, x, y or z plus an optional suffix separating repeated
-        turns about one axis (y2).
+        turns about one axis (y2) (`--turn-column`).
+    reference_field : float, optional
+        Local total field (`--reference-field`); default estimated under
+        det(correction_matrix) = 1. [nT]
     field_nt : float, optional
-        Local total field; default estimated under det(correction_matrix) = 1. [nT]
+        The former name of `reference_field`, still accepted. [nT]
     ellipsoid_seed : {"linear", "centroid"}
         Start of the ellipsoid NLPs.
+
+    Returns
+    -------
+    CompassCalibration
+        Both sensors' mounting angles, biases and sensitivities.
+
+    Raises
+    ------
+    InputError
+        Unusable readings or labels, or turns that cannot determine the mounting.
+    SolveError
+        IPOPT failed.
+
+    References
+    ----------
+    [1] Qiu et al. (2017), see `nlpcal.models.qiu2017`.
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> from nlpcal.simulation.qiu2017 import replica  # `nlpcal simulate --preset qiu2017`
+    >>> turns = replica(seed=0, n=10)["turns"]
+    >>> mag, acc = turns[["mx_nT", "my_nT", "mz_nT"]], turns[["ax_g", "ay_g", "az_g"]]
+    >>> calibration = nlpcal.calibrate_turns(mag.to_numpy(), acc.to_numpy(), turns["turn"].tolist())
+    >>> calibration.mode, calibration.verdict.status
+    ('turns', 'ok')
     """
     mag = validation.finite_vectors(mag, "magnetometer readings", minimum=3 * MIN_TURN_SAMPLES)
     acc = validation.finite_vectors(acc, "accelerometer readings", minimum=3 * MIN_TURN_SAMPLES)
@@ -284,6 +319,7 @@ def calibrate_turns(
             f"got {len(mag)} magnetometer, {len(acc)} accelerometer samples and "
             f"{len(turn_labels)} turn labels; they must be the same rows"
         )
+    field_nt = validation.renamed(reference_field, field_nt, "reference_field", "field_nt")
     if field_nt is not None and not (np.isfinite(field_nt) and field_nt > 0):
         raise InputError(f"the field must be a positive number of nT, got {field_nt}")
     axes, names = parse_turn_labels(turn_labels)

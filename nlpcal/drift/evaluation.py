@@ -37,12 +37,45 @@ def rmse_rows(
 ) -> list:
     """The three-row evaluation of [1] (sections 2-3): raw -> system -> system + temperature.
 
-    samples : (N, 3) raw output. [nT]
-    reference : (N,) proton values or one number. [nT]
-    params : the nine parameters at the base temperature (system correction, Eq. 4 of [2]).
-    temperature : (N,) temperatures [degC]; correction : a DriftFit (Eq. 9) or a
-        TemperatureCalibrationResult (anything with `correct(samples, temperature, params)` and
-        `carries_parameters`). Both are needed for the third row.
+    Parameters
+    ----------
+    samples : array_like, shape (N, 3)
+        Raw output. [nT]
+    reference : float or array_like of shape (N,)
+        Proton values, or one number. [nT]
+    params : Zhou2010Parameters, optional
+        The nine parameters at the base temperature (system correction, Eq. 4 of [2]).
+    temperature : array_like of shape (N,), optional
+        Temperatures, needed with `correction` for the third row. [degC]
+    correction : DriftFit or TemperatureCalibrationResult, optional
+        The temperature correction (Eq. 9), anything with `correct(samples, temperature, params)`
+        and `carries_parameters`.
+
+    Returns
+    -------
+    list of dict
+        One Table 1 row of |B| per stage ("raw", "system", then the temperature correction), each
+        with its `rmse` against the reference. [nT]
+
+    Raises
+    ------
+    InputError
+        Unusable input.
+
+    References
+    ----------
+    [1] Liu et al. (2022), see `nlpcal.models.liu2022`.
+    [2] Zhou et al. (2010), see `nlpcal.models.zhou2010`.
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> log = nlpcal.simulate(500, seed=4)
+    >>> rows = nlpcal.rmse_rows(
+    ...     log[["bx", "by", "bz"]].to_numpy(), 49462.0, params=nlpcal.Zhou2010Parameters()
+    ... )
+    >>> len(rows)
+    2
     """
     samples = np.asarray(samples, dtype=float)
     rows = [evaluation_row("raw", samples, reference)]

@@ -44,17 +44,54 @@ DIURNAL_METHODS = ("fitted", "paper")
 class DriftFit(Document):
     """The line |B_m| = a t + b of Eq. 1 in [1] and the factor k(t) of Eq. 9.
 
-    a : slope. [nT/degC]   b : intercept (the modulus at 0 degC). [nT]
-    base_temperature : t0, where k = 1 (the temperature of the system calibration). [degC]
-    fit_rmse : RMSE of the diurnal-corrected modulus about the line. [nT]
-    a_standard_error, b_standard_error : standard errors of a [nT/degC] and b [nT], from the
-        residual variance with n - 2 degrees of freedom.
-    temperature_range : (min, max) of the log's temperatures. [degC]
-    diurnal_base : F_1, the first reference value (base of the diurnal correction). [nT]
-    diurnal : how the diurnal variation was removed (`DIURNAL_METHODS`).
-    diurnal_gain, diurnal_gain_standard_error : g, how strongly the modulus follows the
-        reference (1 by assumption with "paper"; None where the reference does not vary). [1]
-    direction_spread : largest angle of a raw vector from their mean direction. [deg]
+    Attributes
+    ----------
+    a : float
+        Slope. [nT/degC]
+    b : float
+        Intercept (the modulus at 0 degC). [nT]
+    base_temperature : float
+        t0, where k = 1 (the temperature of the system calibration). [degC]
+    fit_rmse : float
+        RMSE of the diurnal-corrected modulus about the line. [nT]
+    n : int
+        Samples fitted.
+    temperature_range : tuple
+        (min, max) of the log's temperatures. [degC]
+    a_standard_error, b_standard_error : float
+        Standard errors of a [nT/degC] and b [nT], from the residual variance with n - 2 degrees
+        of freedom.
+    diurnal_base : float
+        F_1, the first reference value (base of the diurnal correction). [nT]
+    direction_spread : float
+        Largest angle of a raw vector from their mean direction. [deg]
+    diurnal : str
+        How the diurnal variation was removed ("fitted" or "paper").
+    diurnal_gain, diurnal_gain_standard_error : float or None
+        g, how strongly the modulus follows the reference (1 by assumption with "paper"; None
+        where the reference does not vary). [1]
+    base_temperature_source : str
+        Where t0 came from ("argument" or the log's mean).
+    unit : str
+        The unit of a and b ("nT" or "raw").
+    warnings : list of str
+        What looks wrong, each a sentence.
+    input : dict
+        Where the samples came from.
+
+    References
+    ----------
+    [1] Liu et al. (2022), see `nlpcal.models.liu2022`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import nlpcal
+    >>> t = np.linspace(5.0, 7.0, 200)
+    >>> samples = np.outer(7.08 * t + 50906.0, [0.6, 0.0, 0.8])
+    >>> fit = nlpcal.fit_drift(samples, t, np.full(200, 50950.0), base_temperature=7.3)
+    >>> fit.unit, fit.temperature_range
+    ('nT', (5.0, 7.0))
     """
 
     a: float
@@ -218,20 +255,52 @@ def fit_drift(
     reference_unit: str | None = None,
     diurnal: str = "fitted",
 ) -> DriftFit:
-    """The paper's drift fit on a static log (section 1 of [1]).
+    """The paper's drift fit on a static log (section 1 of [1]): the line |B_m| = a t + b of Eq. 1.
 
-    samples : (N, 3) raw fluxgate output of a static sensor. [unit]
-    temperature : (N,) temperatures t_i. [degC]
-    reference : (N,) proton magnetometer values F_i, sampled with the fluxgate.
-        [reference_unit, default unit]
-    base_temperature : t0, the temperature of the system calibration, where k = 1. Without it the
-        mean temperature of the log is used, with a warning. [degC]
-    unit : the unit of the samples; the fit is in nT (a [nT/degC], b [nT]), or raw for counts.
-    diurnal : "fitted" (default): a, b and the gain g of |B_m,i| = a t_i + b + g (F_i - F_1) by
-        least squares; "paper": the modulus gets the diurnal correction -(F_i - F_1) of [1], then
-        a and b are the least-squares line through (t_i, corrected modulus_i) (`diurnal_line`).
+    Parameters
+    ----------
+    samples : array_like, shape (N, 3)
+        Raw fluxgate output of a static sensor. [unit]
+    temperature : array_like, shape (N,)
+        Temperatures t_i (`--temperature-column`). [degC]
+    reference : array_like, shape (N,)
+        Proton magnetometer values F_i, sampled with the fluxgate (`--reference-column`).
+        [reference_unit]
+    base_temperature : float, optional
+        t0, the temperature of the system calibration, where k = 1 (`--base-temperature`). Without
+        it the mean temperature of the log is used, with a warning. [degC]
+    unit : str
+        The unit of the samples; the fit is in nT (a [nT/degC], b [nT]), or raw for counts.
+    reference_unit : str, optional
+        The unit of the reference (default: `unit`).
+    diurnal : {"fitted", "paper"}
+        "fitted" (default): a, b and the gain g of |B_m,i| = a t_i + b + g (F_i - F_1) by least
+        squares; "paper": the modulus gets the diurnal correction -(F_i - F_1) of [1], then a and b
+        are the least-squares line through (t_i, corrected modulus_i) (`--diurnal`).
 
-    Raises InputError for unusable input.
+    Returns
+    -------
+    DriftFit
+        a, b, their standard errors, and the factor k(t) of Eq. 9.
+
+    Raises
+    ------
+    InputError
+        Unusable input.
+
+    References
+    ----------
+    [1] Liu et al. (2022), see `nlpcal.models.liu2022`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import nlpcal
+    >>> t = np.linspace(5.0, 7.0, 200)  # a static sensor warming up [degC]
+    >>> samples = np.outer(7.08 * t + 50906.0, [0.6, 0.0, 0.8])  # |B_m| = a t + b [nT]
+    >>> fit = nlpcal.fit_drift(samples, t, np.full(200, 50950.0), base_temperature=7.3)
+    >>> round(fit.a, 3), round(fit.b, 1)  # [nT/degC], [nT]
+    (7.08, 50906.0)
     """
     validation.choice(diurnal, "diurnal", DIURNAL_METHODS)
     samples = validation.finite_vectors(

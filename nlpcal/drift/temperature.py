@@ -100,12 +100,30 @@ def read_temperature_model(reader: DocumentReader) -> TemperatureModel:
 class TemperatureCalibrationResult(Document):
     """The nine parameters at t0 and a temperature model, estimated together.
 
-    calibration : a CalibrationResult with the nine parameters at the base temperature t0 (so a
-        reader that knows nothing of temperature still finds the system correction at t0).
-    temperature_model : the model of `nlpcal.models.liu2022`.
-    temperature_column : the log column the model was fitted with (used by `nlpcal apply`).
-    temperature_range : (min, max) of the calibration log. [degC]
-    temperature_standard_errors : standard errors of the temperature coefficients.
+    Attributes
+    ----------
+    calibration : CalibrationResult
+        The nine parameters at the base temperature t0 (so a reader that knows nothing of
+        temperature still finds the system correction at t0).
+    temperature_model : TemperatureModel
+        How the parameters change with temperature.
+    temperature_column : str or None
+        The log column the model was fitted with (used by `nlpcal apply`).
+    temperature_range : tuple
+        (min, max) of the calibration log. [degC]
+    temperature_standard_errors : dict or None
+        Standard errors of the temperature coefficients, in their units.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import nlpcal
+    >>> t = np.linspace(0.0, 20.0, 600)
+    >>> samples = nlpcal.simulate(600, seed=2)[["bx", "by", "bz"]].to_numpy()
+    >>> result = nlpcal.calibrate_temperature(samples, t, 49462.0, base_temperature=10.0)
+    >>> corrected = result.apply(samples, t)  # Eq. 4 with the parameters at each t [nT]
+    >>> corrected.shape
+    (600, 3)
     """
 
     FORMAT = "nlpcal-temperature-calibration"
@@ -219,26 +237,68 @@ def calibrate_temperature(
     temperature,
     reference,
     *,
-    model: str = "common",
+    temperature_model: str | None = None,
     base_temperature: float | None = None,
     unit: str = "nT",
     reference_unit: str | None = None,
     temperature_column: str | None = None,
+    model: str | None = None,
 ) -> TemperatureCalibrationResult:
-    """The nine parameters and temperature coefficients from one log.
-
-    samples : (N, 3) raw output over many attitudes and temperatures. [unit]
-    temperature : (N,) temperatures t_i. [degC]
-    reference : (N,) reference magnitudes F_i (a proton magnetometer), or one number.
-        [reference_unit, default unit]
-    model : "common" (Eq. 2 and 9 of [1]) or "per-axis" (linear scale and offset drift per axis).
-    base_temperature : t0 of the returned nine parameters; default the log's mean temperature.
-        [degC]
+    """The nine parameters and temperature coefficients from one log, estimated together.
 
     Start: offsets at the centre of a sphere fitted to the samples, scales that map its radius
-    onto the reference, angles and temperature coefficients zero. Raises InputError for unusable
-    input and SolveError when IPOPT fails.
+    onto the reference, angles and temperature coefficients zero.
+
+    Parameters
+    ----------
+    samples : array_like, shape (N, 3)
+        Raw output over many attitudes and temperatures. [unit]
+    temperature : array_like, shape (N,)
+        Temperatures t_i (`--temperature-column`). [degC]
+    reference : float or array_like of shape (N,)
+        Reference magnitudes F_i (a proton magnetometer), or one number. [reference_unit]
+    temperature_model : {"common", "per-axis"}
+        "common" (Eq. 2 and 9 of [1], the default) or "per-axis" (linear scale and offset drift
+        per axis) (`--temperature-model`).
+    base_temperature : float, optional
+        t0 of the returned nine parameters; default the log's mean temperature. [degC]
+    unit : str
+        The unit of the samples; the result is in nT, or raw for counts.
+    reference_unit : str, optional
+        The unit of the reference (default: `unit`).
+    temperature_column : str, optional
+        The log column the temperatures came from, recorded for `nlpcal apply`.
+    model : str, optional
+        The former name of `temperature_model`, still accepted.
+
+    Returns
+    -------
+    TemperatureCalibrationResult
+        The nine parameters at t0 and the temperature model, with standard errors.
+
+    Raises
+    ------
+    InputError
+        Unusable input.
+    SolveError
+        IPOPT failed.
+
+    References
+    ----------
+    [1] Liu et al. (2022), see `nlpcal.models.liu2022`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import nlpcal
+    >>> t = np.linspace(0.0, 20.0, 1000)  # [degC]
+    >>> raw = nlpcal.simulate(1000, seed=2)[["bx", "by", "bz"]].to_numpy()  # at t0 = 10 degC
+    >>> samples = raw * (1 + 2e-4 * (t - 10.0))[:, None]  # k(t) of Eq. 9, c = 2e-4 / degC
+    >>> result = nlpcal.calibrate_temperature(samples, t, 49462.0, base_temperature=10.0)
+    >>> abs(result.temperature_model.k_slope_per_degC - 2e-4) < 1e-5  # [1/degC]
+    True
     """
+    model = validation.renamed(temperature_model, model, "temperature_model", "model") or "common"
     validation.choice(model, "temperature model", TEMPERATURE_MODELS)
     samples = validation.samples(samples)
     n = samples.shape[0]
@@ -282,7 +342,7 @@ def calibrate_temperature(
     started = time.perf_counter()
     theta, sums, steps, iterations, status = minimise(model, start, scale, (samples, dt, reference))
     wall = time.perf_counter() - started
-    params, temperature_model = model_of(theta, model, float(base_temperature))
+    params, fitted = model_of(theta, model, float(base_temperature))
 
     names = PARAMETER_NAMES + coefficient_names(model)
     uncertainty = inference.estimate(
@@ -315,7 +375,7 @@ def calibrate_temperature(
         {
             **evaluation_row(
                 f"system + temperature ({model})",
-                liu2022.correct(samples, temperature, params, temperature_model),
+                liu2022.correct(samples, temperature, params, fitted),
                 reference,
             ),
             "iterations": iterations,
@@ -358,7 +418,7 @@ def calibrate_temperature(
     )
     return TemperatureCalibrationResult(
         calibration=calibration,
-        temperature_model=temperature_model,
+        temperature_model=fitted,
         temperature_column=temperature_column,
         temperature_range=(t_low, t_high),
         temperature_standard_errors=temperature_errors,
@@ -421,7 +481,7 @@ def calibrate_temperature_log(
         log.samples,
         log.values(temperature_column),
         log.reference,
-        model=model,
+        temperature_model=model,
         base_temperature=base_temperature,
         unit=log.base_unit,
         temperature_column=temperature_column,

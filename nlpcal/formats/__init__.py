@@ -9,6 +9,8 @@ route (`nlpcal.models.zhou2010.from_correction`) that `apply` and `stats` use li
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from .. import units, validation
 from ..calibration.result import FIELD_LIMIT, CalibrationResult
 from ..errors import InputError
@@ -28,6 +30,41 @@ FORMATS = {
 ROTATION_NOTE_DEG = 1e-6
 #: Formats whose unit is fixed by the target system.
 AUTOPILOTS = ("ardupilot", "px4")
+#: The format a file's extension implies: Mission Planner saves ".param", MAVProxy ".parm",
+#: QGroundControl ".params"; ".m" is a MATLAB script, ".h" a C header, ".json" the matrix JSON.
+EXTENSIONS = {
+    ".param": "ardupilot",
+    ".parm": "ardupilot",
+    ".params": "px4",
+    ".h": "c-header",
+    ".json": "matrix",
+    ".m": "matlab",
+}
+#: Where each format has a place for the parts of a result beyond A and b ("sensor_id" and
+#: "orientation" the autopilots write in their own terms, decided by their modules).
+CARRIES = {
+    "matlab": ("field",),
+    "matrix": ("field", "sensor_id", "orientation"),
+    "ardupilot": ("sensor_id", "orientation"),
+    "px4": ("sensor_id", "orientation", "temperature"),
+    "c-header": ("field", "sensor_id", "temperature"),
+}
+
+
+def format_for(path, option: str) -> str:
+    """The format `path`'s extension implies (`EXTENSIONS`), or InputError naming `option`."""
+    suffix = "" if path in (None, "-") else Path(str(path)).suffix.lower()
+    if suffix in EXTENSIONS:
+        return EXTENSIONS[suffix]
+    known = ", ".join(f"{k} ({v})" for k, v in EXTENSIONS.items())
+    if suffix:
+        where = f"the extension {suffix!r} of {path}"
+    else:
+        where = "stdout" if path in (None, "-") else f"{path}, which has no extension"
+    raise InputError(
+        f"cannot tell the format from {where}; pass --format, or give {option} one of the "
+        f"extensions {known}"
+    )
 
 
 def _check(fmt: str, unit, instance) -> None:
@@ -49,35 +86,108 @@ def export(
     unit: str | None = None,
     instance: int | None = None,
     max_rotation_deg: float | None = None,
+    drop_temperature: bool = False,
 ) -> Export:
-    """A calibration in one of `FORMATS`, as text with notes for the user.
+    """A calibration in one of `FORMATS` (matlab, matrix, ardupilot, px4, c-header), as text.
 
-    result : a CalibrationResult, or a temperature calibration (its parameters at t0).
-    unit : the unit of the offsets and field in matlab, matrix and c-header (default: the unit
-        of the log the calibration was estimated from); the autopilots' units are fixed.
-    instance : the compass instance (ardupilot 1-3, default 1) or slot (px4 0-3, default 0).
-    max_rotation_deg : the largest rotation between nlpcal's axes and the symmetric matrix of the
-        autopilot formats (default `nlpcal.formats.autopilot.MAX_ROTATION_DEG`). [deg]
+    Parameters
+    ----------
+    result : CalibrationResult or TemperatureCalibrationResult
+        The calibration. A temperature model goes where the format has a place for it (px4's
+        TC_M* when they represent it exactly, the C header's function); elsewhere the parameters
+        at t0 are written and a note says so.
+    fmt : str
+        The format (`--format`).
+    unit : str, optional
+        The unit of the offsets and field in matlab, matrix and c-header (default: the unit of the
+        log the calibration was estimated from); the autopilots' units are fixed.
+    instance : int, optional
+        The compass instance (ardupilot 1-3, default 1) or slot (px4 0-3, default 0)
+        (`--instance`).
+    max_rotation_deg : float, optional
+        The largest rotation between nlpcal's axes and the symmetric matrix of the autopilot
+        formats. [deg]
+    drop_temperature : bool
+        Write a temperature calibration to px4 without its temperature model when TC_M* cannot
+        represent it (`--drop-temperature`; otherwise InputError).
+
+    Returns
+    -------
+    Export
+        The text, the notes for the user, and the rotation the format could not carry [deg].
+        The notes end with one sentence naming what of the result the format has no place for
+        (`Export.dropped`): the temperature model, sensor_id, orientation, the expected field,
+        the model restriction, the standard errors.
+
+    Raises
+    ------
+    InputError
+        An unknown format, or a calibration the format cannot carry (a unit only assumed, for a
+        field unit; a temperature model px4 cannot represent, without `drop_temperature`).
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> samples = nlpcal.simulate(300, seed=0)[["bx", "by", "bz"]].to_numpy()
+    >>> exported = nlpcal.export(nlpcal.calibrate(samples, unit="nT"), "matrix")
+    >>> '"model": "B1 = A (B_M - b)"' in exported.text
+    True
     """
     _check(fmt, unit, instance)
     if max_rotation_deg is not None:
         max_rotation_deg = validation.number(
             max_rotation_deg, "--max-rotation-deg", minimum=0.0, maximum=180.0, unit="[deg]"
         )
-    if not isinstance(result, CalibrationResult):
-        result = result.calibration  # a temperature calibration: the nine parameters at t0
-    target = FORMATS[fmt].UNIT if fmt in AUTOPILOTS else unit or result.log_unit
-    notes = scale_notes(result, target)
+    calibration = getattr(result, "calibration", result)  # a temperature calibration's own
+    target = FORMATS[fmt].UNIT if fmt in AUTOPILOTS else unit or calibration.log_unit
+    notes = scale_notes(calibration, target)
     correction = AffineCorrection.from_result(result, None if fmt in AUTOPILOTS else unit)
+    module = FORMATS[fmt]
     if fmt in AUTOPILOTS:
-        module = FORMATS[fmt]
         chosen = module.INSTANCES[0] if instance is None else instance
-        written = module.write(correction, instance=chosen, max_rotation_deg=max_rotation_deg)
+        options = {"drop_temperature": drop_temperature} if fmt == "px4" else {}
+        written = module.write(
+            correction, instance=chosen, max_rotation_deg=max_rotation_deg, **options
+        )
     else:
-        written = FORMATS[fmt].write(correction)
+        written = module.write(correction)
         written.rotation_deg = rotation_angle_deg(correction.polar()[0])
+    written.dropped += dropped(calibration, correction, fmt)
     written.notes[:0] = notes
+    if written.dropped:
+        written.notes.append(
+            f"not written to {fmt} (it has no place for them): {'; '.join(written.dropped)}"
+        )
     return written
+
+
+def dropped(calibration: CalibrationResult, correction: AffineCorrection, fmt: str) -> list:
+    """What of a calibration `fmt` has no place for (`CARRIES`), a phrase each; the parts an
+    autopilot writes in its own terms (device id, orientation, px4's temperature model) its
+    module decides."""
+    carries = CARRIES[fmt]
+    phrases = []
+    if correction.temperature is not None and "temperature" not in carries:
+        phrases.append(
+            f"the temperature model (the calibration at "
+            f"{correction.temperature.base_temperature_degC:g} degC is written)"
+        )
+    if fmt not in AUTOPILOTS:
+        if correction.sensor_id is not None and "sensor_id" not in carries:
+            phrases.append(f"sensor_id {correction.sensor_id!r}")
+        if correction.orientation is not None and "orientation" not in carries:
+            mounting = correction.orientation
+            phrases.append(f"the orientation {mounting['parameter']} = {mounting['value']}")
+    if correction.field is not None and "field" not in carries:
+        phrases.append(f"the expected field {correction.field:.6g} {correction.unit}")
+    if calibration.model_name != "full":
+        phrases.append(
+            f"the model {calibration.model_name} (its fixed parameters "
+            f"{', '.join(calibration.fixed_parameters)} are written as zeros)"
+        )
+    if calibration.standard_errors:
+        phrases.append("the standard errors")
+    return phrases
 
 
 def scale_notes(result: CalibrationResult, target: str) -> list:
@@ -123,12 +233,44 @@ def import_file(
 ) -> tuple[CalibrationResult, list]:
     """A calibration from a file of one of `FORMATS`, and notes for the user.
 
-    unit : the unit of the file's offsets and field, for matlab, matrix and c-header when the file
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to read.
+    fmt : str
+        Its format (`--format`).
+    unit : str, optional
+        The unit of the file's offsets and field, for matlab, matrix and c-header when the file
         does not say (default nT).
-    field : the total field the correction should map to [the file's unit]. A file that carries
-        its expected field (magcal's expmfs, the matrix "field") has A rescaled by field / expected;
-        otherwise it is recorded as the reference field.
-    instance : the compass instance (ardupilot 1-3, default 1) or slot (px4 0-3, default 0).
+    field : float, optional
+        The total field the correction should map to (`--reference-field`). A file that carries
+        its expected field (magcal's expmfs, the matrix "field") has A rescaled by field /
+        expected; otherwise it is recorded as the reference field. [the file's unit]
+    instance : int, optional
+        The compass instance (ardupilot 1-3, default 1) or slot (px4 0-3, default 0).
+
+    Returns
+    -------
+    tuple of (CalibrationResult, list of str)
+        The calibration, and the notes for the user.
+
+    Raises
+    ------
+    InputError
+        An unreadable file, or one that is not a calibration of that format.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import nlpcal
+    >>> samples = nlpcal.simulate(300, seed=0)[["bx", "by", "bz"]].to_numpy()
+    >>> result = nlpcal.calibrate(samples, method="joint", unit="nT")
+    >>> path = os.path.join(tempfile.mkdtemp(), "matrix.json")
+    >>> with open(path, "w") as handle:
+    ...     _ = handle.write(nlpcal.export(result, "matrix").text)
+    >>> again, notes = nlpcal.import_file(path, "matrix")
+    >>> abs(again.parameters["z_x"] - result.parameters["z_x"]) < 1e-9  # [nT]
+    True
     """
     _check(fmt, unit, instance)
     if field is not None:
@@ -146,6 +288,18 @@ def import_file(
         correction = module.read(text, str(path), unit=unit)
     correction.checked(str(path))
     notes = []
+    if correction.unused:
+        notes.append(f"not used from {path}: {', '.join(correction.unused)}")
+    carried = [f"sensor_id {correction.sensor_id!r}"] if correction.sensor_id is not None else []
+    if correction.orientation is not None:
+        mounting = correction.orientation
+        label = f" ({mounting['name']})" if "name" in mounting else ""
+        carried.append(
+            f"orientation {mounting['parameter']} = {mounting['value']}{label} (recorded, not "
+            f"applied: the correction stays in the sensor's axes)"
+        )
+    if carried:
+        notes.append(f"carried into the result: {'; '.join(carried)}")
     scaled = None
     if field is not None:
         validation.number(
@@ -182,10 +336,12 @@ def import_file(
 
 __all__ = [
     "AUTOPILOTS",
+    "EXTENSIONS",
     "FORMATS",
     "AffineCorrection",
     "Export",
     "export",
+    "format_for",
     "import_file",
     "polar",
     "rotation_angle_deg",

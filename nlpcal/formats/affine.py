@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import units, validation
-from ..calibration.result import CalibrationResult
+from ..calibration.result import CalibrationResult, read_orientation
 from ..errors import InputError
 from ..models.zhou2010 import correction_matrix, from_correction, smallest_model
 from ..results import Document, DocumentReader
@@ -69,15 +69,90 @@ def expected_field(result: CalibrationResult) -> float | None:
     return None
 
 
+@dataclass(frozen=True)
+class TemperatureDrift:
+    """How the correction changes with the temperature t (`nlpcal.models.liu2022`), per axis:
+
+        B_out = A diag(1 / (1 + sigma (t - t0))) (B_M - b - zeta (t - t0))
+
+    Liu et al.'s common model (B_M / k(t) - Z, k = 1 + c (t - t0)) is the case sigma_j = c,
+    zeta_j = c z_j; the per-axis model is this form with A = O_p S_p at t0.
+
+    base_temperature_degC : t0. [degC]
+    scale_slope_per_degC : sigma. [1/degC]
+    offset_slope_per_degC : zeta. [correction unit/degC]
+    range_degC : the temperatures of the calibration log (min, max). [degC]
+    """
+
+    base_temperature_degC: float
+    scale_slope_per_degC: np.ndarray
+    offset_slope_per_degC: np.ndarray
+    range_degC: tuple
+
+    @classmethod
+    def from_result(cls, result, unit: str) -> TemperatureDrift:
+        """The drift of a temperature calibration, with zeta in `unit` per degC."""
+        model = result.temperature_model
+        if model.kind == "common":
+            c = model.k_slope_per_degC
+            sigma = np.full(3, c)
+            zeta = c * result.model.offsets  # Eq. 9 in Liu et al. (2022): B_b(t) = k B_b0
+        else:
+            sigma = np.asarray(model.scale_slope_per_degC, dtype=float)
+            zeta = np.asarray(model.offset_slope_per_degC, dtype=float)
+        return cls(
+            model.base_temperature_degC,
+            sigma,
+            units.from_base(units.to_base(zeta, result.unit), unit),
+            tuple(float(v) for v in result.temperature_range),
+        )
+
+    @property
+    def offsets_only(self) -> bool:
+        """Whether only the offsets drift (sigma = 0 exactly): a thermal offset polynomial
+        then represents the drift exactly."""
+        return not np.any(self.scale_slope_per_degC)
+
+    def in_unit(self, unit: str, new_unit: str) -> TemperatureDrift:
+        """The same drift with zeta converted from `unit` to `new_unit` per degC."""
+        zeta = units.from_base(units.to_base(self.offset_slope_per_degC, unit), new_unit)
+        return dataclasses.replace(self, offset_slope_per_degC=zeta)
+
+
 @dataclass
 class AffineCorrection(Document):
-    """B_out = A (B_M - b): an affine correction in one unit.
+    """B_out = A (B_M - b): an affine correction in one unit, the form every export format carries.
 
-    matrix : (3, 3) A, row-major, in the column-vector convention. [1]
-    offsets : (3,) b. [unit]
-    unit : the unit of b, of B_M and of B_out ("raw" for counts).
-    field : the total field |B_out| the correction maps to, or None. [unit]
-    source : where it came from (nlpcal version, parameters file, file read, ...).
+    Attributes
+    ----------
+    matrix : numpy.ndarray, shape (3, 3)
+        A, row-major, in the column-vector convention. [1]
+    offsets : numpy.ndarray, shape (3,)
+        b. [unit]
+    unit : str
+        The unit of b, of B_M and of B_out ("raw" for counts).
+    field : float or None
+        The total field |B_out| the correction maps to. [unit]
+    source : dict
+        Where it came from (nlpcal version, parameters file, file read, ...).
+    sensor_id : int, str or None
+        The sensor's device id or name (`nlpcal.validation.sensor_id`).
+    orientation : dict or None
+        The mounting a file states ({"system", "parameter", "value"[, "name"]}); carried, not
+        applied.
+    temperature : TemperatureDrift or None
+        How the correction drifts with temperature (not in the matrix JSON).
+    unused : list of str
+        Names of the fields of the file read that the correction does not carry.
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> samples = nlpcal.simulate(300, seed=0)[["bx", "by", "bz"]].to_numpy()
+    >>> result = nlpcal.calibrate(samples, method="joint", unit="nT")
+    >>> affine = nlpcal.AffineCorrection.from_result(result)
+    >>> bool(abs(affine.apply(samples) - result.apply(samples)).max() < 1e-6)  # [nT]
+    True
     """
 
     FORMAT = "nlpcal-affine-correction"
@@ -90,21 +165,30 @@ class AffineCorrection(Document):
     unit: str = "nT"
     field: float | None = None
     source: dict = dataclasses.field(default_factory=dict)
+    sensor_id: int | str | None = None
+    orientation: dict | None = None
+    temperature: TemperatureDrift | None = None
+    unused: list = dataclasses.field(default_factory=list)
 
     @classmethod
-    def from_result(cls, result: CalibrationResult, unit: str | None = None) -> AffineCorrection:
-        """The correction of a calibration, with b and the field in `unit` (default: the unit
-        of the log it was estimated from)."""
-        unit = unit or result.log_unit
-        units.check_compatible(result.unit, unit, "the export unit")
-        model = result.model
-        expected = expected_field(result)
+    def from_result(cls, result, unit: str | None = None) -> AffineCorrection:
+        """The correction of a calibration (or of a temperature calibration, with its drift),
+        with b and the field in `unit` (default: the unit of the log it was estimated from)."""
+        drift = getattr(result, "temperature_model", None)
+        calibration = getattr(result, "calibration", result)
+        unit = unit or calibration.log_unit
+        units.check_compatible(calibration.unit, unit, "the export unit")
+        model = calibration.model
+        expected = expected_field(calibration)
         return cls(
             matrix=correction_matrix(model),  # A = O_p S_p, Eq. 4
-            offsets=units.from_base(units.to_base(model.offsets, result.unit), unit),
+            offsets=units.from_base(units.to_base(model.offsets, calibration.unit), unit),
             unit=unit,
             field=None if expected is None else units.from_base(expected, unit),
-            source={"nlpcal_version": __version__, **_provenance(result)},
+            source={"nlpcal_version": __version__, **_provenance(calibration)},
+            sensor_id=calibration.sensor_id,
+            orientation=calibration.orientation,
+            temperature=None if drift is None else TemperatureDrift.from_result(result, unit),
         )
 
     def checked(self, source: str) -> AffineCorrection:
@@ -128,8 +212,15 @@ class AffineCorrection(Document):
         def convert(value):
             return None if value is None else units.from_base(units.to_base(value, self.unit), unit)
 
-        return AffineCorrection(
-            self.matrix, convert(self.offsets), unit, convert(self.field), dict(self.source)
+        return dataclasses.replace(
+            self,
+            offsets=convert(self.offsets),
+            unit=unit,
+            field=convert(self.field),
+            source=dict(self.source),
+            temperature=None
+            if self.temperature is None
+            else self.temperature.in_unit(self.unit, unit),
         )
 
     def apply(self, samples) -> np.ndarray:
@@ -147,10 +238,7 @@ class AffineCorrection(Document):
         if self.field is None:
             raise InputError("the correction carries no expected field to rescale")
         factor = target / self.field
-        return (
-            AffineCorrection(self.matrix * factor, self.offsets, self.unit, target, self.source),
-            factor,
-        )
+        return dataclasses.replace(self, matrix=self.matrix * factor, field=target), factor
 
     def to_result(
         self, log_unit: str | None = None, unit_source: str = "format", **input_block
@@ -180,6 +268,8 @@ class AffineCorrection(Document):
         if self.field is not None:
             reference = {"mode": "constant", "field": units.to_base(self.field, self.unit)}
         return CalibrationResult(
+            sensor_id=self.sensor_id,
+            orientation=self.orientation,
             parameters=params.to_dict(),
             statistics=[],
             method="imported",
@@ -215,6 +305,8 @@ class AffineCorrection(Document):
             },
             "source": dict(self.source),
             "nlpcal_version": __version__,
+            **({} if self.sensor_id is None else {"sensor_id": self.sensor_id}),
+            **({} if self.orientation is None else {"orientation": dict(self.orientation)}),
         }
 
     @classmethod
@@ -228,6 +320,10 @@ class AffineCorrection(Document):
             unit=unit,
             field=reader.number("field", None, positive=True),
             source=reader.mapping("source", {}),
+            sensor_id=None
+            if not reader.has("sensor_id")
+            else validation.sensor_id(reader.raw("sensor_id"), f"{reader.source}: sensor_id"),
+            orientation=read_orientation(reader),
         )
 
 
@@ -251,11 +347,13 @@ def read_unit_source(given, stated) -> str:
 
 @dataclass
 class Export:
-    """What an export writes: the text, the notes for the user, the rotation not carried."""
+    """What an export writes: the text, the notes for the user, the rotation not carried and
+    what of the calibration the format has no place for (`dropped`, phrases)."""
 
     text: str
     notes: list = dataclasses.field(default_factory=list)
     rotation_deg: float | None = None
+    dropped: list = dataclasses.field(default_factory=list)
 
 
 def number_text(value: float) -> str:

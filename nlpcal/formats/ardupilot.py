@@ -19,6 +19,15 @@ ArduPilot's own calibrator accepts diagonals in (0.2, 5.0) and off-diagonals wit
 (CompassCalibrator::fit_acceptable), and its pre-arm check refuses offsets longer than
 COMPASS_OFFS_MAX (default 1800 mG): a calibration outside the first two cannot be exported, the
 third is a warning. ArduPilot stores parameters as 32-bit floats (about 7 significant digits).
+
+The compass an instance's calibration belongs to is named by COMPASS_DEV_ID (DEV_ID2, DEV_ID3 for
+instances 2 and 3; "automatically detected, do not set manually", read-only, 0 = none), its
+mounting by COMPASS_ORIENT (ORIENT2, ORIENT3; a number of ArduPilot's rotation list `ROTATIONS`,
+relative to the frame for an external compass). An import carries both into the result
+(`sensor_id`, `orientation`); an export writes COMPASS_DEV_ID when the result's sensor_id is a
+device id, so that the file states the compass it was made for, and COMPASS_ORIENT when the
+orientation came from ArduPilot. Motor compensation (COMPASS_MOT_*, COMPASS_MOTCT) is a
+correction nlpcal does not model: an import names it among the unused parameters.
 """
 
 from __future__ import annotations
@@ -26,6 +35,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
+from . import autopilot
 from .affine import AffineCorrection, Export, number_text
 from .autopilot import check_range, parameters, rotation_lines, symmetric
 
@@ -38,6 +48,23 @@ SCALE_RANGE = (1.0 / 1.5, 1.5)
 #: Default COMPASS_OFFS_MAX: the longest offset vector the pre-arm check accepts. [mG]
 OFFSETS_MAX = 1800.0
 INSTANCES = (1, 2, 3)
+#: The prefix of ArduPilot's compass parameters (the others are another subsystem's).
+PREFIX = ("COMPASS_",)
+#: ArduPilot's rotations: the values of COMPASS_ORIENT (AP_Compass.cpp, @Values of ORIENT).
+# fmt: off
+ROTATIONS = {
+    0: "None", 1: "Yaw45", 2: "Yaw90", 3: "Yaw135", 4: "Yaw180", 5: "Yaw225", 6: "Yaw270",
+    7: "Yaw315", 8: "Roll180", 9: "Yaw45Roll180", 10: "Yaw90Roll180", 11: "Yaw135Roll180",
+    12: "Pitch180", 13: "Yaw225Roll180", 14: "Yaw270Roll180", 15: "Yaw315Roll180", 16: "Roll90",
+    17: "Yaw45Roll90", 18: "Yaw90Roll90", 19: "Yaw135Roll90", 20: "Roll270", 21: "Yaw45Roll270",
+    22: "Yaw90Roll270", 23: "Yaw135Roll270", 24: "Pitch90", 25: "Pitch270",
+    26: "Yaw90Pitch180", 27: "Yaw270Pitch180", 28: "Pitch90Roll90", 29: "Pitch90Roll180",
+    30: "Pitch90Roll270", 31: "Pitch180Roll90", 32: "Pitch180Roll270", 33: "Pitch270Roll90",
+    34: "Pitch270Roll180", 35: "Pitch270Roll270", 36: "Yaw90Pitch180Roll90", 37: "Yaw270Roll90",
+    38: "Yaw293Pitch68Roll180", 39: "Pitch315", 40: "Pitch315Roll90", 42: "Roll45",
+    43: "Roll315", 100: "Custom 4.1 and older", 101: "Custom 1", 102: "Custom 2",
+}
+# fmt: on
 
 
 def names(instance: int) -> dict:
@@ -50,6 +77,8 @@ def names(instance: int) -> dict:
         "DIA": [f"COMPASS_DIA{n}_{a}" for a in "XYZ"],
         "ODI": [f"COMPASS_ODI{n}_{a}" for a in "XYZ"],
         "SCALE": f"COMPASS_SCALE{n}",
+        "DEV_ID": f"COMPASS_DEV_ID{n}",
+        "ORIENT": f"COMPASS_ORIENT{n}",
     }
 
 
@@ -82,11 +111,20 @@ def write(correction: AffineCorrection, instance: int = 1, max_rotation_deg=None
         f" D = [[DIA_X, ODI_X, ODI_Y], [ODI_X, DIA_Y, ODI_Z], [ODI_Y, ODI_Z, DIA_Z]], in mGauss",
         *rotation_lines(rotation, angle, "#"),
     ]
+    identity, dropped = autopilot.identity_lines(
+        correction, "ardupilot", keys["DEV_ID"], keys["ORIENT"]
+    )
+    if identity and identity[0][0] == keys["DEV_ID"]:
+        lines.append(
+            f"# {keys['DEV_ID']} names the compass this calibration is for; ArduPilot detects "
+            f"it (read-only): it must equal the vehicle's"
+        )
     lines += [f"{k},{number_text(v)}" for k, v in zip(keys["OFS"], offsets)]
     lines += [f"{k},{number_text(v)}" for k, v in zip(keys["DIA"], dia)]
     lines += [f"{k},{number_text(v)}" for k, v in zip(keys["ODI"], odi)]
     lines.append(f"{keys['SCALE']},1.0")
-    return Export("\n".join(lines) + "\n", notes, angle)
+    lines += [f"{k},{v}" for k, v in identity]
+    return Export("\n".join(lines) + "\n", notes, angle, dropped)
 
 
 def read(text: str, source: str, instance: int = 1) -> AffineCorrection:
@@ -94,6 +132,7 @@ def read(text: str, source: str, instance: int = 1) -> AffineCorrection:
     values = parameters(text, source)
     keys = names(instance)
     wanted = [*keys["OFS"], *keys["DIA"], *keys["ODI"], keys["SCALE"]]
+    used = [*wanted, keys["DEV_ID"], keys["ORIENT"]]
     if not any(name in values for name in wanted):
         raise InputError(
             f"{source}: no {keys['OFS'][0]}, {keys['DIA'][0]}, ... for compass "
@@ -113,4 +152,5 @@ def read(text: str, source: str, instance: int = 1) -> AffineCorrection:
         offsets=-ofs,
         unit=UNIT,
         source={"file": source, "format": "ardupilot", "instance": instance},
+        **autopilot.identity(values, used, "ardupilot", ROTATIONS, PREFIX, source),
     )

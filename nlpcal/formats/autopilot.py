@@ -77,6 +77,84 @@ def parameters(text: str, source: str) -> dict:
     return distinct(pairs, source, "parameter")
 
 
+def unused_names(values: dict, used, own: tuple) -> list:
+    """The names of a parameter file that an import does not use, in one list: the parameters
+    of the compass (names starting with one of `own`) each named, those of the same group that
+    differ only in a final axis letter or digit joined ("COMPASS_MOT_X/Y/Z"); the rest of a
+    vehicle's parameters named by their group ("12 other parameters: ARMING_*, BATT_*")."""
+    left = [name for name in values if name not in set(used)]
+    compass = [name for name in left if name.startswith(own)]
+    groups: dict = {}
+    for name in compass:
+        stem, _, last = name.rpartition("_")
+        key = stem if stem and len(last) == 1 else name
+        groups.setdefault(key, []).append(last if key == stem else name)
+    named = [
+        key if members == [key] else f"{key}_{'/'.join(members)}" for key, members in groups.items()
+    ]
+    others = [name for name in left if not name.startswith(own)]
+    if others:
+        families = sorted(
+            {name.split("_", 1)[0] + ("_*" if "_" in name else "") for name in others}
+        )
+        named.append(f"{len(others)} other parameter(s): {', '.join(families)}")
+    return named
+
+
+def device_id(values: dict, name: str, source: str) -> int | str | None:
+    """A device id parameter (ArduPilot's COMPASS_DEV_ID, PX4's CAL_MAGn_ID): None when absent
+    or 0 (no device), else the id (`nlpcal.validation.sensor_id`)."""
+    value = values.get(name)
+    if value is None or value == 0:
+        return None
+    if not float(value).is_integer():
+        raise InputError(f"{source}: {name} must be an integer device id, got {value:g}")
+    return validation.sensor_id(int(value), f"{source}: {name}")
+
+
+def orientation(values: dict, name: str, system: str, labels: dict, source: str):
+    """The orientation record of a rotation parameter (COMPASS_ORIENT, CAL_MAGn_ROT), or None
+    when the file does not have it: {"system", "parameter", "value"[, "name"]}."""
+    if name not in values:
+        return None
+    value = values[name]
+    if not float(value).is_integer() or value < -1:
+        raise InputError(f"{source}: {name} must be a rotation number, got {value:g}")
+    record = {"system": system, "parameter": name, "value": int(value)}
+    if int(value) in labels:
+        record["name"] = labels[int(value)]
+    return record
+
+
+def identity(values: dict, used: list, system: str, labels: dict, own: tuple, source: str):
+    """What an import takes beside the correction: {"sensor_id", "orientation", "unused"}, from
+    the device id and rotation parameters, the last two of `used` (`device_id`, `orientation`),
+    and the names of the file it does not use (`unused_names`)."""
+    id_name, rot_name = used[-2:]
+    return {
+        "sensor_id": device_id(values, id_name, source),
+        "orientation": orientation(values, rot_name, system, labels, source),
+        "unused": unused_names(values, used, own),
+    }
+
+
+def identity_lines(correction: AffineCorrection, system: str, id_name: str, rot_name: str):
+    """(rows, dropped) for the sensor's identity: the device id and the orientation parameter
+    when `correction` carries them in a form `system` takes, else a phrase each for the note."""
+    rows, dropped = [], []
+    sensor = correction.sensor_id
+    if isinstance(sensor, int):
+        rows.append((id_name, sensor))
+    elif sensor is not None:
+        dropped.append(f"sensor_id {sensor!r} (a name, not a device id)")
+    mounting = correction.orientation
+    if mounting is not None and mounting["system"] == system:
+        rows.append((rot_name, mounting["value"]))
+    elif mounting is not None:
+        dropped.append(f"the orientation {mounting['parameter']} = {mounting['value']}")
+    return rows, dropped
+
+
 def check_range(name: str, value: float, low: float, high: float, system: str, why: str) -> None:
     """InputError when a value lies outside the open interval (low, high) a system accepts."""
     if not low < value < high:

@@ -54,6 +54,7 @@ def read(text: str, source: str, unit: str | None = None) -> AffineCorrection:
     file_unit = unit or (written.group(1) if written else "nT")
     units.field_factor(file_unit)
     code = "\n".join(line.split("%", 1)[0] for line in text.splitlines()).replace("...", " ")
+    assigned = re.findall(r"^\s*([A-Za-z]\w*)\s*=(?!=)", code, re.MULTILINE)
     values = distinct(
         [(name, _numbers(body, f"{source}: {name}")) for name, body in _ASSIGNMENT.findall(code)],
         source,
@@ -76,6 +77,7 @@ def read(text: str, source: str, unit: str | None = None) -> AffineCorrection:
             raise InputError(f"{source}: expmfs must be one positive number")
         field = float(values["expmfs"].ravel()[0])
     return AffineCorrection(
+        unused=sorted({name for name in assigned if name not in ("A", "b", "expmfs")}),
         matrix=a.T,  # back to the column-vector convention
         offsets=b.ravel(),
         unit=file_unit,

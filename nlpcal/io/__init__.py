@@ -2,6 +2,7 @@
 
 `files` writes outputs (files atomically, devices and pipes through, several together) and
 strict JSON (no NaN), `layout` detects how a delimited text log is laid out, `tables` reads it
+(or, through `recorders`, a MotionCal capture, a MATLAB .mat file or an ArduPilot DataFlash log)
 and picks its columns, `rows` screens rows that are not readings, `logs` turns a table into
 samples, reference and extra columns in base units, `stream` reads a log in chunks with every
 row in its place, `output` writes tables (Parquet or text by the extension, at the precision

@@ -4,9 +4,9 @@ Logs come from every kind of logger: comma-, semicolon-, tab- or whitespace-sepa
 without a header row, with `#` comment lines, sometimes with a decimal comma, sometimes from a pipe
 (`-` reads stdin). `detect_layout` looks at the start of the file and decides, and `Layout`
 remembers the decision so that a corrected log can be written back in the layout it was read in.
-Binary files (HDF5, MATLAB, spreadsheets, raw floats; Parquet arriving on stdin, since Parquet
-files are read by `nlpcal.io.sources`) are refused by name in one sentence, never dumped to the
-terminal.
+Binary files (HDF5, spreadsheets, raw floats; Parquet arriving on stdin, since Parquet files are
+read by `nlpcal.io.sources`, as MATLAB and DataFlash files are by `nlpcal.io.recorders`) are
+refused by name in one sentence, never dumped to the terminal.
 """
 
 from __future__ import annotations
@@ -47,7 +47,6 @@ BINARY_SIGNATURES = (
     (b"PAR1", 0, "a Parquet file"),
     (b"\x89HDF\r\n\x1a\n", 0, "an HDF5 file"),
     (b"\x89HDF\r\n\x1a\n", 512, "a MATLAB v7.3 (HDF5) file"),
-    (b"MATLAB", 0, "a MATLAB .mat file"),
     (b"ARROW1", 0, "an Arrow/Feather file"),
     (b"PK\x03\x04", 0, "a zip archive or a spreadsheet (.xlsx)"),
     (b"\xd0\xcf\x11\xe0", 0, "an old-style spreadsheet (.xls)"),

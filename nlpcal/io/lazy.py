@@ -36,6 +36,7 @@ from .logs import (
     sensor_unit,
     settle_unit,
 )
+from .recorders import check_options, declared_unit
 from .rows import QUOTED_ROWS, RowScreen
 from .tables import column_name, log_files, named, numeric_columns, resolve_columns, unreadable
 
@@ -259,6 +260,8 @@ def read_lazy_log(
     fallback_unit: str = "nT",
     header: bool | None = None,
     block_bytes: int = BLOCK_BYTES,
+    variable: str | None = None,
+    instance: int | None = None,
 ) -> Log:
     """`nlpcal.io.read_log` for a Dask cluster: the same columns, units and checks, the samples
     (and a reference column) left in the files as `nlpcal.passes.LazySamples`.
@@ -281,11 +284,13 @@ def read_lazy_log(
         import dask  # noqa: F401
     except ImportError:
         raise InputError("a log on a Dask cluster needs dask: pip install 'nlpcal[dask]'") from None
+    check_options(str(source), None, variable=variable, instance=instance)
     notes: list = []
     files = log_files(source, header, notes=notes)
     first = files[0]
     chosen = first.field_columns(columns, notes)
-    unit, how = sensor_unit(chosen, unit, fallback_unit, notes)
+    declared = declared_unit(chosen, notes)
+    unit, how = sensor_unit(chosen, unit, fallback_unit, notes, declared=declared)
     wanted, factors = list(chosen), [units.field_factor(unit)] * 3
     name = None
     if reference_column is not None:

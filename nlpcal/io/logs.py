@@ -26,6 +26,7 @@ from ..geomagnetic import ReferenceModel, parse_times
 from ..moments import sphere_frame
 from .layout import Layout
 from .mapped import csv_to_memmap
+from .recorders import ENGINES, check_options, declared_unit, is_recorded
 from .rows import RowScreen
 from .tables import (
     Table,
@@ -39,24 +40,52 @@ from .tables import (
 
 @dataclass
 class Log:
-    """A field log read for nlpcal.
+    """A field log read for nlpcal (`read_log`).
 
-    path : where it came from ("stdin" for `-`).
-    columns : the three field columns.
-    samples : (N, 3) field samples in the base unit (nT, or raw counts). [base unit]
-    unit : the unit of the field columns in the file ("raw" when an assumed unit was ruled out).
-    unit_source : where the unit came from, one of `nlpcal.units.UNIT_SOURCES`.
-    reference : None, a number or (N,) values of the reference field magnitude. [base unit]
-    reference_column : the column the reference came from, if any.
-    reference_source : what a geomagnetic-model reference came from (model, package), if any.
-    extras : the other requested columns on the rows of `samples`, as read (temperature [degC]).
-    frame : the whole table (None when streamed with low_memory).
-    kept : boolean mask of the table's rows behind `samples` (None when streamed).
-    dropped : rows left out (missing values, zero vectors, repeats with drop_invalid).
-    engine : the pandas CSV engine that read it.
-    notes : what the reader decided on the user's behalf, for the user to read.
-    warnings : what looks wrong (a unit that does not fit the magnitudes), for the user to read.
-    layout : how the file is laid out, to write it back the same way.
+    Attributes
+    ----------
+    path : str
+        Where it came from ("stdin" for `-`).
+    columns : list of str
+        The three field columns.
+    samples : numpy.ndarray, shape (N, 3)
+        Field samples in the base unit (nT, or raw counts). [base unit]
+    unit : str
+        The unit of the field columns in the file ("raw" when an assumed unit was ruled out).
+    unit_source : str
+        Where the unit came from: "option", "format", "names" or "assumed".
+    reference : None, float or numpy.ndarray
+        None, a number or (N,) values of the reference field magnitude. [base unit]
+    reference_column : str or None
+        The column the reference came from, if any.
+    reference_source : dict or None
+        What a geomagnetic-model reference came from (model, package), if any.
+    extras : dict
+        The other requested columns on the rows of `samples`, as read (temperature [degC]).
+    frame : pandas.DataFrame or None
+        The whole table (None when streamed with low_memory).
+    kept : numpy.ndarray or None
+        Boolean mask of the table's rows behind `samples` (None when streamed).
+    dropped : int
+        Rows left out (missing values, zero vectors, repeats with drop_invalid).
+    engine : str
+        The pandas CSV engine that read it.
+    notes : list of str
+        What the reader decided on the user's behalf, for the user to read.
+    warnings : list of str
+        What looks wrong (a unit that does not fit the magnitudes), for the user to read.
+    layout : Layout
+        How the file is laid out, to write it back the same way.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import nlpcal
+    >>> path = os.path.join(tempfile.mkdtemp(), "log.csv")
+    >>> nlpcal.simulate(200, seed=0).to_csv(path, index=False)
+    >>> log = nlpcal.read_log(path)
+    >>> log.unit_source, log.n
+    ('assumed', 200)
     """
 
     path: str
@@ -80,6 +109,20 @@ class Log:
     def base_unit(self) -> str:
         """The unit of `samples` and `reference`: "nT", or "raw" for counts."""
         return units.base_unit(self.unit)
+
+    @property
+    def read_by(self) -> str:
+        """What read the log, for messages: "pandas c engine", "pymavlink DFReader" ..."""
+        return self.engine if self.recorded else f"pandas {self.engine} engine"
+
+    @property
+    def recorded(self) -> bool:
+        """Whether the log was read from a recorded format (`nlpcal.io.recorders`), not text."""
+        return self.engine in ENGINES.values()
+
+    def reading(self) -> str:
+        """How the log was read, for messages: its layout (of text) and its reader."""
+        return self.read_by if self.recorded else f"{self.layout.describe()} ({self.read_by})"
 
     @property
     def n(self) -> int:
@@ -137,6 +180,16 @@ class Log:
     def values(self, column) -> np.ndarray:
         """An extra column on the rows of `samples`, as read."""
         return self.extras[self.column(column)]
+
+
+def format_unit(chosen, notes: list, table: Table | None = None) -> str | None:
+    """The unit the file format fixes for the field columns `chosen`: the table's
+    (`Table.field_unit`) when they are the columns its format fixes (the unit of other columns
+    is not), else a ROS column's (`nlpcal.io.recorders.declared_unit`, said in `notes`), else
+    None."""
+    if table is not None and table.field_unit and table.field_columns in (None, list(chosen)):
+        return table.field_unit
+    return declared_unit(chosen, notes)
 
 
 def sensor_unit(
@@ -262,27 +315,75 @@ def read_log(
     fallback_unit: str = "nT",
     header: bool | None = None,
     text: bool = False,
+    variable: str | None = None,
+    instance: int | None = None,
     progress=None,
 ) -> Log:
     """Read, validate and convert a field log.
 
-    path : a delimited text log, "-" for stdin, or a `Table` already read.
-    columns : the three field columns, names or 0-based positions (None: detected).
-    unit : the unit of the field columns (None: the unit a file format fixes, `Table.field_unit`,
-        else the one their names carry, else `fallback_unit`; an assumed unit under which the
-        magnitudes are far from Earth's field gives way to raw counts, `settle_unit`).
-    reference_column : a column of reference magnitudes, or reference_field : one number (in
-        `reference_field_unit`, default the log's unit). The reference is converted to the base
-        unit with the samples.
-    reference_model : or the total field of a geomagnetic model at the log's place and date,
-        constant or per sample from position and time columns (`nlpcal.geomagnetic`). [nT]
-    extra_columns : further numeric columns to read and validate (temperatures, say).
-    drop_invalid : drop rows with missing or non-numeric values, and field vectors repeating the
-        row before, instead of failing or keeping them. Exact-zero vectors are always left out.
-    low_memory : stream the columns into a memory-mapped temporary file, O(chunk) memory,
-        telling `progress` (`nlpcal.io.progress.Progress`) how far it has read.
-    header : force (True) or deny (False) a header row; None detects it.
-    text : keep the table's cells as text (for writing the log back unchanged).
+    Parameters
+    ----------
+    path : str, os.PathLike or Table
+        A log (`nlpcal.io.tables.read_table`: delimited text, Parquet, a MotionCal capture, a
+        MATLAB .mat file, an ArduPilot DataFlash log), a glob pattern or folder of them, "-" for
+        stdin, or a `Table` already read.
+    columns : sequence of str or int, optional
+        The three field columns, names or 0-based positions (`--columns`; None: detected).
+    unit : str, optional
+        The unit of the field columns (`--unit`; None: the unit a file format fixes, else the one
+        their names carry, else `fallback_unit`; an assumed unit under which the magnitudes are far
+        from Earth's field gives way to raw counts).
+    reference_column : str, optional
+        A column of reference magnitudes (`--reference-column`).
+    reference_field : float, optional
+        Or one reference magnitude (`--reference-field`). [reference_field_unit]
+    reference_field_unit : str, optional
+        The unit of `reference_field` (default: the log's unit).
+    reference_model : ReferenceModel, optional
+        Or the total field of a geomagnetic model at the log's place and date (`--reference-model`).
+    extra_columns : sequence of str
+        Further numeric columns to read and validate (temperatures, say).
+    drop_invalid : bool
+        Drop rows with missing or non-numeric values, and field vectors repeating the row before,
+        instead of failing or keeping them (`--drop-invalid`). Exact-zero vectors are always left
+        out.
+    low_memory : bool
+        Stream the columns into a memory-mapped temporary file, O(chunk) memory (`--low-memory`;
+        text and Parquet logs, a recorded format is read whole, with a note).
+    progress : Progress, optional
+        Told how far a `low_memory` read has come (`nlpcal.io.progress.Progress`).
+    fallback_unit : str
+        The unit assumed when nothing names one.
+    header : bool, optional
+        Force (True) or deny (False) a header row (`--header`, `--no-header`); None detects it.
+    text : bool
+        Keep the table's cells as text (for writing the log back unchanged).
+    variable : str, optional
+        The variable of a .mat file that holds the field (`--variable`; None: detected).
+    instance : int, optional
+        The compass of a DataFlash log, 0-based like its I field (`--instance`; None: the only
+        one).
+
+    Returns
+    -------
+    Log
+        The samples in the base unit (nT, or raw counts), the reference converted with them, and
+        what the reader decided.
+
+    Raises
+    ------
+    InputError
+        An unreadable file, ambiguous or missing columns, invalid values, an unknown unit.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import nlpcal
+    >>> path = os.path.join(tempfile.mkdtemp(), "log.csv")
+    >>> nlpcal.simulate(200, seed=0).to_csv(path, index=False)
+    >>> log = nlpcal.read_log(path, unit="uT")  # the file's numbers read as uT
+    >>> log.columns, log.unit, log.samples.shape  # the samples in nT
+    (['bx', 'by', 'bz'], 'uT', (200, 3))
     """
     one_reference(reference_column, reference_field, reference_model)
     notes: list = []
@@ -295,11 +396,17 @@ def read_log(
         raise InputError(
             "a reference from position or time columns needs the log in memory; drop --low-memory"
         )
+    if low_memory and not isinstance(path, Table) and is_recorded(path):
+        notes.append(f"{path} is read whole: --low-memory streams text and Parquet logs only")
+        low_memory = False
     if low_memory:
+        check_options(str(path), None, variable=variable, instance=instance)
         decided: dict = {}
 
         def scale(chosen) -> float:  # the unit, once the columns are known
-            decided["unit"], decided["how"] = sensor_unit(chosen, unit, fallback_unit, notes)
+            decided["unit"], decided["how"] = sensor_unit(
+                chosen, unit, fallback_unit, notes, declared=format_unit(chosen, notes)
+            )
             return units.field_factor(decided["unit"])
 
         mapped = csv_to_memmap(
@@ -320,11 +427,15 @@ def read_log(
         engine, layout, source = "c (chunked into a memory map)", mapped.layout, mapped.source
         samples = values[:, :3]
     else:
-        table = path if isinstance(path, Table) else read_table(path, header=header, text=text)
+        table = (
+            path
+            if isinstance(path, Table)
+            else read_table(path, header=header, text=text, variable=variable, instance=instance)
+        )
         notes.extend(table.notes)
         chosen = resolve_columns(
             table.frame,
-            columns,
+            columns or table.field_columns,
             header=table.layout.header,
             decimal=table.layout.decimal,
             notes=notes,
@@ -339,7 +450,8 @@ def read_log(
         values, kept, dropped = screened(
             table, chosen + extra + times_at, drop_invalid, notes, checked
         )
-        unit, how = sensor_unit(chosen, unit, fallback_unit, notes, declared=table.field_unit)
+        declared = format_unit(chosen, notes, table)
+        unit, how = sensor_unit(chosen, unit, fallback_unit, notes, declared=declared)
         frame, engine, layout, source = table.frame, table.engine, table.layout, table.source
         samples = values[:, :3] * units.field_factor(unit)
     if samples.shape[0]:

@@ -16,6 +16,7 @@ from .. import units, validation
 from ..errors import InputError
 from .layout import Layout
 from .logs import screened, sensor_unit, unit_check
+from .recorders import declared_unit
 from .tables import Table, read_table, resolve_columns
 
 
@@ -96,7 +97,7 @@ def read_sensor_log(
             f"{table.source} has no header row; pass --mag-columns and --acc-columns with "
             f"0-based positions, for example --mag-columns 3 4 5 --acc-columns 0 1 2"
         )
-    mag_cols = resolve_columns(frame, mag_columns, what="magnetometer")
+    mag_cols = resolve_columns(frame, mag_columns or table.field_columns, what="magnetometer")
     acc_cols = resolve_columns(frame, acc_columns, what="accelerometer")
     if set(mag_cols) & set(acc_cols):
         raise InputError(
@@ -104,8 +105,16 @@ def read_sensor_log(
             f"columns ({', '.join(acc_cols)}) overlap; pass --mag-columns and "
             f"--acc-columns"
         )
-    notes: list = []
-    mag_unit, mag_how = sensor_unit(mag_cols, mag_unit, mag_fallback, notes, flag="--mag-unit")
+    notes: list = list(table.notes)
+    fixed = table.field_unit if table.field_columns in (None, mag_cols) else None
+    mag_unit, mag_how = sensor_unit(
+        mag_cols,
+        mag_unit,
+        mag_fallback,
+        notes,
+        flag="--mag-unit",
+        declared=fixed or declared_unit(mag_cols, notes),
+    )
     acc_unit, acc_how = sensor_unit(
         acc_cols, acc_unit, acc_fallback, notes, "accelerometer", "--acc-unit"
     )

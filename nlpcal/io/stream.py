@@ -8,6 +8,10 @@ reading (`nlpcal.io.rows`: exact-zero vectors, and with drop_invalid repeated ve
 not). Rows with a missing or non-numeric value are errors, or with drop_invalid dropped,
 counted and their data row numbers kept for the message.
 
+A log in a recorded format (`nlpcal.io.recorders`: a MotionCal capture, a MATLAB .mat file, an
+ArduPilot DataFlash log, or a pattern holding one) is read whole (`nlpcal.io.read_table`) and
+handed out as one chunk, its field columns and unit those the format fixes.
+
 The columns are resolved as `nlpcal.io.read_log` resolves them, and the field unit decided from
 the first chunk (`nlpcal.io.logs.settle_unit` on its readings).
 """
@@ -22,10 +26,20 @@ import pandas as pd
 from .. import units
 from ..errors import InputError
 from .layout import STDIN, Layout
-from .logs import distinct_roles, sensor_unit, settle_unit
+from .logs import distinct_roles, format_unit, sensor_unit, settle_unit
 from .mapped import spool_stdin
+from .recorders import check_options, is_recorded
 from .rows import QUOTED_ROWS, RowScreen, quoted_rows
-from .tables import column_name, file_shares, log_files, numeric_columns, unreadable
+from .tables import (
+    Table,
+    column_name,
+    file_shares,
+    log_files,
+    numeric_columns,
+    read_table,
+    resolve_columns,
+    unreadable,
+)
 
 #: Rows read at a time: about 60 MB of text cells for a log of ten columns.
 CHUNK_ROWS = 100_000
@@ -56,13 +70,26 @@ class LogStream:
     `dropped` (rows with missing values left out), `dropped_rows` (their data row numbers, the
     first QUOTED_ROWS).
 
+    header, variable, instance : as `nlpcal.io.read_table` takes them (`--header`,
+        `--variable`, `--instance`).
     chunk_rows : rows read at a time (default CHUNK_ROWS).
     progress : an object with `update(done, total)` (`nlpcal.io.progress.Progress`) told how
         many bytes of the log's files were read, of how many.
     """
 
-    def __init__(self, path, *, header: bool | None = None, progress=None, chunk_rows=None):
+    def __init__(
+        self,
+        path,
+        *,
+        header: bool | None = None,
+        variable: str | None = None,
+        instance: int | None = None,
+        progress=None,
+        chunk_rows=None,
+    ):
         self.path, self.header, self.progress = path, header, progress
+        self.variable, self.instance = variable, instance
+        self.table: Table | None = None  # a recorded format's, read whole
         self.chunk_rows = int(chunk_rows or CHUNK_ROWS)
         self._spool = None
         self.notes: list = []
@@ -74,12 +101,26 @@ class LogStream:
     def __enter__(self) -> LogStream:
         if str(self.path) == "-":
             self._spool = spool_stdin()
+        readable = self.readable
+        if is_recorded(readable):
+            table = read_table(
+                readable,
+                header=self.header,
+                text=True,
+                variable=self.variable,
+                instance=self.instance,
+            )
+            self.table = table
+            self.notes += table.notes
+            self.layout: Layout = table.layout
+            self.parquet = False
+            self.source = STDIN if self._spool else table.source
+            return self
+        check_options(str(self.path), None, variable=self.variable, instance=self.instance)
         name = STDIN if self._spool else None
-        self.files = log_files(
-            self._spool.name if self._spool else self.path, self.header, name, self.notes
-        )
+        self.files = log_files(readable, self.header, name, self.notes)
         first = self.files[0]
-        self.layout: Layout = first.layout
+        self.layout = first.layout
         self.parquet = any(part.parquet for part in self.files)
         self.source = (
             STDIN
@@ -101,6 +142,8 @@ class LogStream:
     @property
     def table_columns(self) -> list:
         """Every column of the log, as named in its first file."""
+        if self.table is not None:
+            return [str(c) for c in self.table.columns]
         return [str(c) for c in self.files[0].preview.columns]
 
     def open(
@@ -114,9 +157,19 @@ class LogStream:
     ) -> LogStream:
         """Resolve the field columns and `extra_columns` (role -> column), read the first
         chunk and decide the field unit from it."""
-        first = self.files[0]
-        self.columns = first.field_columns(columns, self.notes)
-        roles = [(role, column_name(first.preview, c)) for role, c in (extra_columns or {}).items()]
+        if self.table is not None:
+            table, head = self.table, self.table.frame
+            self.columns = resolve_columns(
+                head,
+                columns or table.field_columns,
+                header=table.layout.header,
+                decimal=table.layout.decimal,
+                notes=self.notes,
+            )
+        else:
+            head = self.files[0].preview
+            self.columns = self.files[0].field_columns(columns, self.notes)
+        roles = [(role, column_name(head, c)) for role, c in (extra_columns or {}).items()]
         distinct_roles(self.columns, roles)
         self.extra = list(dict.fromkeys(name for _, name in roles))
         self.drop_invalid = drop_invalid
@@ -125,9 +178,12 @@ class LogStream:
         self._pending = [next(self._chunks, None)]
         if self._pending[0] is None:
             raise InputError(f"{self.source}: no data rows")
-        unit, self.unit_source = sensor_unit(self.columns, unit, fallback_unit, self.notes)
-        head = self._pending[0]
-        samples = head.raw[head.valid] * units.field_factor(unit)
+        declared = format_unit(self.columns, self.notes, self.table)
+        unit, self.unit_source = sensor_unit(
+            self.columns, unit, fallback_unit, self.notes, declared=declared
+        )
+        first = self._pending[0]
+        samples = first.raw[first.valid] * units.field_factor(unit)
         _, self.unit, check = settle_unit(samples, unit, self.unit_source)
         self.warnings += [check] if check else []
         return self
@@ -150,24 +206,29 @@ class LogStream:
 
     def _read(self):
         wanted = self.columns + self.extra
+        if self.table is not None:  # read whole: one chunk
+            yield self._chunk(self.table.frame, wanted, self.source, ".", 0)
+            return
         for part, read in file_shares(self.files, self.progress):
             before = 0  # data rows of this file in the chunks before
             try:
                 for chunk in part.chunks(None, self.chunk_rows, text=True, read=read):
-                    yield self._chunk(chunk, wanted, part, before)
+                    yield self._chunk(chunk, wanted, part.name, part.layout.decimal, before)
                     before += len(chunk)
             except InputError:
                 raise
             except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
                 raise unreadable(part.name, part.layout, exc) from None
 
-    def _chunk(self, chunk: pd.DataFrame, wanted: list, part, before: int) -> LogChunk:
+    def _chunk(
+        self, chunk: pd.DataFrame, wanted: list, name: str, decimal: str, before: int
+    ) -> LogChunk:
         numeric = numeric_columns(
             chunk,
             wanted,
             drop_invalid=self.drop_invalid,
-            source=part.name,
-            decimal=part.layout.decimal,
+            source=name,
+            decimal=decimal,
             first_row=before,
         )
         data_rows = self.rows + self.dropped + np.arange(1, len(chunk) + 1)

@@ -20,7 +20,7 @@ import pandas as pd
 
 from .. import units
 from ..errors import InputError
-from . import sources
+from . import recorders, sources
 from .layout import Layout, detect_layout, open_source
 
 #: What each sensor's axis columns may be called, for `resolve_columns`:
@@ -61,12 +61,12 @@ class Table:
     layout : how the file is laid out (delimiter, header, decimal mark, comments).
     engine : the pandas engine that read it.
     text : whether the cells were kept as text (so that they can be written back unchanged).
-    field_unit : the unit of the field columns when the file format fixes it (a ROS
-        sensor_msgs/MagneticField is in tesla, an ArduPilot DataFlash MAG message in milligauss,
-        an ImagCDF file states its unit in its header), else None. A reader of such a format
-        sets it; `nlpcal.io.read_log` then records the unit with `unit_source` "format". The
-        delimited text and Parquet readers of today leave it None: nothing in those files fixes
-        a unit.
+    field_unit : the unit of the field columns when the file format fixes it (an ArduPilot
+        DataFlash MAG message is in milligauss, a MotionCal count 0.1 uT: `nlpcal.io.recorders`),
+        else None; `nlpcal.io.read_log` then records the unit with `unit_source` "format". (ROS
+        CSV columns fix theirs by their names: `nlpcal.io.recorders.declared_unit`.)
+    field_columns : the field columns the file format fixes (a MotionCal capture's mx, my, mz),
+        else None: recognised from the names.
     """
 
     source: str
@@ -76,6 +76,7 @@ class Table:
     text: bool = False
     notes: list = field(default_factory=list)
     field_unit: str | None = None
+    field_columns: list | None = None
 
     @property
     def columns(self) -> list:
@@ -141,26 +142,49 @@ def _readable(source):
     return io.BytesIO(source) if isinstance(source, (bytes, bytearray)) else source
 
 
-def read_table(path, *, header: bool | None = None, text: bool = False) -> Table:
-    """Read a delimited text log (a path, or "-" for stdin) whatever its layout.
+def read_table(
+    path,
+    *,
+    header: bool | None = None,
+    text: bool = False,
+    variable: str | None = None,
+    instance: int | None = None,
+) -> Table:
+    """Read a log (a path, or "-" for stdin): delimited text whatever its layout, Parquet, or a
+    recorded format (`nlpcal.io.recorders`: MotionCal, MATLAB .mat, ArduPilot DataFlash).
 
     header : force (True) or deny (False) a header row; None detects it.
     text : keep every cell as text, so that columns not used pass through unchanged when the
         table is written back (`nlpcal.io.output`).
+    variable : the variable of a .mat file that holds the field (None: detected).
+    instance : the compass of a DataFlash log, 0-based (None: the only one).
     """
+    formats: dict = {"variable": variable, "instance": instance}
     # Hook: Parquet files, and the files of a glob pattern or a folder (nlpcal.io.sources).
     if sources.is_pattern(path):
         notes: list = []
         paths = sources.log_paths(path, notes)
-        tables = [read_table(p, header=header, text=text) for p in paths]
+        tables = [read_table(p, header=header, text=text, **formats) for p in paths]
         frame = sources.concatenated(paths, [table.frame for table in tables])
         return replace(tables[0], source=str(path), frame=frame, notes=notes)
     if sources.is_parquet(path):
+        recorders.check_options(str(path), "parquet", **formats)
         frame = sources.read_parquet(path)
         if frame.empty:
             raise InputError(f"{path}: no data rows")
         return Table(source=str(path), frame=frame, layout=Layout(), engine="pyarrow")
     name, source = open_source(path)
+    recorded = recorders.read_recorded(name, source, **formats)
+    if recorded is not None:
+        return Table(
+            source=name,
+            frame=recorded.frame,
+            layout=Layout(),
+            engine=recorded.engine,
+            notes=recorded.notes,
+            field_unit=recorded.field_unit,
+            field_columns=recorded.field_columns,
+        )
     layout = detect_layout(name, source, header)
     frame, engine = _frame(name, source, layout, text=text)
     if frame.empty:
@@ -242,7 +266,7 @@ def _headerless_columns(frame: pd.DataFrame, what: str, decimal: str, notes) -> 
             f"the field columns are {' '.join(used[1:])} (0-based positions)"
         )
         return used[1:]
-    example = " ".join(str(k) for k in range(max(len(used) - 3, 0), len(used)))
+    example = " ".join(str(c) for c in used[-3:])  # the columns' own 0-based positions
     raise InputError(
         f"the log has no header row and {len(used)} numeric columns, so the {what} columns "
         f"cannot be told apart; pass {flag.split()[0]} with 0-based positions, for example "
@@ -434,6 +458,7 @@ def log_files(
             found.append(LogFile(str(item), item, Layout(), pd.DataFrame(columns=columns), True))
             continue
         label, source = open_source(item)
+        recorders.refuse_streaming(name or label, source)
         layout = detect_layout(name or label, source, header)
         preview, _ = _frame(name or label, source, layout, nrows=PREVIEW_ROWS)
         found.append(LogFile(name or label, source, layout, preview))

@@ -115,12 +115,26 @@ def rmse(magnitude, reference) -> float:
 class TemperatureModel:
     """How the nine parameters of Eq. 4 (Zhou et al. 2010) change with temperature.
 
-    kind : "common" (the paper's Eq. 9: one factor k(t) = 1 + c (t - t0) on scale and offset of
-        all axes) or "per-axis" (each axis its own linear scale and offset drift).
-    base_temperature_degC : t0, where the nine parameters hold. [degC]
-    k_slope_per_degC : c of the common model, a / (a t0 + b) in the terms of Eq. 1. [1/degC]
-    scale_slope_per_degC : sigma, gain_j(t) = (1 + s_j)(1 + sigma_j (t - t0)), per-axis. [1/degC]
-    offset_slope_per_degC : zeta, z_j(t) = z_j + zeta_j (t - t0), per-axis. [field unit/degC]
+    Attributes
+    ----------
+    kind : str
+        "common" (the paper's Eq. 9: one factor k(t) = 1 + c (t - t0) on scale and offset of all
+        axes) or "per-axis" (each axis its own linear scale and offset drift).
+    base_temperature_degC : float
+        t0, where the nine parameters hold. [degC]
+    k_slope_per_degC : float
+        c of the common model, a / (a t0 + b) in the terms of Eq. 1. [1/degC]
+    scale_slope_per_degC : tuple
+        sigma, gain_j(t) = (1 + s_j)(1 + sigma_j (t - t0)), per-axis. [1/degC]
+    offset_slope_per_degC : tuple
+        zeta, z_j(t) = z_j + zeta_j (t - t0), per-axis. [field unit/degC]
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> model = nlpcal.TemperatureModel("common", 7.3, k_slope_per_degC=1.39e-4)
+    >>> model.kind, model.base_temperature_degC
+    ('common', 7.3)
     """
 
     kind: str

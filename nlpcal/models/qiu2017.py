@@ -35,6 +35,11 @@ ANGLE_INDEX = ((0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1))
 
 AXES = "xyz"
 
+#: The attitude errors after calibration that [1] reports, as bounds: roll, pitch and heading
+#: within +-0.15, +-0.15 and +-0.5 deg for pitch up to +-85 deg (section 4). [deg]
+PAPER_ATTITUDE_BOUNDS_DEG = {"roll": 0.15, "pitch": 0.15, "heading": 0.5}
+PAPER_MAX_PITCH_DEG = 85.0
+
 
 def _as_angle_array(angle):
     return np.asarray(angle, dtype=float)

@@ -27,8 +27,8 @@ follow the text's own references to Eq. 4, 6 and 9.
 
 The worst case over all directions (Eq. 9 in [1]) is a Rayleigh quotient in disguise:
 |T u|^2 = u^T (T^T T) u on the unit sphere, so its exact extremes are B (sigma_max - 1) and
-B (sigma_min - 1) with sigma the singular values of T (`exact_bracket`). To first order in the
-angles [rad], T^T T = I + G with
+B (sigma_min - 1) with sigma the singular values of T (the certificate of
+`nlpcal.orthogonality.worst_case`). To first order in the angles [rad], T^T T = I + G with
 
     G = [[0, gamma, -alpha], [gamma, 0, beta], [-alpha, beta, 0]]
 
@@ -57,6 +57,18 @@ from .zhou2010 import axis_matrix_entries, correction_matrix_entries
 ANGLE_NAMES = ("alpha", "beta", "gamma")
 #: Field of the paper's forward modelling and synthetic inversion. [nT]
 PAPER_FIELD_NT = 55_000.0
+#: The forward-modelling example of [1] (section 1): its angles [deg] and the largest total-field
+#: error of its map over all directions, "about 95 nT". [nT]
+PAPER_WORST_ANGLES_DEG = (0.1, 0.1, 0.1)
+PAPER_WORST_CASE_NT = 95.0
+#: The synthetic inversion of [1] (section 2): the angles it recovers "exactly". [deg]
+PAPER_SYNTHETIC_ANGLES_DEG = (0.07, 0.04, 0.1)
+#: The real probe of [1] (section 3): alpha and 90 deg - gamma; beta is not given. [deg]
+PAPER_PROBE_ANGLES_DEG = {"alpha": 0.064, "gamma": 0.103}
+#: Repeated inversions of the probe agree with their mean within this angle [deg], which implies
+#: a total-field error of "at most 3.8 nT" [nT] (section 3 of [1]).
+PAPER_DEVIATION_DEG = 0.004
+PAPER_IMPLIED_NT = 3.8
 
 
 def direction(theta_deg, phi_deg) -> np.ndarray:
@@ -106,17 +118,6 @@ def small_angle_worst_case(angles_deg, field_nT) -> float:
         * float(field_nT)
         * float(np.max(np.abs(np.linalg.eigvalsh(small_angle_form(angles_deg)))))
     )
-
-
-def exact_bracket(angles_deg, field_nT) -> tuple:
-    """(min dB, max dB) over all directions, exactly: B (sigma_min - 1), B (sigma_max - 1). [nT]
-
-    |T u|^2 = u^T (T^T T) u is a Rayleigh quotient, so its extremes on the unit sphere are the
-    extreme eigenvalues of T^T T, the squared singular values of T.
-    """
-    b = float(field_nT)
-    sigma = np.linalg.svd(axis_matrix_deg(angles_deg), compute_uv=False)
-    return b * (float(sigma.min()) - 1.0), b * (float(sigma.max()) - 1.0)
 
 
 def error_map(angles_deg, field_nT, step_deg: float = 1.0):

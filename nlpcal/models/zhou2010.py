@@ -48,9 +48,27 @@ PARAMETER_UNITS = ("field",) * 3 + ("1",) * 3 + ("deg",) * 3
 class Zhou2010Parameters:
     """The nine calibration parameters of Eq. 4 in [1].
 
-    z_x, z_y, z_z : zero offsets Z_p. [nT]
-    s_x, s_y, s_z : scale errors, the axis gains being 1 + s. [1]
-    alpha_deg, beta_deg, gamma_deg : non-orthogonality angles. [deg]
+    Attributes
+    ----------
+    z_x, z_y, z_z : float
+        Zero offsets Z_p. [nT]
+    s_x, s_y, s_z : float
+        Scale errors, the axis gains being 1 + s. [1]
+    alpha_deg, beta_deg, gamma_deg : float
+        Non-orthogonality angles. [deg]
+
+    References
+    ----------
+    [1] Zhou C., Jin J., Li H., Zhang B., Yan H. (2010). Cyclic optimisation algorithm for the
+        calibration of triaxial fluxgate sensors. Hydrographic Surveying and Charting 30(4), 63-66.
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> truth = nlpcal.Zhou2010Parameters(z_x=-71.55, s_x=0.0072, alpha_deg=-2.34)
+    >>> truth.offsets  # [nT]
+    array([-71.55,   0.  ,   0.  ])
+    >>> log = nlpcal.simulate(100, parameters=truth, seed=0)  # a sensor with these errors
     """
 
     z_x: float = 0.0

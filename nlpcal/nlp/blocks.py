@@ -15,7 +15,7 @@ Everything that depends on the data enters as parameters: the Gram matrix of the
 frame, the reference scale, theta_ref (which holds the blocks that stay fixed) and f_ref. Each
 block's `nlpsol` is built once per process and serves that stage in every cycle, for every log.
 The problems are MX graphs: a small SX function maps theta to the coefficients of u and u^2
-(`nlpcal.objective.coefficient_function`), and the Gram matrix enters through two dense matrix
+(`nlpcal.nlp.objective.coefficient_function`), and the Gram matrix enters through two dense matrix
 products, so that building a problem takes milliseconds. Solving one block, with the Newton
 checks around IPOPT: `nlpcal.nlp.steps`.
 

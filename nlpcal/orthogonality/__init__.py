@@ -29,26 +29,87 @@ PAPER_FIELD_NT = wang2015.PAPER_FIELD_NT
 MAX_MAP_STEP_DEG = 10.0
 
 
-def error_map(angles_deg, field_nT, step_deg: float = 1.0):
+def error_map(
+    angles_deg,
+    reference_field: float | None = None,
+    step_deg: float = 1.0,
+    *,
+    field_nT: float | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """dB on a regular (theta, phi) grid, the map of Fig. 4 in Wang et al. (2015).
 
-    angles_deg : (alpha, beta, gamma). [deg]; field_nT : |B|. [nT]
-    step_deg : grid step in both angles, in (0, 10]. [deg]
-    Returns theta [deg] (n_theta,), phi [deg] (n_phi,), dB [nT] (n_phi, n_theta).
+    Parameters
+    ----------
+    angles_deg : array_like, shape (3,)
+        (alpha, beta, gamma). [deg]
+    reference_field : float
+        Total field magnitude |B| (`--reference-field`). [nT]
+    step_deg : float
+        Grid step in both angles, in (0, 10] (`--step-deg`). [deg]
+    field_nT : float, optional
+        The former name of `reference_field`, still accepted. [nT]
+
+    Returns
+    -------
+    theta : numpy.ndarray, shape (n_theta,)
+        Azimuths. [deg]
+    phi : numpy.ndarray, shape (n_phi,)
+        Elevations. [deg]
+    error : numpy.ndarray, shape (n_phi, n_theta)
+        dB = |T u| B - B. [nT]
+
+    Raises
+    ------
+    InputError
+        Angles, field or step unusable.
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> theta, phi, error = nlpcal.error_map((0.1, 0.1, 0.1), 55_000.0, step_deg=10.0)
+    >>> error.shape
+    (19, 36)
     """
     step = validation.number(
         step_deg, "the map step", positive=True, maximum=MAX_MAP_STEP_DEG, unit="deg"
     )
+    field_nT = validation.renamed(reference_field, field_nT, "reference_field", "field_nT")
     return wang2015.error_map(validation.angles(angles_deg), validation.field(field_nT), step)
 
 
 def synthetic_rotation(
     angles_deg, field_nT=PAPER_FIELD_NT, n: int = 500, noise_nT: float = 0.0, seed: int = 0
 ):
-    """Probe output B' = T B + noise for n directions spread over the sphere. [nT]
+    """Probe output B' = T B + noise for n directions spread over the sphere.
 
-    angles_deg : (alpha, beta, gamma). [deg]; field_nT : |B|. [nT]; noise_nT : standard deviation
-    of white noise added to each axis. [nT]
+    Parameters
+    ----------
+    angles_deg : array_like, shape (3,)
+        (alpha, beta, gamma) of the probe. [deg]
+    field_nT : float
+        Total field magnitude |B|. [nT]
+    n : int
+        Number of directions.
+    noise_nT : float
+        Standard deviation of white noise added to each axis. [nT]
+    seed : int
+        Random seed of the directions and the noise.
+
+    Returns
+    -------
+    numpy.ndarray, shape (n, 3)
+        The probe output B'. [nT]
+
+    Raises
+    ------
+    InputError
+        Angles, field, n or noise unusable.
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> nlpcal.synthetic_rotation((0.1, 0.0, 0.0), n=200).shape
+    (200, 3)
     """
     return wang2015.synthetic_rotation(
         validation.angles(angles_deg),
@@ -71,7 +132,7 @@ def error_table(theta, phi, error) -> pd.DataFrame:
     )
 
 
-def invert_logs(logs, *, field_nT=None, bound_deg=DEFAULT_BOUND_DEG, verbose: bool = False):
+def invert_logs(logs, *, reference_field=None, bound_deg=DEFAULT_BOUND_DEG, verbose: bool = False):
     """`invert` every log read by `nlpcal.io.read_log` (in nT); one log gives its Inversion,
     several give their Repeatability. Messages about a log name it."""
     runs = []
@@ -85,7 +146,7 @@ def invert_logs(logs, *, field_nT=None, bound_deg=DEFAULT_BOUND_DEG, verbose: bo
             runs.append(
                 invert(
                     log.samples,
-                    field_nT=field_nT,
+                    reference_field=reference_field,
                     bound_deg=bound_deg,
                     source=log.path,
                     verbose=verbose,
@@ -96,7 +157,7 @@ def invert_logs(logs, *, field_nT=None, bound_deg=DEFAULT_BOUND_DEG, verbose: bo
             raise InputError(
                 message if message.startswith(log.path) else f"{log.path}: {message}"
             ) from None
-    return runs[0] if len(runs) == 1 else repeatability(runs, field_nT=field_nT)
+    return runs[0] if len(runs) == 1 else repeatability(runs, reference_field)
 
 
 __all__ = [

@@ -52,29 +52,77 @@ UNEXPLAINED_FLOOR = 1e-9
 
 @dataclass
 class Inversion(Document):
-    """Angles inverted from one rotation log (section 2 in [1])."""
+    """Angles inverted from one rotation log (section 2 in [1]).
+
+    Attributes
+    ----------
+    angles_deg : numpy.ndarray
+        (alpha, beta, gamma). [deg]
+    angles_std_deg : numpy.ndarray or None
+        Standard errors scaled by the residual variance. [deg]
+    variant : str
+        "reference" (known field) or "spread" (around the mean, the paper's).
+    field_nT : float or None
+        The reference field of the reference variant. [nT]
+    n_samples : int
+        Samples inverted.
+    objective_nT2 : float
+        Mean squared residual at the solution. [nT^2]
+    rms_before_nT, rms_after_nT : float
+        Rms of |B'| - centre before and after correction. [nT]
+    corrected_mean_nT : float
+        Mean of |B''| after correction. [nT]
+    bound_deg : numpy.ndarray
+        The bounds +-bound. [deg]
+    bound_active : list of bool
+        Per angle: the solution lies on a bound.
+    status : str
+        IPOPT's return status.
+    success : bool
+        IPOPT succeeded.
+    iterations : int
+        IPOPT's iterations.
+    warnings : list of str
+        What looks wrong, each a sentence.
+    source : str or None
+        The log the samples came from, if any.
+    not_identifiable : list of str
+        Angles the attitudes leave free.
+
+    References
+    ----------
+    [1] Wang et al. (2015), see `nlpcal.models.wang2015`.
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> probe = nlpcal.synthetic_rotation((0.07, 0.04, 0.1), n=500, noise_nT=0.5, seed=0)
+    >>> inversion = nlpcal.invert(probe)
+    >>> inversion.variant, inversion.verdict.status
+    ('spread', 'ok')
+    """
 
     FORMAT = "nlpcal-orthogonality-inversion"
     LEGACY_FORMATS = (("schema", "nlpcal.orthogonality.inversion/1"),)
     WHAT = "nlpcal inversion file"
 
-    angles_deg: np.ndarray  #: (alpha, beta, gamma). [deg]
-    angles_std_deg: np.ndarray | None  #: standard errors scaled by the residual variance. [deg]
-    variant: str  #: "reference" (known field) or "spread" (around the mean, the paper's).
-    field_nT: float | None  #: the reference field of the reference variant. [nT]
+    angles_deg: np.ndarray
+    angles_std_deg: np.ndarray | None
+    variant: str
+    field_nT: float | None
     n_samples: int
-    objective_nT2: float  #: mean squared residual at the solution. [nT^2]
-    rms_before_nT: float  #: rms of |B'| - centre before correction. [nT]
-    rms_after_nT: float  #: rms of |B''| - centre after correction. [nT]
-    corrected_mean_nT: float  #: mean of |B''| after correction. [nT]
-    bound_deg: np.ndarray  #: the bounds +-bound. [deg]
-    bound_active: list  #: per angle: the solution lies on a bound.
-    status: str  #: IPOPT return status.
+    objective_nT2: float
+    rms_before_nT: float
+    rms_after_nT: float
+    corrected_mean_nT: float
+    bound_deg: np.ndarray
+    bound_active: list
+    status: str
     success: bool
     iterations: int
     warnings: list = field(default_factory=list)
-    source: str | None = None  #: the log the samples came from, if any.
-    not_identifiable: list = field(default_factory=list)  #: angles the attitudes leave free.
+    source: str | None = None
+    not_identifiable: list = field(default_factory=list)
 
     @property
     def verdict(self) -> Verdict:
@@ -141,7 +189,8 @@ class Inversion(Document):
 def invert(
     samples,
     *,
-    field_nT=None,
+    reference_field: float | None = None,
+    field_nT: float | None = None,
     bound_deg=DEFAULT_BOUND_DEG,
     start_deg=(0.0, 0.0, 0.0),
     source: str | None = None,
@@ -151,23 +200,63 @@ def invert(
 ) -> Inversion:
     """The three non-orthogonality angles from a rotation log, as a bounded IPOPT problem.
 
-    samples : (N, 3) probe output B' from attitudes spread over the sphere in a constant field;
-        unit sensitivities and zero offsets are assumed (remove them first). [nT]
-    field_nT : the known field B. With it, minimise mean_i (|T^-1 B'_i| - B)^2 (reference
-        variant); without it, mean_i (|T^-1 B'_i| - mean_j |T^-1 B'_j|)^2 (spread variant, the
-        objective of section 2 in [1]). [nT]
-    bound_deg : |angle| <= bound, one value or three (section 2 of [1] uses 0.5). [deg]
-    start_deg : IPOPT's start, (0, 0, 0) as in [1]. [deg]
-    require_identifiable : raise QualityError (holding the result) when the attitudes leave an
-        angle undetermined; False returns the result with a warning.
-    require_explained : raise QualityError (holding the result) when the three angles do not
-        explain the data: their residual is more than UNEXPLAINED_RATIO times the noise, the rms
-        the nine parameters of Eq. 4 in [2] leave on the same samples (offsets or scale errors
-        not removed: calibrate first); False returns the result with a warning. Not judged
-        when an angle lies on its bound (its warning names that cause first).
-
     A solution on a bound gets a warning: the true angle may lie outside the bounds.
-    Raises InputError for unusable samples or options, SolveError when IPOPT fails.
+
+    Parameters
+    ----------
+    samples : array_like, shape (N, 3)
+        Probe output B' from attitudes spread over the sphere in a constant field; unit
+        sensitivities and zero offsets are assumed (remove them first). [nT]
+    reference_field : float, optional
+        The known field B (`--reference-field`). With it, minimise mean_i (|T^-1 B'_i| - B)^2
+        (reference variant); without it, mean_i (|T^-1 B'_i| - mean_j |T^-1 B'_j|)^2 (spread
+        variant, the objective of section 2 in [1]). [nT]
+    field_nT : float, optional
+        The former name of `reference_field`, still accepted. [nT]
+    bound_deg : float or array_like of shape (3,)
+        |angle| <= bound, one value or three (`--bound-deg`; section 2 of [1] uses 0.5). [deg]
+    start_deg : array_like, shape (3,)
+        IPOPT's start, (0, 0, 0) as in [1]. [deg]
+    source : str, optional
+        The log the samples came from, named in messages.
+    verbose : bool
+        Print IPOPT's log.
+    require_identifiable : bool
+        Raise QualityError (holding the result) when the attitudes leave an angle undetermined;
+        False returns the result with a warning.
+    require_explained : bool
+        Raise QualityError (holding the result) when the three angles do not explain the data:
+        their residual is more than UNEXPLAINED_RATIO times the noise, the rms the nine parameters
+        of Eq. 4 in [2] leave on the same samples (offsets or scale errors not removed: calibrate
+        first); False returns the result with a warning. Not judged when an angle lies on its
+        bound (its warning names that cause first).
+
+    Returns
+    -------
+    Inversion
+        The angles, their standard errors, and the spread of |B'| before and after.
+
+    Raises
+    ------
+    InputError
+        Unusable samples or options.
+    SolveError
+        IPOPT failed.
+    QualityError
+        The attitudes leave an angle undetermined, or the angles do not explain the data.
+
+    References
+    ----------
+    [1] Wang et al. (2015), see `nlpcal.models.wang2015`.
+    [2] Zhou et al. (2010), see `nlpcal.models.zhou2010`.
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> probe = nlpcal.synthetic_rotation((0.07, 0.04, 0.1), n=500, noise_nT=0.5, seed=0)
+    >>> inversion = nlpcal.invert(probe, reference_field=55_000.0)
+    >>> [bool(abs(a - t) < 0.01) for a, t in zip(inversion.angles_deg, (0.07, 0.04, 0.1))]
+    [True, True, True]
     """
     samples = validation.samples(
         samples, minimum=MIN_INVERSION_SAMPLES, purpose="attitudes to invert three angles"
@@ -179,6 +268,7 @@ def invert(
             f"the start {validation.fmt_list(start)} deg lies outside the bounds "
             f"+-{validation.fmt_list(bounds)} deg"
         )
+    field_nT = validation.renamed(reference_field, field_nT, "reference_field", "field_nT")
     reference = None if field_nT is None else validation.field(field_nT, what="reference field")
     magnitude = np.linalg.norm(samples, axis=1)
     nominal = float(np.mean(magnitude))
@@ -314,20 +404,51 @@ def _uncertainty(moments, angles_deg, after: dict, spread: bool) -> inference.Un
 
 @dataclass
 class Repeatability(Document):
-    """Several inversions of the same probe (Table 4 in [1])."""
+    """Several inversions of the same probe (Table 4 in [1]).
+
+    Attributes
+    ----------
+    runs : list of Inversion
+        The inversion of each log.
+    mean_angles_deg : numpy.ndarray
+        Mean over the runs. [deg]
+    deviations_deg : numpy.ndarray
+        Each run minus the mean, (runs, 3). [deg]
+    max_deviation_deg : numpy.ndarray
+        Largest |deviation| per angle. [deg]
+    max_abs_deviation_deg : float
+        Largest |deviation| over all angles and runs. [deg]
+    field_nT : float
+        Field at which the deviation is turned into a total-field error. [nT]
+    field_source : str
+        "reference" (the given field) or "corrected mean" (of all runs).
+    implied_worst_case_nT : float
+        `implied_worst_case(max_abs_deviation_deg, field_nT)`. [nT]
+
+    References
+    ----------
+    [1] Wang et al. (2015), see `nlpcal.models.wang2015`.
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> runs = [nlpcal.invert(nlpcal.synthetic_rotation((0.07, 0.04, 0.1), seed=k)) for k in (0, 1)]
+    >>> nlpcal.repeatability(runs).deviations_deg.shape
+    (2, 3)
+    """
 
     FORMAT = "nlpcal-orthogonality-repeatability"
     LEGACY_FORMATS = (("schema", "nlpcal.orthogonality.repeatability/1"),)
     WHAT = "nlpcal repeatability file"
 
-    runs: list  #: the Inversion of each log.
-    mean_angles_deg: np.ndarray  #: mean over the runs. [deg]
-    deviations_deg: np.ndarray  #: each run minus the mean, (runs, 3). [deg]
-    max_deviation_deg: np.ndarray  #: largest |deviation| per angle. [deg]
-    max_abs_deviation_deg: float  #: largest |deviation| over all angles and runs. [deg]
-    field_nT: float  #: field at which the deviation is turned into a total-field error. [nT]
-    field_source: str  #: "reference" (the given field) or "corrected mean" (of all runs).
-    implied_worst_case_nT: float  #: implied_worst_case(max_abs_deviation_deg, field_nT). [nT]
+    runs: list
+    mean_angles_deg: np.ndarray
+    deviations_deg: np.ndarray
+    max_deviation_deg: np.ndarray
+    max_abs_deviation_deg: float
+    field_nT: float
+    field_source: str
+    implied_worst_case_nT: float
 
     @property
     def warnings(self) -> list:
@@ -377,13 +498,48 @@ class Repeatability(Document):
         )
 
 
-def repeatability(runs, field_nT=None) -> Repeatability:
+def repeatability(
+    runs, reference_field: float | None = None, *, field_nT: float | None = None
+) -> Repeatability:
     """Mean, spread and implied total-field error of several inversions of one probe.
 
-    runs : Inversion results of the same probe (at least two).
-    field_nT : field for the implied error; default the mean corrected field of the runs. [nT]
-    The implied error is the worst case over all directions when every angle is off by the
-    largest deviation from the mean (section 3 of [1]: 0.004 deg -> at most 3.8 nT).
+    The implied error is the worst case over all directions when every angle is off by the largest
+    deviation from the mean (section 3 of [1]: 0.004 deg -> at most 3.8 nT).
+
+    Parameters
+    ----------
+    runs : sequence of Inversion
+        Inversions of the same probe (at least two).
+    reference_field : float, optional
+        Field for the implied error (`--reference-field`); default the mean corrected field of
+        the runs. [nT]
+    field_nT : float, optional
+        The former name of `reference_field`, still accepted. [nT]
+
+    Returns
+    -------
+    Repeatability
+        The mean angles, each run's deviation from them and the implied error.
+
+    Raises
+    ------
+    InputError
+        Fewer than two runs, or an unusable field.
+
+    References
+    ----------
+    [1] Wang et al. (2015), see `nlpcal.models.wang2015`.
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> runs = [
+    ...     nlpcal.invert(nlpcal.synthetic_rotation((0.07, 0.04, 0.1), noise_nT=0.5, seed=k))
+    ...     for k in range(3)
+    ... ]
+    >>> spread = nlpcal.repeatability(runs, 55_000.0)
+    >>> spread.max_abs_deviation_deg < 0.01  # [deg]
+    True
     """
     runs = list(runs)
     if len(runs) < 2:
@@ -392,6 +548,7 @@ def repeatability(runs, field_nT=None) -> Repeatability:
     mean = angles.mean(axis=0)
     deviations = angles - mean
     max_deviation = np.abs(deviations).max(axis=0)
+    field_nT = validation.renamed(reference_field, field_nT, "reference_field", "field_nT")
     if field_nT is None:
         b, source = float(np.mean([run.corrected_mean_nT for run in runs])), "corrected mean"
     else:

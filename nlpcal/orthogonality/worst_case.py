@@ -54,20 +54,47 @@ class Extremum:
 
 @dataclass(frozen=True)
 class WorstCase(Document):
-    """Worst-case total-field error of a probe with known angles (Eq. 9 in [1])."""
+    """Worst-case total-field error of a probe with known angles (Eq. 9 in [1]).
+
+    Attributes
+    ----------
+    angles_deg : tuple
+        (alpha, beta, gamma). [deg]
+    field_nT : float
+        Total field magnitude. [nT]
+    largest_positive, most_negative : Extremum
+        Max and min of dB over all directions, with their directions theta, phi [deg].
+    exact_min_nT, exact_max_nT : float
+        B (sigma_min(T) - 1) and B (sigma_max(T) - 1), the analytic brackets. [nT]
+    small_angle_nT : float
+        (B / 2) max |eig(G)|, first order in the angles. [nT]
+    starts : int
+        IPOPT starts per sign.
+
+    References
+    ----------
+    [1] Wang et al. (2015), see `nlpcal.models.wang2015`.
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> case = nlpcal.worst_case((0.1, 0.1, 0.1), 55_000.0)
+    >>> abs(case.most_negative.delta_B_nT - case.exact_min_nT) < 1e-3  # certified [nT]
+    True
+    """
 
     FORMAT = "nlpcal-orthogonality-worst-case"
     LEGACY_FORMATS = (("schema", "nlpcal.orthogonality.worst_case/1"),)
     WHAT = "nlpcal worst-case file"
 
-    angles_deg: tuple  #: (alpha, beta, gamma). [deg]
-    field_nT: float  #: total field magnitude. [nT]
-    largest_positive: Extremum  #: max of dB over all directions.
-    most_negative: Extremum  #: min of dB over all directions.
-    exact_min_nT: float  #: B (sigma_min(T) - 1), the analytic lower bracket. [nT]
-    exact_max_nT: float  #: B (sigma_max(T) - 1), the analytic upper bracket. [nT]
-    small_angle_nT: float  #: (B / 2) max |eig(G)|, first order in the angles. [nT]
-    starts: int  #: IPOPT starts per sign.
+    angles_deg: tuple
+    field_nT: float
+    largest_positive: Extremum
+    most_negative: Extremum
+    exact_min_nT: float
+    exact_max_nT: float
+    small_angle_nT: float
+    starts: int
 
     @property
     def max_abs_error_nT(self) -> float:
@@ -137,22 +164,60 @@ def _start_directions(vector) -> list:
     return starts
 
 
-def worst_case(angles_deg, field_nT, *, verbose: bool = False) -> WorstCase:
+def worst_case(
+    angles_deg,
+    reference_field: float | None = None,
+    *,
+    field_nT: float | None = None,
+    verbose: bool = False,
+) -> WorstCase:
     """Largest positive and most negative dB over all field directions (Eq. 9 in [1]).
 
-    angles_deg : (alpha, beta, gamma) in the convention of [2]. [deg]
-    field_nT : total field magnitude B. [nT]
-
     Each sign is solved by IPOPT from 14 starts (12 fixed directions and the two extreme
-    eigenvectors of T^T T); the best is certified against the analytic bracket
-    B (sigma - 1). The Rayleigh quotient u^T (T^T T) u has no local maxima on the sphere other
-    than the global one, so a start that converges is global; the certificate guards against a
-    start stalling at a saddle or at a pole of the (theta, phi) chart.
+    eigenvectors of T^T T); the best is certified against the analytic bracket B (sigma - 1). The
+    Rayleigh quotient u^T (T^T T) u has no local maxima on the sphere other than the global one, so
+    a start that converges is global; the certificate guards against a start stalling at a saddle
+    or at a pole of the (theta, phi) chart.
 
-    Raises SolveError when no start converges or the best misses the analytic bracket.
+    Parameters
+    ----------
+    angles_deg : array_like, shape (3,)
+        (alpha, beta, gamma) in the convention of [2] (`--angles-deg`). [deg]
+    reference_field : float
+        Total field magnitude B (`--reference-field`). [nT]
+    field_nT : float, optional
+        The former name of `reference_field`, still accepted. [nT]
+    verbose : bool
+        Print IPOPT's log.
+
+    Returns
+    -------
+    WorstCase
+        Both signed extremes with their directions, and the analytic brackets.
+
+    Raises
+    ------
+    InputError
+        Angles or field unusable.
+    SolveError
+        No start converged, or the best misses the analytic bracket.
+
+    References
+    ----------
+    [1] Wang et al. (2015), see `nlpcal.models.wang2015`.
+    [2] Zhou et al. (2010), see `nlpcal.models.zhou2010`.
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> case = nlpcal.worst_case((0.1, 0.1, 0.1), 55_000.0)
+    >>> round(case.max_abs_error_nT)  # "about 95 nT" in [1] [nT]
+    96
     """
     angles = validation.angles(angles_deg)
-    b = validation.field(field_nT)
+    b = validation.field(
+        validation.renamed(reference_field, field_nT, "reference_field", "field_nT")
+    )
     t = np.array(axis_matrix_entries(*np.radians(angles)), dtype=float)
     eigenvalues, eigenvectors = np.linalg.eigh(t.T @ t)
     sigma_min, sigma_max = math.sqrt(eigenvalues[0]), math.sqrt(eigenvalues[-1])
@@ -212,12 +277,38 @@ def worst_case(angles_deg, field_nT, *, verbose: bool = False) -> WorstCase:
 
 
 def implied_worst_case(deviation_deg, field_nT) -> float:
-    """Worst-case |dB| that an angle uncertainty of +-deviation_deg on every angle implies. [nT]
+    """Worst-case |dB| that an angle uncertainty of +-deviation_deg on every angle implies.
 
     The largest max |dB| over the eight corners (+-d, +-d, +-d) of the deviation box (one value d
     for all three angles, or three values). To first order every corner of a cube gives the same
-    max |eig(G)| = 2 d, which by Gershgorin's theorem is also the largest over the whole box; at
-    55 000 nT, d = 0.004 deg gives 3.84 nT ("at most 3.8 nT" in section 3 of [1]).
+    max |eig(G)| = 2 d, which by Gershgorin's theorem is also the largest over the whole box.
+
+    Parameters
+    ----------
+    deviation_deg : float or array_like of shape (3,)
+        The deviation d of every angle, or one per angle. [deg]
+    field_nT : float
+        Total field magnitude. [nT]
+
+    Returns
+    -------
+    float
+        The worst-case |dB|. [nT]
+
+    Raises
+    ------
+    InputError
+        Deviations or field unusable.
+
+    References
+    ----------
+    [1] Wang et al. (2015), see `nlpcal.models.wang2015`.
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> round(nlpcal.implied_worst_case(0.004, 55_000.0), 1)  # "at most 3.8 nT" in [1] [nT]
+    3.8
     """
     deviation = np.abs(np.asarray(deviation_deg, dtype=float).ravel())
     if deviation.size == 1:

@@ -265,6 +265,8 @@ def _identifiability(result: CalibrationResult) -> str:
     missing = block.get("not_identifiable") or []
     poor = block.get("poorly_determined") or []
     coverage = block.get("coverage") or {}
+    dependence = block.get("score_dependence") or {}
+    widening = dependence.get("standard_error_widening") or {}
     items = [
         (
             "not determined by the data",
@@ -286,10 +288,10 @@ def _identifiability(result: CalibrationResult) -> str:
             else "&ndash;",
         ),
         (
-            "lag-1 autocorrelation of the residuals",
-            _number(block.get("residual_lag1_autocorrelation"), 3),
+            "standard-error widening for alike neighbouring samples (largest)",
+            _number(max(widening.values(), default=None), 4),
         ),
-        ("standard-error widening for it", _number(block.get("standard_error_inflation"), 4)),
+        ("groups of the block jackknife", _number(dependence.get("groups"), 6)),
     ]
     return _table(["", ""], [[k, v] for k, v in items], (0, 1))
 

@@ -92,25 +92,66 @@ def simulate(
     n: int = 2000,
     *,
     parameters: Zhou2010Parameters = ZHOU2010_PARAMETERS,
-    field: float = ZHOU2010_FIELD_NT,
+    reference_field: float | None = None,
+    field: float | None = None,
     noise: float = 1.0,
     seed: int = 0,
     attitudes: str = "uniform",
     inclination_deg: float = 60.0,
     max_tilt_deg: float | None = None,
 ) -> pd.DataFrame:
-    """A log of n samples with columns bx, by, bz. [nT]
+    """A synthetic log: a sensor with the errors of Eq. 4 in [1] turned through many attitudes.
 
-    parameters : the truth of Eq. 4 in [1].
-    field : magnitude of the constant field. [nT]
-    noise : standard deviation of white noise on each axis. [nT]
-    attitudes : a name in ATTITUDES or ATTITUDE_ALIASES.
-    max_tilt_deg : with attitudes "tilt": the largest roll and pitch, each uniform within
-        +-max_tilt_deg, heading free (default MAX_TILT_DEFAULT_DEG; at most 90). [deg]
+    Parameters
+    ----------
+    n : int
+        Number of samples (`-n`).
+    parameters : Zhou2010Parameters
+        The truth of Eq. 4 in [1] (`--params`); default the paper's Table 1 truth.
+    reference_field : float, optional
+        Magnitude of the constant field (`--reference-field`; default 49 462 nT, Table 1 of
+        [1]). [nT]
+    field : float, optional
+        The former name of `reference_field`, still accepted. [nT]
+    noise : float
+        Standard deviation of white noise on each axis (`--noise`). [nT]
+    seed : int
+        Random seed of the attitudes and the noise (`--seed`).
+    attitudes : str
+        The attitude set: "uniform", "turntable", "tilt_band" (or "tilt"), ...
+    inclination_deg : float
+        Inclination of the field below the horizontal. [deg]
+    max_tilt_deg : float, optional
+        With attitudes "tilt": the largest roll and pitch, each uniform within +-max_tilt_deg,
+        heading free (at most 90). [deg]
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns bx, by, bz, the raw sensor output B_M. [nT]
+
+    Raises
+    ------
+    InputError
+        An unusable count, noise, field or attitude set.
+
+    References
+    ----------
+    [1] Zhou et al. (2010), see `nlpcal.models.zhou2010`.
+
+    Examples
+    --------
+    >>> import nlpcal
+    >>> log = nlpcal.simulate(300, noise=0.5, seed=7)
+    >>> list(log.columns), len(log)
+    (['bx', 'by', 'bz'], 300)
     """
     n = validation.count(n, "the number of samples (-n)")
     noise = validation.number(noise, "the noise (--noise)", minimum=0.0, unit="nT")
-    field = validation.number(field, "the field", positive=True, unit="nT")
+    field = validation.renamed(reference_field, field, "reference_field", "field")
+    field = validation.number(
+        ZHOU2010_FIELD_NT if field is None else field, "the field", positive=True, unit="nT"
+    )
     validation.choice(attitudes, "attitude set", [*ATTITUDES, *ATTITUDE_ALIASES])
     attitudes = ATTITUDE_ALIASES.get(attitudes, attitudes)
     rng = np.random.default_rng(seed)

@@ -83,12 +83,10 @@ def _smooth_noise(n: int, rng: np.random.Generator, width: int, peak: float) -> 
     return peak * series / (np.max(np.abs(series)) or 1.0)
 
 
-def write_replica(
-    out_dir, *, seed: int = 0, noise: float | None = None, n: int | None = None
-) -> list:
-    """Write a replica of the experiment of [1] to `out_dir`; returns the paths written.
+def replica(*, seed: int = 0, noise: float | None = None, n: int | None = None) -> tuple:
+    """A replica of the experiment of [1]: (logs, truth), logs a dict of file name -> table.
 
-    Files (columns time_s, bx, by, bz [nT], temp_c [degC], proton_nT [nT]):
+    Tables (columns time_s, bx, by, bz [nT], temp_c [degC], proton_nT [nT]):
 
     * base.csv: calibration log at t0 = 7.3 degC, `n` attitudes (default 600).
     * drift.csv: static sensor, temperature falling from 6.8 to 5.1 degC over one hour at 0.5 Hz,
@@ -97,12 +95,11 @@ def write_replica(
       100 nT.
     * sweep.csv: `n` attitudes while the temperature sweeps 4 -> 14 degC (beyond the paper: one log
       for the joint temperature calibration).
-    * truth.json: the true parameters, a, b, t0 and field.
 
-    The truth follows Eq. 2 and 9 of [1] with the paper's a = 7.0805 nT/degC, b = 50 906 nT and
-    t0 = 7.3 degC; the field F0 makes the static modulus exactly a t + b (`replica_field`).
+    The truth (written as truth.json) holds the true parameters, a, b, t0 and the field. It
+    follows Eq. 2 and 9 of [1] with the paper's a = 7.0805 nT/degC, b = 50 906 nT and t0 =
+    7.3 degC; the field F0 makes the static modulus exactly a t + b (`replica_field`).
     """
-    out_dir = Path(out_dir)
     noise = REPLICA_NOISE_NT if noise is None else float(noise)
     if noise < 0 or not np.isfinite(noise):
         raise InputError(f"--noise must be a non-negative number, got {noise}")
@@ -190,6 +187,16 @@ def write_replica(
             f"degC",
         },
     }
+    return logs, truth
+
+
+def write_replica(
+    out_dir, *, seed: int = 0, noise: float | None = None, n: int | None = None
+) -> list:
+    """Write the `replica` of the experiment of [1] to `out_dir`: its four logs and truth.json,
+    together (`Outputs`); returns the paths written."""
+    out_dir = Path(out_dir)
+    logs, truth = replica(seed=seed, noise=noise, n=n)
     with Outputs() as outputs:  # the five files appear together, or none of them
         for name, frame in logs.items():
             outputs.csv(out_dir / name, finite_table(frame))
