@@ -19,6 +19,8 @@ from .drift.fit import DriftFit
 from .drift.temperature import TemperatureCalibrationResult
 from .errors import InputError
 from .io.logs import Log, read_log
+from .io.output import aligned
+from .io.stream import LogStream
 from .models.liu2022 import rmse
 from .models.zhou2010 import correct
 from .results import load_any
@@ -28,6 +30,9 @@ from .statistics import field_statistics
 #: The columns `nlpcal apply` adds to a corrected log: |B1|, and the outlier flags.
 TOTAL_COLUMN = "b_total"
 OUTLIER_COLUMN = "outlier"
+#: 1 on the rows of a corrected log that are readings, 0 on those that are not (exact-zero
+#: vectors, repeats left out with --drop-invalid), which keep their raw values.
+VALID_COLUMN = "valid"
 #: Note when a log's temperatures lie further than this outside the fitted range. [degC]
 EXTRAPOLATION_NOTE_DEGC = 1.0
 #: References further apart than this fraction are named when a log is compared with one. [1]
@@ -163,32 +168,42 @@ class Correction:
     def temperature(self, log: Log) -> np.ndarray:
         """The log's temperatures [degC], with a note when they leave the fitted range."""
         values = log.values(self.temperature_column)
+        self.note_range(float(values.min()), float(values.max()))
+        return values
+
+    def note_range(self, low_seen: float, high_seen: float) -> None:
+        """A note when a log's temperatures, from `low_seen` to `high_seen` [degC], reach
+        beyond the range the temperature model was fitted over."""
         if self.drift is not None:
             low, high, what = *self.drift.temperature_range, "the drift fit"
         else:
             low, high = self.parameters.temperature_range  # type: ignore[union-attr]
             what = "the temperature calibration"
-        beyond = max(float(low) - float(values.min()), float(values.max()) - float(high))
+        beyond = max(float(low) - low_seen, high_seen - float(high))
         if np.isfinite(beyond) and beyond > EXTRAPOLATION_NOTE_DEGC:
             self.notes.append(
-                f"the log's temperatures {values.min():g} .. {values.max():g} degC "
+                f"the log's temperatures {low_seen:g} .. {high_seen:g} degC "
                 f"reach {beyond:.3g} degC beyond the range {low:g} .. {high:g} "
                 f"degC of {what}; the linear temperature model is extrapolated"
             )
-        return values
 
     def apply(self, log: Log) -> np.ndarray:
         """Corrected samples of the log. [base unit]"""
-        units.check_compatible(self.unit, log.base_unit, "the log", "the calibration")
+        temperature = self.temperature(log) if self.temperature_column is not None else None
+        return self.correct(log.samples, log.base_unit, temperature)
+
+    def correct(self, samples, base_unit: str, temperature=None) -> np.ndarray:
+        """Corrected `samples` [base_unit] (Eq. 4, after the temperature step with the
+        `temperature` of each sample [degC] when the correction has one)."""
+        units.check_compatible(self.unit, base_unit, "the log", "the calibration")
         if self.temperature_column is None:
             if self.parameters is None:
                 raise InputError("nothing to apply: give parameters or a drift file")
-            return correct(log.samples, self.parameters.model)  # Eq. 4 (at t0 with a model)
-        temperature = self.temperature(log)
+            return correct(samples, self.parameters.model)  # Eq. 4 (at t0 with a model)
         if isinstance(self.parameters, TemperatureCalibrationResult):
-            return self.parameters.apply(log.samples, temperature)
+            return self.parameters.apply(samples, temperature)
         params = None if self.parameters is None else self.parameters.model
-        return self.drift.correct(log.samples, temperature, params)  # type: ignore[union-attr]
+        return self.drift.correct(samples, temperature, params)  # type: ignore[union-attr]
 
 
 def outliers(correction: Correction, corrected) -> np.ndarray:
@@ -197,12 +212,64 @@ def outliers(correction: Correction, corrected) -> np.ndarray:
     or of this log's when the calibration does not record them. The centre is the calibration's
     constant reference field, else the median |B1| of this log."""
     magnitude = np.linalg.norm(corrected, axis=1)
+    centre, limit = outlier_bounds(correction, magnitude)
+    return np.abs(magnitude - centre) > limit
+
+
+def outlier_bounds(correction: Correction, magnitude) -> tuple:
+    """(centre, largest distance from it) of the corrected |B1| [base unit] of a log's readings
+    that are not outliers (`outliers`)."""
     robust = correction.parameters.robust if correction.parameters is not None else {}
     reference = correction.parameters.reference if correction.parameters is not None else None
     centre = reference.field if reference is not None and reference.mode == "constant" else None
-    residual = magnitude - (np.median(magnitude) if centre is None else float(centre))
-    spread = robust.get("residual_robust_std") or robust_std(residual)
-    return np.abs(residual) > OUTLIER_ROBUST_STDS * spread
+    centre = float(np.median(magnitude)) if centre is None else float(centre)
+    spread = robust.get("residual_robust_std") or robust_std(magnitude - centre)
+    return centre, OUTLIER_ROBUST_STDS * spread
+
+
+def corrected_chunks(
+    stream: LogStream,
+    correction: Correction,
+    precision=None,
+    bounds: tuple | None = None,
+    tally=None,
+):
+    """The chunks of a log corrected, to be written back (`nlpcal.io.output.write_frames`):
+    every row of numbers in its place, the readings corrected (Eq. 4, after the temperature
+    step), the rows that are not readings with their raw values, a magnitude column
+    TOTAL_COLUMN and a VALID_COLUMN of 1/0, and with `bounds` (`outlier_bounds`) an
+    OUTLIER_COLUMN. `precision` (`nlpcal.io.output.Precision`) is shown each chunk's field
+    cells before the chunk is written. The temperatures seen end in a note of `correction`
+    (`Correction.note_range`) once the log is read. `tally(measured, corrected)`, when given,
+    is called with the |B| of each chunk's readings before and after the correction. [base
+    unit]"""
+    seen = [np.inf, -np.inf]
+    temperature_column = stream.extra[0] if correction.temperature_column else None
+    for chunk in stream:
+        if precision is not None:
+            precision.observe(chunk.frame[column] for column in stream.columns)
+        valid = chunk.valid
+        temperature = None
+        if temperature_column is not None:
+            temperature = chunk.extras[temperature_column][valid]
+            if temperature.size:
+                seen = [min(seen[0], temperature.min()), max(seen[1], temperature.max())]
+        samples = chunk.raw[valid] * stream.factor
+        corrected = correction.correct(samples, stream.base_unit, temperature)
+        magnitude = np.linalg.norm(corrected, axis=1)
+        if tally is not None:
+            tally(np.linalg.norm(samples, axis=1), magnitude)
+        values = chunk.raw.copy()
+        values[valid] = units.from_base(corrected, stream.unit)
+        extra = {}
+        if bounds is not None:
+            flags = np.zeros(len(valid), dtype=bool)
+            centre, limit = bounds
+            flags[valid] = np.abs(magnitude - centre) > limit
+            extra[OUTLIER_COLUMN] = flags
+        yield aligned(chunk.frame, stream.columns, values, valid, TOTAL_COLUMN, VALID_COLUMN, extra)
+    if temperature_column is not None and np.isfinite(seen[0]):
+        correction.note_range(float(seen[0]), float(seen[1]))
 
 
 def read_log_for(path, correction: Correction, *, reference_column=None, **kw) -> Log:

@@ -105,8 +105,8 @@ def test_apply_reproduces_eq4_and_keeps_other_columns(log_csv, tmp_path, capsys)
     assert code == 0, err
     out = pd.read_csv(corrected)
     raw = pd.read_csv(log_csv)
-    assert list(out.columns) == ["bx", "by", "bz", "proton_nT", "note", "b_total"]
-    assert (out["note"] == "lab").all()
+    assert list(out.columns) == ["bx", "by", "bz", "proton_nT", "note", "b_total", "valid"]
+    assert (out["note"] == "lab").all() and (out["valid"] == 1).all()
     model = Zhou2010Parameters.from_dict(json.loads(params.read_text())["parameters"])
     expected = correct(raw[["bx", "by", "bz"]].to_numpy(), model)
     np.testing.assert_allclose(out[["bx", "by", "bz"]].to_numpy(), expected, rtol=1e-9)

@@ -306,10 +306,11 @@ def test_apply_writes_the_log_back_in_its_own_layout(tmp_path, capsys):
     assert len(body) == len(SAMPLES)
     for original, new in zip(rows, body):
         before, after = original.split(";"), new.split(";")
-        assert len(after) == len(before) + 1  # b_total appended, no header added
+        assert len(after) == len(before) + 2  # b_total and valid appended, no header added
         assert after[0] == before[0] and after[4:6] == before[4:6]  # text untouched ("00")
         assert "," in after[1] and "." not in after[1]  # decimal comma kept
-    total = np.array([float(line.split(";")[-1].replace(",", ".")) for line in body])
+    assert all(line.split(";")[-1] == "1" for line in body)
+    total = np.array([float(line.split(";")[-2].replace(",", ".")) for line in body])
     assert total.std() < 0.05 * np.linalg.norm(SAMPLES, axis=1).std()
 
 
@@ -321,7 +322,7 @@ def test_apply_keeps_whitespace_and_headerless_logs_as_they_were(tmp_path, capsy
     code, out, err = run(capsys, "apply", params, log)
     assert code == 0, err
     first = out.splitlines()[0].split(" ")
-    assert len(first) == 4 and all(float(v) for v in first)
+    assert len(first) == 5 and all(float(v) for v in first[:4]) and first[4] == "1"
 
 
 # --- the command line -----------------------------------------------------------------------

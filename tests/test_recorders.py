@@ -12,6 +12,7 @@ import struct
 import sys
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from nlpcal.cli import main
@@ -503,3 +504,45 @@ def test_text_logs_that_only_look_like_recorded_ones_stay_text(tmp_path):
     assert log.columns == ["magnetic_field_x", "magnetic_field_y", "magnetic_field_z"]
     assert (log.unit, log.unit_source) == ("nT", "assumed")
     np.testing.assert_allclose(log.samples, samples)
+
+
+def _bin(path, samples):
+    pytest.importorskip("pymavlink")
+    path.write_bytes(dataflash_log([np.rint(samples / NT_PER_COUNT)]))
+
+
+def _mat(path, samples):
+    write_v5(path, {"mag": samples})
+
+
+def _capture(path, samples):
+    path.write_text(motioncal_text(samples))
+
+
+@pytest.mark.parametrize(
+    "name, writer", [("log.bin", _bin), ("flight.mat", _mat), ("capture.txt", _capture)]
+)
+def test_apply_on_a_recorded_log_writes_one_row_per_input_row(tmp_path, capsys, name, writer):
+    """apply reads a recorded log whole and writes every row in its place: the zero vector (not
+    a reading) with its raw values and valid 0, the readings corrected to the true field."""
+    samples, truth = make_log(n=2000, noise=20.0, seed=5, truth=TRUTH)
+    samples[700] = 0.0
+    path = tmp_path / name
+    writer(path, samples)
+    calibrated(capsys, tmp_path, path)
+    output = tmp_path / "applied.csv"
+    code, out, err = run(capsys, "apply", tmp_path / "out.json", path, "-o", output)
+    assert code == 0, err
+    written = pd.read_csv(output)
+    assert len(written) == len(samples) and list(written.columns[-2:]) == ["b_total", "valid"]
+    expected_valid = np.ones(len(samples), dtype=int)
+    expected_valid[700] = 0
+    np.testing.assert_array_equal(written["valid"], expected_valid)
+    assert (written.loc[700, read_log(path).columns] == 0).all()
+    # the field per row, to the noise and the format's resolution (0.1 uT or 1 mG: 100 nT steps)
+    sigma = np.hypot(20.0, NT_PER_COUNT / np.sqrt(12.0))  # [nT] per axis
+    readings = written["valid"] == 1
+    scale = {"log.bin": NT_PER_COUNT, "capture.txt": NT_PER_COUNT, "flight.mat": 1.0}[name]
+    total = written.loc[readings, "b_total"].to_numpy() * scale  # [nT]
+    true_total = np.linalg.norm(truth[readings.to_numpy()], axis=1)
+    assert np.max(np.abs(total - true_total)) < 8 * sigma

@@ -95,7 +95,7 @@ def test_parquet_reads_like_csv_in_memory_and_streamed(tmp_path, frame, capsys):
     corrected = tmp_path / "corrected.csv"
     code, _, err = run(capsys, "apply", out_parquet, tmp_path / "log_1.parquet", "-o", corrected)
     assert code == 0, err
-    assert list(pd.read_csv(corrected).columns) == [*frame.columns, "b_total"]
+    assert list(pd.read_csv(corrected).columns) == [*frame.columns, "b_total", "valid"]
 
 
 def test_a_bad_parquet_file_is_bad_input_in_one_line(tmp_path, frame, capsys, monkeypatch):

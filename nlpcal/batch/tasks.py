@@ -11,19 +11,18 @@ import numpy as np
 
 from ..calibration import CalibrationResult, calibrate_log
 from ..correction import (
-    OUTLIER_COLUMN,
-    TOTAL_COLUMN,
     Correction,
+    corrected_chunks,
     load_parameters,
-    outliers,
+    outlier_bounds,
     read_log_for,
 )
 from ..drift.fit import DriftFit
 from ..errors import InputError, QualityError, SolveError, WriteError
-from ..io import read_log, read_table, write_bytes_atomic, write_table
-from ..io.sources import is_parquet, write_parquet
-from ..io.strict import finite_table
-from ..statistics import field_statistics
+from ..io import Outputs, read_log
+from ..io.output import Precision, write_frames
+from ..io.stream import LogStream
+from ..statistics import MagnitudeStats
 from ..verdict import worst
 
 #: Status of a log -> the exit status of the single command.
@@ -134,32 +133,46 @@ class ApplyTask:
                     f"calibration failed, or it was not calibrated)"
                 )
             parameters = load_parameters(params_path) if params_path else None
-            options = {k: self.read_options.get(k) for k in ("header", "variable", "instance")}
-            table = read_table(log_path, **options, text=True)
-            correction = Correction.plan(
-                parameters,
-                DriftFit.load(self.drift) if self.drift else None,
-                self.temperature_column,
-                log_columns=table.columns,
-            )
-            log = read_log_for(table, correction, **self.read_options)
-            corrected = correction.apply(log)
-            extra = {}
-            if self.flag_outliers:
-                extra[OUTLIER_COLUMN] = flags = outliers(correction, corrected)
-                row["outliers"] = int(flags.sum())
-            frame = log.written_back(corrected, TOTAL_COLUMN, extra)
-            if is_parquet(log_path):
-                write_bytes_atomic(output, write_parquet(finite_table(frame)))
-            else:  # in the layout of the log, as `nlpcal apply` writes it
-                write_table(frame, log.layout, output)
+            drift = DriftFit.load(self.drift) if self.drift else None
+            options = dict(self.read_options)
+            formats = {key: options.get(key) for key in ("header", "variable", "instance")}
+            with LogStream(log_path, **formats) as stream:
+                correction = Correction.plan(
+                    parameters, drift, self.temperature_column, log_columns=stream.table_columns
+                )
+                column = correction.temperature_column
+                role = {"the temperature column of the calibration": column} if column else {}
+                stream.open(
+                    options.get("columns"),
+                    unit=options.get("unit"),
+                    fallback_unit=correction.fallback_unit,
+                    extra_columns=role,
+                    drop_invalid=bool(options.get("drop_invalid")),
+                )
+                bounds = None
+                if self.flag_outliers:  # the whole log first, for the centre and spread
+                    log = read_log_for(stream.readable, correction, **self.read_options)
+                    magnitude = np.linalg.norm(correction.apply(log), axis=1)
+                    bounds = outlier_bounds(correction, magnitude)
+                    row["outliers"] = int(np.sum(np.abs(magnitude - bounds[0]) > bounds[1]))
+                measured, corrected = MagnitudeStats(), MagnitudeStats()
+
+                def tally(before, after):
+                    measured.add(before)
+                    corrected.add(after)
+
+                chunks = corrected_chunks(stream, correction, Precision(), bounds, tally)
+                with Outputs() as outputs:  # in the layout of the log, as `nlpcal apply` writes
+                    write_frames(outputs, output, chunks, stream.layout)
             row.update(
                 output=str(output),
-                n_samples=log.n,
-                std_measured=field_statistics(log.samples)["std"],
-                std_corrected=float(np.std(np.linalg.norm(corrected, axis=1))),
-                warnings=WARNING_SEPARATOR.join([*log.warnings, *log.notes, *correction.notes]),
-                unit=log.base_unit,
+                n_samples=measured.n,
+                std_measured=measured.result()["std"],
+                std_corrected=corrected.result()["std"],
+                warnings=WARNING_SEPARATOR.join(
+                    [*stream.warnings, *stream.notes, *stream.summary(), *correction.notes]
+                ),
+                unit=stream.base_unit,
             )
             status_row(row, "ok")
         except Exception as exc:

@@ -21,11 +21,13 @@ from .common import (
     add_log_arguments,
     add_params_argument,
     add_plot_argument,
+    add_precision_argument,
     add_reference_model_arguments,
     check_plot,
     emit_json,
     log_options,
     report_log,
+    show_progress,
     table_options,
     tell,
     tell_written,
@@ -35,6 +37,7 @@ from .common import (
 
 #: The columns `apply` adds (the names `nlpcal.correction` writes; here for the help alone).
 TOTAL_COLUMN = "b_total"
+VALID_COLUMN = "valid"
 OUTLIER_COLUMN = "outlier"
 
 
@@ -74,12 +77,19 @@ def _register_apply(sub):
         help="correct a log with a calibration (writes the log back, field columns corrected)",
         description=f"""\
 Correct the field columns of a log with the parameters of 'nlpcal calibrate' (Eq. 4) and add
-their magnitude as a last column '{TOTAL_COLUMN}'. The log is written back in the layout it was
-read in (delimiter, header row or not, decimal mark, leading comment lines); every other column
-passes through unchanged, character for character. Rows reading exactly (0, 0, 0), and with
---drop-invalid rows with missing values, are left out (and counted on stderr).""",
+their magnitude '{TOTAL_COLUMN}' and a column '{VALID_COLUMN}' as last columns. Every row of numbers
+is written, in its place: rows that are not readings (exactly (0, 0, 0), and with --drop-invalid
+repeats of the row before) keep their raw values and have {VALID_COLUMN} 0. With --drop-invalid,
+rows with missing or non-numeric values are left out, counted and their data rows named on
+stderr. An output named *.parquet is a Parquet file; any other output is text in the layout the
+log was read in (delimiter, header row or not, decimal mark, leading comment lines), every other
+column passing through unchanged, character for character, and the numbers written with one
+significant digit more than the log's carry (every digit from Parquet; or --precision). The log
+is read and written in chunks, in bounded memory whatever its size (with --plot or
+--flag-outliers it is also read whole first); a progress line shows on a terminal.""",
         examples=(
             "nlpcal apply params.json log.csv -o corrected.csv",
+            "nlpcal apply params.json log.csv -o corrected.parquet",
             "nlpcal apply params.json mag.txt > corrected.txt     # whitespace in, whitespace out",
             "nlpcal apply params.json log.csv --drift drift.json --temperature-column temp_c",
         ),
@@ -95,15 +105,18 @@ passes through unchanged, character for character. Rows reading exactly (0, 0, 0
         "-o",
         "--output",
         metavar="CORRECTED",
-        help="write the corrected log here (stdout when absent)",
+        help="write the corrected log here: Parquet for *.parquet, else text in the log's "
+        "layout (stdout when absent)",
     )
+    add_precision_argument(parser)
     add_plot_argument(parser)
     add_reference_model_arguments(parser)
     parser.set_defaults(func=run_apply)
 
 
-def correction_for(args, table, require_temperature: bool):
-    """The Correction that --params/PARAMS.json, --drift and --temperature-column ask for."""
+def correction_for(args, columns, require_temperature: bool):
+    """The Correction that --params/PARAMS.json, --drift and --temperature-column ask for, to
+    be applied to a log with these `columns`."""
     from ..correction import Correction, load_parameters
     from ..drift.fit import DriftFit
 
@@ -114,39 +127,72 @@ def correction_for(args, table, require_temperature: bool):
         parameters,
         drift,
         args.temperature_column,
-        log_columns=table.columns,
+        log_columns=columns,
         require_temperature=require_temperature,
     )
 
 
 def run_apply(args) -> int:
-    from ..correction import outliers, read_log_for
+    import numpy as np
+
+    from ..correction import corrected_chunks, outlier_bounds, read_log_for
     from ..errors import InputError
-    from ..io import Outputs, check_output_path, read_table, table_text
-    from ..io.strict import finite_table
+    from ..io import Outputs, check_output_path
+    from ..io.output import Precision, check_table_output, is_parquet_output, write_frames
+    from ..io.stream import LogStream
 
     check_output_path(args.output, args.log, args.params, args.drift)
     check_plot(args)
-    table = read_table(args.log, **table_options(args), text=True)
-    correction = correction_for(args, table, require_temperature=True)
-    if args.plot and correction.parameters is None:
-        raise InputError("--plot needs parameters (PARAMS.json), not a drift file alone")
-    log = read_log_for(table, correction, **log_options(args))
-    report_log(log)
-    corrected = correction.apply(log)
+    check_table_output(args.output)
+    precision = Precision(args.precision)
+    progress = show_progress(f"applying {args.log}", args.output)
+    with LogStream(args.log, **table_options(args), progress=progress) as stream:
+        correction = correction_for(args, stream.table_columns, require_temperature=True)
+        if args.plot and correction.parameters is None:
+            raise InputError("--plot needs parameters (PARAMS.json), not a drift file alone")
+        column = correction.temperature_column
+        stream.open(
+            args.columns,
+            unit=args.unit,
+            fallback_unit=correction.fallback_unit,
+            extra_columns={"the temperature column of the calibration": column} if column else {},
+            drop_invalid=args.drop_invalid,
+        )
+        report_log(stream)
+        log = bounds = None
+        if args.plot or args.flag_outliers:  # the whole log first, in memory
+            log = read_log_for(stream.readable, correction, **log_options(args))
+            corrected = correction.apply(log)
+            if args.flag_outliers:
+                bounds = outlier_bounds(correction, np.linalg.norm(corrected, axis=1))
+        chunks = corrected_chunks(stream, correction, precision, bounds)
+        flagged = FlagCount(chunks, OUTLIER_COLUMN if args.flag_outliers else None)
+        with progress, Outputs() as outputs:
+            write_frames(outputs, args.output, flagged, stream.layout, precision)
+            if log is not None:
+                write_plot(outputs, args, log, correction.parameters, corrected)
+    tell(stream.summary())
     tell(correction.notes)
-    extra = {}
     if args.flag_outliers:
-        extra[OUTLIER_COLUMN] = flags = outliers(correction, corrected)
-        warn(f"{int(flags.sum())} of {len(flags)} rows flagged as outliers")
-    frame = log.written_back(corrected, TOTAL_COLUMN, extra)
-    with Outputs() as outputs:
-        outputs.text(args.output, table_text(finite_table(frame), log.layout))
-        write_plot(outputs, args, log, correction.parameters, corrected)
+        warn(f"{flagged.flags} of {stream.readings} readings flagged as outliers")
     if args.output:
-        warn(f"wrote {len(frame)} corrected rows to {args.output} ({log.layout.describe()})")
+        what = "Parquet" if is_parquet_output(args.output) else stream.layout.describe()
+        warn(f"wrote {stream.rows} rows to {args.output} ({what})")
     tell_written(args.plot)
     return 0
+
+
+class FlagCount:
+    """The chunks of a corrected log passed on, the True values of their `column` counted."""
+
+    def __init__(self, chunks, column: str | None):
+        self.chunks, self.column, self.flags = chunks, column, 0
+
+    def __iter__(self):
+        for chunk in self.chunks:
+            if self.column is not None:
+                self.flags += int(chunk[self.column].sum())
+            yield chunk
 
 
 # --- stats --------------------------------------------------------------------------------------
@@ -195,7 +241,7 @@ def run_stats(args) -> int:
 
     table = read_table(args.log, **table_options(args))
     if args.params or args.drift or args.temperature_column:
-        correction = correction_for(args, table, require_temperature=False)
+        correction = correction_for(args, table.columns, require_temperature=False)
         log = read_log_for(table, correction, **log_options(args))
     else:
         correction = None

@@ -37,6 +37,7 @@ from .common import (
     progress,
     report_log,
     say,
+    show_progress,
     solver_log,
     tell_written,
     warn,
@@ -163,7 +164,9 @@ them (say, the sensor was never turned over); --allow-unidentifiable writes them
         "--low-memory",
         action="store_true",
         help="stream the log into a memory-mapped temporary file in chunks, so "
-        "that logs larger than memory can be calibrated",
+        "that logs larger than memory can be calibrated (the default for text and Parquet "
+        "files, unless --plot or a geomagnetic model with position or time columns needs the "
+        "whole table; stdin and recorded formats are read whole)",
     )
     add_loss_arguments(parser)
     add_threads_argument(parser)
@@ -228,11 +231,19 @@ def _read_for_calibration(args, extra):
     from ..errors import InputError
     from ..io import read_log
     from ..io.lazy import read_lazy_log
+    from ..io.recorders import is_recorded
 
     if not args.scheduler:
-        return read_log(
-            args.log, **log_options(args), extra_columns=extra, low_memory=args.low_memory
-        )
+        options = log_options(args)
+        model = options["reference_model"]
+        per_sample = model is not None and (model.numeric_columns() or model.time_column)
+        # the lean chunked reading by default: as fast, a fraction of the memory; the whole
+        # table for what needs it (a figure's time axis, a model's position and time columns)
+        # and for logs read whole anyway (recorded formats; stdin, which may be one)
+        whole = per_sample or args.plot or args.log == "-" or is_recorded(args.log)
+        lean = args.low_memory or not whole
+        with show_progress(f"reading {args.log}") as bar:
+            return read_log(args.log, **options, extra_columns=extra, low_memory=lean, progress=bar)
     if args.low_memory or args.plot:
         flag = "--low-memory" if args.low_memory else "--plot"
         raise InputError(
@@ -275,9 +286,7 @@ def _run_calibrate(args) -> int:
     warn_ignored(args, joint=args.method == "joint" or bool(temperature))
     started = time.perf_counter()
     extra = {"--temperature-column": args.temperature_column} if args.temperature_column else {}
-    progress(f"reading {args.log} ...")
     log = _read_for_calibration(args, extra)
-    progress("")
     report_log(log)
     read_s = time.perf_counter() - started
     started = time.perf_counter()

@@ -141,6 +141,16 @@ def progress(message: str, done: bool = False) -> None:
     sys.stderr.flush()
 
 
+def show_progress(label: str, output=None):
+    """The progress line of a pass (`nlpcal.io.progress`): on a terminal stderr, not with -q,
+    and not while the data go to the same terminal on stdout."""
+    from ..io.progress import Progress
+
+    on_screen = (output is None or str(output) == "-") and sys.stdout.isatty()
+    enabled = VERBOSITY >= 0 and sys.stderr.isatty() and not on_screen
+    return Progress(label, enabled=enabled)
+
+
 def add_sensor_id_argument(parser) -> None:
     """--sensor-id: the identity of the sensor, recorded in the result and in exports."""
     parser.add_argument(
@@ -442,13 +452,24 @@ def emit_json(document, output) -> None:
     write_json_atomic(output, strict(document))
 
 
-def emit_csv(frame, output, float_format: str | None = None) -> None:
-    """A table to -o or to stdout (`nlpcal.io.files.Outputs`); exact values unless
-    float_format; finite (`nlpcal.io.strict`)."""
-    from ..io.files import write_csv_atomic
-    from ..io.strict import finite_table
+def add_precision_argument(parser):
+    parser.add_argument(
+        "--precision",
+        type=int,
+        metavar="N",
+        help="significant digits of the numbers written to a text output (default: one more "
+        "than the input's numbers carry; every digit of a float64 from Parquet input)",
+    )
 
-    write_csv_atomic(output, finite_table(frame), float_format)
+
+def emit_table(frame, output, digits: int | None = None) -> None:
+    """A table to -o or to stdout: Parquet for *.parquet, else CSV (`nlpcal.io.write_table`);
+    every digit of a float64 unless `digits` (significant); finite (`nlpcal.io.strict`)."""
+    from ..io import Precision, write_table
+    from ..io.output import check_table_output
+
+    check_table_output(output)
+    write_table(frame, None, output, Precision(digits))
 
 
 #: Where the unit of a log read with a calibration comes from by default (`add_log_arguments`).

@@ -13,6 +13,7 @@ from .common import (
     add_field_argument,
     add_input_arguments,
     add_place_arguments,
+    add_precision_argument,
     emit_json,
     report_log,
     say,
@@ -135,8 +136,13 @@ Apply a compass calibration and compute roll, pitch and heading [deg] (Eq. 10 of
     )
     add_place_arguments(att, columns=False)
     att.add_argument(
-        "-o", "--output", metavar="ATTITUDE", help="the log with the angles (stdout when absent)"
+        "-o",
+        "--output",
+        metavar="ATTITUDE",
+        help="the log with the angles: Parquet for *.parquet, else text in the log's layout "
+        "(stdout when absent)",
     )
+    add_precision_argument(att)
     att.set_defaults(func=run_attitude)
 
     ev = add_command(
@@ -284,9 +290,12 @@ def run_calibrate(args) -> int:
 
 def run_attitude(args) -> int:
     from ..compass import CompassCalibration, attitude
-    from ..io import check_output_path, read_sensor_log, read_table, write_table
+    from ..io import Precision, check_output_path, read_sensor_log, read_table, write_table
+    from ..io.output import check_table_output
 
     check_output_path(args.output, args.log, args.calibration)
+    check_table_output(args.output)
+    precision = Precision(args.precision)
     calibration = CompassCalibration.load(args.calibration)
     recorded = calibration.input
     options = _sensor_options(args)
@@ -308,7 +317,8 @@ def run_attitude(args) -> int:
     )
     if replaced:
         warn(f"the log already has {', '.join(replaced)}; replaced them")
-    write_table(frame, log.layout, args.output)  # the log's own columns pass through unchanged
+    precision.observe(table.frame[c] for c in [*log.mag_columns, *log.acc_columns])
+    write_table(frame, log.layout, args.output, precision)  # the log's columns pass through
     return 0
 
 

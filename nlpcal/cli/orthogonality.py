@@ -190,7 +190,7 @@ def _run_worst_case(args) -> int:
 def _run_map(args) -> int:
     from ..errors import InputError
     from ..io import Outputs, check_output_path
-    from ..io.strict import finite_table
+    from ..io.output import Precision, check_table_output, write_frames
     from ..orthogonality import error_map, error_table, worst_case
     from ..plots import orthogonality_map_png, require_matplotlib
 
@@ -203,6 +203,7 @@ def _run_map(args) -> int:
         check_output_path(args.output)
     if args.csv and args.csv != "-":
         check_output_path(args.csv)
+        check_table_output(args.csv)
     theta, phi, error = error_map(args.angles_deg, args.reference_field, args.step_deg)
     png = None
     if args.output:
@@ -219,7 +220,7 @@ def _run_map(args) -> int:
         if png is not None:
             outputs.bytes(args.output, png)
         if table is not None:
-            outputs.csv(args.csv, finite_table(table), "%.10g")
+            write_frames(outputs, args.csv, [table], precision=Precision(10))
     if png is not None:
         warn(f"wrote {args.output} (grid max |dB| = {abs(error).max():.4f} nT)")
     if table is not None and args.csv != "-":

@@ -66,7 +66,7 @@ def run(args) -> int:
 
     check_output_path(args.output, args.params, args.log, args.drift)
     table = read_table(args.log, **table_options(args))
-    correction = correction_for(args, table, require_temperature=True)
+    correction = correction_for(args, table.columns, require_temperature=True)
     options = log_options(args)
     stored = stored_reference_column(correction.parameters, options, table.columns)
     if stored:

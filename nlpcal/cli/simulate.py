@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .common import add_command, add_field_argument, emit_csv, warn
+from .common import add_command, add_field_argument, emit_table, warn
 
 ATTITUDE_NAMES = ("clustered", "tilt", "tilt_band", "turntable", "uniform")
 
@@ -74,7 +74,16 @@ qiu2017 write a folder of logs that replicate those papers' experiments.""",
         "-o",
         "--output",
         metavar="PATH",
-        help="output CSV (stdout when absent); a folder for folder presets",
+        help="output: Parquet for *.parquet, else CSV (stdout when absent); a folder for "
+        "folder presets",
+    )
+    parser.add_argument(
+        "--precision",
+        type=int,
+        default=10,
+        metavar="N",
+        help="significant digits of the numbers of a CSV output (default 10: 1e-5 nT in a "
+        "50 000 nT field)",
     )
     parser.set_defaults(func=run)
 
@@ -116,7 +125,7 @@ def run(args) -> int:
         attitudes=args.attitudes,
         max_tilt_deg=args.max_tilt_deg,
     )
-    emit_csv(frame, args.output, "%.10g")  # 10 digits: 1e-5 nT in a 50 000 nT field
+    emit_table(frame, args.output, args.precision)
     if args.output:
         warn(f"wrote {len(frame)} samples to {args.output}")
     return 0

@@ -4,7 +4,9 @@
 strict JSON (no NaN), `layout` detects how a delimited text log is laid out, `tables` reads it
 (or, through `recorders`, a MotionCal capture, a MATLAB .mat file or an ArduPilot DataFlash log)
 and picks its columns, `rows` screens rows that are not readings, `logs` turns a table into
-samples, reference and extra columns in base units.
+samples, reference and extra columns in base units, `stream` reads a log in chunks with every
+row in its place, `output` writes tables (Parquet or text by the extension, at the precision
+the data warrant), `progress` shows how far a long pass has got.
 """
 
 from .files import (
@@ -23,6 +25,7 @@ from .files import (
 from .layout import Layout, detect_layout
 from .logs import Log, read_columns, read_log
 from .mapped import csv_to_memmap
+from .output import Precision, is_parquet_output, write_frames, write_table
 from .sensors import SensorLog, read_sensor_log
 from .tables import (
     Table,
@@ -31,14 +34,13 @@ from .tables import (
     numeric_columns,
     read_table,
     resolve_columns,
-    table_text,
-    write_table,
 )
 
 __all__ = [
     "Layout",
     "Log",
     "Outputs",
+    "Precision",
     "SensorLog",
     "Table",
     "check_distinct_outputs",
@@ -47,6 +49,7 @@ __all__ = [
     "csv_engine",
     "csv_to_memmap",
     "detect_layout",
+    "is_parquet_output",
     "json_text",
     "numeric_columns",
     "plain",
@@ -57,9 +60,9 @@ __all__ = [
     "read_table",
     "resolve_columns",
     "sha256_file",
-    "table_text",
     "write_bytes_atomic",
     "write_csv_atomic",
+    "write_frames",
     "write_json_atomic",
     "write_table",
     "write_text_atomic",

@@ -182,6 +182,16 @@ class Log:
         return self.extras[self.column(column)]
 
 
+def format_unit(chosen, notes: list, table: Table | None = None) -> str | None:
+    """The unit the file format fixes for the field columns `chosen`: the table's
+    (`Table.field_unit`) when they are the columns its format fixes (the unit of other columns
+    is not), else a ROS column's (`nlpcal.io.recorders.declared_unit`, said in `notes`), else
+    None."""
+    if table is not None and table.field_unit and table.field_columns in (None, list(chosen)):
+        return table.field_unit
+    return declared_unit(chosen, notes)
+
+
 def sensor_unit(
     columns, unit, fallback, notes, what="magnetometer", flag="--unit", declared=None
 ) -> tuple:
@@ -307,6 +317,7 @@ def read_log(
     text: bool = False,
     variable: str | None = None,
     instance: int | None = None,
+    progress=None,
 ) -> Log:
     """Read, validate and convert a field log.
 
@@ -339,6 +350,8 @@ def read_log(
     low_memory : bool
         Stream the columns into a memory-mapped temporary file, O(chunk) memory (`--low-memory`;
         text and Parquet logs, a recorded format is read whole, with a note).
+    progress : Progress, optional
+        Told how far a `low_memory` read has come (`nlpcal.io.progress.Progress`).
     fallback_unit : str
         The unit assumed when nothing names one.
     header : bool, optional
@@ -392,12 +405,18 @@ def read_log(
 
         def scale(chosen) -> float:  # the unit, once the columns are known
             decided["unit"], decided["how"] = sensor_unit(
-                chosen, unit, fallback_unit, notes, declared=declared_unit(chosen, notes)
+                chosen, unit, fallback_unit, notes, declared=format_unit(chosen, notes)
             )
             return units.field_factor(decided["unit"])
 
         mapped = csv_to_memmap(
-            path, columns, extra, header=header, drop_invalid=drop_invalid, scale=scale
+            path,
+            columns,
+            extra,
+            header=header,
+            drop_invalid=drop_invalid,
+            scale=scale,
+            progress=progress,
         )
         chosen, extra = mapped.columns[:3], mapped.columns[3:]
         named = dict(zip(requested, extra))
@@ -431,9 +450,7 @@ def read_log(
         values, kept, dropped = screened(
             table, chosen + extra + times_at, drop_invalid, notes, checked
         )
-        fixed = table.field_columns in (None, chosen)  # the unit of other columns is not
-        declared = table.field_unit if fixed else None
-        declared = declared or declared_unit(chosen, notes)
+        declared = format_unit(chosen, notes, table)
         unit, how = sensor_unit(chosen, unit, fallback_unit, notes, declared=declared)
         frame, engine, layout, source = table.frame, table.engine, table.layout, table.source
         samples = values[:, :3] * units.field_factor(unit)

@@ -15,7 +15,7 @@ import pandas as pd
 from ..errors import InputError
 from .layout import STDIN, Layout
 from .rows import RowScreen
-from .tables import column_name, log_files, numeric_columns, unreadable
+from .tables import column_name, file_shares, log_files, numeric_columns, unreadable
 
 
 @dataclass
@@ -37,7 +37,7 @@ class MappedColumns:
     source: str = ""
 
 
-def _spool_stdin(directory=None):
+def spool_stdin(directory=None):
     """Standard input copied into a temporary file, so that it can be read in chunks."""
     spool = tempfile.NamedTemporaryFile(dir=directory, suffix=".log")
     shutil.copyfileobj(sys.stdin.buffer, spool)
@@ -55,6 +55,7 @@ def csv_to_memmap(
     scale=1.0,
     chunk_rows: int = 250_000,
     directory=None,
+    progress=None,
 ) -> MappedColumns:
     """Stream the field columns (and `extra_columns`) of a log into a memory-mapped array.
 
@@ -63,9 +64,10 @@ def csv_to_memmap(
     The three field columns come first and are multiplied by `scale` (a unit conversion) on the
     way (`scale` a number, or a function of the three column names); the extra columns are kept
     as they are. Rows are screened as in `read_log`: zero vectors
-    left out, repeated vectors counted (dropped with drop_invalid).
+    left out, repeated vectors counted (dropped with drop_invalid). `progress`
+    (`nlpcal.io.progress.Progress`) is told how many bytes of the files were read.
     """
-    spool = _spool_stdin(directory) if str(path) == "-" else None
+    spool = spool_stdin(directory) if str(path) == "-" else None
     try:
         notes: list = []
         files = log_files(spool.name if spool else path, header, STDIN if spool else None, notes)
@@ -76,12 +78,12 @@ def csv_to_memmap(
         factors = np.array([factor] * 3 + [1.0] * (len(wanted) - 3))
         screen = RowScreen(drop_repeats=drop_invalid)
         store = tempfile.TemporaryFile(dir=directory)
-        rows = dropped = 0
+        rows = dropped = missing = 0
         part = first
         try:
-            for part in files:
+            for part, read in file_shares(files, progress):
                 before = 0  # data rows of this file in the chunks before
-                for chunk in part.chunks(wanted, chunk_rows):
+                for chunk in part.chunks(wanted, chunk_rows, read=read):
                     numeric = numeric_columns(
                         chunk,
                         wanted,
@@ -94,6 +96,7 @@ def csv_to_memmap(
                     data_rows = rows + dropped + np.flatnonzero(numeric.kept) + 1
                     keep = screen.keep(numeric.values[:, :3], data_rows)
                     dropped += numeric.dropped + int((~keep).sum())
+                    missing += numeric.dropped
                     values = numeric.values[keep]
                     rows += values.shape[0]
                     store.write(np.ascontiguousarray(values * factors).tobytes())
@@ -111,6 +114,8 @@ def csv_to_memmap(
     if rows == 0:
         store.close()
         raise InputError(f"{name}: no data rows")
+    if missing:  # as `nlpcal.io.logs.screened` says it
+        notes.append(f"dropped {missing} row(s) with missing or non-numeric values")
     mapped = np.memmap(store, dtype=np.float64, mode="r", shape=(rows, len(wanted)))
     return MappedColumns(
         values=mapped,

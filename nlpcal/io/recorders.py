@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import pandas as pd
 
 from ..errors import InputError
-from . import dataflash, motioncal
+from . import dataflash, motioncal, sources
 from .dataflash import is_dataflash, read_dataflash
 from .layout import head_bytes
 from .matlab import is_mat, read_mat
@@ -85,12 +85,15 @@ class Recorded:
 
 
 def is_recorded(path) -> bool:
-    """Whether a file named by `path` (not stdin, a pattern or a folder) is in a recorded format
-    read whole (a MotionCal capture, a .mat file, a DataFlash log)."""
+    """Whether a log named by `path` (a file, a glob pattern or a folder; not stdin) is, or
+    holds, a file in a recorded format read whole (a MotionCal capture, a .mat file, a DataFlash
+    log)."""
     text = str(path)
-    if text == "-" or not os.path.isfile(text):
+    if text == "-":
         return False
-    return kind(head_bytes(text)) is not None
+    if sources.is_pattern(text):
+        return any(is_recorded(item) for item in sources.log_paths(text))
+    return os.path.isfile(text) and kind(head_bytes(text)) is not None
 
 
 def refuse_streaming(name: str, source) -> None:

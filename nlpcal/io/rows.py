@@ -31,6 +31,13 @@ def _runs(flags: np.ndarray) -> tuple:
     return starts, np.flatnonzero(edges == -1) - starts
 
 
+def quoted_rows(count: int, rows: list) -> str:
+    """Row numbers for a message: "5, 17" of the first QUOTED_ROWS `rows`, with ", ..." when
+    `count` rows are meant."""
+    more = ", ..." if count > len(rows) else ""
+    return ", ".join(str(r) for r in rows) + more
+
+
 class RowScreen:
     """Screens the field vectors of a log, chunk after chunk, and says what it left out.
 
@@ -93,16 +100,22 @@ class RowScreen:
         if data_rows.shape[0]:
             self._previous_row = int(data_rows[-1])
 
-    def notes(self) -> list:
-        """What was left out or looks wrong, one sentence each."""
+    def notes(self, kept: bool = False) -> list:
+        """What was left out or looks wrong, one sentence each; `kept`: the rows that are not
+        readings were kept in place, marked (`nlpcal apply`'s `valid` column), not left out."""
         notes = []
         if self.zeros:
-            where = ", ".join(str(r) for r in self.zero_rows)
-            more = ", ..." if self.zeros > len(self.zero_rows) else ""
-            notes.append(
-                f"left out {self.zeros} row(s) whose field vector is exactly (0, 0, 0) (data "
-                f"row {where}{more}): a logger's start-up or no-data record, not a reading"
-            )
+            where = quoted_rows(self.zeros, self.zero_rows)
+            what = f"{self.zeros} row(s) whose field vector is exactly (0, 0, 0) (data row {where})"
+            if kept:
+                notes.append(
+                    f"{what} are a logger's start-up or no-data record, not readings: kept with "
+                    f"their raw values, marked valid 0"
+                )
+            else:
+                notes.append(
+                    f"left out {what}: a logger's start-up or no-data record, not a reading"
+                )
         many = self.repeats >= REPEATS_NOTE_FRACTION * max(self.rows, 1)
         stuck = self.longest + 1 >= STUCK_RUN
         if self.repeats and (many or stuck or self.drop_repeats):
@@ -112,7 +125,11 @@ class RowScreen:
                 f"the row before (the longest run: {self.longest + 1} identical readings from "
                 f"data row {self.longest_at})"
             )
-            if self.drop_repeats:
+            if self.drop_repeats and kept:
+                notes.append(
+                    f"marked the repeats valid 0, raw values kept (--drop-invalid): {what}"
+                )
+            elif self.drop_repeats:
                 notes.append(f"dropped the repeats (--drop-invalid): {what}")
             else:
                 notes.append(

@@ -9,7 +9,6 @@ units and validation as CSV (`nlpcal.io.tables` reads the columns it gets from h
 
 from __future__ import annotations
 
-import io
 import os
 from pathlib import Path
 
@@ -98,7 +97,8 @@ def is_parquet(path) -> bool:
         return False
 
 
-def _parquet():
+def pyarrow_parquet():
+    """pyarrow.parquet, or InputError saying how to install it."""
     try:
         import pyarrow.parquet
     except ImportError:
@@ -108,7 +108,7 @@ def _parquet():
 
 def _parquet_file(path):
     """A pyarrow ParquetFile, or InputError saying why the file cannot be read as Parquet."""
-    parquet = _parquet()
+    parquet = pyarrow_parquet()
     path = existing_file(path, "a Parquet file")
     try:
         return parquet.ParquetFile(path)
@@ -194,11 +194,3 @@ def concatenated(paths, frames) -> pd.DataFrame:
     """The tables of a log's files, one after another; they must have the same columns."""
     same_columns([(path, [str(c) for c in frame.columns]) for path, frame in zip(paths, frames)])
     return frames[0] if len(frames) == 1 else pd.concat(frames, ignore_index=True)
-
-
-def write_parquet(frame: pd.DataFrame) -> bytes:
-    """A table as the bytes of a Parquet file (written by the caller atomically)."""
-    _parquet()
-    buffer = io.BytesIO()
-    frame.to_parquet(buffer, index=False)
-    return buffer.getvalue()

@@ -11,6 +11,7 @@ was received and how to fix it.
 from __future__ import annotations
 
 import io
+import os
 import re
 from dataclasses import dataclass, field, replace
 
@@ -20,9 +21,7 @@ import pandas as pd
 from .. import units
 from ..errors import InputError
 from . import recorders, sources
-from .files import write_text_atomic
 from .layout import Layout, detect_layout, open_source
-from .strict import finite_table
 
 #: What each sensor's axis columns may be called, for `resolve_columns`:
 #: name -> (prefixes, unit suffixes, examples for messages, flag for messages).
@@ -156,7 +155,7 @@ def read_table(
 
     header : force (True) or deny (False) a header row; None detects it.
     text : keep every cell as text, so that columns not used pass through unchanged when the
-        table is written back (`table_text`).
+        table is written back (`nlpcal.io.output`).
     variable : the variable of a .mat file that holds the field (None: detected).
     instance : the compass of a DataFlash log, 0-based (None: the only one).
     """
@@ -221,10 +220,31 @@ def numbers(column: pd.Series, decimal: str = ".") -> np.ndarray:
     """A column as floats; cells that are not numbers become NaN."""
     if pd.api.types.is_numeric_dtype(column) and not pd.api.types.is_bool_dtype(column):
         return column.to_numpy(dtype=float, na_value=np.nan)
+    parsed = _arrow_numbers(column, decimal)
+    if parsed is not None:
+        return parsed
     text = column.astype(str).str.strip()
     if decimal == ",":
         text = text.str.replace(",", ".", regex=False)
     return pd.to_numeric(text, errors="coerce").to_numpy(dtype=float, na_value=np.nan)
+
+
+def _arrow_numbers(column: pd.Series, decimal: str) -> np.ndarray | None:
+    """A column of text held by pyarrow as floats, parsed by pyarrow (ten times pandas' speed,
+    to the nearest double too) when every cell is a plain number; None otherwise (a cell that
+    is empty, padded or not a number), for pandas to parse cell by cell."""
+    if not isinstance(column.array, pd.arrays.ArrowStringArray):
+        return None
+    import pyarrow
+    import pyarrow.compute as pc
+
+    cells = pyarrow.array(column.array)
+    if decimal == ",":
+        cells = pc.replace_substring(cells, ",", ".")
+    try:
+        return pc.cast(cells, pyarrow.float64()).to_numpy(zero_copy_only=False)
+    except (pyarrow.ArrowInvalid, pyarrow.ArrowNotImplementedError):
+        return None
 
 
 def _is_time(values: np.ndarray) -> bool:
@@ -366,18 +386,63 @@ class LogFile:
             notes=notes,
         )
 
-    def chunks(self, wanted: list, chunk_rows: int):
-        """The `wanted` columns of the file, chunk after chunk, every column checked (ragged
-        rows are errors)."""
+    def chunks(self, wanted: list | None, chunk_rows: int, *, text: bool = False, read=None):
+        """The `wanted` columns of the file (None: all of them), chunk after chunk, every column
+        checked (ragged rows are errors). text : keep a text file's cells as text. read : a
+        function called after each chunk with the share of the file read so far (0 to 1)."""
         if self.parquet:
-            yield from sources.parquet_chunks(self.source, chunk_rows, wanted)
+            total = max(sum(sources.parquet_row_groups(self.source)), 1)
+            done = 0
+            for chunk in sources.parquet_chunks(self.source, chunk_rows, wanted):
+                done += len(chunk)
+                if read is not None:
+                    read(done / total)
+                yield chunk
             return
-        positions = sorted({list(self.preview.columns).index(c) for c in wanted})
+        columns = list(self.preview.columns)
+        positions = sorted({columns.index(c) for c in wanted}) if wanted else None
         options = {**self.layout.pandas_options(), "chunksize": chunk_rows}
-        for chunk in pd.read_csv(self.source, engine="c", **options):
-            chunk = chunk.iloc[:, positions]
-            chunk.columns = [self.preview.columns[k] for k in positions]
-            yield chunk
+        if text:
+            options.update(dtype=str, keep_default_na=False)
+        size = _size(self.source)
+        with _opened(self.source) as handle:
+            for chunk in pd.read_csv(handle, engine="c", **options):
+                if positions is None:
+                    chunk.columns = columns
+                else:
+                    chunk = chunk.iloc[:, positions]
+                    chunk.columns = [columns[k] for k in positions]
+                if read is not None and size:
+                    read(min(handle.tell() / size, 1.0))
+                yield chunk
+
+
+def file_shares(files: list, progress=None):
+    """(file, read) for each of a log's files (`log_files`), `read(share)` telling `progress`
+    (`nlpcal.io.progress.Progress`, or None) how many bytes of all the files were read once
+    `share` of that file was."""
+    sizes = [_size(part.source) for part in files]
+    total, done = sum(sizes) or 1, 0
+    for part, size in zip(files, sizes):
+
+        def read(share, done=done, size=size):
+            if progress is not None:
+                progress.update(done + share * size, total)
+
+        yield part, read
+        done += size
+
+
+def _size(source) -> int:
+    """The bytes of a file (0 for bytes in memory: their share read is not followed)."""
+    return 0 if isinstance(source, (bytes, bytearray)) else os.stat(source).st_size
+
+
+def _opened(source):
+    """A binary handle on a file's bytes (its position: how far a reader has got)."""
+    if isinstance(source, (bytes, bytearray)):
+        return io.BytesIO(source)
+    return open(source, "rb")
 
 
 def log_files(
@@ -399,24 +464,3 @@ def log_files(
         found.append(LogFile(name or label, source, layout, preview))
     sources.same_columns([(part.name, [str(c) for c in part.preview.columns]) for part in found])
     return found
-
-
-def table_text(frame: pd.DataFrame, layout: Layout) -> str:
-    """A table as text in `layout`: the same delimiter, decimal mark, line ending and header row
-    (or none), the comment lines that preceded the data first. Text cells are written as they
-    are; numbers exactly (shortest round-trip form)."""
-    body = frame.to_csv(
-        sep=" " if layout.delimiter == " " else layout.delimiter,
-        header=layout.header,
-        index=False,
-        decimal=layout.decimal,
-        lineterminator=layout.newline,
-    )
-    preamble = "".join(line + layout.newline for line in layout.preamble)
-    return preamble + body
-
-
-def write_table(frame: pd.DataFrame, layout: Layout, output=None) -> None:
-    """`table_text` to `output` or to stdout (`nlpcal.io.files.Outputs`); the numbers nlpcal
-    computed finite (`nlpcal.io.strict`)."""
-    write_text_atomic(output, table_text(finite_table(frame), layout))
