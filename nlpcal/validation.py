@@ -174,17 +174,23 @@ def sample_sizes(array) -> tuple:
     if not (np.isfinite(low).all() and np.isfinite(high).all()):
         raise InputError("samples contain NaN or infinite values; drop or fix those rows")
     largest = float(np.max(np.maximum(np.abs(low), np.abs(high))))
-    if largest > MAX_SAMPLE_VALUE:
-        raise InputError(
-            f"samples reach {largest:.3g}, beyond {MAX_SAMPLE_VALUE:g} in any unit; "
-            f"check the columns and their unit"
-        )
+    not_too_large(largest)
     if largest < MIN_SAMPLE_MAGNITUDE:
         raise InputError(
             f"the samples are at most {largest:.3g} in size, below "
             f"{MIN_SAMPLE_MAGNITUDE:g} in any unit; check the columns and their unit"
         )
     return low, high, largest
+
+
+def not_too_large(largest: float) -> None:
+    """Refuse samples whose largest |value| exceeds MAX_SAMPLE_VALUE (a log read in chunks
+    checks each chunk so, before anything computes with it). [sample unit]"""
+    if largest > MAX_SAMPLE_VALUE:
+        raise InputError(
+            f"samples reach {largest:.3g}, beyond {MAX_SAMPLE_VALUE:g} in any unit; "
+            f"check the columns and their unit"
+        )
 
 
 def axis_ranges(array) -> tuple:

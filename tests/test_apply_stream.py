@@ -139,15 +139,23 @@ def test_a_bad_line_without_drop_invalid_fails_and_keeps_the_output(
     assert sorted(os.listdir(tmp_path)) == ["log.csv", "out.csv"]
 
 
-def test_a_non_finite_result_late_in_the_log_writes_nothing(tmp_path, capsys, params, small_chunks):
+@pytest.mark.parametrize(
+    "row", [3, 1300]
+)  # in the first chunk (which decides the unit), the fourth
+def test_a_sample_too_large_anywhere_in_the_log_writes_nothing(
+    tmp_path, capsys, params, small_chunks, row
+):
+    """Every chunk is held to the magnitude limit every reader applies, before anything computes
+    with it: one sentence, no numpy warnings, and the old output kept."""
     text = ["bx,by,bz"] + [f"{x:.3f},{y:.3f},{z:.3f}" for x, y, z in SAMPLES]
-    text[1300] = "1e308,1e308,1e308"  # |B| overflows to infinity in the fourth chunk
+    text[row] = "1e308,1e308,1e308"  # |B| would overflow to infinity
     log = tmp_path / "log.csv"
     log.write_text("\n".join(text) + "\n")
     out = tmp_path / "out.parquet"
     out.write_bytes(b"old")
     code, _, err = run(capsys, "apply", params, log, "-o", out, "-q")
-    assert code == 2 and "non-finite" in err
+    assert code == 2 and "1e+308" in err and "Warning" not in err
+    assert len(err.strip().splitlines()) == 1
     assert out.read_bytes() == b"old" and sorted(os.listdir(tmp_path)) == ["log.csv", "out.parquet"]
 
 

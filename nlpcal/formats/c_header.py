@@ -92,7 +92,7 @@ def _function(unit: str, temperature: bool) -> list:
     """nlpcal_apply: B1 = A (m - b), with the temperature drift when the calibration has one."""
     if not temperature:
         head = [
-            f"/* B1 = A (m - b), as nlpcal apply computes it; m and b1 in {unit}. */",
+            f"/* B1 = A (m - b), as nlpcal apply computes it; m and b1 in {unit} (C99). */",
             "static inline void nlpcal_apply(const double m[3], double b1[3])",
             "{",
             "    double d[3];",
@@ -104,7 +104,7 @@ def _function(unit: str, temperature: bool) -> list:
     else:
         head = [
             f"/* B1 = A diag(1 / (1 + sigma dt)) (m - b - zeta dt), dt = t - t0, as nlpcal apply "
-            f"computes it; m and b1 in {unit}, t in degC. */",
+            f"computes it; m and b1 in {unit}, t in degC (C99). */",
             "static inline void nlpcal_apply(const double m[3], double t, double b1[3])",
             "{",
             "    const double dt = t - NLPCAL_T0;",

@@ -25,7 +25,7 @@ from .files import (
 
 #: The leading (and trailing) bytes of every Parquet file.
 PARQUET_MAGIC = b"PAR1"
-INSTALL_PARQUET = "reading Parquet needs pyarrow: pip install 'nlpcal[parquet]' (or 'nlpcal[dask]')"
+INSTALL_PARQUET = "Parquet needs pyarrow: pip install 'nlpcal[parquet]' (or 'nlpcal[dask]')"
 
 
 def is_pattern(source) -> bool:

@@ -25,6 +25,7 @@ import pandas as pd
 
 from .. import units
 from ..errors import InputError
+from ..validation import not_too_large
 from .layout import STDIN, Layout
 from .logs import distinct_roles, format_unit, sensor_unit, settle_unit
 from .mapped import spool_stdin
@@ -238,6 +239,8 @@ class LogStream:
             self.dropped += numeric.dropped
             chunk = chunk.loc[numeric.kept]
         valid = self._screen.keep(numeric.values[:, :3], data_rows[numeric.kept])
+        if valid.any():
+            not_too_large(float(np.abs(numeric.values[:, :3][valid]).max()))
         self.rows += len(chunk)
         self.readings += int(valid.sum())
         extras = {name: numeric.values[:, 3 + k] for k, name in enumerate(self.extra)}
