@@ -342,12 +342,13 @@ class CalibrationResult(Document):
         wall_s [s]); the first is the measured |B_M|.
     method : str
         "staged" or "joint".
-    reference : dict
+    reference : Reference
         The reference field used: mode "none", "constant" or "series", and its values.
     gauge : dict or None
         Without a reference field, the constraint that fixes the overall scale.
-    solver : dict
-        The solver's status, iterations and stop reason.
+    solver : SolverReport
+        What finished each block solve (IPOPT with its status and iterations, a verified Newton
+        step, or the start), nlpcal's own statuses apart, the IPOPT options and the stop reason.
     unit : str
         The unit of offsets and rows: "nT", or "raw" for counts.
     unit_source : str or None
@@ -360,7 +361,8 @@ class CalibrationResult(Document):
         (k, k) covariance of the k estimated parameters in the order of `parameters`, in their
         units (offsets [unit^2], scale errors [1], angles [deg^2]); None without standard errors.
     identifiability : dict
-        What the attitude coverage determines, and the residuals' autocorrelation.
+        What the attitude coverage determines, how the standard errors follow the dependence of
+        the scores (`score_dependence`) and the second-order bias (`second_order_bias`).
     warnings : list of str
         What looks wrong with the data or the result, each a sentence.
     notes : list of str
