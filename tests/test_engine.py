@@ -30,6 +30,7 @@ LAYERS = {
     "verdict": 1,
     "robust": 1,
     "io": 1,
+    "live": 2,
     "statistics": 1,
     "chunks": 1,
     "passes": 1,

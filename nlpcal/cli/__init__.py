@@ -18,6 +18,8 @@ import threading
 
 from ..errors import InputError, QualityError, SolveError, WriteError
 from ..version import __version__
+
+# live calibration from a stream (nlpcal.live)
 from . import (
     apply,
     batch,
@@ -27,12 +29,15 @@ from . import (
     drift,
     export,
     imports,
+    live,
     orthogonality,
     report,
     reproduce,
     simulate,
 )
 from .common import HelpFormatter, Parser, UsageError, add_verbosity, set_verbosity
+
+COMMANDS_LIVE = (live,)
 
 #: The subcommand modules, in the order of the help (calibrate, apply and stats first).
 COMMANDS = (
@@ -84,7 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
         dest="command", metavar="COMMAND", parser_class=Parser, title="commands"
     )
     sub.required = True
-    for module in COMMANDS:
+    for module in COMMANDS + COMMANDS_LIVE:
         module.register(sub)
     add_verbosity(parser)
     return parser

@@ -39,6 +39,18 @@ def is_capture(head: bytes) -> bool:
     return bool(_RAW.search(head))
 
 
+def raw_counts(line: str) -> list | None:
+    """The nine counts of one `Raw:` line (stripped, starting with "Raw:"), or None for a line
+    cut short or malformed: not nine signed 16-bit integers."""
+    cells = line[4:].split(",")
+    if len(cells) != len(COLUMNS) or not all(_COUNTS.match(c.strip()) for c in cells):
+        return None
+    counts = [int(c) for c in cells]
+    if min(counts) < INT16[0] or max(counts) > INT16[1]:
+        return None
+    return counts
+
+
 def read_capture(name: str, data: bytes) -> tuple:
     """(frame of the nine count columns, notes) of a MotionCal capture's bytes."""
     rows: list = []
@@ -50,12 +62,8 @@ def read_capture(name: str, data: bytes) -> tuple:
         if not line.startswith("Raw:"):
             other += 1
             continue
-        cells = line[4:].split(",")
-        if len(cells) != len(COLUMNS) or not all(_COUNTS.match(c.strip()) for c in cells):
-            cut += 1
-            continue
-        counts = [int(c) for c in cells]
-        if min(counts) < INT16[0] or max(counts) > INT16[1]:
+        counts = raw_counts(line)
+        if counts is None:
             cut += 1
             continue
         rows.append(counts)
