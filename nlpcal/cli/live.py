@@ -30,8 +30,9 @@ their target), and "determined": true on the line that stops it. It stops when e
 of --model has a standard error below its --target-se and --coverage of the cells are covered
 (or on Ctrl-C, the end of the input, or --max-seconds), then writes -o params.json (and
 --export) atomically: the result 'nlpcal calibrate' gives for the same samples. Lines are
-MotionCal 'Raw:' lines, delimited text (detected as 'nlpcal calibrate' detects a log), or whatever --regex
-captures. On a terminal, stderr shows the coverage grid, where to turn next and the fit.""",
+MotionCal 'Raw:' lines, delimited text (detected as 'nlpcal calibrate' detects a log), or
+whatever --regex captures. On a terminal, stderr shows the coverage grid, where to turn next
+and the fit.""",
         examples=(
             "nlpcal live --serial /dev/ttyACM0 --baud 115200 -o params.json   # MotionCal sketch",
             "nlpcal live --udp 0.0.0.0:5005 --unit uT --web -o params.json",
