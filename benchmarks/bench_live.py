@@ -21,9 +21,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 
@@ -65,6 +67,7 @@ def accumulation_cost(seconds: float) -> float:
 def latencies(seconds: float) -> tuple:
     """(data-to-stdout latencies, emit latencies) of the updates of a 1 kHz stream. [s]"""
     lines = stream_lines(int(seconds * RATE), seed=2)
+    output = tempfile.NamedTemporaryFile(suffix=".json", delete=False).name
     process = subprocess.Popen(
         [
             sys.executable,
@@ -76,6 +79,10 @@ def latencies(seconds: float) -> tuple:
             "nT",
             "--max-seconds",
             str(seconds + 5),
+            "--target-se",
+            "scale=1e-9",  # never determined: every update of the stream is timed
+            "-o",
+            output,
         ],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
@@ -105,6 +112,7 @@ def latencies(seconds: float) -> tuple:
         emit.append(now - update["emitted_time"])
     writer.join()
     process.wait()
+    os.unlink(output)
     return data, emit
 
 

@@ -38,6 +38,8 @@ SUNSIDED = Path("sunsided_hmc5883l_fullsphere") / "hmc5883l_mag_derived.csv"
 #: 0.2 % of the field, 0.003 and 0.17 deg at the end, and its field visits 84 % of the cells.
 SUNSIDED_TARGETS = ["offset=0.5%", "scale=0.005", "angle=0.5"]
 SUNSIDED_COVERAGE = "0.75"
+#: Targets 6000-8000 samples of the synthetic log (2.5 nT of noise) meet.
+SYNTHETIC_TARGETS = ["--target-se", "offset=0.3%", "scale=0.003", "angle=0.3"]
 
 
 def nlpcal_command(*args) -> list:
@@ -222,10 +224,7 @@ def test_stdin_updates_stop_writes_and_the_recording_reproduces_calibrate(tmp_pa
             "-",
             "--unit",
             "nT",
-            "--target-se",
-            "offset=0.3%",
-            "scale=0.003",
-            "angle=0.3",
+            *SYNTHETIC_TARGETS,
             "--record",
             str(record),
             "-o",
@@ -410,10 +409,7 @@ def test_udp_datagrams_from_127_0_0_1(tmp_path):
             "127.0.0.1:0",
             "--unit",
             "nT",
-            "--target-se",
-            "offset=0.3%",
-            "scale=0.003",
-            "angle=0.3",
+            *SYNTHETIC_TARGETS,
             "--max-seconds",
             "60",
             "-o",
@@ -441,11 +437,22 @@ def test_udp_datagrams_from_127_0_0_1(tmp_path):
     assert json.loads(params.read_text())["n_samples"] <= len(samples)
 
 
-def test_sigterm_leaves_the_outputs_as_they_were(tmp_path):
+@pytest.mark.parametrize("signal_number", [signal.SIGTERM, signal.SIGINT])
+def test_ctrl_c_stops_and_writes_but_sigterm_leaves_the_outputs(tmp_path, signal_number):
     params, record = tmp_path / "params.json", tmp_path / "rec.csv"
     params.write_text("keep")
     process = subprocess.Popen(
-        nlpcal_command("-", "--unit", "nT", "--record", str(record), "-o", str(params)),
+        nlpcal_command(  # targets never met: it runs until the signal
+            "-",
+            "--unit",
+            "nT",
+            "--target-se",
+            "scale=1e-9",
+            "--record",
+            str(record),
+            "-o",
+            str(params),
+        ),
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -455,8 +462,13 @@ def test_sigterm_leaves_the_outputs_as_they_were(tmp_path):
     process.stdin.write("\n".join(csv_lines(samples)) + "\n")
     process.stdin.flush()
     process.stdout.readline()  # an update: the loop runs
-    process.send_signal(signal.SIGTERM)
-    process.communicate(timeout=60)
+    process.send_signal(signal_number)
+    _, err = process.communicate(timeout=60)
+    if signal_number == signal.SIGINT:  # the user's stop: calibrate's result of the samples
+        assert process.returncode == 0, err
+        assert json.loads(params.read_text())["n_samples"] <= len(samples)
+        assert sorted(os.listdir(tmp_path)) == ["params.json", "rec.csv"]
+        return
     assert process.returncode == 143
     assert params.read_text() == "keep" and sorted(os.listdir(tmp_path)) == ["params.json"]
 
@@ -479,8 +491,8 @@ def test_the_terminal_view_in_a_tmux_pane(tmp_path):
     log.write_text("\n".join(csv_lines(samples)) + "\n")
     name = f"nlpcal-live-{os.getpid()}"
     command = (
-        f"{sys.executable} -m nlpcal live - --unit nT --target-se offset=0.3% scale=0.003 "
-        f"angle=0.3 -o {tmp_path / 'params.json'} < {log} > {tmp_path / 'lines'}; sleep 30"
+        f"{sys.executable} -m nlpcal live - --unit nT {' '.join(SYNTHETIC_TARGETS)} "
+        f"-o {tmp_path / 'params.json'} < {log} > {tmp_path / 'lines'}; sleep 30"
     )
     subprocess.run(
         [tmux, "-L", name, "new-session", "-d", "-s", name, "-x", "100", "-y", "40", command],

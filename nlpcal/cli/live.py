@@ -101,7 +101,12 @@ and the fit.""",
     )
     parser.add_argument("--export-format", choices=FORMATS, metavar="FMT", help="also export")
     parser.add_argument("--export", metavar="FILE", help="write the --export-format file here")
-    parser.add_argument("-o", "--output", metavar="PARAMS.json", help="write the parameters here")
+    parser.add_argument(
+        "-o",
+        "--output",
+        metavar="PARAMS.json",
+        help="write the parameters here (default: one more line on stdout, after the updates)",
+    )
     parser.set_defaults(func=run)
 
 
@@ -112,6 +117,7 @@ def run(args) -> int:
     from ..io import Outputs, check_output_path
     from ..live import LiveSession, open_source, open_stream, read_head, run, targets_from
     from ..live.parsers import detect_parser
+    from ..live.run import json_line
 
     sources = [s for s in (args.source, args.serial, args.udp) if s]
     if len(sources) > 1:
@@ -182,7 +188,10 @@ def run(args) -> int:
             web.close()
     result.input = {"log_unit": result.unit, "source": source.name, "format": parser.kind}
     with Outputs() as outputs:
-        outputs.json(args.output, result.to_dict())
+        if args.output:
+            outputs.json(args.output, result.to_dict())
+        else:  # after the update lines, the parameters document as one line of its own
+            outputs.text(None, json_line(result.to_dict()) + "\n")
         if args.export:
             from ..formats import export
 

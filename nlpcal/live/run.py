@@ -121,7 +121,9 @@ def run(
     deadline: float | None = None,
 ) -> str:
     """Feed the stream to the session until it stops; `emit` gets every update. Returns the
-    reason it stopped (STOPS). deadline : a `time.monotonic` value (--max-seconds)."""
+    reason it stopped (STOPS): Ctrl-C (a plain KeyboardInterrupt) is the user's stop; a
+    subclass of it (the command line's SIGTERM) propagates. deadline : a `time.monotonic`
+    value (--max-seconds)."""
     pending = list(head)
     try:
         while True:
@@ -140,7 +142,9 @@ def run(
             pending = source.read(POLL_S)
             if pending is None:
                 return _last(session, emit)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as interruption:
+        if type(interruption) is not KeyboardInterrupt:  # SIGTERM as the command line raises it:
+            raise  # the run was killed, not stopped, and writes nothing
         return "interrupted"
 
 
@@ -156,9 +160,14 @@ def _last(session: LiveSession, emit) -> str:
     return "end"
 
 
+def json_line(document) -> str:
+    """A document as one line of strict JSON (no NaN, no Infinity), without the newline."""
+    return json.dumps(plain(document), allow_nan=False)
+
+
 def update_line(update: Update) -> str:
-    """The JSON line of an update (strict JSON: no NaN, no Infinity)."""
-    return json.dumps(plain(update.to_dict()), allow_nan=False)
+    """The JSON line of an update."""
+    return json_line(update.to_dict())
 
 
-__all__ = ["Recorder", "Stream", "open_stream", "read_head", "run", "update_line"]
+__all__ = ["Recorder", "Stream", "json_line", "open_stream", "read_head", "run", "update_line"]
