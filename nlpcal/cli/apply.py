@@ -17,6 +17,7 @@ from __future__ import annotations
 from .common import (
     CALIBRATED_LOG_UNIT,
     LOG_HELP,
+    acknowledge,
     add_command,
     add_log_arguments,
     add_params_argument,
@@ -123,6 +124,7 @@ def correction_for(args, columns, require_temperature: bool):
     params_path = getattr(args, "params", None)
     parameters = load_parameters(params_path) if params_path else None
     drift = DriftFit.load(args.drift) if args.drift else None
+    acknowledge(parameters)
     return Correction.plan(
         parameters,
         drift,

@@ -106,6 +106,7 @@ def add_verbosity(parser) -> None:
 
 def set_verbosity(args) -> None:
     global VERBOSITY
+    ACKNOWLEDGED.clear()
     VERBOSITY = -1 if getattr(args, "quiet", False) else int(bool(getattr(args, "verbose", False)))
 
 
@@ -176,12 +177,31 @@ def tell(notes) -> None:
 
 
 def report_log(log) -> None:
-    """How a log was read (-v), what the reader decided and what looks wrong (not with -q)."""
+    """How a log was read (-v), what the reader decided and what looks wrong (not with -q), and
+    the acknowledgement its data require (`acknowledge`)."""
     reading = log.reading() if hasattr(log, "reading") else log.layout.describe()
     detail(f"read {log.path}: {reading}")
     tell(log.notes)
     for message in log.warnings:
         warning(message)
+    acknowledge(getattr(log, "observatory", None))
+
+
+#: The terms of use printed by this run (each once).
+ACKNOWLEDGED: set = set()
+
+
+def acknowledge(source) -> None:
+    """The acknowledgement a data set requires (an observatory file's terms of use), on stderr
+    once per run wherever results from it are shown, -q or not: it is a condition of using the
+    data, not a message. `source`: an `nlpcal.io.observatory.Observatory`, a result whose input
+    came from one, or None."""
+    from ..io.observatory import terms_of_use
+
+    terms = terms_of_use(source)
+    if terms and terms not in ACKNOWLEDGED:
+        ACKNOWLEDGED.add(terms)
+        print(f"nlpcal: terms of use of the data: {terms}", file=sys.stderr)
 
 
 def solver_log():

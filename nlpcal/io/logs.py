@@ -26,6 +26,7 @@ from ..geomagnetic import ReferenceModel, parse_times
 from ..moments import sphere_frame
 from .layout import Layout
 from .mapped import csv_to_memmap
+from .observatory import Observatory
 from .recorders import ENGINES, check_options, declared_unit, is_recorded
 from .rows import RowScreen
 from .tables import (
@@ -76,6 +77,9 @@ class Log:
         What looks wrong (a unit that does not fit the magnitudes), for the user to read.
     layout : Layout
         How the file is laid out, to write it back the same way.
+    observatory : Observatory or None
+        The header of an observatory file (station, sensor, units, terms of use), kept in the
+        result's provenance ("input.observatory").
 
     Examples
     --------
@@ -104,6 +108,7 @@ class Log:
     notes: list = field(default_factory=list)
     warnings: list = field(default_factory=list)
     layout: Layout = field(default_factory=Layout)
+    observatory: Observatory | None = None
 
     @property
     def base_unit(self) -> str:
@@ -138,6 +143,7 @@ class Log:
             "layout": self.layout.to_dict(),
             "csv_engine": self.engine,
             "rows_dropped": int(self.dropped),
+            **({"observatory": self.observatory.to_dict()} if self.observatory else {}),
             **more,
         }
 
@@ -426,6 +432,7 @@ def read_log(
         values, frame, kept, dropped = mapped.values, None, None, mapped.dropped
         engine, layout, source = "c (chunked into a memory map)", mapped.layout, mapped.source
         samples = values[:, :3]
+        observatory = None
     else:
         table = (
             path
@@ -450,6 +457,7 @@ def read_log(
         values, kept, dropped = screened(
             table, chosen + extra + times_at, drop_invalid, notes, checked
         )
+        observatory = table.observatory
         declared = format_unit(chosen, notes, table)
         unit, how = sensor_unit(chosen, unit, fallback_unit, notes, declared=declared)
         frame, engine, layout, source = table.frame, table.engine, table.layout, table.source
@@ -494,6 +502,7 @@ def read_log(
         notes=notes,
         warnings=warnings,
         layout=layout,
+        observatory=observatory,
     )
 
 
