@@ -136,9 +136,28 @@ def _opened(name: str, path):
     except ImportError:
         raise InputError(INSTALL) from None
     try:
-        return cdflib.CDF(os.path.abspath(path))
+        cdf = cdflib.CDF(os.path.abspath(path))
     except Exception as exc:  # cdflib raises many kinds on a damaged file
         raise InputError(f"{name}: cannot be read as a CDF file ({_first(exc)})") from None
+    cdf._f = _WholeReads(cdf._f)
+    return cdf
+
+
+class _WholeReads:
+    """A file that raises EOFError where it has fewer bytes than asked for: cdflib takes the
+    bytes missing from a cut file as values (zeros, say) and says nothing."""
+
+    def __init__(self, handle):
+        self._handle = handle
+
+    def read(self, size: int = -1) -> bytes:
+        data = self._handle.read(size)
+        if size is not None and size >= 0 and len(data) < size:
+            raise EOFError("the file ends inside a record: it is cut")
+        return data
+
+    def __getattr__(self, name):
+        return getattr(self._handle, name)
 
 
 def _first(exc: Exception) -> str:
