@@ -23,6 +23,7 @@ from .common import (
     add_params_argument,
     add_plot_argument,
     add_precision_argument,
+    add_reference_log_arguments,
     add_reference_model_arguments,
     check_plot,
     emit_json,
@@ -229,8 +230,10 @@ the reference (Eq. 10 of Liu et al. 2022).""",
         "--reference-column",
         metavar="COL",
         help="column of reference magnitudes (name or position; its unit from its name, "
-        "else the field columns'): add the RMSE of Eq. 10 (Liu et al. 2022) to every row",
+        "else the field columns'): add the RMSE of Eq. 10 (Liu et al. 2022) to every row; "
+        "with --reference-log, the column of that log",
     )
+    add_reference_log_arguments(parser)
     parser.add_argument("--json", action="store_true", help="print the rows as JSON on stdout")
     add_reference_model_arguments(parser)
     parser.set_defaults(func=run_stats)
