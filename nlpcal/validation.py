@@ -268,6 +268,19 @@ def reference_scale(reference, magnitude: float, what: str = "the reference fiel
         )
 
 
+def times(values, n: int) -> np.ndarray:
+    """N finite times: Unix seconds, or seconds since any origin. [s]"""
+    try:
+        array = np.asarray(values, dtype=float).ravel()
+    except (TypeError, ValueError):
+        raise InputError("the times must be numbers of seconds") from None
+    if array.size != n:
+        raise InputError(f"got {array.size} times for {n} samples")
+    if not np.isfinite(array).all():
+        raise InputError("the times contain values that are not times; drop or fix those rows")
+    return array
+
+
 def temperature(values, n: int) -> np.ndarray:
     """N finite temperatures. [degC]"""
     try:

@@ -144,3 +144,32 @@ def gauge_truth(truth=PAPER_TRUTH):
     1 + s divided by their mean, so that s_x + s_y + s_z = 0."""
     mean = np.mean([1.0 + truth[f"s_{a}"] for a in "xyz"])
     return {**truth, **{f"s_{a}": (1.0 + truth[f"s_{a}"]) / mean - 1.0 for a in "xyz"}}
+
+
+def drifting_sensor_output(field_ideal, truth, dt, days, sigma, zeta, eta_deg, drift_per_day):
+    """B_M of a sensor whose parameters drift, for true field vectors in the ideal frame [nT]:
+    per axis j the gain (1 + s_j)(1 + sigma_j dt)(1 + d_j days) [1] and the offset
+    z_j + zeta_j dt [nT], each angle alpha + eta_alpha dt [deg] (each sample its own axes).
+
+    dt : temperature minus the base temperature [degC]; days : time from the reference time [d];
+    sigma [1/degC], zeta [nT/degC], eta_deg [deg/degC], drift_per_day [1/d]: three values each.
+    """
+    dt = np.asarray(dt, dtype=float)
+    a, b, g = (
+        np.radians(truth[f"{name}_deg"] + slope * dt)
+        for name, slope in zip(("alpha", "beta", "gamma"), eta_deg)
+    )
+    x_axis = np.column_stack([np.cos(a) * np.cos(g), np.cos(a) * np.sin(g), -np.sin(a)])
+    y_axis = np.column_stack([np.zeros_like(b), np.cos(b), np.sin(b)])
+    projections = np.column_stack(
+        [
+            np.sum(field_ideal * x_axis, axis=1),
+            np.sum(field_ideal * y_axis, axis=1),
+            field_ideal[:, 2],
+        ]
+    )
+    out = np.empty_like(projections)
+    for k, name in enumerate("xyz"):
+        gain = (1 + truth[f"s_{name}"]) * (1 + sigma[k] * dt) * (1 + drift_per_day[k] * days)
+        out[:, k] = gain * projections[:, k] + truth[f"z_{name}"] + zeta[k] * dt
+    return out

@@ -410,6 +410,7 @@ def reference_model(args):
     model = getattr(args, "reference_model", None)
     if model is None:
         timed = getattr(args, "reference_log", None) is not None  # the log's times serve it too
+        timed = timed or getattr(args, "time_drift", "none") != "none"
         used = [
             f"--{name.replace('_', '-')}"
             for name, value in given.items()
