@@ -225,6 +225,15 @@ def test_the_terms_of_use_follow_the_parameters_into_apply_stats_and_report(tmp_
     assert TERMS in (tmp_path / "report.html").read_text()
     code, _, err = run(capsys, "stats", csv)
     assert "terms of use" not in err  # nothing from the observatory here
+    plain = tmp_path / "plain.json"
+    code, _, err = run(capsys, "calibrate", csv, "--reference-field", PAPER_FIELD, "-o", plain)
+    assert code == 0 and "terms of use" not in err
+    for argv in (  # the observatory's data through a calibration of other data
+        ("apply", plain, path, "-o", tmp_path / "cdf.csv"),
+        ("stats", path, "--params", plain),
+    ):
+        code, _, err = run(capsys, *argv)
+        assert code == 0 and err.count(f"terms of use of the data: {TERMS}") == 1, argv
 
 
 def test_imagcdf_fill_values_and_values_outside_the_valid_range_are_missing(tmp_path):
@@ -409,10 +418,10 @@ def test_the_conrad_imagcdf_reads_in_seconds_with_its_terms(real_data, capsys):
     path = real_data / CONRAD
     if not path.is_file():
         pytest.skip(f"{path} is absent")
-    started = time.perf_counter()
+    started = time.process_time()  # CPU time: what the reader costs, whatever else runs
     log = read_log(path, reference_column="S", drop_invalid=True)
-    read_s = time.perf_counter() - started
-    assert read_s < 5.0  # the 10 MB file, decompressed and read
+    read_s = time.process_time() - started
+    assert read_s < 5.0  # the 10 MB file, decompressed and read (about 0.3 s here)
     assert log.columns == ["H", "E", "Z"] and log.unit == "nT" and log.n == 345_598
     record = log.observatory
     assert record.iaga_code == "WIC" and record.elements == "HEZS"
