@@ -359,6 +359,8 @@ def reference_model(args):
     given = {name: getattr(args, name, None) for name in names}
     model = getattr(args, "reference_model", None)
     if model is None:
+        if hasattr(args, "lag"):  # a command with --lag reads --time-column for itself
+            given.pop("time_column")
         used = [f"--{name.replace('_', '-')}" for name, value in given.items() if value is not None]
         if used:
             raise InputError(f"{', '.join(used)} need --reference-model igrf|wmm")
@@ -440,7 +442,28 @@ def log_options(args) -> dict:
     legacy = getattr(args, "reference_field_nt", None)
     if legacy is not None:
         options.update(reference_field=legacy, reference_field_unit="nT")
+    if options["reference_model"] is None and own_time_column(args):
+        options["time_column"] = args.time_column
     return options
+
+
+def own_time_column(args) -> str | None:
+    """--time-column of a command with --lag, read without a geomagnetic model."""
+    if not hasattr(args, "lag") or getattr(args, "reference_model", None) is not None:
+        return None
+    return getattr(args, "time_column", None)
+
+
+def add_lag_argument(parser) -> None:
+    """--lag auto|SECONDS: the lag of a reference series (`nlpcal.lag`)."""
+    parser.add_argument(
+        "--lag",
+        metavar="auto|SECONDS",
+        help="lag of the reference series against the field columns [s], positive when the "
+        "reference is late: 'auto' estimates it (with the nine parameters in calibrate) and "
+        "reports its standard error, a number takes it out; needs --reference-column and "
+        "--time-column (ISO 8601 text, or seconds from any origin)",
+    )
 
 
 def emit_json(document, output) -> None:

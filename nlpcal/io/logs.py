@@ -76,6 +76,9 @@ class Log:
         What looks wrong (a unit that does not fit the magnitudes), for the user to read.
     layout : Layout
         How the file is laid out, to write it back the same way.
+    times : numpy.ndarray or None
+        The rows' times from `time_column` (`--time-column`), Unix seconds (numbers in the
+        column are taken as they are: seconds from any origin). [s]
 
     Examples
     --------
@@ -104,6 +107,7 @@ class Log:
     notes: list = field(default_factory=list)
     warnings: list = field(default_factory=list)
     layout: Layout = field(default_factory=Layout)
+    times: np.ndarray | None = None
 
     @property
     def base_unit(self) -> str:
@@ -318,6 +322,7 @@ def read_log(
     variable: str | None = None,
     instance: int | None = None,
     progress=None,
+    time_column: str | None = None,
 ) -> Log:
     """Read, validate and convert a field log.
 
@@ -352,6 +357,9 @@ def read_log(
         text and Parquet logs, a recorded format is read whole, with a note).
     progress : Progress, optional
         Told how far a `low_memory` read has come (`nlpcal.io.progress.Progress`).
+    time_column : str, optional
+        A column of times (ISO 8601 text, or seconds) read into `Log.times` for the lag of a
+        reference (`--time-column` without a geomagnetic model).
     fallback_unit : str
         The unit assumed when nothing names one.
     header : bool, optional
@@ -388,13 +396,16 @@ def read_log(
     one_reference(reference_column, reference_field, reference_model)
     notes: list = []
     model_columns = reference_model.numeric_columns() if reference_model else []
-    time_column = reference_model.time_column if reference_model else None
+    own_time = None if reference_model and reference_model.time_column else time_column
+    time_column = reference_model.time_column if reference_model else time_column
     roles = column_roles(reference_column, reference_model, extra_columns)
+    roles += [(TIME_ROLE, own_time)] if own_time else []
     extra = list(dict.fromkeys(column for role, column in roles if role != TIME_ROLE))
     requested = list(extra)
     if low_memory and (model_columns or time_column):
         raise InputError(
-            "a reference from position or time columns needs the log in memory; drop --low-memory"
+            "a reference from position or time columns, or a time column, needs the log in "
+            "memory; drop --low-memory"
         )
     if low_memory and not isinstance(path, Table) and is_recorded(path):
         notes.append(f"{path} is read whole: --low-memory streams text and Parquet logs only")
@@ -494,6 +505,7 @@ def read_log(
         notes=notes,
         warnings=warnings,
         layout=layout,
+        times=np.asarray(values[:, -1], dtype=float) if time_column else None,
     )
 
 

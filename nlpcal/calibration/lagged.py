@@ -1,0 +1,58 @@
+"""`calibrate(..., lag=...)`: the nine parameters with the lag of a reference series
+(`nlpcal.lag`).
+
+A lag given is taken out of the reference by interpolation, R(t + tau), before the calibration.
+A lag "auto" is estimated with the nine in one problem (`nlpcal.lag.estimate_lag`) from the
+no-lag optimum; the calibration then runs on the reference moved by it, so that its parameters,
+Table 1 rows and standard errors describe the joint optimum (their standard errors at the
+estimated lag; the correlations with tau are recorded beside it).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import lag as lags
+from .. import units, validation
+from ..errors import InputError, QualityError
+from ..io.lazy import field_samples
+from ..models.zhou2010 import Zhou2010Parameters, model_directions
+from .result import CalibrationResult
+
+#: The arguments of `calibrate` that `calibrate_lagged` takes apart from the others.
+LAG_ARGUMENTS = ("samples", "reference_field", "lag", "times")
+
+
+def calibrate_lagged(calibrate, samples, reference, times, lag, options: dict) -> CalibrationResult:
+    """`calibrate(samples, reference_field=..., **options)` with the lag `lag` ("auto" or
+    seconds) of the reference series at `times` [s]; a "lag" block in the result. An
+    undetermined lag raises QualityError holding the no-lag result."""
+    lag = lags.lag_option(lag)
+    if reference is None or np.ndim(reference) != 1:
+        raise InputError(
+            "a lag needs a reference series, one value per sample (--reference-column)"
+        )
+    rows = field_samples(samples)
+    times = lags.check_times(times, len(reference))
+    values = np.asarray(reference, dtype=float)
+    if isinstance(lag, float):
+        result = calibrate(rows, reference_field=lags.shifted(values, times, lag), **options)
+        result.lag = lags.given_lag(lag)
+        return result
+    first = calibrate(rows, reference_field=values, **options)
+    unit = first.unit if first.unit != "raw" else "raw"
+    base = units.to_base(validation.samples(rows), options.get("unit") or unit)
+    ref_base = units.to_base(values, options.get("reference_unit") or options.get("unit") or unit)
+    directions = model_directions(first.model_name, True)
+    theta = Zhou2010Parameters.from_dict(first.parameters).theta
+    estimate = lags.estimate_lag(base, ref_base, times, theta, directions)
+    if not estimate.determined:
+        first.lag = estimate.to_dict()
+        first.warnings.append(estimate.message())
+        raise QualityError(estimate.message(), "Lag_Undetermined", result=first)
+    result = calibrate(
+        rows, reference_field=lags.shifted(values, times, estimate.seconds), **options
+    )
+    result.lag = estimate.to_dict()
+    result.notes.append(estimate.message())
+    return result
