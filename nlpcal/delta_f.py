@@ -135,7 +135,7 @@ def delta_f_report(
                 samples[rows_of], reference[rows_of], times[rows_of], theta, lags.fixed_directions()
             )
             row["lag"] = estimate.to_dict()
-            moved = lags.shifted(reference[rows_of], times[rows_of], estimate.seconds)
+            moved = lags.shifted(reference[rows_of], times[rows_of], estimate.seconds or 0.0)
             row["after_lag"] = Spread.of(magnitude[rows_of] - moved).to_dict()
         rows.append(row)
     return {
@@ -170,8 +170,8 @@ def format_report(report: dict, unit: str) -> str:
             line += f"{row['after']['mean']:>13.4f}{row['after']['std']:>12.4f}"
         if lagged:
             block = row["lag"]
-            seconds = block["seconds"] if block["seconds"] is not None else block["estimate_s"]
-            line += f"{seconds:>11.4f}{block['standard_error_s']:>10.4f}"
+            seconds = block["seconds"] if block["seconds"] is not None else block.get("estimate_s")
+            line += f"{_cell(seconds):>11}{_cell(block['standard_error_s']):>10}"
             line += f"{row['after_lag']['std']:>12.4f}  {block['status']}"
         lines.append(line)
     return "\n".join(lines)
@@ -231,3 +231,8 @@ def check_lags(report: dict) -> None:
             f"(its standard error exceeds {lags.MAX_ERROR_SAMPLES:g} of the sample interval)",
             "Lag_Undetermined",
         )
+
+
+def _cell(value) -> str:
+    """A number of the table to 4 decimals, "-" for none."""
+    return "-" if value is None else f"{value:.4f}"

@@ -165,18 +165,31 @@ class Series:
         return (np.asarray(self.reference[start : start + rows], dtype=float), *around)
 
 
+def _overlapped_columns(reference, times, block_info=None):
+    """(rows, 4) columns R, D, q, third of a Dask block extended by the HALO rows of its
+    neighbours (none beyond the ends of the log): the block's own rows only."""
+    where = block_info[0]
+    index, count = where["chunk-location"][0], where["num-chunks"][0]
+    lead = HALO if index > 0 else 0
+    rows = reference.size - lead - (HALO if index < count - 1 else 0)
+    own = reference[lead : lead + rows]
+    return np.column_stack([own, *derivative_columns(reference, times, lead, rows)])
+
+
 def lazy_columns(reference, times) -> passes.LazySamples:
     """The columns R, D, q, third of a Dask reference, each block computed with the HALO rows
     of its neighbours (`dask.array.map_overlap`)."""
     import dask.array as da
 
     array = reference.array if isinstance(reference, passes.LazySamples) else reference
+    if min(array.chunks[0]) < HALO:
+        array = array.rechunk({0: max(HALO, max(array.chunks[0]))})
     stamps = da.from_array(np.asarray(times, dtype=float), chunks=array.chunks)
     stacked = da.map_overlap(
-        lambda r, t: np.column_stack([r, *derivative_columns(r, t, 0, r.size)]),
+        _overlapped_columns,
         array,
         stamps,
-        depth=HALO,
+        depth={0: HALO},
         boundary="none",
         trim=False,
         new_axis=1,
@@ -460,7 +473,8 @@ class LagEstimate:
     """A lag estimated with the parameters (L2), and what the data say of it.
 
     status : "estimated" or "undetermined". seconds : tau [s] (the estimate, also when
-    undetermined). standard_error_s : [s]. correlations : tau's correlation with each free
+    undetermined; None when dF/dt is lost in the derivative's noise). standard_error_s : [s]
+    or None. correlations : tau's correlation with each free
     parameter [1]. theta : the parameters of the joint optimum [internal units].
     sample_interval_s : [s]. rms_derivative : rms dF/dt with the noise taken out [unit/s].
     reference_noise : the reference's noise std from its third differences [unit].
@@ -469,8 +483,8 @@ class LagEstimate:
     """
 
     status: str
-    seconds: float
-    standard_error_s: float
+    seconds: float | None
+    standard_error_s: float | None
     correlations: dict
     theta: np.ndarray
     sample_interval_s: float
@@ -503,6 +517,11 @@ class LagEstimate:
 
     def message(self) -> str:
         """One sentence for the report."""
+        if self.seconds is None or self.standard_error_s is None:
+            return (
+                f"lag undetermined: the field's rate of change does not rise above the noise of "
+                f"the reference's derivative (reference noise {self.reference_noise:.3g})"
+            )
         if self.determined:
             return (
                 f"lag of the reference {self.seconds * 1e3:+.2f} ms +/- "
@@ -542,6 +561,10 @@ def seconds_of(lag_block: dict | None) -> float:
     return float(lag_block["seconds"])
 
 
+#: The scores' variance left to the Hessian's sandwich (`lag_uncertainty`).
+WHITE = {"dependent": False, "variance": None}
+
+
 def lag_uncertainty(joint: JointSolve, directions, n: int, dependence: dict) -> tuple:
     """(standard error of tau [s], correlations of tau with the free directions [1], whether it
     follows dependent scores): the sandwich s^2 A_c^-1 A A_c^-1 of the module's notes, its tau
@@ -560,7 +583,7 @@ def lag_uncertainty(joint: JointSolve, directions, n: int, dependence: dict) -> 
         factor = np.ones(p)
         factor[-1] = np.sqrt(dependence["variance"] / variance)
         covariance = covariance * np.outer(factor, factor)
-    correlation = inference.correlation(covariance)
+    correlation = np.asarray(inference.correlation(covariance))
     names = _direction_names(directions)
     return (
         float(np.sqrt(covariance[-1, -1])),
@@ -579,14 +602,19 @@ def estimate_lag(samples, reference, times, theta_start, directions) -> LagEstim
     """
     times = check_times(times, len(reference))
     interval = sample_interval(times)
+    limit = MAX_ERROR_SAMPLES * interval
     theta, tau, moved = np.asarray(theta_start, dtype=float), 0.0, 0
     while True:
         ref = reference if tau == 0.0 else shifted(np.asarray(reference), times, tau)
         moments = accumulate(samples, ref)
         group = lag_moments(samples, ref, times, moments)
+        if not group.c > 0:  # dF/dt lost in the reference's noise
+            return silent_field(theta, interval, group, moved)
         joint = solve_joint(theta, moments, group, directions)
         theta = joint.theta
-        if abs(joint.tau) <= interval / 2:
+        white = lag_uncertainty(joint, directions, moments.n, WHITE)[0]
+        vague = not white <= limit  # a wandering estimate: nothing to re-interpolate for
+        if abs(joint.tau) <= interval / 2 or vague:
             break
         if (
             moved == MAX_REINTERPOLATIONS
@@ -602,7 +630,7 @@ def estimate_lag(samples, reference, times, theta_start, directions) -> LagEstim
         tau, moved = tau + joint.tau, moved + 1
     dependence = tau_dependence(samples, ref, times, theta, joint.tau, group.noise)
     error, correlations, dependent = lag_uncertainty(joint, directions, moments.n, dependence)
-    determined = np.isfinite(error) and error <= MAX_ERROR_SAMPLES * interval
+    determined = not vague and error <= limit
     return LagEstimate(
         status="estimated" if determined else "undetermined",
         seconds=tau + joint.tau,
@@ -615,6 +643,23 @@ def estimate_lag(samples, reference, times, theta_start, directions) -> LagEstim
         reinterpolations=moved,
         dependent=dependent,
         objective=joint.objective,
+    )
+
+
+def silent_field(theta, interval: float, group: LagMoments, moved: int) -> LagEstimate:
+    """The undetermined lag of a log whose dF/dt does not rise above the derivative's noise:
+    no estimate, no standard error."""
+    return LagEstimate(
+        status="undetermined",
+        seconds=None,
+        standard_error_s=None,
+        correlations={},
+        theta=np.asarray(theta, dtype=float),
+        sample_interval_s=interval,
+        rms_derivative=0.0,
+        reference_noise=float(np.sqrt(group.noise)),
+        reinterpolations=moved,
+        dependent=False,
     )
 
 

@@ -50,9 +50,8 @@ def calibrate_lagged(calibrate, samples, reference, times, lag, options: dict) -
         first.lag = estimate.to_dict()
         first.warnings.append(estimate.message())
         raise QualityError(estimate.message(), "Lag_Undetermined", result=first)
-    result = calibrate(
-        rows, reference_field=lags.shifted(values, times, estimate.seconds), **options
-    )
+    seconds = float(estimate.seconds)  # type: ignore[arg-type]  # determined: a number
+    result = calibrate(rows, reference_field=lags.shifted(values, times, seconds), **options)
     result.lag = estimate.to_dict()
     result.notes.append(estimate.message())
     return result

@@ -270,7 +270,7 @@ def run_stats(args) -> int:
         tell(correction.notes)
     document = {"unit": log.base_unit, "std_ddof": 0, "rows": rows}
     report = None
-    if args.lag is not None or np.ndim(log.reference) == 1:
+    if args.lag is not None or isinstance(log.reference, np.ndarray):
         report = log_delta_f(log, parameters, args.lag, lag_block)
         if report["fixed_sensor"]:
             tell([fixed_sensor_message(report)])
