@@ -62,6 +62,7 @@ from .models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters, correct, model
 from .moments import CHUNK_ROWS, Layout, Moments, _features, accumulate
 from .nlp.blocks import variable_scale
 from .nlp.objective import coefficient_derivative_functions, objective_derivatives
+from .timing import reference_at
 
 #: The statuses of a lag in a parameters file.
 STATUSES = ("estimated", "given", "undetermined")
@@ -116,12 +117,17 @@ def sample_interval(times: np.ndarray) -> float:
 
 
 def shifted(reference, times: np.ndarray, tau: float) -> np.ndarray:
-    """R(t + tau) on the rows, by linear interpolation (the ends held): the reference moved so
-    that a lag tau is taken out (L1). [reference unit]"""
+    """R(t + tau) on the rows, by linear interpolation (`nlpcal.timing.reference_at`): the
+    reference moved so that a lag tau is taken out (L1). The rows it leaves without a value
+    (within |tau| of the ends, or in a gap of the reference) keep the nearest values' line
+    (`numpy.interp`, the ends held), so that every row keeps its reference. [reference unit]"""
     reference = np.asarray(reference, dtype=float)
     if tau == 0.0:
         return reference
-    return np.interp(times + tau, times, reference)
+    moved = reference_at(times, reference, times + tau)
+    missing = ~np.isfinite(moved)
+    moved[missing] = np.interp(times[missing] + tau, times, reference)
+    return moved
 
 
 def derivative_columns(reference, times, lead: int, rows: int) -> tuple:
