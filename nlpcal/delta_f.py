@@ -201,13 +201,14 @@ def aligned_log(log, lag, lag_in_parameters: dict | None = None):
     return replace(log, reference=lags.shifted(log.reference, times, seconds))
 
 
-def fixed_sensor_message(report: dict) -> str:
-    """Why the nine parameters are not attempted on a fixed sensor's log."""
+def fixed_sensor_message(spread_deg: float) -> str:
+    """Why the nine parameters are not attempted on a fixed sensor's log (`attitude_spread`,
+    [deg])."""
     return (
         f"the sensor's attitude does not change (the field's direction stays within "
-        f"{report['attitude_spread_deg']:.2g} deg rms of its mean, below {FIXED_SENSOR_DEG:g}): "
-        f"no attitude determines the nine parameters, so they are not attempted; delta F and "
-        f"the lag are computed"
+        f"{spread_deg:.2g} deg rms of its mean, below {FIXED_SENSOR_DEG:g}): no attitude "
+        f"determines the nine parameters, so they are not attempted; delta F and the lag are "
+        f"computed"
     )
 
 

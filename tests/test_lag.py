@@ -263,3 +263,38 @@ def test_the_standard_error_of_the_lag_matches_its_spread():
         z.append((estimate.seconds - TAU) / estimate.standard_error_s)
     spread = float(np.sqrt(np.mean(np.square(z))))
     assert 0.66 < spread < 1.37
+
+
+@pytest.mark.realdata
+def test_the_conrad_log_gives_a_lag_per_active_day_and_none_on_the_quiet_one(real_data):
+    """Conrad Observatory (WIC), 9-12 May 2024 (SOURCE.md: a lag of about 0.2 s on the active
+    days, none measurable on 9 May). The results presented rely on data collected at the Conrad
+    Observatory. We thank GeoSphere Austria for supporting its operation."""
+    pytest.importorskip("cdflib")
+    path = real_data / "conrad_wic_lemi036_imagcdf" / "wic_lemi036_20240509_20240512.cdf"
+    if not path.exists():
+        pytest.skip(f"{path} is absent")
+    log = nlpcal.read_log(path, reference_column="S", drop_invalid=True, time_column="time")
+    report = delta_f_report(log.samples, log.reference, log.times, lag="auto")
+    assert report["fixed_sensor"]
+    rows = {row["period"]: row for row in report["periods"]}
+    assert list(rows)[1:] == ["2024-05-09", "2024-05-10", "2024-05-11", "2024-05-12"]
+    for day in ("2024-05-10", "2024-05-11", "2024-05-12"):
+        lag = rows[day]["lag"]
+        # the scalar leads: the vector, filtered to 1 Hz, is late, so the reference is early
+        assert lag["status"] == "estimated" and 0.15 < -lag["seconds"] < 0.25, day
+        assert lag["standard_error_s"] < 0.02
+    assert rows["2024-05-09"]["lag"]["status"] == "undetermined"
+    assert rows["all"]["before"]["mean"] == pytest.approx(11.722, abs=0.001)  # SOURCE.md
+    assert rows["all"]["before"]["std"] == pytest.approx(0.0307, abs=0.0001)
+
+
+def test_calibrate_recognises_a_fixed_sensor_and_estimates_the_lag_alone():
+    samples, reference, times = fixed_sensor_log()
+    active = slice(0, 43200)
+    with pytest.raises(QualityError) as failure:
+        nlpcal.calibrate(
+            samples[active], reference_field=reference[active], times=times[active], lag="auto"
+        )
+    assert failure.value.status == "Fixed_Sensor"
+    assert "not attempted" in str(failure.value) and "ms" in str(failure.value)

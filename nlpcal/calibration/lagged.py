@@ -14,10 +14,14 @@ import numpy as np
 
 from .. import lag as lags
 from .. import units, validation
+from ..delta_f import FIXED_SENSOR_DEG, attitude_spread, fixed_sensor_message
 from ..errors import InputError, QualityError
 from ..io.lazy import field_samples
 from ..models.zhou2010 import Zhou2010Parameters, model_directions
 from .result import CalibrationResult
+
+#: Rows, evenly strided, that judge whether the sensor's attitude changes.
+FIXED_SENSOR_PROBE = 20_000
 
 #: The arguments of `calibrate` that `calibrate_lagged` takes apart from the others.
 LAG_ARGUMENTS = ("samples", "reference_field", "lag", "times")
@@ -39,6 +43,9 @@ def calibrate_lagged(calibrate, samples, reference, times, lag, options: dict) -
         result = calibrate(rows, reference_field=lags.shifted(values, times, lag), **options)
         result.lag = lags.given_lag(lag)
         return result
+    spread = attitude_spread(rows[:: max(1, len(values) // FIXED_SENSOR_PROBE)])
+    if spread < FIXED_SENSOR_DEG:
+        raise fixed_sensor_failure(rows, values, times, spread, options)
     first = calibrate(rows, reference_field=values, **options)
     unit = first.unit if first.unit != "raw" else "raw"
     base = units.to_base(validation.samples(rows), options.get("unit") or unit)
@@ -55,3 +62,17 @@ def calibrate_lagged(calibrate, samples, reference, times, lag, options: dict) -
     result.lag = estimate.to_dict()
     result.notes.append(estimate.message())
     return result
+
+
+def fixed_sensor_failure(rows, values, times, spread: float, options: dict) -> QualityError:
+    """The QualityError of a fixed sensor's log: the nine parameters not attempted, the lag
+    estimated alone (`nlpcal.lag.fixed_directions`) and told."""
+    unit = options.get("unit") or "nT"
+    base = units.to_base(validation.samples(rows), unit)
+    ref_base = units.to_base(values, options.get("reference_unit") or unit)
+    estimate = lags.estimate_lag(base, ref_base, times, np.zeros(9), lags.fixed_directions())
+    return QualityError(
+        f"{fixed_sensor_message(spread)}: {estimate.message()}; 'nlpcal stats LOG "
+        f"--reference-column COL --time-column COL --lag auto' reports delta F by day",
+        "Fixed_Sensor",
+    )

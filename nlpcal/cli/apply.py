@@ -278,7 +278,7 @@ def run_stats(args) -> int:
     if args.lag is not None or isinstance(log.reference, np.ndarray):
         report = log_delta_f(log, parameters, args.lag, lag_block)
         if report["fixed_sensor"]:
-            tell([fixed_sensor_message(report)])
+            tell([fixed_sensor_message(report["attitude_spread_deg"])])
         document["delta_f"] = report
     if args.json:
         emit_json(document, None)
