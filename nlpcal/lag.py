@@ -56,7 +56,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import inference, passes
+from . import inference, passes, validation
 from .errors import InputError, SolveError
 from .models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters, correct, model_directions
 from .moments import CHUNK_ROWS, Layout, Moments, _features, accumulate
@@ -88,13 +88,7 @@ def lag_option(value) -> str | float | None:
     """None, "auto" or a number of seconds, from `lag=` or `--lag`. [s]"""
     if value is None or (isinstance(value, str) and value == "auto"):
         return value
-    try:
-        seconds = float(value)
-    except (TypeError, ValueError):
-        raise InputError(f"--lag takes 'auto' or a number of seconds, got {value!r}") from None
-    if not np.isfinite(seconds):
-        raise InputError(f"--lag takes 'auto' or a finite number of seconds, got {value!r}")
-    return seconds
+    return validation.number(value, "--lag ('auto', or a lag in seconds)")
 
 
 def check_times(times, n: int) -> np.ndarray:

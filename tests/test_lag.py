@@ -298,3 +298,16 @@ def test_calibrate_recognises_a_fixed_sensor_and_estimates_the_lag_alone():
         )
     assert failure.value.status == "Fixed_Sensor"
     assert "not attempted" in str(failure.value) and "ms" in str(failure.value)
+
+
+def test_a_memory_mapped_log_gives_the_moments_of_the_log_in_memory(tmp_path):
+    samples, reference, times, _ = lagged_log(seed=4, seconds=60.0)
+    mapped = np.memmap(tmp_path / "log.f8", dtype=float, mode="w+", shape=samples.shape)
+    mapped[:] = samples
+    ref = np.memmap(tmp_path / "ref.f8", dtype=float, mode="w+", shape=reference.shape)
+    ref[:] = reference
+    moments = accumulate(samples, reference)
+    whole = lags.lag_moments(samples, reference, times, moments)
+    lean = lags.lag_moments(mapped, ref, times, moments)
+    np.testing.assert_allclose(lean.g, whole.g, rtol=1e-12, atol=1e-15)
+    assert lean.c == pytest.approx(whole.c, rel=1e-12)
