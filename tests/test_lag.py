@@ -311,3 +311,20 @@ def test_a_memory_mapped_log_gives_the_moments_of_the_log_in_memory(tmp_path):
     lean = lags.lag_moments(mapped, ref, times, moments)
     np.testing.assert_allclose(lean.g, whole.g, rtol=1e-12, atol=1e-15)
     assert lean.c == pytest.approx(whole.c, rel=1e-12)
+
+
+def test_stats_takes_the_lag_of_the_parameters_file_out(tmp_path, capsys):
+    samples, reference, times, _ = lagged_log(seed=10, tau=0.3, seconds=600.0)
+    path, params = tmp_path / "log.csv", tmp_path / "params.json"
+    pd.DataFrame(
+        {"t": times, "bx": samples[:, 0], "by": samples[:, 1], "bz": samples[:, 2], "F": reference}
+    ).to_csv(path, index=False)
+    common = (path, "--reference-column", "F", "--unit", "nT", "--time-column", "t")
+    assert run("calibrate", *common, "--method", "joint", "--lag", "auto", "-o", params) == 0
+    capsys.readouterr()
+    assert run("stats", *common, "--params", params, "--json") == 0
+    document = json.loads(capsys.readouterr().out)
+    lag = json.loads(params.read_text())["lag"]["seconds"]
+    assert document["delta_f"]["lag_used_s"] == lag
+    after = document["delta_f"]["periods"][0]["after"]["std"]
+    assert after < 0.1  # 0.3 s at 1 nT/s left in would be 0.3 nT
