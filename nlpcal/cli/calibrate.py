@@ -25,6 +25,7 @@ from ..defaults import CYCLES_DEFAULT, RTOL_DEFAULT
 from .common import (
     LOG_HELP,
     add_command,
+    add_lag_argument,
     add_log_arguments,
     add_loss_arguments,
     add_plot_argument,
@@ -140,6 +141,7 @@ them (say, the sensor was never turned over); --allow-unidentifiable writes them
         f"fraction (default {RTOL_DEFAULT:g})",
     )
     add_reference_arguments(parser)
+    add_lag_argument(parser)
     parser.add_argument(
         "--temperature-column",
         metavar="COL",
@@ -246,7 +248,9 @@ def _read_for_calibration(args, extra):
     if not args.scheduler:
         options = log_options(args)
         model = options["reference_model"]
-        per_sample = model is not None and (model.numeric_columns() or model.time_column)
+        per_sample = "time_column" in options or (
+            model is not None and (model.numeric_columns() or model.time_column)
+        )
         # the lean chunked reading by default: as fast, a fraction of the memory; the whole
         # table for what needs it (a figure's time axis, a model's position and time columns)
         # and for logs read whole anyway (recorded formats; stdin, which may be one)
@@ -256,8 +260,8 @@ def _read_for_calibration(args, extra):
         lean = args.low_memory or not whole
         with show_progress(f"reading {args.log}") as bar:
             return read_log(args.log, **options, extra_columns=extra, low_memory=lean, progress=bar)
-    if args.low_memory or args.plot:
-        flag = "--low-memory" if args.low_memory else "--plot"
+    if args.low_memory or args.plot or args.lag is not None:
+        flag = "--low-memory" if args.low_memory else "--plot" if args.plot else "--lag"
         raise InputError(
             f"{flag} and --scheduler exclude each other: with --scheduler the log stays in its "
             f"files and is read block by block in every pass"
@@ -305,6 +309,10 @@ def _run_calibrate(args) -> int:
         raise InputError(
             "--ipopt-option applies to the nine-parameter calibration; the temperature "
             "calibration takes IPOPT's settings of its own"
+        )
+    if temperature and args.lag is not None:
+        raise InputError(
+            "--lag applies to the nine-parameter calibration, not to the temperature one"
         )
     if temperature and not args.reference_column:
         raise InputError(
@@ -435,6 +443,7 @@ def calibration_options(args) -> dict:
         "allow_unconverged": args.allow_unconverged,
         "threads": args.threads,
         "ipopt_options": ipopt_options,
+        **({"lag": args.lag} if getattr(args, "lag", None) is not None else {}),
     }
 
 

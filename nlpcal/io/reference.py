@@ -123,4 +123,5 @@ def with_reference_log(log, spec: ReferenceLog):
         reference_column=record["column"],
         notes=[*log.notes, *notes],
         reference_log={**record, "log_time_column": column, **interpolated.to_dict()},
+        times=times[keep],
     )
