@@ -18,6 +18,7 @@ from __future__ import annotations
 from ..calibration import Problem, StopRule
 from ..calibration import estimate as estimate_problem
 from ..calibration.result import CalibrationResult
+from ..calibration.settings import NO_GATE, QualityGate
 from ..moments import Moments
 from ..nlp.blocks import OPTIONS
 
@@ -47,5 +48,5 @@ def solve(
     problem = Problem(
         samples=samples, reference=reference, moments=moments, ipopt=OPTIONS, model=model
     )
-    method = "staged" if final else "joint"
-    return estimate_problem(problem, method, DEFAULT_RULE, unit, quality=final)
+    method, gate = ("staged", QualityGate()) if final else ("joint", NO_GATE)
+    return estimate_problem(problem, method, DEFAULT_RULE, unit, quality=gate)
