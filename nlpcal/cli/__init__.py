@@ -18,8 +18,6 @@ import threading
 
 from ..errors import InputError, QualityError, SolveError, WriteError
 from ..version import __version__
-
-# live calibration from a stream (nlpcal.live)
 from . import (
     apply,
     batch,
@@ -37,6 +35,7 @@ from . import (
 )
 from .common import HelpFormatter, Parser, UsageError, add_verbosity, set_verbosity
 
+#: Live calibration from a stream (`nlpcal.live`), listed after the commands on logs.
 COMMANDS_LIVE = (live,)
 
 #: The subcommand modules, in the order of the help (calibrate, apply and stats first).
