@@ -35,6 +35,9 @@ DISTURBED_SPREAD = 5e-3
 #: Above this widening of a standard error for the dependence of neighbouring samples' scores,
 #: more independent samples are advice worth giving. [1]
 CORRELATED_INFLATION = 2.0
+#: Above this widening of a standard error for the dependence of neighbouring samples' scores,
+#: a warning says why and what would help (`dependence_warning`). [1]
+DEPENDENCE_WARN = 3.0
 #: Above this relative gap between the moment objective and the exact one at the solution, the
 #: distance to the exact optimum is estimated (`exact_optimum_shift`).
 SERIES_CHECK = 1e-8
@@ -211,13 +214,13 @@ def noise_bias(information, basis, noise: dict, variance: float) -> np.ndarray:
 
 def score_meat(problem: Problem, theta, centre: float | None, basis, dof: int) -> tuple:
     """(Omega, G_0, description, noise): the meat of the sandwich covariance in the scaled
-    variables, A V A with V the block jackknife's covariance of the estimated directions (`basis`;
-    `inference.block_jackknife`, groups of GROUP_BANDWIDTHS automatic Bartlett bandwidths,
-    widened by `inference.t_widening` for its number of groups), or None when the scores show
-    no clear dependence (`inference.scores_dependent`: the sandwich of independent samples is
-    then the meat); sum psi(r_i)^2 J_i J_i^T times N / dof (the meat for independent samples);
-    what the result says of it (`score_dependence`); and the noise terms of the bias
-    (`noise_bias`)."""
+    variables, A V A with V the moving-block jackknife's covariance of the estimated directions
+    (`basis`; `inference.moving_block_jackknife`, blocks of GROUP_BANDWIDTHS automatic Bartlett
+    bandwidths), each parameter's variance widened by `inference.t_widening` for its degrees of
+    freedom, or None when the scores show no clear dependence (`inference.scores_dependent`:
+    the sandwich of independent samples is then the meat); sum psi(r_i)^2 J_i J_i^T times
+    N / dof (the meat for independent samples); what the result says of it
+    (`score_dependence`); and the noise terms of the bias (`noise_bias`)."""
     n = problem.samples.shape[0]
     series, informations, block_rows, noise, squares = score_block_sums(
         problem.samples,
@@ -242,12 +245,20 @@ def score_meat(problem: Problem, theta, centre: float | None, basis, dof: int) -
     if not inference.scores_dependent(projected):
         return None, independent, description, noise
     length = inference.group_length(bandwidth, len(projected))
-    covariance, groups = inference.block_jackknife(projected, shares, length)
-    widening = inference.t_widening(groups - 1)
+    covariance, freedom = inference.moving_block_jackknife(projected, shares, length, basis)
+    widening = np.array([inference.t_widening(v) for v in freedom])
+    # each parameter's standard error widened by its own t: V -> P W V W P, P = basis basis^T
+    across = basis.T @ (widening[:, None] * basis)
     total = shares.sum(axis=0)
-    meat = basis @ (total @ covariance @ total) @ basis.T * widening**2
+    meat = basis @ (total @ across @ covariance @ across @ total) @ basis.T
     description.update(
-        method="block-jackknife", group_blocks=length, groups=int(groups), t_widening=widening
+        method="moving-block-jackknife",
+        group_blocks=length,
+        groups=len(projected) - length + 1,
+        t_widening=float(widening.max()),
+        degrees_of_freedom={
+            name: float(freedom[PARAMETER_NAMES.index(name)]) for name in problem.estimated
+        },
     )
     return meat, independent, description, noise
 
@@ -456,7 +467,7 @@ def what_would_help(identifiability: dict, final: dict, reference: str, model: s
         )
     widening = identifiability.get("score_dependence", {}).get("standard_error_widening", {})
     inflation = max(widening.values(), default=1.0)
-    if inflation > CORRELATED_INFLATION:
+    if CORRELATED_INFLATION < inflation <= DEPENDENCE_WARN:  # above: `dependence_warning`
         advice.append(
             f"more independent samples: the scores of neighbouring samples are alike (standard "
             f"errors up to x{inflation:.1f} for it)"
@@ -586,4 +597,24 @@ def warnings_for(
                 else "check the reference field and the data for disturbances"
             )
             warnings.append(f"{why}{optimum} {where}; {advice}")
-    return warnings
+    dependence = dependence_warning(identifiability.get("score_dependence", {}))
+    return warnings + ([dependence] if dependence else [])
+
+
+def dependence_warning(dependence: dict) -> str | None:
+    """The warning of standard errors widened more than DEPENDENCE_WARN times for the dependence
+    of neighbouring samples' scores (`score_dependence`), naming the cause and what would help;
+    None below."""
+    widening = dependence.get("standard_error_widening") or {}
+    if not widening or max(widening.values()) <= DEPENDENCE_WARN:
+        return None
+    name = max(widening, key=lambda key: widening[key])
+    span = dependence["bandwidth_blocks"] * dependence["block_samples"]
+    return (
+        f"standard errors widened up to x{widening[name]:.3g} ({name}) over those of independent "
+        f"samples for autocorrelated scores: the attitude changes slowly relative to the "
+        f"sampling, so neighbouring samples repeat nearly the same information (their scores "
+        f"stay alike over about {span:.0f} samples). What would help: turn the sensor through "
+        f"its attitudes more times in the log (faster, or a longer log), not a higher sample "
+        f"rate; where the field drifts, its magnitude logged alongside (--reference-column)"
+    )
