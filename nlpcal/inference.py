@@ -198,6 +198,95 @@ def moving_block_jackknife(series, informations, length: int, directions) -> tup
     return covariance, dof
 
 
+#: Largest number of blocks of a score series: a longer log sums neighbours into blocks of
+#: several samples (the series stays small whatever the log's length, and a jackknife over
+#: blocks of consecutive blocks estimates the same long-run covariance as over samples).
+MAX_BLOCKS = 4096
+
+
+def block_rows(n: int) -> int:
+    """Samples per block of the score series of `n` samples (at most MAX_BLOCKS blocks)."""
+    return max(1, -(-int(n) // MAX_BLOCKS))
+
+
+def block_sums(scores, informations) -> tuple:
+    """(S, A, rows): per-sample scores (N, p) and information shares (N, p, p) summed over
+    blocks of `block_rows(N)` consecutive samples (counted from the first)."""
+    scores = np.asarray(scores, dtype=float)
+    rows = block_rows(scores.shape[0])
+    starts = np.arange(0, scores.shape[0], rows)
+    shares = np.add.reduceat(np.asarray(informations, dtype=float), starts, axis=0)
+    return np.add.reduceat(scores, starts, axis=0), shares, rows
+
+
+def dependence_meat(series, informations, independent, dof: int, basis=None) -> tuple:
+    """(Omega, description, dof): the meat of the sandwich covariance A^-1 Omega A^-1 of an
+    estimate from the (K, p) block sums of its scores psi(r_i) J_i at the estimate (`series`)
+    and the blocks' (K, p, p) shares of the information A (`informations`), on the directions
+    of `basis` (p, q orthonormal columns; None: all).
+
+    independent : (p, p) the meat of independent samples (s^2 A for least squares, sum psi^2
+        J J^T for an M-estimate). dof : the degrees of freedom of the fit (N - p).
+
+    Scores without clear dependence (`scores_dependent`): Omega = independent, widened by
+    Student's t on `dof`. Otherwise A V A, V the moving-block jackknife's covariance
+    (`moving_block_jackknife`, blocks of GROUP_BANDWIDTHS automatic Bartlett bandwidths
+    `bartlett_bandwidth`), each parameter's variance widened by `t_widening` for its own degrees
+    of freedom, and never narrower than `independent` along any direction (`loewner_max`: a
+    jackknife on few blocks can fall below it by chance, and dependence seldom makes a fit more
+    precise). The description is what a result records of it (`score_dependence`); the last
+    item the degrees of freedom of each of the p variances.
+    """
+    series = np.asarray(series, dtype=float)
+    p = series.shape[1]
+    basis = np.eye(p) if basis is None else np.asarray(basis, dtype=float)
+    projected = series @ basis
+    shares = np.einsum("ji,kjl,lm->kim", basis, np.asarray(informations, dtype=float), basis)
+    bandwidth = bartlett_bandwidth(projected)
+    description = {
+        "method": "independent",
+        "bandwidth_blocks": bandwidth,
+        "group_blocks": 1,
+        "groups": len(projected),
+        "t_widening": t_widening(dof),
+    }
+    if not scores_dependent(projected):
+        freedom = np.full(p, float(max(dof, 1)))
+        return np.asarray(independent) * description["t_widening"] ** 2, description, freedom
+    length = group_length(bandwidth, len(projected))
+    covariance, freedom = moving_block_jackknife(projected, shares, length, basis)
+    widening = np.array([t_widening(v) for v in freedom])
+    # each parameter's standard error widened by its own t: V -> P W V W P, P = basis basis^T
+    across = basis.T @ (widening[:, None] * basis)
+    total = shares.sum(axis=0)
+    meat = basis @ (total @ across @ covariance @ across @ total) @ basis.T
+    description.update(
+        method="moving-block-jackknife",
+        group_blocks=length,
+        groups=len(projected) - length + 1,
+        t_widening=float(widening.max()),
+    )
+    return loewner_max(meat, independent, basis), description, freedom
+
+
+def least_squares_uncertainty(jacobian, residuals, dof: int) -> tuple:
+    """(Uncertainty, score_dependence): standard errors of a least-squares fit from its
+    per-sample residuals r_i (N,) and their Jacobian J (N, p) in the parameters' units: the
+    sandwich A^-1 Omega A^-1, A = J^T J, Omega from the scores r_i J_i (`dependence_meat`: s^2 A
+    when they show no dependence on their neighbours, s^2 = sum r^2 / dof)."""
+    jacobian = np.asarray(jacobian, dtype=float)
+    residuals = np.asarray(residuals, dtype=float)
+    information = jacobian.T @ jacobian
+    series, shares, rows = block_sums(
+        jacobian * residuals[:, None], np.einsum("ni,nj->nij", jacobian, jacobian)
+    )
+    independent = float(residuals @ residuals) / max(dof, 1) * information
+    meat, description, freedom = dependence_meat(series, shares, independent, dof)
+    description["block_samples"] = rows
+    description["degrees_of_freedom"] = [float(v) for v in freedom]
+    return estimate(information, meat=meat, dof=dof), description
+
+
 def loewner_max(meat, floor, basis) -> np.ndarray:
     """The smallest matrix at least as large as both `meat` and `floor` along every direction of
     `basis` (q columns) that keeps their eigen-directions relative to `floor`: with floor = L L^T

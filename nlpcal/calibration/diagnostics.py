@@ -103,16 +103,19 @@ def uncertainty(
             information, residual_variance=n * objective / max(n - fitted, 1), **options
         )
     else:
-        meat, independent, dependence, noise = score_meat(problem, theta, centre, basis, n - fitted)
+        series, shares, independent, dependence, noise = score_meat(
+            problem, theta, centre, basis, n - fitted
+        )
         if not robust:  # s^2 A: the meat of independent samples of least squares, s^2 A^-1
             independent = n * objective / max(n - fitted, 1) * np.asarray(information)
-        # scores without clear dependence: the sandwich of independent samples; else never
-        # narrower than it in any direction: a jackknife on few groups can fall below it by
-        # chance, and dependence seldom makes a fit more precise (deliberately conservative)
-        if meat is None:  # Student's t on N - p degrees of freedom, as for a linear fit
-            meat = independent * dependence["t_widening"] ** 2
-        else:
-            meat = inference.loewner_max(meat, independent, basis)
+        meat, described, freedom = inference.dependence_meat(
+            series, shares, independent, n - fitted, basis
+        )
+        dependence.update(described)
+        if dependence["method"] != "independent":
+            dependence["degrees_of_freedom"] = {
+                name: float(freedom[PARAMETER_NAMES.index(name)]) for name in problem.estimated
+            }
         result = inference.estimate(information, meat=meat, **options)
         alone = inference.estimate(information, meat=independent, **options)
     estimated = problem.estimated
@@ -213,13 +216,10 @@ def noise_bias(information, basis, noise: dict, variance: float) -> np.ndarray:
 
 
 def score_meat(problem: Problem, theta, centre: float | None, basis, dof: int) -> tuple:
-    """(Omega, G_0, description, noise): the meat of the sandwich covariance in the scaled
-    variables, A V A with V the moving-block jackknife's covariance of the estimated directions
-    (`basis`; `inference.moving_block_jackknife`, blocks of GROUP_BANDWIDTHS automatic Bartlett
-    bandwidths), each parameter's variance widened by `inference.t_widening` for its degrees of
-    freedom, or None when the scores show no clear dependence (`inference.scores_dependent`:
-    the sandwich of independent samples is then the meat); sum psi(r_i)^2 J_i J_i^T times
-    N / dof (the meat for independent samples); what the result says of it
+    """(scores, informations, G_0, description, noise): the block sums of the scores and of the
+    information (`score_block_sums`) on the estimated directions (`basis`), for
+    `inference.dependence_meat`; sum psi(r_i)^2 J_i J_i^T times N / dof (the meat of
+    independent samples of an M-estimate); what the result says of the blocks
     (`score_dependence`); and the noise terms of the bias (`noise_bias`)."""
     n = problem.samples.shape[0]
     series, informations, block_rows, noise, squares = score_block_sums(
@@ -230,37 +230,8 @@ def score_meat(problem: Problem, theta, centre: float | None, basis, dof: int) -
         problem.centre if problem.loss.robust else centre,
         problem.moments.frame.radius,
     )
-    projected = series @ basis
-    shares = np.einsum("ji,kjl,lm->kim", basis, informations, basis)
-    bandwidth = inference.bartlett_bandwidth(projected)
     independent = basis @ (basis.T @ squares @ basis) @ basis.T * n / max(dof, 1)
-    description = {
-        "method": "independent",
-        "bandwidth_blocks": bandwidth,
-        "block_samples": block_rows,
-        "group_blocks": 1,
-        "groups": len(projected),
-        "t_widening": inference.t_widening(dof),
-    }
-    if not inference.scores_dependent(projected):
-        return None, independent, description, noise
-    length = inference.group_length(bandwidth, len(projected))
-    covariance, freedom = inference.moving_block_jackknife(projected, shares, length, basis)
-    widening = np.array([inference.t_widening(v) for v in freedom])
-    # each parameter's standard error widened by its own t: V -> P W V W P, P = basis basis^T
-    across = basis.T @ (widening[:, None] * basis)
-    total = shares.sum(axis=0)
-    meat = basis @ (total @ across @ covariance @ across @ total) @ basis.T
-    description.update(
-        method="moving-block-jackknife",
-        group_blocks=length,
-        groups=len(projected) - length + 1,
-        t_widening=float(widening.max()),
-        degrees_of_freedom={
-            name: float(freedom[PARAMETER_NAMES.index(name)]) for name in problem.estimated
-        },
-    )
-    return meat, independent, description, noise
+    return series, informations, independent, {"block_samples": block_rows}, noise
 
 
 def weighted_information(problem: Problem, theta, weight) -> tuple:

@@ -73,14 +73,8 @@ def dip_alignment(down, field_dir) -> dict:
     # Gauss-Newton information of (small rotation delta applied after R, c):
     # d/d delta of d^T exp([delta]x) R b = (R b x d)
     J = np.column_stack([np.cross(rb, down), -np.ones(n)])
-    # A free-rotation log is a time series: neighbouring residuals alike carry less information.
-    rho = inference.lag1_autocorrelation(residual)
-    uncertainty = inference.estimate(
-        J.T @ J,
-        residual_variance=float(residual @ residual) / max(n - 4, 1),
-        autocorrelation=rho,
-        dof=n - 4,
-    )
+    # A free-rotation log is a time series: neighbouring scores alike carry less information.
+    uncertainty, dependence = inference.least_squares_uncertainty(J, residual, n - 4)
     std = (
         uncertainty.standard_errors
         if uncertainty.standard_errors is not None
@@ -98,7 +92,7 @@ def dip_alignment(down, field_dir) -> dict:
         "dip_std": float(std[3] / slope),
         "dip_residual_rms_before": float(np.std(before) / slope),
         "dip_residual_rms": float(np.sqrt(np.mean(residual**2)) / slope),
-        "residual_lag1_autocorrelation": rho,
+        "score_dependence": dependence,
         "ipopt": out.record(),
     }
 
@@ -271,8 +265,9 @@ def calibrate_free(
         "dip_std_deg": float(np.degrees(align["dip_std"])),
         "dip_residual_rms_deg_before": float(np.degrees(align["dip_residual_rms_before"])),
         "dip_residual_rms_deg": float(np.degrees(align["dip_residual_rms"])),
-        "residual_lag1_autocorrelation": align["residual_lag1_autocorrelation"],
-        "note": "standard deviations widened for the autocorrelation of the dip residuals; "
+        "score_dependence": align["score_dependence"],
+        "note": "standard deviations from the scores of the dip residuals, widened for their "
+        "dependence on their neighbours (docs/uncertainty.md); "
         "rotation vector (axis times angle) taking the magnetometer's calibrated frame "
         "into the accelerometer's, body x, y, z components",
     }

@@ -408,9 +408,10 @@ def diurnal_line(modulus, temperature, reference, diurnal: str = "fitted") -> Di
     "paper" (section 1 of [1]): |B_m,i| - (F_i - F_1) = a t_i + b. "fitted": |B_m,i| =
     a t_i + b + g (F_i - F_1), g estimated with a and b: the modulus of a sensor whose raw
     output is too large by a factor follows the field by that factor, which the paper's g = 1
-    leaves in the slope wherever the field drifts with the temperature. The standard errors come
-    from the residual variance with n - p degrees of freedom, widened for the lag-1
-    autocorrelation of the residuals (`nlpcal.inference`).
+    leaves in the slope wherever the field drifts with the temperature. The standard errors are
+    the sandwich of the scores r_i x_i, following their dependence on their neighbours
+    (`nlpcal.inference.least_squares_uncertainty`; s^2 (X^T X)^-1 with n - p degrees of
+    freedom when they show none).
     modulus : |B_m,i| [nT]; temperature : t_i [degC]; reference : F_i [nT].
     """
     modulus = np.asarray(modulus, dtype=float)
@@ -432,13 +433,9 @@ def diurnal_line(modulus, temperature, reference, diurnal: str = "fitted") -> Di
     b = float(coefficients[1] - a * t_mean)
     rss = float(residual @ residual)
     n, p = design.shape
-    # the line's Jacobian is the design (Gauss-Newton is exact here)
-    line = inference.estimate(
-        design.T @ design,
-        residual_variance=rss / max(n - p, 1),
-        dof=n - p,
-        autocorrelation=inference.lag1_autocorrelation(residual),
-    )
+    # the line's Jacobian is the design (Gauss-Newton is exact here); the scores follow the
+    # dependence of neighbouring samples (a drift log is a slow time series)
+    line = inference.least_squares_uncertainty(design, residual, n - p)[0]
     errors = line.standard_errors if line.standard_errors is not None else np.full(p, np.nan)
     gain = float(coefficients[2]) if fitted else (1.0 if diurnal == "paper" else None)
     gain_se = float(errors[2]) if fitted and np.isfinite(errors[2]) else None

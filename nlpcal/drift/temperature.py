@@ -345,12 +345,14 @@ def calibrate_temperature(
     params, fitted = model_of(theta, model, float(base_temperature))
 
     names = PARAMETER_NAMES + coefficient_names(model)
-    uncertainty = inference.estimate(
-        sums.a * n,
-        residual_variance=sums.c * n / (n - nx),
-        autocorrelation=inference.lag1_autocorrelation(sums.residuals),
-        dof=n - nx,
-    )
+    # the sandwich of the scores, following their dependence on their neighbours: one more
+    # pass sums them over blocks of consecutive samples (`nlpcal.inference.dependence_meat`)
+    count = -(-n // inference.block_rows(n))
+    blocks = (np.zeros((count, nx)), np.zeros((count, nx, nx)))
+    gauss_newton_pass(model, theta, scale, samples, dt, reference, blocks)
+    independent = sums.c * n / (n - nx) * (sums.a * n)  # s^2 A
+    meat = inference.dependence_meat(*blocks, independent, n - nx)[0]
+    uncertainty = inference.estimate(sums.a * n, meat=meat, dof=n - nx)
     not_identifiable = [names[i] for i in uncertainty.weak]
     errors = temperature_errors = None
     poor: list = []

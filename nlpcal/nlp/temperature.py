@@ -32,6 +32,7 @@ import casadi as ca
 import numpy as np
 
 from ..errors import SolveError
+from ..inference import block_rows
 from ..models.liu2022 import TEMPERATURE_MODELS
 from ..models.zhou2010 import correction_matrix_entries
 from .solver import IpoptOptions, build_nlpsol, problem, solve
@@ -125,12 +126,17 @@ class Sums:
     residuals: np.ndarray
 
 
-def gauss_newton_pass(kind: str, theta, scale, samples, dt, reference) -> Sums:
-    """One chunked pass over the data with the built residual function (fixed chunk width)."""
+def gauss_newton_pass(kind: str, theta, scale, samples, dt, reference, blocks=None) -> Sums:
+    """One chunked pass over the data with the built residual function (fixed chunk width).
+
+    blocks : None, or a pair of zero arrays (K, nx) and (K, nx, nx) into which the pass adds
+    the scores r_i Js_i and the information shares Js_i Js_i^T of blocks of
+    `inference.block_rows(N)` consecutive samples (for `inference.dependence_meat`)."""
     function = residual_function(kind)
     n, nx = samples.shape[0], theta.size
     a, b = np.zeros((nx, nx)), np.zeros(nx)
     residuals = np.empty(n)
+    rows_per_block = block_rows(n)
     for start in range(0, n, CHUNK):
         stop = min(start + CHUNK, n)
         rows = stop - start
@@ -147,6 +153,10 @@ def gauss_newton_pass(kind: str, theta, scale, samples, dt, reference) -> Sums:
         residuals[start:stop] = r
         a += js.T @ js
         b += js.T @ r
+        if blocks is not None:
+            index = np.arange(start, stop) // rows_per_block
+            np.add.at(blocks[0], index, js * r[:, None])
+            np.add.at(blocks[1], index, js[:, :, None] * js[:, None, :])
     return Sums(a / n, b / n, float(residuals @ residuals) / n, residuals)
 
 
