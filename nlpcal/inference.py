@@ -243,16 +243,17 @@ def dependence_meat(series, informations, independent, dof: int, basis=None) -> 
     projected = series @ basis
     shares = np.einsum("ji,kjl,lm->kim", basis, np.asarray(informations, dtype=float), basis)
     bandwidth = bartlett_bandwidth(projected)
-    description = {
+    student = t_widening(dof)
+    description: dict = {
         "method": "independent",
         "bandwidth_blocks": bandwidth,
         "group_blocks": 1,
         "groups": len(projected),
-        "t_widening": t_widening(dof),
+        "t_widening": student,
     }
     if not scores_dependent(projected):
         freedom = np.full(p, float(max(dof, 1)))
-        return np.asarray(independent) * description["t_widening"] ** 2, description, freedom
+        return np.asarray(independent) * student**2, description, freedom
     length = group_length(bandwidth, len(projected))
     covariance, freedom = moving_block_jackknife(projected, shares, length, basis)
     widening = np.array([t_widening(v) for v in freedom])
