@@ -142,8 +142,9 @@ def group_length(bandwidth: float, blocks: int) -> int:
 
 def moving_block_jackknife(series, informations, length: int, directions) -> tuple:
     """(V, dof): the covariance of an estimate by Kunsch's delete-a-block jackknife over the
-    M = K - L + 1 overlapping blocks of L = `length` consecutive blocks [K89, Eq. 2.5], and the
-    degrees of freedom of each of its variances along `directions`.
+    M = K - L + 1 overlapping blocks of L = `length` consecutive blocks [K89], normalised as
+    overlapping batch means [MS84], and the degrees of freedom of each of its variances along
+    `directions`.
 
     series : (K, q) block sums of the scores psi(r_i) J_i at the estimate. informations :
     (K, q, q) the blocks' shares A_k of the information A = sum A_k. directions : (p, q) the
@@ -152,7 +153,11 @@ def moving_block_jackknife(series, informations, length: int, directions) -> tup
     Without block j the gradient at the estimate is -S_j, so one Newton step gives the estimate
     without it, delta_j = (A - A_j)^-1 S_j, and
 
-        V = (K - L)^2 / (K L M) sum_j (delta_j - mean)(delta_j - mean)^T.
+        V = (K - L) / (L M) sum_j (delta_j - mean)(delta_j - mean)^T.
+
+    Kunsch's (K - L)^2 / (K L M) [K89, Eq. 2.5] is this times 1 - L / K, the share of a block's
+    variance its centring removes: with blocks a sixth of the log, it states independent
+    samples' variance 0.77 times too small; the batch means' (K - L) / (L M) is unbiased there.
 
     Blocks longer than the scores' dependence see it whole, so V follows it; each delta_j is the
     estimate refitted without the block, so V keeps what the fit absorbs of slow errors (a smooth
@@ -184,7 +189,7 @@ def moving_block_jackknife(series, informations, length: int, directions) -> tup
     deltas = np.einsum("mij,mj->mi", inverses, sums)
     centred = deltas - deltas.mean(axis=0)
     starts = count - length + 1
-    covariance = (count - length) ** 2 / (count * length * starts) * centred.T @ centred
+    covariance = (count - length) / (length * starts) * centred.T @ centred
     mapped = np.einsum("pi,mij->mpj", directions, inverses)  # D C_j
     shares_of_variance = np.einsum("mpj,mjl,mpl->mp", mapped, shares, mapped)  # lambda_jk
     mean_square = np.mean(shares_of_variance**2, axis=0)
