@@ -17,9 +17,9 @@ state z adds is kept as linear maps of z (the state-space form of a cascade of s
     y = y0 + F z            the block's output, F its free response (rows, states)
     z' = e + P z            the state at its end
 
-For one column the block's sums are then y'y = y0'y0 + 2 z'F'y0 + z'F'F z and 1'y = 1'y0 + 1'F z:
-a block keeps G0 = Y0'Y0, C = F'Y0, M = F'F, s0 = 1'Y0, f = 1'F, E and P (`Segment`), whose size
-does not depend on its rows, and two neighbouring blocks merge into the segment of both
+so that for the columns Y = Y0 + F Z, Y'Y = Y0'Y0 + Z'F'Y0 + Y0'F Z + Z'F'F Z and 1'Y = 1'Y0 +
+1'F Z: a block keeps G0 = Y0'Y0, C = F'Y0, M = F'F, s0 = 1'Y0, f = 1'F, E and P (`Segment`),
+whose size does not depend on its rows, and two neighbouring blocks merge into the segment of both
 (`Segment.then`). The pass ends with the whole record's segment.
 
 The filter starts in the steady state of a constant input equal to the first row (the state
@@ -143,6 +143,12 @@ class Segment:
         return 0.5 * (self.gram0 + self.gram0.T), self.sum0
 
 
+def flat_states(end: np.ndarray) -> np.ndarray:
+    """The states sosfilt returns for a filter along the last axis, (sections, columns, 2), as
+    (states, columns), state 2 s + k being delay k of section s."""
+    return end.transpose(0, 2, 1).reshape(2 * end.shape[0], end.shape[1])
+
+
 class FreeResponse:
     """F and the end state of each unit initial state, for blocks of a given length (kept: every
     block of a pass but the last has the same length)."""
@@ -152,33 +158,30 @@ class FreeResponse:
         self._kept: dict = {}
 
     def __call__(self, length: int) -> tuple:
-        """(F (length, states), P (states, states)) for `length` rows."""
+        """(F' (states, length), P (states, states)) for `length` rows."""
         if length not in self._kept:
-            signal = require_scipy()
             n = states(self.sos)
-            zi = np.eye(n).reshape(self.sos.shape[0], 2, n)  # column m: the unit state m
-            response, end = signal.sosfilt(self.sos, np.zeros((length, n)), axis=0, zi=zi)
-            self._kept[length] = (response, end.reshape(n, n))
+            zi = np.eye(n).reshape(self.sos.shape[0], 2, n).transpose(0, 2, 1)  # m: unit state m
+            response, end = require_scipy().sosfilt(self.sos, np.zeros((n, length)), zi=zi)
+            self._kept[length] = (response, flat_states(end))
         return self._kept[length]
 
 
 def segment(columns: np.ndarray, sos: np.ndarray, free: FreeResponse, skip: int = 0) -> Segment:
-    """The segment of rows (rows, columns), filtered from the zero state, its first `skip` rows
+    """The segment of rows given as columns (columns, rows), C-ordered so that sosfilt filters
+    each column along its rows without a copy, from the zero state; its first `skip` rows
     filtered but not counted in the sums."""
-    signal = require_scipy()
-    n = states(sos)
-    length = columns.shape[0]
-    zero = np.zeros((sos.shape[0], 2, columns.shape[1]))
-    output, end = signal.sosfilt(sos, columns, axis=0, zi=zero)
-    response, transition = free(length)
-    counted, f = output[skip:], response[skip:]
+    zero = np.zeros((sos.shape[0], columns.shape[0], 2))
+    output, end = require_scipy().sosfilt(sos, columns, zi=zero)
+    response, transition = free(columns.shape[1])
+    counted, f = output[:, skip:], response[:, skip:]
     return Segment(
-        rows=length,
-        gram0=counted.T @ counted,
-        cross=f.T @ counted,
-        free=f.T @ f,
-        sum0=counted.sum(axis=0),
-        free_sum=f.sum(axis=0),
-        end0=end.reshape(n, columns.shape[1]),
+        rows=columns.shape[1],
+        gram0=counted @ counted.T,
+        cross=f @ counted.T,
+        free=f @ f.T,
+        sum0=counted.sum(axis=1),
+        free_sum=f.sum(axis=1),
+        end0=flat_states(end),
         transition=transition,
     )

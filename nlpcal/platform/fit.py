@@ -166,9 +166,10 @@ class TollesLawsonFit(Document):
         rows given, for vector readings (N, 3) [vector unit] sampled at `sample_rate_hz` and
         the auxiliary channels (N, k) [channel units]. [unit]"""
         vector = _vectors(vector)
-        columns = [design(vector, cosine_rates(vector, self.sample_rate_hz), self.terms)]
-        columns += [_channels(aux, vector.shape[0], len(self.aux_columns))]
-        field = np.column_stack(columns) @ self.coefficients
+        rates = cosine_rates(vector, self.sample_rate_hz)
+        channels = _channels(aux, vector.shape[0], len(self.aux_columns))
+        field = self.coefficients[: self.terms] @ design(vector, rates, self.terms)
+        field += channels @ self.coefficients[self.terms :]
         return field - field.mean()
 
     def compensate(self, vector, scalar, aux=None) -> np.ndarray:
@@ -265,15 +266,18 @@ class PlatformBlock:
     def __init__(self, terms: int, sos: np.ndarray, settling: int, chunk_rows: int, first_row):
         self.terms, self.sos, self.settling, self.chunk_rows = terms, sos, settling, chunk_rows
         self.free = bandpass.FreeResponse(sos)
-        self.origin = 0.0
-        self.origin = self.columns(np.asarray(first_row, dtype=float).reshape(1, -1))[0]
+        self.origin = np.zeros(1)
+        self.origin = self.columns(np.asarray(first_row, dtype=float).reshape(1, -1))[:, 0]
 
     def columns(self, rows: np.ndarray) -> np.ndarray:
-        """The design (`nlpcal.platform.terms.design`), the channels and the scalar of rows,
-        less those of the record's first row (the steady-state start of
+        """The regressors (`nlpcal.platform.terms.design`), the channels and the scalar of rows,
+        one row each, less those of the record's first row (the steady-state start of
         `nlpcal.platform.bandpass`)."""
-        columns = np.column_stack([design(rows[:, :3], rows[:, 3:6], self.terms), rows[:, 6:]])
-        return columns - self.origin
+        columns = np.empty((self.terms + rows.shape[1] - 6, rows.shape[0]))
+        design(rows[:, :3], rows[:, 3:6], self.terms, out=columns)
+        columns[self.terms :] = rows[:, 6:].T
+        columns -= np.reshape(self.origin, (-1, 1))
+        return columns
 
     def __call__(self, block, reference, start: int) -> bandpass.Segment:
         block = np.asarray(block, dtype=float)

@@ -92,7 +92,10 @@ def read_platform_log(
 def sample_rate(times, name: str) -> float:
     """The rate of a regularly sampled time column (seconds, Unix or relative, or ISO 8601
     text), or InputError for irregular sampling. [Hz]"""
-    seconds = pd.to_numeric(pd.Series(times), errors="coerce").to_numpy(dtype=float)
+    series = pd.Series(times)
+    seconds = np.full(len(series), np.nan)
+    if not pd.api.types.is_datetime64_any_dtype(series):  # numbers, or numbers as text
+        seconds = pd.to_numeric(series, errors="coerce").to_numpy(dtype=float)
     if not np.isfinite(seconds).all():
         parsed = parse_times(times)
         if np.isnat(parsed).any():

@@ -82,7 +82,7 @@ def _pairs(terms: int) -> tuple:
 
 def direction_cosines(vector) -> tuple:
     """(cos X_i, |B|) of vector readings (N, 3): the direction cosines of the field in the
-    platform's axes [1] and its magnitude [vector unit]."""
+    platform's axes [1], (N, 3), and its magnitude [vector unit], (N,)."""
     vector = np.asarray(vector, dtype=float)
     magnitude = np.sqrt(np.einsum("ij,ij->i", vector, vector))
     return vector / magnitude[:, None], magnitude
@@ -97,13 +97,19 @@ def cosine_rates(vector, rate_hz: float) -> np.ndarray:
     return np.gradient(cosines, 1.0 / rate_hz, axis=0)
 
 
-def design(vector, rates, terms: int = 18) -> np.ndarray:
-    """The Tolles-Lawson design matrix (N, terms) of vector readings (N, 3) [vector unit] and
-    their cosine rates (N, 3) [1/s] (`cosine_rates`): the columns of `term_names`."""
-    cosines, magnitude = direction_cosines(vector)
-    rates = np.asarray(rates, dtype=float)
+def design(vector, rates, terms: int = 18, out=None) -> np.ndarray:
+    """The Tolles-Lawson regressors of vector readings (N, 3) [vector unit] and their cosine
+    rates (N, 3) [1/s] (`cosine_rates`), one row per term of `term_names`: (terms, N), written
+    into `out` (at least that many rows of N) when given."""
+    vector, rates = np.asarray(vector, dtype=float), np.asarray(rates, dtype=float)
+    rows = np.empty((terms, vector.shape[0])) if out is None else out
+    magnitude = np.sqrt(np.einsum("ij,ij->i", vector, vector))
+    cosines = rows[:3]
+    np.divide(vector.T, magnitude, out=cosines)  # Eq. 3 of [3]: permanent
+    scaled = magnitude * cosines  # |B| cos X_i
     induced, eddy = _pairs(terms)
-    columns = [cosines[:, i] for i in range(3)]  # Eq. 3 of [3]: permanent
-    columns += [magnitude * cosines[:, i] * cosines[:, j] for i, j in induced]  # Eq. 4: induced
-    columns += [magnitude * cosines[:, i] * rates[:, j] for i, j in eddy]  # Eq. 5: eddy
-    return np.column_stack(columns)
+    for k, (i, j) in enumerate(induced, start=3):  # Eq. 4: induced
+        np.multiply(scaled[i], cosines[j], out=rows[k])
+    for k, (i, j) in enumerate(eddy, start=3 + len(induced)):  # Eq. 5: eddy
+        np.multiply(scaled[i], rates[:, j], out=rows[k])
+    return rows
