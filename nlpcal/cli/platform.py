@@ -190,22 +190,22 @@ column passing through.""",
 
 def run_fit(args) -> int:
     from ..io import check_output_path
-    from ..platform import fit_platform_log
+    from ..platform import fit_platform_log, read_platform_log
 
     check_output_path(args.output, args.log)
-    fit, record = fit_platform_log(
+    record = read_platform_log(
         args.log,
         args.scalar_column,
         columns=args.columns,
         unit=args.unit,
         aux_columns=args.aux_columns,
         time_column=args.time_column,
-        rate_hz=args.rate,
-        terms=args.terms,
-        band_hz=args.band,
         header=args.header,
     )
     report_log(record.log)
+    fit = fit_platform_log(
+        record, rate_hz=args.rate, terms=args.terms, band_hz=args.band, time_column=args.time_column
+    )
     warn(
         f"Tolles-Lawson, {fit.terms} terms"
         + (f" and {len(fit.aux_columns)} channel(s)" if fit.aux_columns else "")

@@ -4,6 +4,12 @@ pass with a causal band-pass and a ridge solve (`nlpcal.platform.terms`, `.bandp
 Needs scipy (the `platform` extra)."""
 
 from .fit import TollesLawsonFit, fit_tolles_lawson
-from .logs import apply_platform_log, fit_platform_log
+from .logs import apply_platform_log, fit_platform_log, read_platform_log
 
-__all__ = ["TollesLawsonFit", "apply_platform_log", "fit_platform_log", "fit_tolles_lawson"]
+__all__ = [
+    "TollesLawsonFit",
+    "apply_platform_log",
+    "fit_platform_log",
+    "fit_tolles_lawson",
+    "read_platform_log",
+]

@@ -93,18 +93,15 @@ class TollesLawsonFit(Document):
     Examples
     --------
     >>> import numpy as np, nlpcal
-    >>> t = np.arange(3000) / 10.0  # 5 minutes at 10 Hz [s]
-    >>> heading, pitch = 0.3 * t + 0.4 * np.sin(1.6 * t), 0.8 + 0.2 * np.sin(2.5 * t)
-    >>> c = np.column_stack(
-    ...     [np.cos(pitch) * np.cos(heading), np.cos(pitch) * np.sin(heading), np.sin(pitch)])
-    >>> scalar = 5e4 + 8 * c[:, 0] - 5 * c[:, 1] + 10 * c[:, 0] * c[:, 2]  # [nT]
-    >>> scalar += 0.01 * np.random.default_rng(0).standard_normal(3000)
-    >>> fit = nlpcal.fit_tolles_lawson(5e4 * c, scalar, rate_hz=10.0)
-    >>> fit = nlpcal.TollesLawsonFit.from_json(fit.to_json())  # the document read back
-    >>> fit.names[:4], fit.improvement_ratio > 10
-    (['permanent_x', 'permanent_y', 'permanent_z', 'induced_xx'], True)
-    >>> bool(fit.compensate(5e4 * c, scalar).std() < 0.1)  # the platform's field is gone [nT]
-    True
+    >>> t = np.arange(3000) / 10.0  # [s]
+    >>> tilt = 0.3 + 0.2 * np.sin(2.5 * t)  # a slow turn, nodding at 0.4 Hz [rad]
+    >>> c = np.column_stack([np.cos(0.3 * t), np.sin(0.3 * t), np.tan(tilt)])
+    >>> c *= np.cos(tilt)[:, None]  # unit vectors: the direction cosines [1]
+    >>> noise = 0.01 * np.random.default_rng(0).standard_normal(3000)  # [nT]
+    >>> fit = nlpcal.fit_tolles_lawson(5e4 * c, 5e4 + c @ [8.0, -5.0, 3.0] + noise, rate_hz=10)
+    >>> back = nlpcal.TollesLawsonFit.from_json(fit.to_json())  # the document read back
+    >>> back.names[:4], back.improvement_ratio > 10, back.coefficients_meaningful
+    (['permanent_x', 'permanent_y', 'permanent_z', 'induced_xx'], True, False)
     """
 
     FORMAT = "nlpcal-platform"
@@ -361,6 +358,8 @@ def fit_tolles_lawson(
     >>> fit = nlpcal.fit_tolles_lawson(5e4 * c, scalar, rate_hz=10.0, terms=16)
     >>> len(fit.coefficients), fit.compensated_std < 0.01  # the band-passed noise is left [nT]
     (16, True)
+    >>> bool(fit.compensate(5e4 * c, scalar).std() < 0.1)  # the platform's field is gone [nT]
+    True
     """
     if terms not in TERM_SETS:
         raise InputError(f"terms {terms!r}: expected one of {', '.join(map(str, TERM_SETS))}")
@@ -376,7 +375,8 @@ def fit_tolles_lawson(
             f"and {len(names)} coefficients need {ROWS_PER_TERM * len(names)} more; give at "
             f"least {needed} rows"
         )
-    work = PlatformBlock(terms, sos, settling, chunk_rows, rows[0:1])
+    first = rows.array[:1].compute() if isinstance(rows, passes.LazySamples) else rows[:1]
+    work = PlatformBlock(terms, sos, settling, chunk_rows, first)  # no survey of a Dask log
     whole = passes.reduce(rows, None, work, bandpass.Segment.then, chunk_rows, indexed=True)
     gram, sums = whole.sums()
     n = rows.shape[0] - settling

@@ -127,35 +127,20 @@ def one_rate(rate_hz, time_rate, stored=None) -> float:
 
 
 def fit_platform_log(
-    path,
-    scalar_column,
+    record: PlatformLog,
     *,
-    columns=None,
-    unit: str | None = None,
-    aux_columns=(),
-    time_column=None,
     rate_hz: float | None = None,
     terms: int = 18,
     band_hz=bandpass.DEFAULT_BAND_HZ,
-    header: bool | None = None,
-) -> tuple:
-    """(`TollesLawsonFit`, the `PlatformLog` it was fitted to) of a log (`nlpcal platform
-    fit`)."""
-    record = read_platform_log(
-        path,
-        scalar_column,
-        columns=columns,
-        unit=unit,
-        aux_columns=aux_columns,
-        time_column=time_column,
-        header=header,
-    )
-    rate = one_rate(rate_hz, record.rate_hz)
+    time_column=None,
+) -> TollesLawsonFit:
+    """The `TollesLawsonFit` of a log read by `read_platform_log` (`nlpcal platform fit`), at
+    `rate_hz` or the rate of its `time_column`."""
     log = record.log
     fit = fit_tolles_lawson(
         log.samples,
         record.scalar,
-        rate_hz=rate,
+        rate_hz=one_rate(rate_hz, record.rate_hz),
         terms=terms,
         band_hz=band_hz,
         aux=record.aux,
@@ -167,7 +152,7 @@ def fit_platform_log(
     fit.time_column = None if time_column is None else str(time_column)
     fit.columns = list(log.columns)
     fit.input = log.metadata(scalar_unit=record.scalar_unit)
-    return fit, record
+    return fit
 
 
 def apply_platform_log(
