@@ -321,24 +321,9 @@ def calibrate_temperature(
         if base_temperature is None
         else validation.number(base_temperature, "the base temperature")
     )
-    t_low, t_high = float(temperature.min()), float(temperature.max())
-    if t_high == t_low:
-        raise InputError(
-            f"all {n} temperatures equal {t_low:g} degC; the temperature "
-            f"coefficients need a log over a range of temperatures (calibrate "
-            f"without --temperature-column for a log at one temperature)"
-        )
+    t_low, t_high = _temperature_range(temperature)
     dt = temperature - base_temperature
-    frame = sphere_frame(samples)
-    start = np.zeros(nx)
-    start[0:3] = frame.centre
-    start[3:6] = frame.radius / float(np.sqrt(np.mean(reference**2))) - 1.0
-    scale = np.concatenate(
-        [
-            variable_scale(frame.radius),
-            coefficient_scale(model, frame.radius, float(np.max(np.abs(dt)))),
-        ]
-    )
+    start, scale = _start_and_scale(model, samples, reference, dt)
     started = time.perf_counter()
     theta, sums, steps, iterations, status = minimise(model, start, scale, (samples, dt, reference))
     wall = time.perf_counter() - started
@@ -365,42 +350,15 @@ def calibrate_temperature(
             if v > POOR_TEMPERATURE_SE * size
         ]
     warnings = _warnings(t_high - t_low, not_identifiable, poor)
-    rows = [
-        {**evaluation_row("measured", samples, reference), "iterations": 0, "wall_s": 0.0},
-        {
-            **evaluation_row("system (t0 only)", zhou_correct(samples, params), reference),
-            "iterations": 0,
-            "wall_s": 0.0,
-        },
-        {
-            **evaluation_row(
-                f"system + temperature ({model})",
-                liu2022.correct(samples, temperature, params, fitted),
-                reference,
-            ),
-            "iterations": iterations,
-            "wall_s": wall,
-        },
-    ]
+    rows = _statistics_rows(model, samples, temperature, reference, params, fitted)
+    rows[-1].update(iterations=iterations, wall_s=wall)  # the temperature solve's
     calibration = CalibrationResult(
         parameters=params.to_dict(),
         statistics=rows,
         method=f"joint-temperature-{model}",
         reference=Reference("series", field_mean=float(np.mean(reference))),
         gauge=None,
-        solver=SolverReport(
-            stages=[
-                BlockSolve(
-                    cycle=1,
-                    stage=f"joint-temperature-{model}",
-                    finished_by="ipopt",
-                    iterations=iterations,
-                    ipopt_status=status,
-                )
-            ],
-            ipopt_options=STEP_OPTIONS.settings(),
-            gauss_newton_steps=steps,
-        ),
+        solver=_solver_report(model, iterations, status, steps),
         unit=units.base_unit(unit),
         unit_source="option",  # the caller's unit (nT by default); the reference fixes the scale
         standard_errors=errors,
@@ -419,6 +377,78 @@ def calibrate_temperature(
         temperature_column=temperature_column,
         temperature_range=(t_low, t_high),
         temperature_standard_errors=temperature_errors,
+    )
+
+
+def _temperature_range(temperature) -> tuple:
+    """The lowest and highest temperature of the log [degC]; InputError when they are equal
+    (no temperature coefficient can be estimated)."""
+    n = len(temperature)
+    t_low, t_high = float(temperature.min()), float(temperature.max())
+    if t_high == t_low:
+        raise InputError(
+            f"all {n} temperatures equal {t_low:g} degC; the temperature "
+            f"coefficients need a log over a range of temperatures (calibrate "
+            f"without --temperature-column for a log at one temperature)"
+        )
+    return t_low, t_high
+
+
+def _start_and_scale(model: str, samples, reference, dt) -> tuple:
+    """IPOPT's start (offsets at the centre of the samples, the scale errors from their radius
+    and the reference, everything else zero) and the scale of every variable (nine parameters
+    then the temperature coefficients of `model`, from the largest |t - t0| [degC])."""
+    nx = 9 + n_coefficients(model)
+    frame = sphere_frame(samples)
+    start = np.zeros(nx)
+    start[0:3] = frame.centre
+    start[3:6] = frame.radius / float(np.sqrt(np.mean(reference**2))) - 1.0
+    scale = np.concatenate(
+        [
+            variable_scale(frame.radius),
+            coefficient_scale(model, frame.radius, float(np.max(np.abs(dt)))),
+        ]
+    )
+    return start, scale
+
+
+def _statistics_rows(model: str, samples, temperature, reference, params, fitted) -> list:
+    """The Table 1 rows of the measured |B_M|, the nine parameters alone and the nine with the
+    temperature model (its iterations and wall time for the caller to fill in). [base unit]"""
+    return [
+        {**evaluation_row("measured", samples, reference), "iterations": 0, "wall_s": 0.0},
+        {
+            **evaluation_row("system (t0 only)", zhou_correct(samples, params), reference),
+            "iterations": 0,
+            "wall_s": 0.0,
+        },
+        {
+            **evaluation_row(
+                f"system + temperature ({model})",
+                liu2022.correct(samples, temperature, params, fitted),
+                reference,
+            ),
+            "iterations": 0,
+            "wall_s": 0.0,
+        },
+    ]
+
+
+def _solver_report(model: str, iterations: int, status: str, steps: int) -> SolverReport:
+    """The joint temperature solve as one IPOPT block solve, with the Levenberg-Marquardt steps
+    that finished it."""
+    return SolverReport(
+        stages=[
+            BlockSolve(
+                cycle=1,
+                stage=f"joint-temperature-{model}",
+                finished_by="ipopt",
+                iterations=iterations,
+                ipopt_status=status,
+            )
+        ],
+        ipopt_options=STEP_OPTIONS.settings(),
+        gauss_newton_steps=steps,
     )
 
 
