@@ -261,10 +261,9 @@ def invert(
     samples, bounds, start = _checked_samples(samples, bound_deg, start_deg)
     field_nT = validation.renamed(reference_field, field_nT, "reference_field", "field_nT")
     reference = None if field_nT is None else validation.field(field_nT, what="reference field")
+    nominal = _nominal_magnitude(samples)
     n = samples.shape[0]
-    validation.reference_scale(
-        reference, float(np.mean(np.linalg.norm(samples, axis=1))), "the reference field"
-    )
+    validation.reference_scale(reference, nominal, "the reference field")
     moments = accumulate(samples, reference)
     before = field_statistics(samples, None, reference)
     where = f"{source}: " if source else ""
@@ -323,7 +322,7 @@ def invert(
 
 def _checked_samples(samples, bound_deg, start_deg) -> tuple:
     """The samples [nT], bounds [deg] and start [deg] of an inversion, checked: enough samples,
-    none of zero magnitude, the start within the bounds (InputError otherwise)."""
+    the start within the bounds (InputError otherwise)."""
     samples = validation.samples(
         samples, minimum=MIN_INVERSION_SAMPLES, purpose="attitudes to invert three angles"
     )
@@ -334,12 +333,17 @@ def _checked_samples(samples, bound_deg, start_deg) -> tuple:
             f"the start {validation.fmt_list(start)} deg lies outside the bounds "
             f"+-{validation.fmt_list(bounds)} deg"
         )
+    return samples, bounds, start
+
+
+def _nominal_magnitude(samples) -> float:
+    """The mean |B'| of the samples [nT]; InputError when any has zero magnitude."""
     magnitude = np.linalg.norm(samples, axis=1)
     nominal = float(np.mean(magnitude))
     if (magnitude <= 1e-9 * nominal).any():
         bad = int((magnitude <= 1e-9 * nominal).sum())
         raise InputError(f"{bad} sample(s) have zero magnitude; drop those rows")
-    return samples, bounds, start
+    return nominal
 
 
 def _solve_angles(moments, before: dict, start, bounds, verbose: bool, where: str):
