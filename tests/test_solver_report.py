@@ -220,3 +220,6 @@ def test_compare_takes_ipopt_options_and_records_them_as_calibrate_does(
     argv = ["compare", log_csv, "--cycles", "2", "--cg-max-iter", "20", "-q", "-o", out]
     assert run(capsys, *argv, "--ipopt-option", "max_iter=1")[0] == 0
     assert json.loads(out.read_text())["settings"]["ipopt_options"]["max_iter"] == 1
+    bad = tmp_path / "bad.json"
+    code, stdout, err = run(capsys, "compare", log_csv, "--ipopt-option", "no_such=1", "-o", bad)
+    assert code == 2 and not bad.exists() and "Traceback" not in err

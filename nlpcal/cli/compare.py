@@ -118,6 +118,7 @@ def run(args) -> int:
     from ..comparison import CompareSettings, compare_log
     from ..comparison.conjugate_gradient import CGOptions
     from ..io import Outputs, check_output_path, read_log
+    from ..nlp.solver import check_ipopt_options
     from ..plots import comparison_png, require_matplotlib
     from ..results import distinct
 
@@ -128,6 +129,9 @@ def run(args) -> int:
             step_factor=args.cg_step_factor, rel_eps=args.cg_rel_eps, max_iter=args.cg_max_iter
         ),
     )
+    ipopt_options = distinct(args.ipopt_option or (), "--ipopt-option", "option") or None
+    if ipopt_options:  # checked before the log is read
+        check_ipopt_options(ipopt_options)
     check_output_path(args.output, args.log)
     check_output_path(args.plot, args.log)
     if args.plot:
@@ -141,7 +145,7 @@ def run(args) -> int:
             loss=args.loss,
             loss_scale=args.loss_scale,
             threads=args.threads,
-            ipopt_options=distinct(args.ipopt_option or (), "--ipopt-option", "option") or None,
+            ipopt_options=ipopt_options,
         )
     png = comparison_png(result, title=Path(log.path).name) if args.plot else None
     say(result.table())
