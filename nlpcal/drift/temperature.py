@@ -536,7 +536,7 @@ def _checked_series(samples, temperature, reference, unit: str, reference_unit) 
     return samples, temperature, reference
 
 
-def _standard_errors(uncertainty, scale, names: list, model: str) -> tuple:
+def _standard_errors(uncertainty, scale, names, model: str) -> tuple:
     """The standard errors of the nine parameters [nT, 1, deg] and of the coefficients (by
     name, in their units) from the scaled `uncertainty`, and the coefficients poorly
     determined (a standard error above POOR_TEMPERATURE_SE of their scale); None, None and []
