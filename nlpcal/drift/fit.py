@@ -319,18 +319,7 @@ def fit_drift(
             f"all {n} temperatures equal {t_low:g} degC; the slope of Eq. 1 needs a "
             f"log over a range of temperatures"
         )
-    warnings = []
-    source = "argument"
-    if base_temperature is None:
-        base_temperature = float(np.mean(temperature))
-        source = "log mean"
-        warnings.append(
-            f"no base temperature given: k = 1 at the log's mean temperature "
-            f"{base_temperature:.3f} degC; pass the temperature of the system "
-            f"calibration (--base-temperature)"
-        )
-    elif not np.isfinite(base_temperature):
-        raise InputError(f"the base temperature must be a finite number, got {base_temperature}")
+    base_temperature, source, warnings = _base_temperature(base_temperature, temperature)
 
     modulus = np.linalg.norm(samples, axis=1)
     validation.reference_scale(reference, float(modulus.mean()), "the reference (proton) field")
@@ -383,6 +372,25 @@ def fit_drift(
         unit=units.base_unit(unit),
         warnings=warnings,
     )
+
+
+def _base_temperature(base_temperature, temperature) -> tuple:
+    """The temperature t0 where k = 1 [degC], where it came from ("argument", or "log mean"
+    when none was given: the log's mean temperature, with a warning) and that warning in a
+    list."""
+    warnings = []
+    source = "argument"
+    if base_temperature is None:
+        base_temperature = float(np.mean(temperature))
+        source = "log mean"
+        warnings.append(
+            f"no base temperature given: k = 1 at the log's mean temperature "
+            f"{base_temperature:.3f} degC; pass the temperature of the system "
+            f"calibration (--base-temperature)"
+        )
+    elif not np.isfinite(base_temperature):
+        raise InputError(f"the base temperature must be a finite number, got {base_temperature}")
+    return base_temperature, source, warnings
 
 
 @dataclass(frozen=True)
