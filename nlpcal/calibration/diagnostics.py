@@ -16,6 +16,7 @@ from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
 from ..moments import Moments
 from ..nlp.blocks import evaluate, objective_function, variable_scale
 from ..nlp.steps import block_step
+from ..results import TableRow
 from ..robust import robust_std
 from ..statistics import exact_objectives, field_statistics
 from .coverage import COVERAGE_WARN, direction_coverage, flatness, planar_message
@@ -431,7 +432,7 @@ def explain_failure(
     identifiability["flatness"] = flat
     identifiability["coverage"] = direction_coverage(problem.samples, theta)
     if not weak and identifiability["coverage"]["fraction"] < COVERAGE_WARN:
-        final = field_statistics(problem.samples, theta, problem.reference)
+        final = row_at(problem, theta)
         help_ = what_would_help(identifiability, final, problem.moments.reference, problem.model)
         covered = identifiability["coverage"]["covered"]
         return SolveError(
@@ -451,7 +452,7 @@ def explain_failure(
             result=theta,
             identifiability=identifiability,
         )
-    final = field_statistics(problem.samples, theta, problem.reference)
+    final = row_at(problem, theta)
     help_ = what_would_help(identifiability, final, problem.moments.reference, problem.model)
     help_ = help_ or "rotate the sensor through more attitudes"
     return SolveError(
@@ -492,7 +493,16 @@ def _judged(errors: dict, limits: dict, names, unit: str, share: float) -> str:
     return "; ".join(parts)
 
 
-def what_would_help(identifiability: dict, final: dict, reference: str, model: str = "full") -> str:
+def row_at(problem: Problem, theta) -> TableRow:
+    """The Table 1 statistics of |B1| at theta, as a row labelled "stopped" (one pass)."""
+    return TableRow.from_dict(
+        {"label": "stopped", **field_statistics(problem.samples, theta, problem.reference)}
+    )
+
+
+def what_would_help(
+    identifiability: dict, final: TableRow, reference: str, model: str = "full"
+) -> str:
     """What would determine the parameters better, from what limits them here (`model`: the form
     of Eq. 4 fitted; a smaller one is suggested where the attitudes cover a cap of the sphere)."""
     advice = []
@@ -505,8 +515,8 @@ def what_would_help(identifiability: dict, final: dict, reference: str, model: s
             f"{', '.join(missing[:6])}{more} (sensor axes; {coverage['covered']} of 26 direction "
             f"bins visited)"
         )
-    mean = final.get("mean") or 0.0
-    spread = final.get("std", 0.0) / mean if mean > 0 else 0.0
+    mean = final.mean or 0.0
+    spread = (final.std or 0.0) / mean if mean > 0 else 0.0
     if spread > DISTURBED_SPREAD:
         advice.append(
             f"a steadier field: |B1| still varies by {spread:.1%} (a clean field gives 0.1 %): "
@@ -532,7 +542,7 @@ def what_would_help(identifiability: dict, final: dict, reference: str, model: s
 
 
 def undetermined_message(
-    errors, identifiability: dict, final: dict, reference: str, unit, model: str = "full"
+    errors, identifiability: dict, final: TableRow, reference: str, unit, model: str = "full"
 ):
     """Why the data do not determine some parameters, and what would: a few sentences."""
     undetermined = identifiability.get("undetermined", [])
@@ -582,7 +592,7 @@ def notes_for(problem: Problem) -> list:
 
 
 def warnings_for(
-    problem: Problem, theta, hs, errors, identifiability: dict, final: dict, unit: str = "nT"
+    problem: Problem, theta, hs, errors, identifiability: dict, final: TableRow, unit: str = "nT"
 ) -> list:
     """What the data cannot tell, in words (and the exact-optimum check, into identifiability)."""
     warnings = []
@@ -614,7 +624,7 @@ def warnings_for(
             f"poorly determined (standard errors above the limits): {judged}"
             + (f". {help_[0].upper()}{help_[1:]}" if help_ else "")
         )
-    inexact = final.get("series_rel_error", 0.0) > SERIES_CHECK
+    inexact = (final.series_rel_error or 0.0) > SERIES_CHECK
     robust = problem.loss.robust  # reweighting may stop before the weights settle
     if inexact or robust:
         shift = exact_optimum_shift(problem, theta, hs, errors)
@@ -627,8 +637,8 @@ def warnings_for(
             )
             why = (
                 f"the moment expansion of the objective is inexact here "
-                f"({final['series_rel_error']:.1e} relative; |B1|^2 varies by up to "
-                f"{final['max_abs_u']:.1%}); "
+                f"({final.series_rel_error:.1e} relative; |B1|^2 varies by up to "
+                f"{final.max_abs_u:.1%}); "
                 if inexact
                 else ""
             )

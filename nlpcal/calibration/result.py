@@ -24,7 +24,7 @@ from ..models.zhou2010 import (
     tied_parameters,
 )
 from ..nlp.solver import FINISHERS, NLPCAL_STATUSES
-from ..results import Document, DocumentReader
+from ..results import Document, DocumentReader, TableRow
 from ..statistics import STD_DDOF, format_table
 from ..verdict import Verdict, judge
 from ..version import __version__
@@ -337,9 +337,9 @@ class CalibrationResult(Document):
     ----------
     parameters : dict
         z_x, z_y, z_z [unit], s_x, s_y, s_z [1], alpha_deg, beta_deg, gamma_deg [deg].
-    statistics : list of dict
-        Table 1 rows (label, max, min, mean, std, range [unit], objective [unit^2], iterations,
-        wall_s [s]); the first is the measured |B_M|.
+    statistics : list of TableRow
+        Table 1 rows (`nlpcal.results.TableRow`: label, max, min, mean, std, range [unit],
+        objective [unit^2], iterations, wall_s [s], ...); the first is the measured |B_M|.
     method : str
         "staged" or "joint".
     reference : Reference
@@ -416,19 +416,19 @@ class CalibrationResult(Document):
     def accepts(cls, document: dict) -> bool:
         return document.get("format") in cls.ALSO_READS or super().accepts(document)
 
-    parameters: dict
-    statistics: list
+    parameters: dict[str, float]
+    statistics: list[TableRow]
     method: str = "staged"
     reference: Reference = field(default_factory=Reference)
     gauge: dict | None = None
     solver: SolverReport = field(default_factory=SolverReport)
     unit: str = "nT"
     unit_source: str | None = None
-    standard_errors: dict | None = None
+    standard_errors: dict[str, float] | None = None
     covariance: np.ndarray | None = None
     identifiability: dict = field(default_factory=dict)
-    warnings: list = field(default_factory=list)
-    notes: list = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
     n_samples: int = 0
     version: str = __version__
     input: dict = field(default_factory=dict)
@@ -437,6 +437,9 @@ class CalibrationResult(Document):
     model_selection: dict | None = None
     sensor_id: int | str | None = None
     orientation: dict | None = None
+
+    def __post_init__(self) -> None:
+        self.statistics = [TableRow.of(row) for row in self.statistics]
 
     @property
     def estimated_parameters(self) -> list:
@@ -521,7 +524,7 @@ class CalibrationResult(Document):
     def body(self) -> dict:
         document = {
             "parameters": dict(self.parameters),
-            "statistics": list(self.statistics),
+            "statistics": [row.to_dict() for row in self.statistics],
             "std_ddof": STD_DDOF,
             "method": self.method,
             "reference": self.reference.to_dict(),
@@ -575,7 +578,10 @@ class CalibrationResult(Document):
         check_model(parameters, model_name, scale_known, reader.source)
         return {
             "parameters": parameters,
-            "statistics": reader.items("statistics", []),
+            "statistics": [
+                TableRow.read(row, f"{reader.source}: statistics[{i}]")
+                for i, row in enumerate(reader.items("statistics", []))
+            ],
             "method": reader.string("method", "staged"),
             "reference": reference,
             "gauge": reader.mapping("gauge", None),

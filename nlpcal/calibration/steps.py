@@ -30,6 +30,7 @@ from ..io.logs import settle_unit
 from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
 from ..moments import Moments, accumulate
 from ..nlp.blocks import GAUGE
+from ..results import TableRow
 from ..robust import TUNING
 from .coverage import coverage_centre, direction_coverage
 from .diagnostics import (
@@ -154,7 +155,7 @@ class Solution:
     """
 
     theta: np.ndarray
-    rows: list
+    rows: list[TableRow]
     report: SolverReport
     hessian: np.ndarray
 
@@ -205,7 +206,7 @@ class Diagnosis:
     identifiability: dict
     warnings: list
     robust: dict
-    final: dict
+    final: TableRow
     stop_reason: str
     unconverged: str | None = None
 
@@ -217,8 +218,9 @@ def diagnose(
     data leave undetermined, samples in a plane, the attitudes covered, heavy tails or a robust
     reweighting stopped at its limit, and a staged result away from the joint optimum."""
     theta, final = solution.theta, solution.rows[-1]
+    objective = final.objective or 0.0  # a solved row has one
     errors, identifiability, covariance = uncertainty(
-        problem, final["objective"], solution.hessian, theta, final["mean"]
+        problem, objective, solution.hessian, theta, final.mean
     )
     spread = residual_spread(problem, theta)
     judge_attitudes(problem, theta, spread, identifiability)
@@ -259,7 +261,7 @@ def judge_attitudes(problem: Problem, theta, spread: dict, identifiability: dict
 
 
 def robust_block(
-    problem: Problem, spread: dict, final: dict, report: SolverReport, warnings: list
+    problem: Problem, spread: dict, final: TableRow, report: SolverReport, warnings: list
 ) -> dict:
     """The result's robust block: the loss, its scale and the residuals' spread; with a robust
     loss where its scale came from and what it down-weighted. Appends to `warnings` a robust
@@ -271,8 +273,8 @@ def robust_block(
             if problem.scale_given
             else f"1.4826 MAD x {TUNING[problem.loss.kind]:g}",
             reweightings=problem.reweights,
-            downweighted=final["downweighted"],
-            downweighted_fraction=final["downweighted"] / len(problem.samples),
+            downweighted=final.downweighted,
+            downweighted_fraction=(final.downweighted or 0) / len(problem.samples),
             centre=problem.centre,
         )
         limit = reweighting_limit_warning(report)

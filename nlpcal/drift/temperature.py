@@ -29,7 +29,7 @@ from ..models.zhou2010 import correct as zhou_correct
 from ..moments import sphere_frame
 from ..nlp.blocks import variable_scale
 from ..nlp.temperature import STEP_OPTIONS, gauss_newton_pass, minimise, n_coefficients
-from ..results import Document, DocumentReader
+from ..results import Document, DocumentReader, TableRow
 from ..statistics import format_table
 from ..verdict import Verdict
 from .evaluation import evaluation_row
@@ -384,7 +384,7 @@ def calibrate_temperature(
     ]
     calibration = CalibrationResult(
         parameters=params.to_dict(),
-        statistics=rows,
+        statistics=[TableRow.from_dict(row) for row in rows],
         method=f"joint-temperature-{model}",
         reference=Reference("series", field_mean=float(np.mean(reference))),
         gauge=None,

@@ -1,0 +1,86 @@
+"""Typed records inside documents (`nlpcal.results.Record`): a Table 1 row, read by its fields,
+writes exactly the JSON object it was read from, and its keys are those of the schema."""
+
+from __future__ import annotations
+
+import json
+from importlib import resources
+from pathlib import Path
+
+import pytest
+
+import nlpcal
+from nlpcal.errors import InputError
+from nlpcal.results import TableRow
+
+HERE = Path(__file__).resolve().parent
+LEGACY = HERE / "expected" / "params-0.1.0.json"
+
+
+def schema_defs(name: str) -> dict:
+    text = resources.files("nlpcal.schemas").joinpath(name).read_text()
+    return json.loads(text)["$defs"]
+
+
+def test_a_rows_fields_are_the_schemas_keys():
+    # one spelling of the keys: the dataclass's fields, checked against the shipped schema
+    schema = schema_defs("common.json")["tableRowFields"]["properties"]
+    assert set(TableRow.keys_of()) == set(schema)
+
+
+def test_a_row_writes_the_object_it_was_read_from():
+    document = {
+        "label": "cg cycle 2",
+        "mean": 49462.0,
+        "std": 16.25,
+        "objective": 264.0,
+        "from_moments": True,
+        "iterations": 7,
+        "wall_s": 0.5,
+        "status": "converged",  # a key of another document: kept, in order
+        "stage_status": {"orthogonal": "converged"},
+    }
+    row = TableRow.from_dict(document)
+    assert row.std == 16.25 and row.max is None and row.extra["status"] == "converged"
+    assert list(row.to_dict().items()) == list(document.items())
+    assert row == document and dict(row) == document
+    assert "max" not in row and row.get("max", 1.0) == 1.0
+    with pytest.raises(KeyError):
+        row["max"]
+    row["status"] = "diverged"  # writing by key sets the field or the extra entry
+    row["range"] = 2.0
+    assert row.extra["status"] == "diverged" and row.range == 2.0
+    with pytest.raises(AttributeError):
+        row.standard_deviation  # noqa: B018  a typo is an error, not a missing key
+
+
+def test_the_legacy_file_reads_into_rows_and_writes_them_back_unchanged():
+    document = json.loads(LEGACY.read_text())
+    result = nlpcal.CalibrationResult.from_dict(document)
+    assert all(isinstance(row, TableRow) for row in result.statistics)
+    assert result.statistics[-1].label == document["statistics"][-1]["label"]
+    assert result.to_dict()["statistics"] == document["statistics"]
+
+
+@pytest.mark.parametrize(
+    ("row", "field"),
+    [
+        ({"label": "x", "std": "16"}, "std"),
+        ({"label": 3}, "label"),
+        ({"label": "x", "mean": 1e400}, "mean"),
+    ],
+)
+def test_a_malformed_row_in_a_document_is_named(row, field):
+    parameters = dict.fromkeys(nlpcal.Zhou2010Parameters().to_dict(), 0.0)
+    with pytest.raises(InputError, match=f"statistics\\[0\\]: {field}"):
+        nlpcal.CalibrationResult.from_dict({"parameters": parameters, "statistics": [row]})
+
+
+def test_a_calibrations_rows_are_typed_records():
+    samples = nlpcal.simulate(600, seed=2)[["bx", "by", "bz"]].to_numpy()
+    result = nlpcal.calibrate(samples, method="joint")
+    assert [type(row) for row in result.statistics] == [TableRow, TableRow]
+    final = result.statistics[-1]
+    assert final.label == "joint" and final.std is not None and final.std > 0
+    again = nlpcal.CalibrationResult.from_json(result.to_json())
+    assert again.statistics == result.statistics
