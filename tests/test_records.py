@@ -84,3 +84,26 @@ def test_a_calibrations_rows_are_typed_records():
     assert final.label == "joint" and final.std is not None and final.std > 0
     again = nlpcal.CalibrationResult.from_json(result.to_json())
     assert again.statistics == result.statistics
+
+
+def test_identifiability_is_a_typed_record_read_by_its_fields():
+    from nlpcal.calibration.result import Identifiability
+
+    samples = nlpcal.simulate(600, seed=2)[["bx", "by", "bz"]].to_numpy()
+    result = nlpcal.calibrate(samples, method="joint")
+    block = result.identifiability
+    assert isinstance(block, Identifiability)
+    assert block.not_identifiable == [] and block.coverage is not None
+    assert block.covariance_form == "sandwich" and not block.planar
+    again = nlpcal.CalibrationResult.from_json(result.to_json())
+    assert again.identifiability == block and isinstance(again.identifiability, Identifiability)
+    # a document's block keeps the keys of other kinds, in order
+    document = {"not_identifiable": ["z_z"], "gauss_newton_eigenvalues_scaled": [1.0, 2.0]}
+    assert list(Identifiability.from_dict(document).to_dict().items()) == list(document.items())
+
+
+def test_a_malformed_identifiability_block_is_named():
+    parameters = dict.fromkeys(nlpcal.Zhou2010Parameters().to_dict(), 0.0)
+    document = {"parameters": parameters, "identifiability": {"not_identifiable": "z_z"}}
+    with pytest.raises(InputError, match=r"identifiability\.not_identifiable"):
+        nlpcal.CalibrationResult.from_dict(document)

@@ -243,7 +243,7 @@ def check_restriction(
         reference = estimate(full, "joint", rule, result.unit)
     except SolveError:
         return
-    if reference.identifiability.get("not_identifiable"):
+    if reference.identifiability.not_identifiable:
         return
     freed = (full.free.basis.shape[1], restricted.free.basis.shape[1])
     warning = restriction_warning(result, reference, freed)

@@ -24,7 +24,7 @@ from ..models.zhou2010 import (
     tied_parameters,
 )
 from ..nlp.solver import FINISHERS, NLPCAL_STATUSES
-from ..results import Document, DocumentReader, TableRow
+from ..results import Document, DocumentReader, Record, TableRow
 from ..statistics import STD_DDOF, format_table
 from ..verdict import Verdict, judge
 from ..version import __version__
@@ -103,6 +103,88 @@ class Reference:
             column=block.string("column", None),
             model=block.mapping("model", None),
         )
+
+
+@dataclass(eq=False, repr=False)
+class Identifiability(Record):
+    """What the data determine of a calibration (the "identifiability" block of its document):
+    the parameters left undetermined or poorly determined, why, and the checks behind it. A
+    field that is None is absent from the document.
+
+    Attributes
+    ----------
+    not_identifiable : list of str
+        The parameters the data do not determine: along a direction |B1| does not change, a
+        standard error above its undetermined limit, or blind to a plane the samples lie in.
+    undetermined : list of str
+        Those with a standard error (of independent samples) above `undetermined_limits`.
+    poorly_determined : list of str
+        Those with a standard error above `poorly_determined_limits`.
+    weakest_combination : list of str
+        The parameters of the weakest direction of the information.
+    hessian_eigenvalues_scaled : list of float
+        The eigenvalues of the objective's Hessian in the scaled variables, over N / 2. [unit^2]
+    covariance_form : str
+        "sandwich" or "gauss-newton".
+    poorly_determined_limits, undetermined_limits : dict
+        Per estimated parameter, the standard errors beyond which it is poorly determined or
+        undetermined. [parameter units]
+    score_dependence : dict
+        How the standard errors follow the dependence of the samples' scores.
+    second_order_bias : dict
+        The estimate's bias in the sensor noise, and whether it was corrected.
+    flatness : dict
+        Whether the samples lie (nearly) in one plane, and the parameters it blinds.
+    coverage : dict
+        The direction bins the field visits (of 26).
+    exact_optimum_shift_in_standard_errors : float
+        The estimated distance to the exact optimum (an inexact expansion, a robust loss).
+    joint_gap : dict
+        A staged result against the joint optimum of the same objective.
+    standard_errors_at_joint_optimum : dict
+        A staged result away from that optimum: the standard errors there.
+    extra : dict
+        Keys of other kinds (a temperature calibration's Gauss-Newton eigenvalues).
+
+    Examples
+    --------
+    >>> from nlpcal.calibration.result import Identifiability
+    >>> block = Identifiability(not_identifiable=["z_z"], poorly_determined=[])
+    >>> block.to_dict()
+    {'not_identifiable': ['z_z'], 'poorly_determined': []}
+    """
+
+    not_identifiable: list[str] | None = None
+    undetermined: list[str] | None = None
+    poorly_determined: list[str] | None = None
+    weakest_combination: list[str] | None = None
+    hessian_eigenvalues_scaled: list[float] | None = None
+    covariance_form: str | None = None
+    poorly_determined_limits: dict[str, float] | None = None
+    undetermined_limits: dict[str, float] | None = None
+    score_dependence: dict | None = None
+    second_order_bias: dict | None = None
+    flatness: dict | None = None
+    coverage: dict | None = None
+    exact_optimum_shift_in_standard_errors: float | None = None
+    joint_gap: dict | None = None
+    standard_errors_at_joint_optimum: dict[str, float] | None = None
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def planar(self) -> bool:
+        """Whether the samples lie (nearly) in one plane."""
+        return bool((self.flatness or {}).get("planar"))
+
+    @classmethod
+    def read(cls, reader: DocumentReader) -> Identifiability:
+        """The "identifiability" block of a document, its lists of parameters checked."""
+        block = reader.reader("identifiability", None)
+        if block is None:
+            return cls()
+        for name in ("not_identifiable", "undetermined", "poorly_determined"):
+            block.strings(name, None)
+        return cls.from_dict(block.document)
 
 
 def read_robust(reader: DocumentReader) -> dict:
@@ -360,7 +442,7 @@ class CalibrationResult(Document):
     covariance : numpy.ndarray or None
         (k, k) covariance of the k estimated parameters in the order of `parameters`, in their
         units (offsets [unit^2], scale errors [1], angles [deg^2]); None without standard errors.
-    identifiability : dict
+    identifiability : Identifiability
         What the attitude coverage determines, how the standard errors follow the dependence of
         the scores (`score_dependence`) and the second-order bias (`second_order_bias`).
     warnings : list of str
@@ -426,7 +508,7 @@ class CalibrationResult(Document):
     unit_source: str | None = None
     standard_errors: dict[str, float] | None = None
     covariance: np.ndarray | None = None
-    identifiability: dict = field(default_factory=dict)
+    identifiability: Identifiability = field(default_factory=Identifiability)
     warnings: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     n_samples: int = 0
@@ -440,6 +522,7 @@ class CalibrationResult(Document):
 
     def __post_init__(self) -> None:
         self.statistics = [TableRow.of(row) for row in self.statistics]
+        self.identifiability = Identifiability.of(self.identifiability)
 
     @property
     def estimated_parameters(self) -> list:
@@ -503,7 +586,7 @@ class CalibrationResult(Document):
         """The result's verdict (`nlpcal.verdict`): failed when the solve did not converge or
         the data do not determine some parameters (a result written with an allow flag),
         poorly determined when some standard errors exceed their limits, else ok or warnings."""
-        block = self.identifiability or {}
+        block = self.identifiability
         failures = []
         if not self.solver.success:
             failures.append(f"the solver failed ({self.solver.status})")
@@ -512,9 +595,9 @@ class CalibrationResult(Document):
                 f"not converged: the {self.method} solve stopped on "
                 f"{self.solver.stop_reason}, away from the optimum"
             )
-        if block.get("not_identifiable"):
-            failures.append(f"the data do not determine {', '.join(block['not_identifiable'])}")
-        poor = block.get("poorly_determined") or []
+        if block.not_identifiable:
+            failures.append(f"the data do not determine {', '.join(block.not_identifiable)}")
+        poor = block.poorly_determined or []
         return judge(
             failures,
             [f"{', '.join(poor)}: standard errors above their limits"] if poor else [],
@@ -535,7 +618,7 @@ class CalibrationResult(Document):
             "model": self.model_name,
             "fixed_parameters": self.fixed_parameters,
             "standard_errors": self.standard_errors,
-            "identifiability": dict(self.identifiability),
+            "identifiability": self.identifiability.to_dict(),
             "warnings": list(self.warnings),
             "notes": list(self.notes),
             "n_samples": self.n_samples,
@@ -596,7 +679,7 @@ class CalibrationResult(Document):
                 if errors.has(name)
             },
             "covariance": read_covariance(reader, estimated),
-            "identifiability": reader.mapping("identifiability", {}),
+            "identifiability": Identifiability.read(reader),
             "warnings": reader.strings("warnings", []),
             "notes": reader.strings("notes", []),
             "n_samples": reader.integer("n_samples", 0),

@@ -45,13 +45,13 @@ ESTIMATES = {
 def undetermined_by_attitudes(result: CalibrationResult) -> str | None:
     """Why the attitudes of a calibration's log do not determine its form, or None."""
     identifiability = result.identifiability
-    weak = identifiability.get("not_identifiable", [])
-    if identifiability.get("flatness", {}).get("planar"):
+    weak = identifiability.not_identifiable or []
+    if identifiability.planar:
         return f"the samples lie (nearly) in one plane, leaving {', '.join(weak)} undetermined"
     if weak:
         return f"the data leave {', '.join(weak)} undetermined"
-    coverage = identifiability.get("coverage", {})
-    poorly = identifiability.get("poorly_determined", [])
+    coverage = identifiability.coverage or {}
+    poorly = identifiability.poorly_determined or []
     if coverage.get("fraction", 1.0) < COVERAGE_WARN and poorly:
         return (
             f"the field visits {coverage['covered']} of 26 direction bins, and on that cap "

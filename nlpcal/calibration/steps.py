@@ -46,7 +46,7 @@ from .diagnostics import (
 )
 from .joint import reweighting_limit_warning, run_joint
 from .problem import Problem
-from .result import BlockSolve, CalibrationResult, SolverReport
+from .result import BlockSolve, CalibrationResult, Identifiability, SolverReport
 from .settings import CalibrationSettings, QualityGate
 from .staged import StopRule, run_staged
 
@@ -203,7 +203,7 @@ class Diagnosis:
     errors: dict | None
     covariance: np.ndarray | None
     point_errors: dict | None
-    identifiability: dict
+    identifiability: Identifiability
     warnings: list
     robust: dict
     final: TableRow
@@ -237,27 +237,29 @@ def diagnose(
     )
     if method == "staged":
         judge_staged(problem, theta, rule, solution, diagnosis)
-    if identifiability["flatness"]["planar"]:  # along the plane's normal no linearisation
+    if identifiability.planar:  # along the plane's normal no linearisation
         diagnosis.errors = diagnosis.covariance = None  # describes the data
     return diagnosis
 
 
-def judge_attitudes(problem: Problem, theta, spread: dict, identifiability: dict) -> None:
+def judge_attitudes(
+    problem: Problem, theta, spread: dict, identifiability: Identifiability
+) -> None:
     """Add to `identifiability` whether the samples lie in a plane ("flatness", whose blind
     parameters join "not_identifiable") and the directions the field visits ("coverage")."""
     samples = problem.samples
     flat = problem_flatness(problem, theta, spread)
     flat["parameters"] = [n for n in flat["parameters"] if n in problem.estimated]
-    identifiability["flatness"] = flat
+    identifiability.flatness = flat
     if flat["planar"]:  # the Hessian at a degenerate optimum can look healthy
-        blind = set(flat["parameters"]) | set(identifiability["not_identifiable"])
-        identifiability["not_identifiable"] = [n for n in PARAMETER_NAMES if n in blind]
-    if identifiability["not_identifiable"]:  # theta is not to be trusted: judge the directions
+        blind = set(flat["parameters"]) | set(identifiability.not_identifiable or [])
+        identifiability.not_identifiable = [n for n in PARAMETER_NAMES if n in blind]
+    if identifiability.not_identifiable:  # theta is not to be trusted: judge the directions
         centred = np.zeros(9)  # about the fitted sphere's centre, or the samples' mean when the
         centred[0:3] = coverage_centre(samples, problem.moments.frame)  # sphere is degenerate
-        identifiability["coverage"] = direction_coverage(samples, centred)
+        identifiability.coverage = direction_coverage(samples, centred)
     else:
-        identifiability["coverage"] = direction_coverage(samples, theta)
+        identifiability.coverage = direction_coverage(samples, theta)
 
 
 def robust_block(
@@ -300,13 +302,13 @@ def judge_staged(
     its rtol rule held is only said."""
     stop_reason, rows = diagnosis.stop_reason, solution.rows
     gap = joint_gap(problem, theta, diagnosis.errors)
-    diagnosis.identifiability["joint_gap"] = gap
+    diagnosis.identifiability.joint_gap = gap
     distance = gap["max_gap_in_standard_errors"]
     checked = "objective_joint" in gap and distance is not None
     if not checked or distance > STAGED_GAP_LIMIT:
         message = staged_message(stop_reason, rule.max_cycles, gap, solution.report.last)
         diagnosis.warnings.append(message)
-        diagnosis.identifiability["standard_errors_at_joint_optimum"] = diagnosis.errors
+        diagnosis.identifiability.standard_errors_at_joint_optimum = diagnosis.errors
         diagnosis.errors = diagnosis.covariance = None  # they describe an optimum, not this point
         # a target stop is the user's request; a cycle that converged by its rtol rule but
         # cannot be checked (no standard errors, no joint optimum) keeps its warning
@@ -381,7 +383,7 @@ def assemble(
     errors, covariance = diagnosis.errors, diagnosis.covariance
     rows = solution.rows
     parameters = Zhou2010Parameters.from_theta(solution.theta).to_dict()
-    bias = identifiability.get("second_order_bias")
+    bias = identifiability.second_order_bias
     if bias is not None:
         parameters = correct_bias(parameters, bias, identifiability, warnings, errors is not None)
         if bias["applied"]:
@@ -415,7 +417,11 @@ def assemble(
 
 
 def correct_bias(
-    parameters: dict, block: dict, identifiability: dict, warnings: list, stated: bool = True
+    parameters: dict,
+    block: dict,
+    identifiability: Identifiability,
+    warnings: list,
+    stated: bool = True,
 ) -> dict:
     """The parameters with their second-order bias (`diagnostics.noise_bias`) removed when it
     exceeds BIAS_APPLY standard errors, the residuals pass for white noise (no standard error
@@ -426,7 +432,7 @@ def correct_bias(
     apart). `stated` : False when the result states no standard errors (then nothing is
     corrected). A bias above BIAS_WARN standard errors is a warning either way."""
     in_errors = block["bias_in_standard_errors"]
-    widening = identifiability.get("score_dependence", {}).get("standard_error_widening", {})
+    widening = (identifiability.score_dependence or {}).get("standard_error_widening", {})
     white = max(widening.values(), default=1.0) <= BIAS_WHITE_WIDENING
     separable = block.get("noise_separable", True)
     large_enough = max(abs(v) for v in in_errors.values()) > BIAS_APPLY
@@ -494,7 +500,7 @@ def gate(
     unconverged = None if quality.allow_unconverged else diagnosis.unconverged
     overrides = {"allow_unconverged": True} if unconverged else {}
     identifiability = diagnosis.identifiability
-    if quality.require_identifiable and identifiability["not_identifiable"]:
+    if quality.require_identifiable and identifiability.not_identifiable:
         also = f" Besides, {unconverged[0].lower()}{unconverged[1:]}." if unconverged else ""
         message = undetermined_message(
             diagnosis.point_errors,

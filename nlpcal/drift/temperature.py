@@ -20,7 +20,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import inference, units, validation
-from ..calibration.result import BlockSolve, CalibrationResult, Reference, SolverReport
+from ..calibration.result import (
+    BlockSolve,
+    CalibrationResult,
+    Identifiability,
+    Reference,
+    SolverReport,
+)
 from ..errors import InputError
 from ..models import liu2022
 from ..models.liu2022 import TEMPERATURE_MODELS, TemperatureModel
@@ -404,11 +410,13 @@ def calibrate_temperature(
         unit=units.base_unit(unit),
         unit_source="option",  # the caller's unit (nT by default); the reference fixes the scale
         standard_errors=errors,
-        identifiability={
-            "not_identifiable": not_identifiable,
-            "poorly_determined": poor,
-            "gauss_newton_eigenvalues_scaled": [float(v) for v in uncertainty.eigenvalues],
-        },
+        identifiability=Identifiability.from_dict(
+            {
+                "not_identifiable": not_identifiable,
+                "poorly_determined": poor,
+                "gauss_newton_eigenvalues_scaled": [float(v) for v in uncertainty.eigenvalues],
+            }
+        ),
         warnings=warnings,
         n_samples=n,
         input={"log_unit": unit},
