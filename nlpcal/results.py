@@ -308,6 +308,9 @@ class Record(MutableMapping):
     """
 
     extra: dict
+    #: The order of the keys of the object a record was read from (`from_dict`), which
+    #: `to_dict` keeps; keys set later follow it, in the order of the fields.
+    _order: tuple = ()
 
     @classmethod
     def keys_of(cls) -> tuple:
@@ -315,9 +318,13 @@ class Record(MutableMapping):
         return _field_names(cls)
 
     def to_dict(self) -> dict:
-        """The JSON object: the fields that are not None, in order, then `extra`."""
+        """The JSON object: the fields that are not None, in order, then `extra`; a record read
+        by `from_dict` keeps the order of the object it was read from."""
         values = {name: getattr(self, name) for name in self.keys_of()}
-        return {**{k: v for k, v in values.items() if v is not None}, **self.extra}
+        entries = {**{k: v for k, v in values.items() if v is not None}, **self.extra}
+        if not self._order:
+            return entries
+        return {**{k: entries[k] for k in self._order if k in entries}, **entries}
 
     @classmethod
     def from_dict(cls: type[RecordT], document: Mapping) -> RecordT:
@@ -325,7 +332,9 @@ class Record(MutableMapping):
         names = set(cls.keys_of())
         known = {k: v for k, v in document.items() if k in names}
         extra = {k: v for k, v in document.items() if k not in names}
-        return cls(**known, extra=extra)  # type: ignore[call-arg]
+        record = cls(**known, extra=extra)  # type: ignore[call-arg]
+        record._order = tuple(document)
+        return record
 
     @classmethod
     def of(cls: type[RecordT], value: Mapping) -> RecordT:
@@ -452,6 +461,52 @@ class TableRow(Record):
         reader.string("label", "")
         reader.mapping("parameters", None)
         return cls.from_dict({"label": "", **row})
+
+
+@dataclass(eq=False, repr=False)
+class Provenance(Record):
+    """Where a result's samples came from (the "input" block of a document): the log, its
+    columns and unit, and how it was read (`nlpcal.io.Log.metadata`). A field that is None is
+    absent from the document.
+
+    Attributes
+    ----------
+    log : str
+        The log's path, "-" for stdin.
+    columns : list of str
+        The field columns read.
+    log_unit : str
+        The unit of the field columns (after the plausibility check: "raw" for counts).
+    unit_source : str
+        Where that unit came from ("option", "names", "format" or "assumed").
+    layout : dict
+        The file's layout (delimiter, header, comment lines), to write a table back alike.
+    csv_engine : str
+        The reader that parsed a text log.
+    rows_dropped : int
+        Rows left out (`--drop-invalid`, readings of exactly zero).
+    temperature_column : str
+        The temperature column of a temperature calibration.
+    extra : dict
+        What else a document records (the turn column of a compass calibration, the rotation
+        an imported correction does not carry, ...).
+
+    Examples
+    --------
+    >>> from nlpcal.results import Provenance
+    >>> Provenance(log="run.csv", columns=["mx", "my", "mz"], log_unit="uT").to_dict()
+    {'log': 'run.csv', 'columns': ['mx', 'my', 'mz'], 'log_unit': 'uT'}
+    """
+
+    log: str | None = None
+    columns: list[str] | None = None
+    log_unit: str | None = None
+    unit_source: str | None = None
+    layout: dict | None = None
+    csv_engine: str | None = None
+    rows_dropped: int | None = None
+    temperature_column: str | None = None
+    extra: dict = field(default_factory=dict)
 
 
 def distinct(pairs, source: str, what: str = "key") -> dict:

@@ -10,8 +10,10 @@ from pathlib import Path
 import pytest
 
 import nlpcal
+from nlpcal.calibration import calibrate_log
+from nlpcal.calibration.result import Identifiability
 from nlpcal.errors import InputError
-from nlpcal.results import TableRow
+from nlpcal.results import Provenance, TableRow
 
 HERE = Path(__file__).resolve().parent
 LEGACY = HERE / "expected" / "params-0.1.0.json"
@@ -87,8 +89,6 @@ def test_a_calibrations_rows_are_typed_records():
 
 
 def test_identifiability_is_a_typed_record_read_by_its_fields():
-    from nlpcal.calibration.result import Identifiability
-
     samples = nlpcal.simulate(600, seed=2)[["bx", "by", "bz"]].to_numpy()
     result = nlpcal.calibrate(samples, method="joint")
     block = result.identifiability
@@ -107,3 +107,28 @@ def test_a_malformed_identifiability_block_is_named():
     document = {"parameters": parameters, "identifiability": {"not_identifiable": "z_z"}}
     with pytest.raises(InputError, match=r"identifiability\.not_identifiable"):
         nlpcal.CalibrationResult.from_dict(document)
+
+
+def test_provenance_is_a_typed_record_that_keeps_its_documents_order(tmp_path):
+    log = tmp_path / "log.csv"
+    nlpcal.simulate(600, seed=2).to_csv(log, index=False)
+    read = nlpcal.read_log(log)
+    result = calibrate_log(read, method="joint")
+    assert isinstance(result.input, Provenance)
+    assert result.input.log == str(log) and result.input.columns == ["bx", "by", "bz"]
+    assert result.log_unit == result.input.log_unit == "nT"
+    # an imported correction's block: its keys in the order it was written, the rest in extra
+    document = {"imported_from": "a.params", "format": "px4", "log_unit": "nT", "sha256": "0"}
+    block = Provenance.from_dict(document)
+    assert block.log_unit == "nT" and block.extra["format"] == "px4"
+    assert list(block.to_dict()) == list(document)
+
+
+def test_records_given_as_objects_are_read_into_their_types():
+    parameters = dict.fromkeys(nlpcal.Zhou2010Parameters().to_dict(), 0.0)
+    result = nlpcal.CalibrationResult(parameters, [{"label": "measured", "std": 1.0}])
+    assert isinstance(result.statistics[0], TableRow) and result.statistics[0].std == 1.0
+    result.input = {"log_unit": "uT", "sha256": "0"}  # type: ignore[assignment]
+    result.identifiability = {"not_identifiable": []}  # type: ignore[assignment]
+    assert isinstance(result.input, Provenance) and result.log_unit == "uT"
+    assert isinstance(result.identifiability, Identifiability)

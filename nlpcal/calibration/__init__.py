@@ -12,6 +12,7 @@ from collections.abc import Callable
 from .. import chunks, units
 from ..errors import QualityError, SolveError
 from ..io.logs import Log
+from ..results import Provenance
 from ..robust import Loss
 from .problem import Problem
 from .result import CalibrationResult
@@ -298,7 +299,7 @@ def calibrate_log(
 
 def _record_log(result: CalibrationResult, log: Log) -> CalibrationResult:
     """`result` with the provenance of `log`: its metadata, its unit's source, its warnings."""
-    result.input = log.metadata()
+    result.input = Provenance.from_dict(log.metadata())
     result.unit_source = log.unit_source
     result.warnings = [*log.warnings, *(w for w in result.warnings if w not in log.warnings)]
     if log.reference_column:

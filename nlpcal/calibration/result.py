@@ -24,7 +24,7 @@ from ..models.zhou2010 import (
     tied_parameters,
 )
 from ..nlp.solver import FINISHERS, NLPCAL_STATUSES
-from ..results import Document, DocumentReader, Record, TableRow
+from ..results import Document, DocumentReader, Provenance, Record, TableRow
 from ..statistics import STD_DDOF, format_table
 from ..verdict import Verdict, judge
 from ..version import __version__
@@ -453,8 +453,8 @@ class CalibrationResult(Document):
         Samples the calibration used.
     version : str
         The nlpcal version that made it ("nlpcal_version" in the document).
-    input : dict
-        Where the samples came from (file, columns, the unit of the file).
+    input : Provenance
+        Where the samples came from (file, columns, the unit of the file; `Provenance`).
     robust : dict
         The loss and its scale, the samples it down-weighted, and the spread of the residuals.
         [unit]
@@ -513,16 +513,18 @@ class CalibrationResult(Document):
     notes: list[str] = field(default_factory=list)
     n_samples: int = 0
     version: str = __version__
-    input: dict = field(default_factory=dict)
+    input: Provenance = field(default_factory=Provenance)
     robust: dict = field(default_factory=dict)
     model_name: str = "full"
     model_selection: dict | None = None
     sensor_id: int | str | None = None
     orientation: dict | None = None
 
-    def __post_init__(self) -> None:
-        self.statistics = [TableRow.of(row) for row in self.statistics]
-        self.identifiability = Identifiability.of(self.identifiability)
+    def __setattr__(self, name: str, value) -> None:
+        """A record given as the JSON object it writes (a dict) is read into its type: the
+        rows, the identifiability block and the provenance, in the constructor and after."""
+        read = RECORD_FIELDS.get(name)
+        super().__setattr__(name, value if read is None else read(value))
 
     @property
     def estimated_parameters(self) -> list:
@@ -541,7 +543,7 @@ class CalibrationResult(Document):
     @property
     def log_unit(self) -> str:
         """The unit of the log the parameters were estimated from (the result's unit if unknown)."""
-        recorded = self.input.get("log_unit")
+        recorded = self.input.log_unit
         return recorded if recorded in units.FIELD_UNITS_NT else self.unit
 
     def scale_fixed_by(self) -> str | None:
@@ -640,7 +642,7 @@ class CalibrationResult(Document):
                 "matrix": np.asarray(self.covariance).tolist(),
             }
         if self.input:
-            document["input"] = dict(self.input)
+            document["input"] = self.input.to_dict()
         if self.robust:
             document["robust"] = dict(self.robust)
         if self.sensor_id is not None:
@@ -684,10 +686,12 @@ class CalibrationResult(Document):
             "notes": reader.strings("notes", []),
             "n_samples": reader.integer("n_samples", 0),
             "version": reader.string("nlpcal_version", "unknown"),
-            "input": reader.provenance(
-                strings=("log", "temperature_column"),
-                lists=("columns",),
-                units=(("log_unit", units.FIELD_UNITS_NT), ("unit_source", units.UNIT_SOURCES)),
+            "input": Provenance.from_dict(
+                reader.provenance(
+                    strings=("log", "temperature_column"),
+                    lists=("columns",),
+                    units=(("log_unit", units.FIELD_UNITS_NT), ("unit_source", units.UNIT_SOURCES)),
+                )
             ),
             "robust": read_robust(reader),
             "model_name": model_name,
@@ -701,3 +705,12 @@ class CalibrationResult(Document):
     @classmethod
     def from_body(cls, reader: DocumentReader) -> CalibrationResult:
         return cls(**cls.fields_from(reader))
+
+
+#: The fields of a CalibrationResult that hold typed records, and how each is read from the
+#: JSON object it writes.
+RECORD_FIELDS = {
+    "statistics": lambda rows: [TableRow.of(row) for row in rows],
+    "identifiability": Identifiability.of,
+    "input": Provenance.of,
+}

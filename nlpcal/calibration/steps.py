@@ -30,7 +30,7 @@ from ..io.logs import settle_unit
 from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
 from ..moments import Moments, accumulate
 from ..nlp.blocks import GAUGE
-from ..results import TableRow
+from ..results import Provenance, TableRow
 from ..robust import TUNING
 from .coverage import coverage_centre, direction_coverage
 from .diagnostics import (
@@ -410,7 +410,7 @@ def assemble(
         warnings=warnings,
         notes=notes_for(problem),
         n_samples=int(problem.samples.shape[0]),
-        input={"log_unit": unit},
+        input=Provenance(log_unit=unit),
         robust=diagnosis.robust,
         model_name=problem.model,
     )

@@ -35,7 +35,7 @@ from ..models.zhou2010 import correct as zhou_correct
 from ..moments import sphere_frame
 from ..nlp.blocks import variable_scale
 from ..nlp.temperature import STEP_OPTIONS, gauss_newton_pass, minimise, n_coefficients
-from ..results import Document, DocumentReader, TableRow
+from ..results import Document, DocumentReader, Provenance, TableRow
 from ..statistics import format_table
 from ..verdict import Verdict
 from .evaluation import evaluation_row
@@ -173,7 +173,7 @@ class TemperatureCalibrationResult(Document):
         return self.calibration.unit
 
     @property
-    def input(self) -> dict:
+    def input(self) -> Provenance:
         return self.calibration.input
 
     @property
@@ -419,7 +419,7 @@ def calibrate_temperature(
         ),
         warnings=warnings,
         n_samples=n,
-        input={"log_unit": unit},
+        input=Provenance(log_unit=unit),
     )
     return TemperatureCalibrationResult(
         calibration=calibration,
@@ -491,7 +491,9 @@ def calibrate_temperature_log(
         unit=log.base_unit,
         temperature_column=temperature_column,
     )
-    result.calibration.input = log.metadata(temperature_column=temperature_column)
+    result.calibration.input = Provenance.from_dict(
+        log.metadata(temperature_column=temperature_column)
+    )
     result.calibration.unit_source = log.unit_source
     result.calibration.warnings[:0] = [w for w in log.warnings if w not in result.warnings]
     result.calibration.reference.column = log.reference_column
