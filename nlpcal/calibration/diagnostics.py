@@ -496,9 +496,7 @@ def _judged(errors: dict, limits: dict, names, unit: str, share: float) -> str:
 
 def row_at(problem: Problem, theta) -> TableRow:
     """The Table 1 statistics of |B1| at theta, as a row labelled "stopped" (one pass)."""
-    return TableRow.from_dict(
-        {"label": "stopped", **field_statistics(problem.samples, theta, problem.reference)}
-    )
+    return TableRow("stopped", **field_statistics(problem.samples, theta, problem.reference))
 
 
 def what_would_help(

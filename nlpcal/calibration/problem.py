@@ -77,9 +77,7 @@ class Problem:
 
     def measured_row(self) -> TableRow:
         """The Table 1 row of the raw |B_M|, gathered with the moments."""
-        return TableRow.from_dict(
-            {"label": "measured", **self.moments.measured, "iterations": 0, "wall_s": 0.0}
-        )
+        return TableRow("measured", **self.moments.measured, iterations=0, wall_s=0.0)
 
     def statistics(self, theta) -> dict:
         """Table 1 statistics of |B1| at theta, with the loss's sums when it is robust and its
@@ -96,7 +94,7 @@ class Problem:
         """A Table 1 row of |B1| for `theta`, with the relative gap between the moment objective
         (`series`, evaluated here when not given) and the exact per-sample one."""
         stats = self.statistics(theta)
-        row = TableRow.from_dict({"label": label, **stats})
+        row = TableRow(label, **stats)
         if series is None or self.loss.robust:
             (series,) = evaluate(value_function, self.moments, theta)
         exact = stats["objective"] if not self.loss.robust else self._weighted_objective(theta)
