@@ -300,8 +300,9 @@ class Record(MutableMapping):
     spelled once, with a last field `extra` that keeps, in order, the keys of no field (the
     entries other documents add, keys of a later version).
 
-    A field that is None is absent: from `to_dict`, from iteration and from `record[key]`
-    (KeyError), as a document holds no null. A record also reads and writes as that object
+    A field that is None is absent from `to_dict`, from iteration and from `key in record`, as
+    a document holds no null; `record[key]` gives it as None, as the objects in memory held it,
+    and `record.get(key, default)` the default. A record also reads and writes as that object
     (`record["std"]`, `record.get("coverage")`, `dict(record)`, `record.update(...)`), so code
     written against the document keeps working; the library reads the fields. Records compare
     equal to each other and to dicts by their entries.
@@ -343,11 +344,16 @@ class Record(MutableMapping):
 
     def __getitem__(self, key):
         if key in self.keys_of():
-            value = getattr(self, key)
-            if value is None:
-                raise KeyError(key)
-            return value
+            return getattr(self, key)
         return self.extra[key]
+
+    def __contains__(self, key) -> bool:
+        return key in self.extra or (key in self.keys_of() and getattr(self, key) is not None)
+
+    def get(self, key, default=None):
+        if key not in self:  # absent, or a field that is None
+            return default
+        return self[key]
 
     def __setitem__(self, key, value) -> None:
         if key in self.keys_of():

@@ -46,9 +46,9 @@ def test_a_row_writes_the_object_it_was_read_from():
     assert row.std == 16.25 and row.max is None and row.extra["status"] == "converged"
     assert list(row.to_dict().items()) == list(document.items())
     assert row == document and dict(row) == document
-    assert "max" not in row and row.get("max", 1.0) == 1.0
+    assert "max" not in row and row.get("max", 1.0) == 1.0 and row["max"] is None
     with pytest.raises(KeyError):
-        row["max"]
+        row["no such key"]
     row["status"] = "diverged"  # writing by key sets the field or the extra entry
     row["range"] = 2.0
     assert row.extra["status"] == "diverged" and row.range == 2.0
