@@ -268,17 +268,27 @@ def reference_scale(reference, magnitude: float, what: str = "the reference fiel
         )
 
 
-def temperature(values, n: int) -> np.ndarray:
-    """N finite temperatures. [degC]"""
+def _per_sample(values, n: int, what: str, unit: str) -> np.ndarray:
+    """N finite numbers, one per sample, called `what` in messages, in `unit`."""
     try:
         array = np.asarray(values, dtype=float).ravel()
     except (TypeError, ValueError):
-        raise InputError("the temperatures must be numbers [degC]") from None
+        raise InputError(f"the {what} must be numbers [{unit}]") from None
     if array.size != n:
-        raise InputError(f"got {array.size} temperatures for {n} samples")
+        raise InputError(f"got {array.size} {what} for {n} samples")
     if not np.isfinite(array).all():
-        raise InputError("the temperatures contain NaN or infinite values; drop or fix those rows")
+        raise InputError(f"the {what} contain NaN or infinite values; drop or fix those rows")
     return array
+
+
+def times(values, n: int) -> np.ndarray:
+    """N finite times: Unix seconds, or seconds since any origin. [s]"""
+    return _per_sample(values, n, "times", "s")
+
+
+def temperature(values, n: int) -> np.ndarray:
+    """N finite temperatures. [degC]"""
+    return _per_sample(values, n, "temperatures", "degC")
 
 
 def angles(

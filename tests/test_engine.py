@@ -39,6 +39,8 @@ LAYERS = {
     "geomagnetic": 1,
     "timing": 1,
     "nlp": 1,
+    "lag": 1,
+    "delta_f": 1,
     "calibration": 2,
     "comparison": 2,
     "compass": 2,

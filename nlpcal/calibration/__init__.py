@@ -14,6 +14,7 @@ from ..errors import QualityError, SolveError
 from ..io.logs import Log
 from ..results import Provenance
 from ..robust import Loss
+from .lagged import LAG_ARGUMENTS, calibrate_lagged
 from .problem import Problem
 from .result import CalibrationResult
 from .selection import MODEL_CHOICES, choose_model, restriction_warning, selection_warning
@@ -49,6 +50,8 @@ def calibrate(
     verbose: bool = False,
     threads: int | None = None,
     ipopt_options: dict | None = None,
+    lag=None,
+    times=None,
 ) -> CalibrationResult:
     """Estimate the nine parameters of Eq. 4 in [1] from a log of many attitudes.
 
@@ -114,6 +117,13 @@ def calibrate(
         (`nlpcal.nlp.blocks.OPTIONS`). IPOPT checks them first (InputError for an option it does
         not know or a value it refuses); the result records every option IPOPT was given under
         `solver.ipopt_options`.
+    lag : None, "auto" or float
+        The lag of a reference series (`--lag`): "auto" estimates it with the nine parameters,
+        a number [s] takes it out of the reference; the result records it under `lag`
+        (`nlpcal.lag`). tau > 0 when the reference is late. An undetermined lag raises
+        QualityError.
+    times : array_like of shape (N,), optional
+        The times of the samples, seconds from any origin, for `lag` (`--time-column`). [s]
 
     Returns
     -------
@@ -154,6 +164,9 @@ def calibrate(
     >>> corrected.shape
     (2000, 3)
     """
+    if lag is not None:  # the lag of a reference series, given or estimated (nlpcal.lag)
+        options = {k: v for k, v in locals().items() if k not in LAG_ARGUMENTS}
+        return calibrate_lagged(calibrate, samples, reference_field, times, lag, options)
     settings = CalibrationSettings.of(
         method=method,
         model=model,
@@ -288,6 +301,7 @@ def calibrate_log(
             target_std=units.to_base(target_std, log.unit),
             target_range=units.to_base(target_range, log.unit),
             loss_scale=units.to_base(loss_scale, log.unit),
+            times=log.times,
             **options,
         )
     except QualityError as failure:

@@ -13,6 +13,7 @@ import numpy as np
 
 from .. import inference, units, validation
 from ..errors import InputError
+from ..lag import read_lag
 from ..models.zhou2010 import (
     MODELS,
     PARAMETER_NAMES,
@@ -470,6 +471,9 @@ class CalibrationResult(Document):
         How the sensor is mounted, as the file a calibration was imported from states it
         ({"system", "parameter", "value"[, "name"]}, e.g. ArduPilot's COMPASS_ORIENT); carried,
         not applied ("orientation" in the document, written when given).
+    lag : dict or None
+        The lag of a reference series (`nlpcal.lag`): {"status": "estimated", "given" or
+        "undetermined", "seconds" [s], "standard_error_s" [s], ...}; None without one.
 
     References
     ----------
@@ -519,6 +523,7 @@ class CalibrationResult(Document):
     model_selection: dict | None = None
     sensor_id: int | str | None = None
     orientation: dict | None = None
+    lag: dict | None = None
 
     def __setattr__(self, name: str, value) -> None:
         """A record given as the JSON object it writes (a dict) is read into its type: the
@@ -649,6 +654,8 @@ class CalibrationResult(Document):
             document["sensor_id"] = self.sensor_id
         if self.orientation is not None:
             document["orientation"] = dict(self.orientation)
+        if self.lag is not None:
+            document["lag"] = dict(self.lag)
         return document
 
     @classmethod
@@ -700,6 +707,7 @@ class CalibrationResult(Document):
             if not reader.has("sensor_id")
             else validation.sensor_id(reader.raw("sensor_id"), f"{reader.source}: sensor_id"),
             "orientation": read_orientation(reader),
+            "lag": read_lag(reader),
         }
 
     @classmethod
