@@ -465,12 +465,10 @@ def calibrate_temperature(
         unit=units.base_unit(unit),
         unit_source="option",  # the caller's unit (nT by default); the reference fixes the scale
         standard_errors=errors,
-        identifiability=Identifiability.from_dict(
-            {
-                "not_identifiable": not_identifiable,
-                "poorly_determined": poor,
-                "gauss_newton_eigenvalues_scaled": [float(v) for v in uncertainty.eigenvalues],
-            }
+        identifiability=Identifiability(
+            not_identifiable=not_identifiable,
+            poorly_determined=poor,
+            extra={"gauss_newton_eigenvalues_scaled": [float(v) for v in uncertainty.eigenvalues]},
         ),
         warnings=warnings,
         n_samples=n,
