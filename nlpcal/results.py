@@ -20,9 +20,11 @@ The JSON Schema of every kind ships in `nlpcal.schemas`.
 from __future__ import annotations
 
 import json
-from functools import partial
+from collections.abc import Iterator, Mapping, MutableMapping
+from dataclasses import dataclass, field, fields
+from functools import cache, partial
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 
@@ -282,6 +284,235 @@ class Document:
     def load(cls, path):
         """Read and validate the document at `path`."""
         return cls.from_dict(read_json_document(path, cls.WHAT), str(path))
+
+
+RecordT = TypeVar("RecordT", bound="Record")
+
+
+@cache
+def _field_names(kind: type) -> tuple:
+    return tuple(f.name for f in fields(kind) if f.name != "extra")
+
+
+class Record(MutableMapping):
+    """Base of the typed records inside documents (a Table 1 row, the identifiability block,
+    the provenance): dataclasses whose fields are the keys of the JSON object they write,
+    spelled once, with a last field `extra` that keeps, in order, the keys of no field (the
+    entries other documents add, keys of a later version).
+
+    A field that is None is absent from `to_dict`, from iteration and from `key in record`, as
+    a document holds no null; `record[key]` gives it as None, as the objects in memory held it,
+    and `record.get(key, default)` the default. A record also reads and writes as that object
+    (`record["std"]`, `record.get("coverage")`, `dict(record)`, `record.update(...)`), so code
+    written against the document keeps working; the library reads the fields. Records compare
+    equal to each other and to dicts by their entries.
+    """
+
+    extra: dict
+    #: The order of the keys of the object a record was read from (`from_dict`), which
+    #: `to_dict` keeps; keys set later follow it, in the order of the fields.
+    _order: tuple = ()
+
+    @classmethod
+    def keys_of(cls) -> tuple:
+        """The document keys of the fields, in order."""
+        return _field_names(cls)
+
+    def to_dict(self) -> dict:
+        """The JSON object: the fields that are not None, in order, then `extra`; a record read
+        by `from_dict` keeps the order of the object it was read from."""
+        values = {name: getattr(self, name) for name in self.keys_of()}
+        entries = {**{k: v for k, v in values.items() if v is not None}, **self.extra}
+        if not self._order:
+            return entries
+        return {**{k: entries[k] for k in self._order if k in entries}, **entries}
+
+    @classmethod
+    def from_dict(cls: type[RecordT], document: Mapping) -> RecordT:
+        """The record of a JSON object: its keys of a field as those fields, the rest `extra`."""
+        names = set(cls.keys_of())
+        known = {k: v for k, v in document.items() if k in names}
+        extra = {k: v for k, v in document.items() if k not in names}
+        record = cls(**known, extra=extra)  # type: ignore[call-arg]
+        record._order = tuple(document)
+        return record
+
+    @classmethod
+    def of(cls: type[RecordT], value: Mapping) -> RecordT:
+        """`value` if it is a record of this kind, else the record of the mapping."""
+        return value if isinstance(value, cls) else cls.from_dict(value)
+
+    def __getitem__(self, key):
+        if key in self.keys_of():
+            return getattr(self, key)
+        return self.extra[key]
+
+    def __contains__(self, key) -> bool:
+        return key in self.extra or (key in self.keys_of() and getattr(self, key) is not None)
+
+    def get(self, key, default=None):
+        if key not in self:  # absent, or a field that is None
+            return default
+        return self[key]
+
+    def __setitem__(self, key, value) -> None:
+        if key in self.keys_of():
+            setattr(self, key, value)
+        else:
+            self.extra[key] = value
+
+    def __delitem__(self, key) -> None:
+        if key in self.keys_of() and getattr(self, key) is not None:
+            setattr(self, key, None)
+        else:
+            del self.extra[key]
+
+    def __iter__(self) -> Iterator:
+        return iter(self.to_dict())
+
+    def __len__(self) -> int:
+        return len(self.to_dict())
+
+    def __eq__(self, other) -> bool:
+        if not isinstance(other, Mapping):
+            return NotImplemented
+        return self.to_dict() == dict(other.items())
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.to_dict()!r})"
+
+
+@dataclass(eq=False, repr=False)
+class TableRow(Record):
+    """One row of Table 1 in [1]: the statistics of |B1| (or of the measured |B_M|) after a
+    solve, and how the solve got there. Every field but `label` may be absent (None).
+
+    Attributes
+    ----------
+    label : str
+        What the row is: "measured", "cycle 3", "joint", "bias corrected", ...
+    max, min, mean, std, range : float
+        Of |B1| [unit]; std with ddof `nlpcal.statistics.STD_DDOF`. A row from the moments
+        (`from_moments`) has no max, min and range.
+    objective : float
+        The objective: the variance of |B1|, or the mean square of |B1| - F. [unit^2]
+    max_abs_u : float
+        The largest |(|B1| / F)^2 - 1|, F the reference or the mean of |B1|. [1]
+    residual_lag1_autocorrelation : float
+        Of the residuals |B1| - F (or about the mean) in the order of the samples. [1]
+    rmse : float
+        The RMSE of |B1| against a reference series (Eq. 10 of Liu et al. 2022). [unit]
+    robust_objective : float
+        With a robust loss: the mean loss of the residuals. [unit^2]
+    downweighted : int
+        With a robust loss: the samples beyond its scale.
+    weighted_centre : float
+        With a robust loss: the weighted mean of |B1|. [unit]
+    series_rel_error : float
+        The relative gap between the moment objective and the exact one. [1]
+    from_moments : bool
+        True for a row computed from the moments alone.
+    parameters : dict
+        The nine parameters at the row (offsets [unit], scale errors [1], angles [deg]).
+    iterations : int
+        IPOPT's iterations of the solve.
+    wall_s : float
+        Its wall time. [s]
+    extra : dict
+        Keys other documents add (a comparison's "status", "variant", ...).
+
+    References
+    ----------
+    [1] Zhou et al. (2010), see `nlpcal.models.zhou2010`.
+
+    Examples
+    --------
+    >>> from nlpcal.results import TableRow
+    >>> row = TableRow("cycle 1", mean=49462.0, std=16.4, iterations=12, wall_s=0.01)
+    >>> row.std, row["std"], row.to_dict()["label"]
+    (16.4, 16.4, 'cycle 1')
+    """
+
+    label: str
+    max: float | None = None
+    min: float | None = None
+    mean: float | None = None
+    std: float | None = None
+    range: float | None = None
+    objective: float | None = None
+    max_abs_u: float | None = None
+    residual_lag1_autocorrelation: float | None = None
+    rmse: float | None = None
+    robust_objective: float | None = None
+    downweighted: int | None = None
+    weighted_centre: float | None = None
+    series_rel_error: float | None = None
+    from_moments: bool | None = None
+    parameters: dict | None = None
+    iterations: int | None = None
+    wall_s: float | None = None
+    extra: dict = field(default_factory=dict)
+
+    @classmethod
+    def read(cls, row, source: str) -> TableRow:
+        """A row of a document: its label a string, its statistics numbers, `parameters` an
+        object (InputError naming `source` otherwise); keys of no field are kept."""
+        reader = DocumentReader(row, source)
+        for name in cls.keys_of():
+            if name in ("label", "parameters", "from_moments"):
+                continue
+            reader.number(name, None)
+        reader.string("label", "")
+        reader.mapping("parameters", None)
+        return cls.from_dict({"label": "", **row})
+
+
+@dataclass(eq=False, repr=False)
+class Provenance(Record):
+    """Where a result's samples came from (the "input" block of a document): the log, its
+    columns and unit, and how it was read (`nlpcal.io.Log.metadata`). A field that is None is
+    absent from the document.
+
+    Attributes
+    ----------
+    log : str
+        The log's path, "-" for stdin.
+    columns : list of str
+        The field columns read.
+    log_unit : str
+        The unit of the field columns (after the plausibility check: "raw" for counts).
+    unit_source : str
+        Where that unit came from ("option", "names", "format" or "assumed").
+    layout : dict
+        The file's layout (delimiter, header, comment lines), to write a table back alike.
+    csv_engine : str
+        The reader that parsed a text log.
+    rows_dropped : int
+        Rows left out (`--drop-invalid`, readings of exactly zero).
+    temperature_column : str
+        The temperature column of a temperature calibration.
+    extra : dict
+        What else a document records (the turn column of a compass calibration, the rotation
+        an imported correction does not carry, ...).
+
+    Examples
+    --------
+    >>> from nlpcal.results import Provenance
+    >>> Provenance(log="run.csv", columns=["mx", "my", "mz"], log_unit="uT").to_dict()
+    {'log': 'run.csv', 'columns': ['mx', 'my', 'mz'], 'log_unit': 'uT'}
+    """
+
+    log: str | None = None
+    columns: list[str] | None = None
+    log_unit: str | None = None
+    unit_source: str | None = None
+    layout: dict | None = None
+    csv_engine: str | None = None
+    rows_dropped: int | None = None
+    temperature_column: str | None = None
+    extra: dict = field(default_factory=dict)
 
 
 def distinct(pairs, source: str, what: str = "key") -> dict:

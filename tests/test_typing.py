@@ -166,3 +166,29 @@ def test_the_user_script_runs():
     # [rad], so the largest positive error is B e / 2 (Wang et al. 2015) [nT]
     e = np.radians(0.1)
     assert user_script.worst_case_example() == pytest.approx(55_000 * e / 2, rel=0.01)
+
+
+RESULT_FIELDS = {
+    "result.parameters": "dict[str, float]",
+    "result.standard_errors": "dict[str, float] | None",
+    "result.statistics[-1]": "nlpcal.results.TableRow",
+    "result.statistics[-1].std": "float | None",
+    "result.identifiability": "nlpcal.calibration.result.Identifiability",
+    "result.identifiability.not_identifiable": "list[str] | None",
+    "result.input": "nlpcal.results.Provenance",
+    "result.warnings": "list[str]",
+}
+
+
+def test_a_results_records_have_real_types(tmp_path):
+    # the typed records of a result (a Table 1 row, identifiability, provenance) are seen as
+    # such, and a misspelt field of a row is an error, not a KeyError at run time
+    lines = ["import nlpcal", "result = nlpcal.calibrate([[1.0, 2.0, 3.0]])"]
+    first = len(lines) + 1
+    lines += [f"reveal_type({expression})" for expression in RESULT_FIELDS]
+    lines.append("result.statistics[-1].standard_deviation")
+    report = run_mypy("\n".join(lines) + "\n", tmp_path)
+    types = revealed(report)
+    seen = {e: types.get(i) for i, e in enumerate(RESULT_FIELDS, start=first)}
+    assert seen == RESULT_FIELDS, report
+    assert '"TableRow" has no attribute "standard_deviation"' in report, report

@@ -140,6 +140,7 @@ def test_a_bias_is_corrected_only_while_the_residuals_pass_for_white_noise(widen
     """Residuals alike in neighbours are a misfit the bias formula would take for noise: the
     bias is then stated, not corrected."""
     from nlpcal.calibration import correct_bias
+    from nlpcal.calibration.result import Identifiability
 
     parameters = {"z_x": 10.0, "z_z": 20.0}
     block = {
@@ -148,7 +149,7 @@ def test_a_bias_is_corrected_only_while_the_residuals_pass_for_white_noise(widen
     }
     dependence = {"standard_error_widening": {"z_x": 1.0, "z_z": widening}}
     warnings: list = []
-    out = correct_bias(parameters, block, {"score_dependence": dependence}, warnings)
+    out = correct_bias(parameters, block, Identifiability(score_dependence=dependence), warnings)
     assert len(warnings) == 1 and "-1.50 standard errors (z_z)" in warnings[0]
     if widening <= 2.0:
         assert block["applied"] and out == {"z_x": 9.9, "z_z": 23.0}
@@ -163,6 +164,7 @@ def test_a_bias_is_stated_when_the_standard_errors_are_not(stated):
     bias is then neither corrected nor left without a verdict, and above 0.5 standard errors
     a warning says it."""
     from nlpcal.calibration import correct_bias
+    from nlpcal.calibration.result import Identifiability
 
     parameters = {"z_x": 10.0, "z_z": 20.0}
     block = {
@@ -170,7 +172,7 @@ def test_a_bias_is_stated_when_the_standard_errors_are_not(stated):
         "bias_in_standard_errors": {"z_x": 0.05, "z_z": -1.5},
     }
     warnings: list = []
-    out = correct_bias(parameters, block, {}, warnings, stated)
+    out = correct_bias(parameters, block, Identifiability(), warnings, stated)
     assert len(warnings) == 1 and "(z_z)" in warnings[0]
     assert block["applied"] is stated and (out == parameters) is not stated
     assert ("not_applied" in block) is not stated

@@ -12,6 +12,7 @@ from collections.abc import Callable
 from .. import chunks, units
 from ..errors import QualityError, SolveError
 from ..io.logs import Log
+from ..results import Provenance
 from ..robust import Loss
 from .lagged import LAG_ARGUMENTS, calibrate_lagged
 from .problem import Problem
@@ -256,7 +257,7 @@ def check_restriction(
         reference = estimate(full, "joint", rule, result.unit)
     except SolveError:
         return
-    if reference.identifiability.get("not_identifiable"):
+    if reference.identifiability.not_identifiable:
         return
     freed = (full.free.basis.shape[1], restricted.free.basis.shape[1])
     warning = restriction_warning(result, reference, freed)
@@ -312,7 +313,7 @@ def calibrate_log(
 
 def _record_log(result: CalibrationResult, log: Log) -> CalibrationResult:
     """`result` with the provenance of `log`: its metadata, its unit's source, its warnings."""
-    result.input = log.metadata()
+    result.input = Provenance.from_dict(log.metadata())
     result.unit_source = log.unit_source
     result.warnings = [*log.warnings, *(w for w in result.warnings if w not in log.warnings)]
     if log.reference_column:

@@ -16,10 +16,12 @@ from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
 from ..moments import Moments
 from ..nlp.blocks import evaluate, objective_function, variable_scale
 from ..nlp.steps import block_step
+from ..results import TableRow
 from ..robust import robust_std
 from ..statistics import exact_objectives, field_statistics
 from .coverage import COVERAGE_WARN, direction_coverage, flatness, planar_message
 from .problem import Problem
+from .result import Identifiability
 from .scores import score_block_sums
 
 #: Standard errors above these are "poorly determined": offsets 1 % of the field, scale errors
@@ -108,12 +110,11 @@ def uncertainty(
             for name in estimated
         }
     block = determination(problem, result, errors, independent)
-    block["covariance_form"] = "sandwich" if theta is not None else "gauss-newton"
-    block.update(limits_block(problem))
-    if dependence is not None:
-        block["score_dependence"] = dependence
+    block.covariance_form = "sandwich" if theta is not None else "gauss-newton"
+    block.poorly_determined_limits, block.undetermined_limits = stated_limits(problem)
+    block.score_dependence = dependence
     if dependence is not None and errors is not None and not result.weak:
-        block["second_order_bias"] = second_order_bias(
+        block.second_order_bias = second_order_bias(
             problem, theta, robust, (information, noise), to_units, errors
         )
     return errors, block, covariance
@@ -176,7 +177,7 @@ def determination_limits(radius: float) -> tuple:
     return limits, far
 
 
-def determination(problem: Problem, estimate, errors, independent) -> dict:
+def determination(problem: Problem, estimate, errors, independent) -> Identifiability:
     """The first entries of the identifiability block: the parameters not identifiable (along
     a direction the objective does not change, or undetermined: a standard error of
     independent samples above its UNDETERMINED limit), poorly determined (above
@@ -193,23 +194,24 @@ def determination(problem: Problem, estimate, errors, independent) -> dict:
         if errors and errors[n] > limits[PARAMETER_NAMES.index(n)] and n not in undetermined
     ]
     weak = _names(estimate.weak)
-    return {
-        "not_identifiable": [n for n in PARAMETER_NAMES if n in weak or n in undetermined],
-        "undetermined": undetermined,
-        "poorly_determined": poorly,
-        "weakest_combination": _names(estimate.weakest),
-        "hessian_eigenvalues_scaled": [float(v) for v in estimate.eigenvalues * 2.0 / n],
-    }
+    return Identifiability(
+        not_identifiable=[n for n in PARAMETER_NAMES if n in weak or n in undetermined],
+        undetermined=undetermined,
+        poorly_determined=poorly,
+        weakest_combination=_names(estimate.weakest),
+        hessian_eigenvalues_scaled=[float(v) for v in estimate.eigenvalues * 2.0 / n],
+    )
 
 
-def limits_block(problem: Problem) -> dict:
-    """The limits of `determination` of the estimated parameters. [parameter units]"""
+def stated_limits(problem: Problem) -> tuple:
+    """The (poorly determined, undetermined) limits of `determination` of the estimated
+    parameters, by name. [parameter units]"""
     limits, far = determination_limits(problem.moments.frame.radius)
     index = [PARAMETER_NAMES.index(name) for name in problem.estimated]
-    return {
-        "poorly_determined_limits": {n: float(limits[i]) for n, i in zip(problem.estimated, index)},
-        "undetermined_limits": {n: float(far[i]) for n, i in zip(problem.estimated, index)},
-    }
+    return (
+        {n: float(limits[i]) for n, i in zip(problem.estimated, index)},
+        {n: float(far[i]) for n, i in zip(problem.estimated, index)},
+    )
 
 
 def second_order_bias(
@@ -403,18 +405,18 @@ def explain_failure(
             f"{failure}: {planar_message(flat, _unit_word(unit))}",
             failure.status,
             result=theta,
-            identifiability={"not_identifiable": flat["parameters"], "flatness": flat},
+            identifiability=Identifiability(not_identifiable=flat["parameters"], flatness=flat),
         )
     hs = scaled_hessian(problem.moments, theta)
     objective = field_statistics(problem.samples, theta, problem.reference)["objective"]
     _, identifiability, _ = uncertainty(problem, objective, hs)
-    weak = identifiability["not_identifiable"]
-    identifiability["flatness"] = flat
-    identifiability["coverage"] = direction_coverage(problem.samples, theta)
-    if not weak and identifiability["coverage"]["fraction"] < COVERAGE_WARN:
-        final = field_statistics(problem.samples, theta, problem.reference)
+    weak = identifiability.not_identifiable or []
+    identifiability.flatness = flat
+    coverage = identifiability.coverage = direction_coverage(problem.samples, theta)
+    if not weak and coverage["fraction"] < COVERAGE_WARN:
+        final = row_at(problem, theta)
         help_ = what_would_help(identifiability, final, problem.moments.reference, problem.model)
-        covered = identifiability["coverage"]["covered"]
+        covered = coverage["covered"]
         return SolveError(
             f"{failure}: the field directions cover {covered} of 26 direction bins, a cap of the "
             f"sphere on which a larger, far-away sphere fits nearly as well, so the solver "
@@ -432,7 +434,7 @@ def explain_failure(
             result=theta,
             identifiability=identifiability,
         )
-    final = field_statistics(problem.samples, theta, problem.reference)
+    final = row_at(problem, theta)
     help_ = what_would_help(identifiability, final, problem.moments.reference, problem.model)
     help_ = help_ or "rotate the sensor through more attitudes"
     return SolveError(
@@ -473,11 +475,18 @@ def _judged(errors: dict, limits: dict, names, unit: str, share: float) -> str:
     return "; ".join(parts)
 
 
-def what_would_help(identifiability: dict, final: dict, reference: str, model: str = "full") -> str:
+def row_at(problem: Problem, theta) -> TableRow:
+    """The Table 1 statistics of |B1| at theta, as a row labelled "stopped" (one pass)."""
+    return TableRow("stopped", **field_statistics(problem.samples, theta, problem.reference))
+
+
+def what_would_help(
+    identifiability: Identifiability, final: TableRow, reference: str, model: str = "full"
+) -> str:
     """What would determine the parameters better, from what limits them here (`model`: the form
     of Eq. 4 fitted; a smaller one is suggested where the attitudes cover a cap of the sphere)."""
     advice = []
-    coverage = identifiability.get("coverage", {})
+    coverage = identifiability.coverage or {}
     missing = coverage.get("missing", [])
     if missing:
         more = f" and {len(missing) - 6} other directions" if len(missing) > 6 else ""
@@ -486,14 +495,14 @@ def what_would_help(identifiability: dict, final: dict, reference: str, model: s
             f"{', '.join(missing[:6])}{more} (sensor axes; {coverage['covered']} of 26 direction "
             f"bins visited)"
         )
-    mean = final.get("mean") or 0.0
-    spread = final.get("std", 0.0) / mean if mean > 0 else 0.0
+    mean = final.mean or 0.0
+    spread = (final.std or 0.0) / mean if mean > 0 else 0.0
     if spread > DISTURBED_SPREAD:
         advice.append(
             f"a steadier field: |B1| still varies by {spread:.1%} (a clean field gives 0.1 %): "
             f"iron, electronics or motion nearby, or sensor errors beyond the nine parameters"
         )
-    widening = identifiability.get("score_dependence", {}).get("standard_error_widening", {})
+    widening = (identifiability.score_dependence or {}).get("standard_error_widening", {})
     inflation = max(widening.values(), default=1.0)
     if CORRELATED_INFLATION < inflation <= DEPENDENCE_WARN:  # above: `dependence_warning`
         advice.append(
@@ -503,7 +512,7 @@ def what_would_help(identifiability: dict, final: dict, reference: str, model: s
     if reference == "none":
         advice.append("a known field magnitude (--reference-field F) to fix the overall scale")
     if model != "offset" and (
-        coverage.get("fraction", 1.0) < COVERAGE_WARN or identifiability.get("not_identifiable")
+        coverage.get("fraction", 1.0) < COVERAGE_WARN or identifiability.not_identifiable
     ):
         advice.append(
             "or a smaller model: --model auto fits the richest the attitudes determine "
@@ -513,19 +522,24 @@ def what_would_help(identifiability: dict, final: dict, reference: str, model: s
 
 
 def undetermined_message(
-    errors, identifiability: dict, final: dict, reference: str, unit, model: str = "full"
+    errors,
+    identifiability: Identifiability,
+    final: TableRow,
+    reference: str,
+    unit,
+    model: str = "full",
 ):
     """Why the data do not determine some parameters, and what would: a few sentences."""
-    undetermined = identifiability.get("undetermined", [])
-    flat = identifiability.get("flatness", {})
+    undetermined = identifiability.undetermined or []
+    flat = identifiability.flatness or {}
     blind = flat.get("parameters", [])
-    weak = [n for n in identifiability["not_identifiable"] if n not in undetermined + blind]
+    weak = [n for n in identifiability.not_identifiable or [] if n not in undetermined + blind]
     parts = [planar_message(flat, _unit_word(unit))] if flat.get("planar") else []
     if undetermined:  # judged on what the attitudes determine (`uncertainty`)
-        dependence = identifiability.get("score_dependence", {})
+        dependence = identifiability.score_dependence or {}
         judged = _judged(
             dependence.get("standard_errors_independent", errors),
-            identifiability["undetermined_limits"],
+            identifiability.undetermined_limits or {},
             undetermined,
             unit,
             100 * UNDETERMINED[0],
@@ -563,30 +577,36 @@ def notes_for(problem: Problem) -> list:
 
 
 def warnings_for(
-    problem: Problem, theta, hs, errors, identifiability: dict, final: dict, unit: str = "nT"
+    problem: Problem,
+    theta,
+    hs,
+    errors,
+    identifiability: Identifiability,
+    final: TableRow,
+    unit: str = "nT",
 ) -> list:
     """What the data cannot tell, in words (and the exact-optimum check, into identifiability)."""
     warnings = []
     reference = problem.moments.reference
-    if identifiability["not_identifiable"]:
+    if identifiability.not_identifiable:
         warnings.append(
             "not identifiable: "
             + undetermined_message(
                 errors, identifiability, final, reference, unit, problem.model
             ).rstrip(".")
         )
-    coverage = identifiability["coverage"]
-    if coverage["fraction"] < COVERAGE_WARN and not identifiability["not_identifiable"]:
+    coverage = identifiability.coverage or {}
+    if coverage["fraction"] < COVERAGE_WARN and not identifiability.not_identifiable:
         warnings.append(
             f"poor attitude coverage: the corrected field visits "
             f"{coverage['covered']} of 26 direction bins; the result leans on a "
             f"small part of the sphere"
         )
-    if identifiability["poorly_determined"]:
+    if identifiability.poorly_determined:
         judged = _judged(
             errors,
-            identifiability["poorly_determined_limits"],
-            identifiability["poorly_determined"],
+            identifiability.poorly_determined_limits or {},
+            identifiability.poorly_determined,
             unit,
             100 * POORLY_DETERMINED[0],
         )
@@ -595,11 +615,11 @@ def warnings_for(
             f"poorly determined (standard errors above the limits): {judged}"
             + (f". {help_[0].upper()}{help_[1:]}" if help_ else "")
         )
-    inexact = final.get("series_rel_error", 0.0) > SERIES_CHECK
+    inexact = (final.series_rel_error or 0.0) > SERIES_CHECK
     robust = problem.loss.robust  # reweighting may stop before the weights settle
     if inexact or robust:
         shift = exact_optimum_shift(problem, theta, hs, errors)
-        identifiability["exact_optimum_shift_in_standard_errors"] = shift
+        identifiability.exact_optimum_shift_in_standard_errors = shift
         if shift is None or shift > SHIFT_WARN:
             where = (
                 "could not be located (no standard errors)"
@@ -608,8 +628,8 @@ def warnings_for(
             )
             why = (
                 f"the moment expansion of the objective is inexact here "
-                f"({final['series_rel_error']:.1e} relative; |B1|^2 varies by up to "
-                f"{final['max_abs_u']:.1%}); "
+                f"({final.series_rel_error:.1e} relative; |B1|^2 varies by up to "
+                f"{final.max_abs_u:.1%}); "
                 if inexact
                 else ""
             )

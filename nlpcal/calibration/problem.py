@@ -27,6 +27,7 @@ from ..nlp.blocks import (
 )
 from ..nlp.solver import IpoptOptions
 from ..passes import reduce
+from ..results import TableRow
 from ..robust import MAD_SAMPLES, Loss
 from ..statistics import corrected_magnitude, correction, field_statistics, reference_chunk
 from .result import Reference
@@ -74,9 +75,9 @@ class Problem:
     def __post_init__(self):
         self.scale_given = self.loss.scale is not None
 
-    def measured_row(self) -> dict:
+    def measured_row(self) -> TableRow:
         """The Table 1 row of the raw |B_M|, gathered with the moments."""
-        return {"label": "measured", **self.moments.measured, "iterations": 0, "wall_s": 0.0}
+        return TableRow("measured", **self.moments.measured, iterations=0, wall_s=0.0)
 
     def statistics(self, theta) -> dict:
         """Table 1 statistics of |B1| at theta, with the loss's sums when it is robust and its
@@ -89,18 +90,20 @@ class Problem:
             self.samples, theta, self.reference, loss=self.loss, centre=self.centre
         )
 
-    def row(self, label, theta, series: float | None = None, *, iterations, wall_s) -> dict:
+    def row(self, label, theta, series: float | None = None, *, iterations, wall_s) -> TableRow:
         """A Table 1 row of |B1| for `theta`, with the relative gap between the moment objective
         (`series`, evaluated here when not given) and the exact per-sample one."""
         stats = self.statistics(theta)
+        row = TableRow(label, **stats)
         if series is None or self.loss.robust:
             (series,) = evaluate(value_function, self.moments, theta)
         exact = stats["objective"] if not self.loss.robust else self._weighted_objective(theta)
-        stats["series_rel_error"] = abs(series - exact) / exact if exact > 0 else 0.0
-        stats["parameters"] = Zhou2010Parameters.from_theta(theta).to_dict()
-        return {"label": label, **stats, "iterations": int(iterations), "wall_s": float(wall_s)}
+        row.series_rel_error = abs(series - exact) / exact if exact > 0 else 0.0
+        row.parameters = Zhou2010Parameters.from_theta(theta).to_dict()
+        row.iterations, row.wall_s = int(iterations), float(wall_s)
+        return row
 
-    def moment_row(self, label, theta, *, iterations, wall_s) -> dict | None:
+    def moment_row(self, label, theta, *, iterations, wall_s) -> TableRow | None:
         """A Table 1 row from the moments alone: mean and std of |B1| and the objective, without
         max, min and range (they need a pass over the data); None where the expansion behind it
         does not hold (the spread of |B1| above MOMENT_ROW_SPREAD of its mean, as in the first
@@ -108,19 +111,16 @@ class Problem:
         f, mean, variance, spread = evaluate(summary_function, self.moments, theta)
         if not spread <= MOMENT_ROW_SPREAD:
             return None
-        return {
-            "label": label,
-            "max": None,
-            "min": None,
-            "mean": mean,
-            "std": float(np.sqrt(max(variance, 0.0))),
-            "range": None,
-            "objective": f,
-            "from_moments": True,
-            "parameters": Zhou2010Parameters.from_theta(theta).to_dict(),
-            "iterations": int(iterations),
-            "wall_s": float(wall_s),
-        }
+        return TableRow(
+            label,
+            mean=mean,
+            std=float(np.sqrt(max(variance, 0.0))),
+            objective=f,
+            from_moments=True,
+            parameters=Zhou2010Parameters.from_theta(theta).to_dict(),
+            iterations=int(iterations),
+            wall_s=float(wall_s),
+        )
 
     @property
     def free(self) -> Variables:

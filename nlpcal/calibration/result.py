@@ -25,7 +25,7 @@ from ..models.zhou2010 import (
     tied_parameters,
 )
 from ..nlp.solver import FINISHERS, NLPCAL_STATUSES
-from ..results import Document, DocumentReader
+from ..results import Document, DocumentReader, Provenance, Record, TableRow
 from ..statistics import STD_DDOF, format_table
 from ..verdict import Verdict, judge
 from ..version import __version__
@@ -104,6 +104,88 @@ class Reference:
             column=block.string("column", None),
             model=block.mapping("model", None),
         )
+
+
+@dataclass(eq=False, repr=False)
+class Identifiability(Record):
+    """What the data determine of a calibration (the "identifiability" block of its document):
+    the parameters left undetermined or poorly determined, why, and the checks behind it. A
+    field that is None is absent from the document.
+
+    Attributes
+    ----------
+    not_identifiable : list of str
+        The parameters the data do not determine: along a direction |B1| does not change, a
+        standard error above its undetermined limit, or blind to a plane the samples lie in.
+    undetermined : list of str
+        Those with a standard error (of independent samples) above `undetermined_limits`.
+    poorly_determined : list of str
+        Those with a standard error above `poorly_determined_limits`.
+    weakest_combination : list of str
+        The parameters of the weakest direction of the information.
+    hessian_eigenvalues_scaled : list of float
+        The eigenvalues of the objective's Hessian in the scaled variables, over N / 2. [unit^2]
+    covariance_form : str
+        "sandwich" or "gauss-newton".
+    poorly_determined_limits, undetermined_limits : dict
+        Per estimated parameter, the standard errors beyond which it is poorly determined or
+        undetermined. [parameter units]
+    score_dependence : dict
+        How the standard errors follow the dependence of the samples' scores.
+    second_order_bias : dict
+        The estimate's bias in the sensor noise, and whether it was corrected.
+    flatness : dict
+        Whether the samples lie (nearly) in one plane, and the parameters it blinds.
+    coverage : dict
+        The direction bins the field visits (of 26).
+    exact_optimum_shift_in_standard_errors : float
+        The estimated distance to the exact optimum (an inexact expansion, a robust loss).
+    joint_gap : dict
+        A staged result against the joint optimum of the same objective.
+    standard_errors_at_joint_optimum : dict
+        A staged result away from that optimum: the standard errors there.
+    extra : dict
+        Keys of other kinds (a temperature calibration's Gauss-Newton eigenvalues).
+
+    Examples
+    --------
+    >>> from nlpcal.calibration.result import Identifiability
+    >>> block = Identifiability(not_identifiable=["z_z"], poorly_determined=[])
+    >>> block.to_dict()
+    {'not_identifiable': ['z_z'], 'poorly_determined': []}
+    """
+
+    not_identifiable: list[str] | None = None
+    undetermined: list[str] | None = None
+    poorly_determined: list[str] | None = None
+    weakest_combination: list[str] | None = None
+    hessian_eigenvalues_scaled: list[float] | None = None
+    covariance_form: str | None = None
+    poorly_determined_limits: dict[str, float] | None = None
+    undetermined_limits: dict[str, float] | None = None
+    score_dependence: dict | None = None
+    second_order_bias: dict | None = None
+    flatness: dict | None = None
+    coverage: dict | None = None
+    exact_optimum_shift_in_standard_errors: float | None = None
+    joint_gap: dict | None = None
+    standard_errors_at_joint_optimum: dict[str, float] | None = None
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def planar(self) -> bool:
+        """Whether the samples lie (nearly) in one plane."""
+        return bool((self.flatness or {}).get("planar"))
+
+    @classmethod
+    def read(cls, reader: DocumentReader) -> Identifiability:
+        """The "identifiability" block of a document, its lists of parameters checked."""
+        block = reader.reader("identifiability", None)
+        if block is None:
+            return cls()
+        for name in ("not_identifiable", "undetermined", "poorly_determined"):
+            block.strings(name, None)
+        return cls.from_dict(block.document)
 
 
 def read_robust(reader: DocumentReader) -> dict:
@@ -338,9 +420,9 @@ class CalibrationResult(Document):
     ----------
     parameters : dict
         z_x, z_y, z_z [unit], s_x, s_y, s_z [1], alpha_deg, beta_deg, gamma_deg [deg].
-    statistics : list of dict
-        Table 1 rows (label, max, min, mean, std, range [unit], objective [unit^2], iterations,
-        wall_s [s]); the first is the measured |B_M|.
+    statistics : list of TableRow
+        Table 1 rows (`nlpcal.results.TableRow`: label, max, min, mean, std, range [unit],
+        objective [unit^2], iterations, wall_s [s], ...); the first is the measured |B_M|.
     method : str
         "staged" or "joint".
     reference : Reference
@@ -361,7 +443,7 @@ class CalibrationResult(Document):
     covariance : numpy.ndarray or None
         (k, k) covariance of the k estimated parameters in the order of `parameters`, in their
         units (offsets [unit^2], scale errors [1], angles [deg^2]); None without standard errors.
-    identifiability : dict
+    identifiability : Identifiability
         What the attitude coverage determines, how the standard errors follow the dependence of
         the scores (`score_dependence`) and the second-order bias (`second_order_bias`).
     warnings : list of str
@@ -372,8 +454,8 @@ class CalibrationResult(Document):
         Samples the calibration used.
     version : str
         The nlpcal version that made it ("nlpcal_version" in the document).
-    input : dict
-        Where the samples came from (file, columns, the unit of the file).
+    input : Provenance
+        Where the samples came from (file, columns, the unit of the file; `Provenance`).
     robust : dict
         The loss and its scale, the samples it down-weighted, and the spread of the residuals.
         [unit]
@@ -420,28 +502,34 @@ class CalibrationResult(Document):
     def accepts(cls, document: dict) -> bool:
         return document.get("format") in cls.ALSO_READS or super().accepts(document)
 
-    parameters: dict
-    statistics: list
+    parameters: dict[str, float]
+    statistics: list[TableRow]
     method: str = "staged"
     reference: Reference = field(default_factory=Reference)
     gauge: dict | None = None
     solver: SolverReport = field(default_factory=SolverReport)
     unit: str = "nT"
     unit_source: str | None = None
-    standard_errors: dict | None = None
+    standard_errors: dict[str, float] | None = None
     covariance: np.ndarray | None = None
-    identifiability: dict = field(default_factory=dict)
-    warnings: list = field(default_factory=list)
-    notes: list = field(default_factory=list)
+    identifiability: Identifiability = field(default_factory=Identifiability)
+    warnings: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
     n_samples: int = 0
     version: str = __version__
-    input: dict = field(default_factory=dict)
+    input: Provenance = field(default_factory=Provenance)
     robust: dict = field(default_factory=dict)
     model_name: str = "full"
     model_selection: dict | None = None
     sensor_id: int | str | None = None
     orientation: dict | None = None
     lag: dict | None = None
+
+    def __setattr__(self, name: str, value) -> None:
+        """A record given as the JSON object it writes (a dict) is read into its type: the
+        rows, the identifiability block and the provenance, in the constructor and after."""
+        read = RECORD_FIELDS.get(name)
+        super().__setattr__(name, value if read is None else read(value))
 
     @property
     def estimated_parameters(self) -> list:
@@ -460,7 +548,7 @@ class CalibrationResult(Document):
     @property
     def log_unit(self) -> str:
         """The unit of the log the parameters were estimated from (the result's unit if unknown)."""
-        recorded = self.input.get("log_unit")
+        recorded = self.input.log_unit
         return recorded if recorded in units.FIELD_UNITS_NT else self.unit
 
     def scale_fixed_by(self) -> str | None:
@@ -505,7 +593,7 @@ class CalibrationResult(Document):
         """The result's verdict (`nlpcal.verdict`): failed when the solve did not converge or
         the data do not determine some parameters (a result written with an allow flag),
         poorly determined when some standard errors exceed their limits, else ok or warnings."""
-        block = self.identifiability or {}
+        block = self.identifiability
         failures = []
         if not self.solver.success:
             failures.append(f"the solver failed ({self.solver.status})")
@@ -514,9 +602,9 @@ class CalibrationResult(Document):
                 f"not converged: the {self.method} solve stopped on "
                 f"{self.solver.stop_reason}, away from the optimum"
             )
-        if block.get("not_identifiable"):
-            failures.append(f"the data do not determine {', '.join(block['not_identifiable'])}")
-        poor = block.get("poorly_determined") or []
+        if block.not_identifiable:
+            failures.append(f"the data do not determine {', '.join(block.not_identifiable)}")
+        poor = block.poorly_determined or []
         return judge(
             failures,
             [f"{', '.join(poor)}: standard errors above their limits"] if poor else [],
@@ -526,7 +614,7 @@ class CalibrationResult(Document):
     def body(self) -> dict:
         document = {
             "parameters": dict(self.parameters),
-            "statistics": list(self.statistics),
+            "statistics": [row.to_dict() for row in self.statistics],
             "std_ddof": STD_DDOF,
             "method": self.method,
             "reference": self.reference.to_dict(),
@@ -537,7 +625,7 @@ class CalibrationResult(Document):
             "model": self.model_name,
             "fixed_parameters": self.fixed_parameters,
             "standard_errors": self.standard_errors,
-            "identifiability": dict(self.identifiability),
+            "identifiability": self.identifiability.to_dict(),
             "warnings": list(self.warnings),
             "notes": list(self.notes),
             "n_samples": self.n_samples,
@@ -559,7 +647,7 @@ class CalibrationResult(Document):
                 "matrix": np.asarray(self.covariance).tolist(),
             }
         if self.input:
-            document["input"] = dict(self.input)
+            document["input"] = self.input.to_dict()
         if self.robust:
             document["robust"] = dict(self.robust)
         if self.sensor_id is not None:
@@ -582,7 +670,10 @@ class CalibrationResult(Document):
         check_model(parameters, model_name, scale_known, reader.source)
         return {
             "parameters": parameters,
-            "statistics": reader.items("statistics", []),
+            "statistics": [
+                TableRow.read(row, f"{reader.source}: statistics[{i}]")
+                for i, row in enumerate(reader.items("statistics", []))
+            ],
             "method": reader.string("method", "staged"),
             "reference": reference,
             "gauge": reader.mapping("gauge", None),
@@ -597,15 +688,17 @@ class CalibrationResult(Document):
                 if errors.has(name)
             },
             "covariance": read_covariance(reader, estimated),
-            "identifiability": reader.mapping("identifiability", {}),
+            "identifiability": Identifiability.read(reader),
             "warnings": reader.strings("warnings", []),
             "notes": reader.strings("notes", []),
             "n_samples": reader.integer("n_samples", 0),
             "version": reader.string("nlpcal_version", "unknown"),
-            "input": reader.provenance(
-                strings=("log", "temperature_column"),
-                lists=("columns",),
-                units=(("log_unit", units.FIELD_UNITS_NT), ("unit_source", units.UNIT_SOURCES)),
+            "input": Provenance.from_dict(
+                reader.provenance(
+                    strings=("log", "temperature_column"),
+                    lists=("columns",),
+                    units=(("log_unit", units.FIELD_UNITS_NT), ("unit_source", units.UNIT_SOURCES)),
+                )
             ),
             "robust": read_robust(reader),
             "model_name": model_name,
@@ -620,3 +713,12 @@ class CalibrationResult(Document):
     @classmethod
     def from_body(cls, reader: DocumentReader) -> CalibrationResult:
         return cls(**cls.fields_from(reader))
+
+
+#: The fields of a CalibrationResult that hold typed records, and how each is read from the
+#: JSON object it writes.
+RECORD_FIELDS = {
+    "statistics": lambda rows: [TableRow.of(row) for row in rows],
+    "identifiability": Identifiability.of,
+    "input": Provenance.of,
+}

@@ -45,13 +45,13 @@ ESTIMATES = {
 def undetermined_by_attitudes(result: CalibrationResult) -> str | None:
     """Why the attitudes of a calibration's log do not determine its form, or None."""
     identifiability = result.identifiability
-    weak = identifiability.get("not_identifiable", [])
-    if identifiability.get("flatness", {}).get("planar"):
+    weak = identifiability.not_identifiable or []
+    if identifiability.planar:
         return f"the samples lie (nearly) in one plane, leaving {', '.join(weak)} undetermined"
     if weak:
         return f"the data leave {', '.join(weak)} undetermined"
-    coverage = identifiability.get("coverage", {})
-    poorly = identifiability.get("poorly_determined", [])
+    coverage = identifiability.coverage or {}
+    poorly = identifiability.poorly_determined or []
     if coverage.get("fraction", 1.0) < COVERAGE_WARN and poorly:
         return (
             f"the field visits {coverage['covered']} of 26 direction bins, and on that cap "
@@ -119,15 +119,15 @@ def restriction_warning(restricted: CalibrationResult, full: CalibrationResult, 
     """
     q_full, q_restricted = freed
     df = q_full - q_restricted
-    f_r = restricted.statistics[-1]["objective"]
-    f_f = full.statistics[-1]["objective"]
+    f_r = restricted.statistics[-1].objective or 0.0  # every solved row has one
+    f_f = full.statistics[-1].objective or 0.0
     n = restricted.n_samples
     if df <= 0 or not f_f > 0 or n <= q_full or not f_r > f_f:
         return None
     statistic = (f_r - f_f) / df / (f_f / (n - q_full))
     a = 2.0 / (9.0 * df)
     critical = (1.0 - a + RESTRICTION_LEVEL_Z * a**0.5) ** 3  # chi2 quantile / df, Eq. in [2]
-    spread_r, spread_f = restricted.statistics[-1]["std"], full.statistics[-1]["std"]
+    spread_r, spread_f = restricted.statistics[-1].std or 0.0, full.statistics[-1].std or 0.0
     if statistic <= critical or spread_r <= (1.0 + RESTRICTION_SPREAD) * spread_f:
         return None
     fixed = ", ".join(restricted.fixed_parameters)

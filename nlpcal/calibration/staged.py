@@ -24,6 +24,7 @@ import numpy as np
 from ..defaults import CYCLES_DEFAULT, RTOL_DEFAULT
 from ..nlp.blocks import STAGE_ORDER, variables
 from ..nlp.steps import block_step
+from ..results import TableRow
 from .result import BlockSolve
 
 #: The prediction of the rtol rule (`cycles_to_converge`) reads the rate of convergence from the
@@ -130,7 +131,7 @@ def run_staged(problem, rule: StopRule, progress=None):
     order = [s for s in STAGE_ORDER if variables(s, problem.moments.reference, problem.model).size]
     rows = [problem.measured_row()]
     stages: list = []
-    previous = rows[0]["objective"]
+    previous = rows[0].objective
     stop_reason = "max_cycles"
     predicting = (
         rule.predict
@@ -154,9 +155,9 @@ def run_staged(problem, rule: StopRule, progress=None):
             stop_reason = target
             break
         if robust_phase:  # the mean loss, from an exact row
-            current = row["robust_objective"]
+            current = row.robust_objective
         else:  # the exact objective of the row, or the moments' when rows come from them
-            current = row["objective"] if rule.every_row_exact else step.f_end
+            current = row.objective if rule.every_row_exact else step.f_end
         settled = previous is not None and previous - current <= rule.rtol * previous
         if settled and not changed and (robust_phase or not problem.loss.robust):
             stop_reason = "rtol"
@@ -172,10 +173,10 @@ def run_staged(problem, rule: StopRule, progress=None):
             stages[-1].convergence_rate = predicted[0]
             stages[-1].predicted_cycles = cycle + predicted[1]
             break
-    if rows[-1].get("from_moments"):  # the last cycle's row is always a pass over the data
-        last = rows[-1]
+    last = rows[-1]
+    if last.from_moments:  # the last cycle's row is always a pass over the data
         rows[-1] = problem.row(
-            last["label"], theta, step.f_end, iterations=last["iterations"], wall_s=last["wall_s"]
+            last.label, theta, step.f_end, iterations=last.iterations, wall_s=last.wall_s
         )
     return theta, rows, stages, stop_reason
 
@@ -193,7 +194,9 @@ def run_cycle(problem, order: list, theta, cycle: int, stages: list):
     return step, iterations
 
 
-def cycle_row(problem, rule: StopRule, cycle: int, step, iterations: int, wall_s: float) -> dict:
+def cycle_row(
+    problem, rule: StopRule, cycle: int, step, iterations: int, wall_s: float
+) -> TableRow:
     """The Table 1 row of a cycle: from the moments where `rule` and the problem let it
     (`StopRule.every_row_exact`, `Problem.rows_from_moments`; never the first cycle, nor with a
     target), else from a pass over the data."""
@@ -215,11 +218,11 @@ def cycle_row(problem, rule: StopRule, cycle: int, step, iterations: int, wall_s
     return row
 
 
-def target_met(rule: StopRule, row: dict) -> str | None:
+def target_met(rule: StopRule, row: TableRow) -> str | None:
     """The stop reason of a target of step 7 of Fig. 1 in [1] that a cycle's row meets, or
     None."""
-    if rule.target_std is not None and row["std"] <= rule.target_std:
+    if rule.target_std is not None and row.std is not None and row.std <= rule.target_std:
         return "target_std"
-    if rule.target_range is not None and row["range"] <= rule.target_range:
+    if rule.target_range is not None and row.range is not None and row.range <= rule.target_range:
         return "target_range"
     return None

@@ -30,6 +30,7 @@ from ..io.logs import settle_unit
 from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
 from ..moments import Moments, accumulate
 from ..nlp.blocks import GAUGE
+from ..results import Provenance, TableRow
 from ..robust import TUNING
 from .coverage import coverage_centre, direction_coverage
 from .diagnostics import (
@@ -45,7 +46,7 @@ from .diagnostics import (
 )
 from .joint import reweighting_limit_warning, run_joint
 from .problem import Problem
-from .result import BlockSolve, CalibrationResult, SolverReport
+from .result import BlockSolve, CalibrationResult, Identifiability, SolverReport
 from .settings import CalibrationSettings, QualityGate
 from .staged import StopRule, run_staged
 
@@ -154,7 +155,7 @@ class Solution:
     """
 
     theta: np.ndarray
-    rows: list
+    rows: list[TableRow]
     report: SolverReport
     hessian: np.ndarray
 
@@ -202,10 +203,10 @@ class Diagnosis:
     errors: dict | None
     covariance: np.ndarray | None
     point_errors: dict | None
-    identifiability: dict
+    identifiability: Identifiability
     warnings: list
     robust: dict
-    final: dict
+    final: TableRow
     stop_reason: str
     unconverged: str | None = None
 
@@ -217,8 +218,9 @@ def diagnose(
     data leave undetermined, samples in a plane, the attitudes covered, heavy tails or a robust
     reweighting stopped at its limit, and a staged result away from the joint optimum."""
     theta, final = solution.theta, solution.rows[-1]
+    objective = final.objective or 0.0  # a solved row has one
     errors, identifiability, covariance = uncertainty(
-        problem, final["objective"], solution.hessian, theta, final["mean"]
+        problem, objective, solution.hessian, theta, final.mean
     )
     spread = residual_spread(problem, theta)
     judge_attitudes(problem, theta, spread, identifiability)
@@ -235,31 +237,33 @@ def diagnose(
     )
     if method == "staged":
         judge_staged(problem, theta, rule, solution, diagnosis)
-    if identifiability["flatness"]["planar"]:  # along the plane's normal no linearisation
+    if identifiability.planar:  # along the plane's normal no linearisation
         diagnosis.errors = diagnosis.covariance = None  # describes the data
     return diagnosis
 
 
-def judge_attitudes(problem: Problem, theta, spread: dict, identifiability: dict) -> None:
+def judge_attitudes(
+    problem: Problem, theta, spread: dict, identifiability: Identifiability
+) -> None:
     """Add to `identifiability` whether the samples lie in a plane ("flatness", whose blind
     parameters join "not_identifiable") and the directions the field visits ("coverage")."""
     samples = problem.samples
     flat = problem_flatness(problem, theta, spread)
     flat["parameters"] = [n for n in flat["parameters"] if n in problem.estimated]
-    identifiability["flatness"] = flat
+    identifiability.flatness = flat
     if flat["planar"]:  # the Hessian at a degenerate optimum can look healthy
-        blind = set(flat["parameters"]) | set(identifiability["not_identifiable"])
-        identifiability["not_identifiable"] = [n for n in PARAMETER_NAMES if n in blind]
-    if identifiability["not_identifiable"]:  # theta is not to be trusted: judge the directions
+        blind = set(flat["parameters"]) | set(identifiability.not_identifiable or [])
+        identifiability.not_identifiable = [n for n in PARAMETER_NAMES if n in blind]
+    if identifiability.not_identifiable:  # theta is not to be trusted: judge the directions
         centred = np.zeros(9)  # about the fitted sphere's centre, or the samples' mean when the
         centred[0:3] = coverage_centre(samples, problem.moments.frame)  # sphere is degenerate
-        identifiability["coverage"] = direction_coverage(samples, centred)
+        identifiability.coverage = direction_coverage(samples, centred)
     else:
-        identifiability["coverage"] = direction_coverage(samples, theta)
+        identifiability.coverage = direction_coverage(samples, theta)
 
 
 def robust_block(
-    problem: Problem, spread: dict, final: dict, report: SolverReport, warnings: list
+    problem: Problem, spread: dict, final: TableRow, report: SolverReport, warnings: list
 ) -> dict:
     """The result's robust block: the loss, its scale and the residuals' spread; with a robust
     loss where its scale came from and what it down-weighted. Appends to `warnings` a robust
@@ -271,8 +275,8 @@ def robust_block(
             if problem.scale_given
             else f"1.4826 MAD x {TUNING[problem.loss.kind]:g}",
             reweightings=problem.reweights,
-            downweighted=final["downweighted"],
-            downweighted_fraction=final["downweighted"] / len(problem.samples),
+            downweighted=final.downweighted,
+            downweighted_fraction=(final.downweighted or 0) / len(problem.samples),
             centre=problem.centre,
         )
         limit = reweighting_limit_warning(report)
@@ -298,13 +302,13 @@ def judge_staged(
     its rtol rule held is only said."""
     stop_reason, rows = diagnosis.stop_reason, solution.rows
     gap = joint_gap(problem, theta, diagnosis.errors)
-    diagnosis.identifiability["joint_gap"] = gap
+    diagnosis.identifiability.joint_gap = gap
     distance = gap["max_gap_in_standard_errors"]
     checked = "objective_joint" in gap and distance is not None
     if not checked or distance > STAGED_GAP_LIMIT:
         message = staged_message(stop_reason, rule.max_cycles, gap, solution.report.last)
         diagnosis.warnings.append(message)
-        diagnosis.identifiability["standard_errors_at_joint_optimum"] = diagnosis.errors
+        diagnosis.identifiability.standard_errors_at_joint_optimum = diagnosis.errors
         diagnosis.errors = diagnosis.covariance = None  # they describe an optimum, not this point
         # a target stop is the user's request; a cycle that converged by its rtol rule but
         # cannot be checked (no standard errors, no joint optimum) keeps its warning
@@ -379,7 +383,7 @@ def assemble(
     errors, covariance = diagnosis.errors, diagnosis.covariance
     rows = solution.rows
     parameters = Zhou2010Parameters.from_theta(solution.theta).to_dict()
-    bias = identifiability.get("second_order_bias")
+    bias = identifiability.second_order_bias
     if bias is not None:
         parameters = correct_bias(parameters, bias, identifiability, warnings, errors is not None)
         if bias["applied"]:
@@ -406,14 +410,18 @@ def assemble(
         warnings=warnings,
         notes=notes_for(problem),
         n_samples=int(problem.samples.shape[0]),
-        input={"log_unit": unit},
+        input=Provenance(log_unit=unit),
         robust=diagnosis.robust,
         model_name=problem.model,
     )
 
 
 def correct_bias(
-    parameters: dict, block: dict, identifiability: dict, warnings: list, stated: bool = True
+    parameters: dict,
+    block: dict,
+    identifiability: Identifiability,
+    warnings: list,
+    stated: bool = True,
 ) -> dict:
     """The parameters with their second-order bias (`diagnostics.noise_bias`) removed when it
     exceeds BIAS_APPLY standard errors, the residuals pass for white noise (no standard error
@@ -424,7 +432,7 @@ def correct_bias(
     apart). `stated` : False when the result states no standard errors (then nothing is
     corrected). A bias above BIAS_WARN standard errors is a warning either way."""
     in_errors = block["bias_in_standard_errors"]
-    widening = identifiability.get("score_dependence", {}).get("standard_error_widening", {})
+    widening = (identifiability.score_dependence or {}).get("standard_error_widening", {})
     white = max(widening.values(), default=1.0) <= BIAS_WHITE_WIDENING
     separable = block.get("noise_separable", True)
     large_enough = max(abs(v) for v in in_errors.values()) > BIAS_APPLY
@@ -492,7 +500,7 @@ def gate(
     unconverged = None if quality.allow_unconverged else diagnosis.unconverged
     overrides = {"allow_unconverged": True} if unconverged else {}
     identifiability = diagnosis.identifiability
-    if quality.require_identifiable and identifiability["not_identifiable"]:
+    if quality.require_identifiable and identifiability.not_identifiable:
         also = f" Besides, {unconverged[0].lower()}{unconverged[1:]}." if unconverged else ""
         message = undetermined_message(
             diagnosis.point_errors,

@@ -22,7 +22,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import inference, units, validation
-from ..calibration.result import BlockSolve, CalibrationResult, Reference, SolverReport
+from ..calibration.result import (
+    BlockSolve,
+    CalibrationResult,
+    Identifiability,
+    Reference,
+    SolverReport,
+)
 from ..errors import InputError
 from ..models import liu2022
 from ..models.liu2022 import TEMPERATURE_MODELS, TemperatureModel
@@ -32,7 +38,7 @@ from ..models.zhou2010 import correct as zhou_correct
 from ..moments import sphere_frame
 from ..nlp.blocks import variable_scale
 from ..nlp.temperature import STEP_OPTIONS, gauss_newton_pass, minimise, n_coefficients
-from ..results import Document, DocumentReader
+from ..results import Document, DocumentReader, Provenance, TableRow
 from ..statistics import format_table
 from ..verdict import Verdict
 from .evaluation import evaluation_row
@@ -223,7 +229,7 @@ class TemperatureCalibrationResult(Document):
         return self.calibration.unit
 
     @property
-    def input(self) -> dict:
+    def input(self) -> Provenance:
         return self.calibration.input
 
     @property
@@ -451,7 +457,7 @@ def calibrate_temperature(
     stage = f"joint-temperature-{model}" + (f"-time-{time_drift}" if time_drift != "none" else "")
     calibration = CalibrationResult(
         parameters=params.to_dict(),
-        statistics=rows,
+        statistics=[TableRow.from_dict(row) for row in rows],
         method=f"joint-temperature-{model}",
         reference=Reference("series", field_mean=float(np.mean(reference))),
         gauge=None,
@@ -459,14 +465,14 @@ def calibrate_temperature(
         unit=units.base_unit(unit),
         unit_source="option",  # the caller's unit (nT by default); the reference fixes the scale
         standard_errors=errors,
-        identifiability={
-            "not_identifiable": not_identifiable,
-            "poorly_determined": poor,
-            "gauss_newton_eigenvalues_scaled": [float(v) for v in uncertainty.eigenvalues],
-        },
+        identifiability=Identifiability(
+            not_identifiable=not_identifiable,
+            poorly_determined=poor,
+            extra={"gauss_newton_eigenvalues_scaled": [float(v) for v in uncertainty.eigenvalues]},
+        ),
         warnings=warnings,
         n_samples=n,
-        input={"log_unit": unit},
+        input=Provenance(log_unit=unit),
     )
     drift_names = [name for name in names[9:] if name.endswith("_per_day")]
     return TemperatureCalibrationResult(
@@ -711,7 +717,9 @@ def calibrate_temperature_log(
         time_drift=time_drift,
         time_column=time_column,
     )
-    result.calibration.input = log.metadata(temperature_column=temperature_column)
+    result.calibration.input = Provenance.from_dict(
+        log.metadata(temperature_column=temperature_column)
+    )
     result.calibration.unit_source = log.unit_source
     result.calibration.warnings[:0] = [w for w in log.warnings if w not in result.warnings]
     result.calibration.reference.column = log.reference_column

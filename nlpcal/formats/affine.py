@@ -29,7 +29,7 @@ from .. import units, validation
 from ..calibration.result import CalibrationResult, Reference, read_orientation
 from ..errors import InputError
 from ..models.zhou2010 import correction_matrix, from_correction, smallest_model
-from ..results import Document, DocumentReader
+from ..results import Document, DocumentReader, Provenance
 from ..version import __version__
 
 #: The model every format states, in the column-vector convention.
@@ -283,11 +283,13 @@ class AffineCorrection(Document):
             model_name=smallest_model(params.to_dict(), reference.scale_known),
             unit=base,
             unit_source=unit_source,
-            input={
-                **input_block,
-                "log_unit": log_unit or base,
-                "rotation_not_carried": {"angle_deg": angle, "matrix": rotation.tolist()},
-            },
+            input=Provenance.from_dict(
+                {
+                    **input_block,
+                    "log_unit": log_unit or base,
+                    "rotation_not_carried": {"angle_deg": angle, "matrix": rotation.tolist()},
+                }
+            ),
         )
 
     # -- the matrix JSON format --------------------------------------------------------------

@@ -20,6 +20,7 @@ import re
 import stat
 import sys
 import tempfile
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
@@ -32,7 +33,7 @@ from ..errors import InputError, NlpcalError, WriteError
 def plain(value):
     """`value` with numpy scalars and arrays turned into Python numbers and lists, and every
     non-finite float into None, so that it serialises as strict JSON."""
-    if isinstance(value, dict):
+    if isinstance(value, Mapping):  # a dict, or a typed record (`nlpcal.results.Record`)
         return {str(k): plain(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
         return [plain(v) for v in value]

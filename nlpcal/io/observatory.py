@@ -17,6 +17,7 @@ References
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -88,8 +89,8 @@ def terms_of_use(source) -> str | None:
     whose provenance ("input") holds one, or of such a provenance block; None otherwise."""
     if isinstance(source, Observatory):
         return source.terms_of_use
-    block = source if isinstance(source, dict) else getattr(source, "input", None)
-    if not isinstance(block, dict):
+    block = source if isinstance(source, Mapping) else getattr(source, "input", None)
+    if not isinstance(block, Mapping):  # a dict, or a result's `nlpcal.results.Provenance`
         return None
     record = block.get("observatory")
     terms = record.get("terms_of_use") if isinstance(record, dict) else None

@@ -10,6 +10,7 @@ would then refuse.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -20,7 +21,7 @@ def strict(value, what: str = "the output", where: str = ""):
     """`value` as plain JSON values: numpy scalars and arrays as Python numbers and lists, the
     keys of an object whose value is None left out; InputError at a NaN or infinite number, or
     a None in a list (`what` names the document in the message, `where` the path to `value`)."""
-    if isinstance(value, dict):
+    if isinstance(value, Mapping):  # a dict, or a typed record (`nlpcal.results.Record`)
         return {str(k): strict(v, what, f"{where}{k}.") for k, v in value.items() if v is not None}
     if isinstance(value, np.ndarray):
         value = value.tolist()

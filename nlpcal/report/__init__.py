@@ -28,7 +28,7 @@ def _calibration(parameters) -> CalibrationResult | None:
 
 def _same_log(calibration: CalibrationResult | None, log: Log) -> bool:
     """Whether the calibration was estimated from this log (so that its cycles describe it)."""
-    recorded = (calibration.input or {}).get("log") if calibration is not None else None
+    recorded = calibration.input.log if calibration is not None else None
     return bool(recorded) and Path(str(recorded)).resolve() == Path(log.path).resolve()
 
 

@@ -127,7 +127,7 @@ def _parameters(result: CalibrationResult) -> str:
     """The nine parameters rounded by their standard errors (`nlpcal.inference.rounded`), the
     poorly determined and undetermined ones marked."""
     errors = result.standard_errors or {}
-    block = result.identifiability or {}
+    block = result.identifiability
     marks = {
         **{name: ("poor", "poorly determined") for name in block.get("poorly_determined", [])},
         **{name: ("undetermined", "not determined") for name in block.get("not_identifiable", [])},
@@ -259,7 +259,7 @@ def _reference(result: CalibrationResult, view: CalibrationView) -> str:
 
 
 def _identifiability(result: CalibrationResult) -> str:
-    block = result.identifiability or {}
+    block = result.identifiability
     if not block:
         return "<p>Not recorded (an imported calibration has no data behind it).</p>"
     missing = block.get("not_identifiable") or []
