@@ -8,6 +8,7 @@ nlpcal live [-|--serial PORT --baud B|--udp HOST:PORT] [--columns X Y Z] [--unit
 
 from __future__ import annotations
 
+from ..results import Provenance
 from .common import FIELD_UNITS, add_command, say, tell_written, warn, warning
 
 FORMATS = ("matlab", "matrix", "ardupilot", "px4", "c-header")  # nlpcal.formats.FORMATS
@@ -186,7 +187,9 @@ def run(args) -> int:
     finally:
         if web is not None:
             web.close()
-    result.input = {"log_unit": result.unit, "source": source.name, "format": parser.kind}
+    result.input = Provenance(
+        log_unit=result.unit, extra={"source": source.name, "format": parser.kind}
+    )
     with Outputs() as outputs:
         if args.output:
             outputs.json(args.output, result.to_dict())

@@ -226,7 +226,7 @@ class LiveSession:
     @staticmethod
     def _poor(result: CalibrationResult, limits: dict) -> list:
         errors = result.standard_errors
-        unidentified = set((result.identifiability or {}).get("not_identifiable") or [])
+        unidentified = set(result.identifiability.not_identifiable or [])
         if errors is None:
             return list(limits)
         return [
