@@ -134,11 +134,12 @@ class Correction:
             observatory file's `time`.
         """
         notes: list = []
-        model = parameters if isinstance(parameters, TemperatureCalibrationResult) else None
-        if model is not None and model.drifts_in_time:
-            time_column = drift_time_column(model, time_column, log_columns)
+        joint = parameters if isinstance(parameters, TemperatureCalibrationResult) else None
+        if joint is not None and joint.drifts_in_time:
+            time_column = drift_time_column(joint, time_column, log_columns)
         else:
             time_column = None
+        model = joint if joint is not None and joint.temperature_model is not None else None
         if drift is not None and model is not None:
             raise InputError(
                 "the parameters file already carries a temperature model; --drift "
@@ -205,6 +206,17 @@ class Correction:
                 f"degC of {what}; the linear temperature model is extrapolated"
             )
 
+    @property
+    def time_drift_alone(self) -> bool:
+        """Whether the parameters drift in time without a temperature model (then applied
+        without a temperature column)."""
+        joint = self.parameters
+        return (
+            isinstance(joint, TemperatureCalibrationResult)
+            and joint.temperature_model is None
+            and self.time_column is not None
+        )
+
     def times(self, log: Log) -> np.ndarray | None:
         """The log's times [s] for a drift of the scale factors in time, else None."""
         if self.time_column is None:
@@ -221,6 +233,9 @@ class Correction:
         `temperature` of each sample [degC] when the correction has one, and the time drift's
         gains at the samples' `times` [s] when the parameters have one)."""
         units.check_compatible(self.unit, base_unit, "the log", "the calibration")
+        if self.time_drift_alone:
+            assert isinstance(self.parameters, TemperatureCalibrationResult)
+            return self.parameters.apply(samples, None, times=times)
         if self.temperature_column is None:
             if self.parameters is None:
                 raise InputError("nothing to apply: give parameters or a drift file")
@@ -378,7 +393,9 @@ def statistics_rows(log: Log, correction: Correction | None = None) -> tuple:
             rows[1]["rmse"] = rmse(np.linalg.norm(corrected, axis=1), reference)  # Eq. 10
     if reference is not None:
         rows[0]["rmse"] = rmse(np.linalg.norm(log.samples, axis=1), reference)  # Eq. 10
-    if correction is not None and correction.temperature_column is not None:
+    if correction is not None and correction.time_drift_alone:
+        rows.append(evaluation_row("corrected + time drift", correction.apply(log), reference))
+    elif correction is not None and correction.temperature_column is not None:
         label = "corrected + temperature" if correction.parameters is not None else "temperature"
         rows.append(evaluation_row(label, correction.apply(log), reference))
     for row in rows:

@@ -16,6 +16,7 @@ from nlpcal.cli import main
 from nlpcal.drift.temperature import TemperatureCalibrationResult, calibrate_temperature
 from nlpcal.errors import InputError
 from nlpcal.formats.affine import TemperatureDrift
+from nlpcal.schemas import validate
 from synthetic import PAPER_TRUTH, drifting_sensor_output, uniform_directions
 
 WITHIN_SE = 5.0
@@ -166,6 +167,7 @@ def test_the_command_line_records_both_terms_and_apply_takes_them_out(tmp_path, 
     document = json.loads(output.read_text())
     assert document["temperature_model"]["kind"] == "full"
     drift = document["time_drift"]
+    validate(document)
     assert drift["kind"] == "per-axis" and drift["time_column"] == "utc"
     assert drift["reference_time_s"] == pytest.approx(start.timestamp() + 15 * 86_400.0)
     for k, axis in enumerate("xyz"):
@@ -210,3 +212,90 @@ def test_apply_refuses_a_time_drift_on_a_log_without_times(tmp_path, capsys):
             "-o", str(tmp_path / "q.json")]  # fmt: skip
     assert main(argv) == 2 and not (tmp_path / "q.json").exists()  # without times
     assert "Traceback" not in capsys.readouterr().err
+
+
+def time_drifting_record(n, drift, noise=NOISE, seed=5):
+    """A sensor whose scale factors drift in time, at one temperature: 40 days of uniform
+    attitudes in a field of 25 000 .. 50 000 nT, white noise of `noise` nT per axis, the
+    scalar reference exact. Returns (raw [nT], times [s], reference [nT], true field [nT])."""
+    rng = np.random.default_rng(seed)
+    times = np.linspace(0.0, 40.0 * 86_400.0, n)
+    magnitude = 37_500.0 + 12_500.0 * np.cos(2 * np.pi * 15.5 * np.arange(n) / n)
+    field = magnitude[:, None] * uniform_directions(n, rng)
+    days = (times - times[-1] / 2) / 86_400.0
+    zero = np.zeros(3)
+    raw = drifting_sensor_output(field, PAPER_TRUTH, np.zeros(n), days, zero, zero, zero, drift)
+    return raw + noise * rng.standard_normal(raw.shape), times, magnitude, field
+
+
+@pytest.mark.parametrize("kind", ["common", "per-axis"])
+def test_a_time_drift_alone_is_recovered_without_temperatures(kind):
+    drift = np.full(3, DRIFT[0]) if kind == "common" else DRIFT
+    raw, times, reference, _ = time_drifting_record(20_000, drift)
+    result = calibrate_temperature(raw, None, reference, times=times, time_drift=kind)
+    assert result.temperature_model is None and result.time_drift.kind == kind
+    errors = result.time_drift_standard_errors
+    names = (
+        ["scale_slope_per_day"] if kind == "common" else [f"scale_slope_{a}_per_day" for a in "xyz"]
+    )
+    for k, name in enumerate(names):
+        assert abs(result.time_drift.scale_slope_per_day[k] - drift[k]) < WITHIN_SE * errors[name]
+        assert errors[name] < 0.05 * abs(drift[k])
+    for name, value in result.parameters.items():
+        assert (
+            abs(value - PAPER_TRUTH[name]) < WITHIN_SE * result.calibration.standard_errors[name]
+        ), name
+    assert result.statistics[-1]["rmse"] <= 1.1 * NOISE
+    assert not result.calibration.identifiability["not_identifiable"] and not result.warnings
+    document = json.loads(result.to_json())
+    assert "temperature_model" not in document and document["time_drift"]["kind"] == kind
+    again = TemperatureCalibrationResult.from_json(result.to_json())
+    corrected = again.apply(raw[:50], None, times=times[:50])
+    assert np.allclose(np.linalg.norm(corrected, axis=1), reference[:50], atol=1.0)
+    with pytest.raises(InputError):
+        TemperatureDrift.from_result(again, "nT")  # the exports carry no drift in time
+    with pytest.raises(InputError):
+        calibrate_temperature(raw, None, reference, times=times)  # neither term
+    with pytest.raises(InputError):
+        calibrate_temperature(raw, None, reference, time_drift=kind)  # no times
+    with pytest.raises(InputError):  # a temperature model without temperatures
+        calibrate_temperature(
+            raw, None, reference, temperature_model="full", times=times, time_drift=kind
+        )
+
+
+def test_the_command_line_fits_and_applies_a_time_drift_alone(tmp_path, capsys):
+    raw, times, reference, field = time_drifting_record(20_000, DRIFT)
+    start = pd.Timestamp("2026-01-01T00:00:00Z")
+    frame = pd.DataFrame(raw, columns=["bx", "by", "bz"])
+    frame["utc"] = (start + pd.to_timedelta(times, unit="s")).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+    frame["scalar_nT"] = reference
+    log = tmp_path / "timed.csv"
+    frame.to_csv(log, index=False)
+    output = tmp_path / "p.json"
+    argv = ["calibrate", str(log), "--reference-column", "scalar_nT", "--time-drift",
+            "per-axis", "--time-column", "utc", "-o", str(output)]  # fmt: skip
+    assert main(argv) == 0, capsys.readouterr().err
+    document = json.loads(output.read_text())
+    assert "temperature_model" not in document and document["time_drift"]["time_column"] == "utc"
+    validate(document)  # the schema takes a time drift without a temperature model
+    capsys.readouterr()
+    assert main(["apply", str(output), str(log), "-o", str(tmp_path / "o.csv")]) == 0
+    corrected = pd.read_csv(tmp_path / "o.csv")[["bx", "by", "bz"]].to_numpy()
+    assert np.std(np.linalg.norm(corrected, axis=1) - reference) <= 1.1 * NOISE
+    error = np.sqrt(np.mean((corrected - field) ** 2, axis=0))
+    assert np.all(error <= 1.5 * NOISE), error
+    capsys.readouterr()
+    argv = ["stats", str(log), "--params", str(output), "--reference-column", "scalar_nT",
+            "--time-column", "utc", "--json"]  # fmt: skip
+    assert main(argv) == 0, capsys.readouterr().err
+    rows = json.loads(capsys.readouterr().out)["rows"]
+    assert rows[-1]["label"] == "corrected + time drift" and rows[-1]["rmse"] <= 1.1 * NOISE
+    for bad in (
+        ["--time-drift", "common"],  # without times
+        ["--time-drift", "common", "--time-column", "utc", "--temperature-model", "full"],
+    ):
+        argv = ["calibrate", str(log), "--reference-column", "scalar_nT", *bad,
+                "-o", str(tmp_path / "q.json")]  # fmt: skip
+        assert main(argv) == 2 and not (tmp_path / "q.json").exists()
+        assert "Traceback" not in capsys.readouterr().err

@@ -31,7 +31,13 @@ from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
 from ..models.zhou2010 import correct as zhou_correct
 from ..moments import sphere_frame
 from ..nlp.blocks import variable_scale
-from ..nlp.temperature import STEP_OPTIONS, gauss_newton_pass, minimise, n_coefficients
+from ..nlp.temperature import (
+    NO_TEMPERATURE,
+    STEP_OPTIONS,
+    gauss_newton_pass,
+    minimise,
+    n_coefficients,
+)
 from ..results import Document, DocumentReader
 from ..statistics import format_table
 from ..verdict import Verdict
@@ -42,12 +48,17 @@ MIN_SPAN_DEGC = 0.5
 #: Warn when a temperature coefficient's standard error exceeds this fraction of its variable
 #: scale (its typical size). [1]
 POOR_TEMPERATURE_SE = 0.5
+#: The temperature model of a time drift alone: every slope zero, the nine parameters at every
+#: temperature (`TemperatureCalibrationResult.apply` without a temperature model).
+NEUTRAL = TemperatureModel("per-axis", 0.0)
 
 
 def coefficient_names(kind: str, time_drift: str = "none") -> tuple:
     """Names of the coefficients of a temperature model and a time drift."""
     if kind == "common":
         names: tuple = ("k_slope_per_degC",)
+    elif kind == NO_TEMPERATURE:
+        names = ()
     else:
         names = tuple(f"scale_slope_{a}_per_degC" for a in "xyz") + tuple(
             f"offset_slope_{a}_per_degC" for a in "xyz"
@@ -69,6 +80,7 @@ def coefficient_scale(
     |tau| from its middle (time drift [1/d])."""
     span = max(max_dt, 1.0)
     sizes = [1e-3 / span] if kind == "common" else [1e-3 / span] * 3 + [1e-3 * radius / span] * 3
+    sizes = [] if kind == NO_TEMPERATURE else sizes
     if kind == "full":
         sizes += [1e-3 / span] * 3
     sizes += [1e-3 / max(max_days, 1e-6)] * {"none": 0, "common": 1, "per-axis": 3}[time_drift]
@@ -93,11 +105,13 @@ def theta_of(
 
 
 def model_of(theta, kind: str, t0: float, time_drift: str = "none", t_ref: float = 0.0):
-    """(Zhou2010Parameters, TemperatureModel, TimeDrift) of an internal vector."""
+    """(Zhou2010Parameters, TemperatureModel or None (NO_TEMPERATURE), TimeDrift) of an
+    internal vector."""
     params = Zhou2010Parameters.from_theta(theta[:9])
+    model: TemperatureModel | None = None
     if kind == "common":
         model = TemperatureModel("common", t0, k_slope_per_degC=float(theta[9]))
-    else:
+    elif kind != NO_TEMPERATURE:
         model = TemperatureModel(
             kind,
             t0,
@@ -152,8 +166,9 @@ class TemperatureCalibrationResult(Document):
     calibration : CalibrationResult
         The nine parameters at the base temperature t0 (so a reader that knows nothing of
         temperature still finds the system correction at t0).
-    temperature_model : TemperatureModel
-        How the parameters change with temperature.
+    temperature_model : TemperatureModel or None
+        How the parameters change with temperature; None for a time drift alone (no
+        "temperature_model" in the document).
     temperature_column : str or None
         The log column the model was fitted with (used by `nlpcal apply`).
     temperature_range : tuple
@@ -186,7 +201,7 @@ class TemperatureCalibrationResult(Document):
     carries_parameters = True
 
     calibration: CalibrationResult
-    temperature_model: TemperatureModel
+    temperature_model: TemperatureModel | None
     temperature_column: str | None = None
     temperature_range: tuple = (float("nan"), float("nan"))
     temperature_standard_errors: dict | None = None
@@ -250,6 +265,9 @@ class TemperatureCalibrationResult(Document):
         samples = validation.vectors(samples)
         unit = unit or self.unit
         units.check_compatible(self.unit, unit, "the samples")
+        model = self.temperature_model or NEUTRAL  # a time drift alone: no temperature
+        if self.temperature_model is None:
+            temperature = np.zeros(samples.shape[0])
         temperature = validation.temperature(temperature, samples.shape[0])
         time_gains = None
         if self.drifts_in_time:
@@ -261,7 +279,7 @@ class TemperatureCalibrationResult(Document):
             drift = self.time_drift
             assert drift is not None
             time_gains = drift.gains(validation.times(times, samples.shape[0]))
-        gains, _ = self.temperature_model.gains_offsets(self.model, temperature)
+        gains, _ = model.gains_offsets(self.model, temperature)
         if not (gains > 0).all():
             raise InputError(
                 "the temperature model gives a non-positive axis gain for "
@@ -272,7 +290,7 @@ class TemperatureCalibrationResult(Document):
             units.to_base(samples, unit),
             temperature,
             self.model,
-            self.temperature_model,
+            model,
             time_gains,
         )
         return units.from_base(corrected, unit)
@@ -286,12 +304,13 @@ class TemperatureCalibrationResult(Document):
 
     def body(self) -> dict:
         document = self.calibration.body()
-        document["temperature_model"] = {
-            **self.temperature_model.to_dict(),
-            "temperature_column": self.temperature_column,
-            "temperature_range_degC": [float(v) for v in self.temperature_range],
-            "standard_errors": self.temperature_standard_errors,
-        }
+        if self.temperature_model is not None:
+            document["temperature_model"] = {
+                **self.temperature_model.to_dict(),
+                "temperature_column": self.temperature_column,
+                "temperature_range_degC": [float(v) for v in self.temperature_range],
+                "standard_errors": self.temperature_standard_errors,
+            }
         if self.drifts_in_time:
             assert self.time_drift is not None
             document["time_drift"] = {
@@ -304,7 +323,11 @@ class TemperatureCalibrationResult(Document):
     @classmethod
     def from_body(cls, reader: DocumentReader) -> TemperatureCalibrationResult:
         calibration = CalibrationResult(**CalibrationResult.fields_from(reader))
-        block = reader.reader("temperature_model")
+        block = reader.reader("temperature_model", None)
+        if block is None:  # a time drift alone
+            return cls(
+                calibration=calibration, temperature_model=None, **_time_drift_fields(reader)
+            )
         span = block.array("temperature_range_degC", (2,), np.full(2, np.nan))
         errors = block.mapping("standard_errors", None)
         return cls(
@@ -353,8 +376,9 @@ def calibrate_temperature(
     ----------
     samples : array_like, shape (N, 3)
         Raw output over many attitudes and temperatures. [unit]
-    temperature : array_like, shape (N,)
-        Temperatures t_i (`--temperature-column`). [degC]
+    temperature : array_like, shape (N,), or None
+        Temperatures t_i (`--temperature-column`) [degC]; None for a time drift alone (no
+        temperature model: the nine parameters and the drift of the scale factors in time).
     reference : float or array_like of shape (N,)
         Reference magnitudes F_i (a proton magnetometer), or one number. [reference_unit]
     temperature_model : {"common", "per-axis", "full"}
@@ -409,6 +433,19 @@ def calibrate_temperature(
     validation.choice(time_drift, "time drift", TIME_DRIFTS)
     samples = validation.samples(samples)
     n = samples.shape[0]
+    timed_only = temperature is None
+    if timed_only:
+        if temperature_model is not None:
+            raise InputError(
+                f"a {temperature_model} temperature model needs the samples' temperatures "
+                f"(--temperature-column COL)"
+            )
+        if time_drift == "none":
+            raise InputError(
+                "the temperature calibration needs the samples' temperatures, or a time drift "
+                "(--temperature-column COL or --time-drift common|per-axis)"
+            )
+        model, temperature, base_temperature = NO_TEMPERATURE, np.zeros(n), 0.0
     temperature = validation.temperature(temperature, n)
     if reference is None:
         raise InputError(
@@ -429,7 +466,7 @@ def calibrate_temperature(
         else validation.number(base_temperature, "the base temperature")
     )
     t_low, t_high = float(temperature.min()), float(temperature.max())
-    if t_high == t_low:
+    if t_high == t_low and not timed_only:
         raise InputError(
             f"all {n} temperatures equal {t_low:g} degC; the temperature "
             f"coefficients need a log over a range of temperatures (calibrate "
@@ -482,11 +519,11 @@ def calibrate_temperature(
             for name, v, size in zip(names[9:], sd[9:], scale[9:])
             if v > POOR_TEMPERATURE_SE * (np.degrees(size) if "_deg_" in name else size)
         ]
-    warnings = _warnings(t_high - t_low, not_identifiable, poor)
+    warnings = _warnings(np.inf if timed_only else t_high - t_low, not_identifiable, poor)
     time_gains = drift.gains(times) if time_drift != "none" else None
-    label = f"system + temperature ({model})" + (
-        f" + time drift ({time_drift})" if time_drift != "none" else ""
-    )
+    terms = [] if timed_only else [f"temperature ({model})"]
+    terms += [f"time drift ({time_drift})"] if time_drift != "none" else []
+    label = "system + " + " + ".join(terms)
     rows = [
         {**evaluation_row("measured", samples, reference), "iterations": 0, "wall_s": 0.0},
         {
@@ -497,18 +534,19 @@ def calibrate_temperature(
         {
             **evaluation_row(
                 label,
-                liu2022.correct(samples, temperature, params, fitted, time_gains),
+                liu2022.correct(samples, temperature, params, fitted or NEUTRAL, time_gains),
                 reference,
             ),
             "iterations": iterations,
             "wall_s": wall,
         },
     ]
-    stage = f"joint-temperature-{model}" + (f"-time-{time_drift}" if time_drift != "none" else "")
+    method = f"joint-time-{time_drift}" if timed_only else f"joint-temperature-{model}"
+    stage = method if timed_only else method + (f"-time-{time_drift}" * (time_drift != "none"))
     calibration = CalibrationResult(
         parameters=params.to_dict(),
         statistics=rows,
-        method=f"joint-temperature-{model}",
+        method=method,
         reference=Reference("series", field_mean=float(np.mean(reference))),
         gauge=None,
         solver=SolverReport(
@@ -540,8 +578,8 @@ def calibrate_temperature(
     return TemperatureCalibrationResult(
         calibration=calibration,
         temperature_model=fitted,
-        temperature_column=temperature_column,
-        temperature_range=(t_low, t_high),
+        temperature_column=None if timed_only else temperature_column,
+        temperature_range=(np.nan, np.nan) if timed_only else (t_low, t_high),
         temperature_standard_errors=None
         if coefficient_errors is None
         else {k: v for k, v in coefficient_errors.items() if k not in drift_names},
@@ -575,7 +613,8 @@ def _days(times, time_drift: str, temperature: np.ndarray) -> tuple:
             f"all {n} samples have the same time; a drift of the scale factors in time needs "
             f"a log over a span of time"
         )
-    correlation = float(np.corrcoef(times, temperature)[0, 1])
+    varies = temperature.max() > temperature.min()  # not a time drift alone
+    correlation = float(np.corrcoef(times, temperature)[0, 1]) if varies else 0.0
     if abs(correlation) > COLLINEAR:
         raise InputError(
             f"the temperature changes in step with time (correlation {correlation:.4f}), so a "
@@ -625,9 +664,9 @@ def objective_value(
 
 def calibrate_temperature_log(
     log,
-    temperature_column: str,
+    temperature_column: str | None,
     *,
-    model: str = "common",
+    model: str | None = None,
     base_temperature: float | None = None,
     time_drift: str = "none",
     times=None,
@@ -635,21 +674,22 @@ def calibrate_temperature_log(
 ) -> TemperatureCalibrationResult:
     """`calibrate_temperature` on a log read by `nlpcal.io.read_log` with its reference column
     and `temperature_column` [degC] (and the samples' `times` [s] from `time_column` for a
-    `time_drift`); the result records the log under `input`."""
-    temperature_column = log.column(temperature_column)
+    `time_drift`; a time drift alone without `temperature_column`); the result records the
+    log under `input`."""
+    temperature_column = None if temperature_column is None else log.column(temperature_column)
     if log.reference is None:
         raise InputError(
             "the temperature calibration needs --reference-column COL, a reference "
             "magnitude per sample (for example a proton magnetometer)"
         )
-    if temperature_column == log.reference_column:
+    if temperature_column is not None and temperature_column == log.reference_column:
         raise InputError(
             f"the temperature and reference columns are both "
             f"{temperature_column!r}; they must be different columns"
         )
     result = calibrate_temperature(
         log.samples,
-        log.values(temperature_column),
+        None if temperature_column is None else log.values(temperature_column),
         log.reference,
         temperature_model=model,
         base_temperature=base_temperature,
