@@ -161,9 +161,9 @@ them (say, the sensor was never turned over); --allow-unidentifiable writes them
         "--time-drift",
         choices=TIME_DRIFTS,
         default="none",
-        help="with --temperature-column: scale factors linear in time, one slope for all axes "
-        "(common) or one per axis (per-axis), per day from the middle of the log; needs "
-        "--time-column (default: none)",
+        help="scale factors linear in time, one slope for all axes (common) or one per axis "
+        "(per-axis), per day from the middle of the log, fitted against --reference-column "
+        "with or without --temperature-column; needs --time-column (default: none)",
     )
     parser.add_argument(
         "--base-temperature",
