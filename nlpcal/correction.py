@@ -3,7 +3,8 @@
 A `Correction` is what is applied to a log: the nine parameters of a calibration (Eq. 4 of Zhou
 et al. 2010), optionally with the temperature model of a joint temperature calibration, or the
 k(t) of a drift fit (Eq. 9 of Liu et al. 2022) before them. It knows which log columns it needs
-(the temperature column) and says what it decided on the user's behalf in `notes`.
+(the temperature column; the times for a drift of the scale factors in time) and says what it
+decided on the user's behalf in `notes`.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import pandas as pd
 
 from . import units, validation
 from .calibration.result import CalibrationResult
@@ -19,13 +21,17 @@ from .drift.fit import DriftFit
 from .drift.temperature import TemperatureCalibrationResult
 from .errors import InputError
 from .io.logs import Log, read_log
+from .io.observatory import TIME_COLUMN
 from .io.output import aligned
+from .io.reference import log_times
 from .io.stream import LogStream
+from .io.tables import column_name
 from .models.liu2022 import rmse
 from .models.zhou2010 import correct
 from .results import load_any
 from .robust import robust_std
 from .statistics import field_statistics
+from .timing import seconds
 
 #: The columns `nlpcal apply` adds to a corrected log: |B1|, and the outlier flags.
 TOTAL_COLUMN = "b_total"
@@ -85,6 +91,9 @@ class Correction:
         A drift fit whose k(t) divides the raw vector first (Eq. 9 of Liu et al. 2022), or None.
     temperature_column : str or None
         The log's temperature column [degC], or None (no temperature step).
+    time_column : str or None
+        The log's column of times [s] for parameters whose scale factors drift in time
+        (`nlpcal.models.time_drift`), or None.
     notes : list of str
         What was decided on the user's behalf.
 
@@ -101,6 +110,7 @@ class Correction:
     drift: DriftFit | None = None
     temperature_column: str | None = None
     notes: list = field(default_factory=list)
+    time_column: str | None = None
 
     @classmethod
     def plan(
@@ -111,6 +121,7 @@ class Correction:
         *,
         log_columns=(),
         require_temperature: bool = True,
+        time_column: str | None = None,
     ) -> Correction:
         """Check that the pieces fit together and choose the temperature column.
 
@@ -118,15 +129,17 @@ class Correction:
             column the model was fitted with).
         require_temperature : a temperature model without its column is an error (apply);
             False leaves the temperature step out with a note (stats).
+        time_column : the log's column of times (--time-column), for parameters whose scale
+            factors drift in time; default the column they were fitted with, else an
+            observatory file's `time`.
         """
         notes: list = []
-        model = parameters if isinstance(parameters, TemperatureCalibrationResult) else None
-        if model is not None and model.drifts_in_time:
-            raise InputError(
-                "the parameters file has a drift of the scale factors in time (time_drift), "
-                "which apply and stats do not apply yet; correct in Python with "
-                "TemperatureCalibrationResult.apply(samples, temperature, times=...)"
-            )
+        joint = parameters if isinstance(parameters, TemperatureCalibrationResult) else None
+        if joint is not None and joint.drifts_in_time:
+            time_column = drift_time_column(joint, time_column, log_columns)
+        else:
+            time_column = None
+        model = joint if joint is not None and joint.temperature_model is not None else None
         if drift is not None and model is not None:
             raise InputError(
                 "the parameters file already carries a temperature model; --drift "
@@ -155,7 +168,7 @@ class Correction:
                     f"the log has no column {stored!r} for the temperature model; "
                     f"pass --temperature-column COL for the temperature row"
                 )
-        return cls(parameters, drift, temperature_column, notes)
+        return cls(parameters, drift, temperature_column, notes, time_column)
 
     @property
     def unit(self) -> str:
@@ -193,23 +206,76 @@ class Correction:
                 f"degC of {what}; the linear temperature model is extrapolated"
             )
 
+    @property
+    def time_drift_alone(self) -> bool:
+        """Whether the parameters drift in time without a temperature model (then applied
+        without a temperature column)."""
+        joint = self.parameters
+        return (
+            isinstance(joint, TemperatureCalibrationResult)
+            and joint.temperature_model is None
+            and self.time_column is not None
+        )
+
+    def times(self, log: Log) -> np.ndarray | None:
+        """The log's times [s] for a drift of the scale factors in time, else None."""
+        if self.time_column is None:
+            return None
+        return log_times(log, self.time_column, "the time drift of the parameters")[1]
+
     def apply(self, log: Log) -> np.ndarray:
         """Corrected samples of the log. [base unit]"""
         temperature = self.temperature(log) if self.temperature_column is not None else None
-        return self.correct(log.samples, log.base_unit, temperature)
+        return self.correct(log.samples, log.base_unit, temperature, self.times(log))
 
-    def correct(self, samples, base_unit: str, temperature=None) -> np.ndarray:
+    def correct(self, samples, base_unit: str, temperature=None, times=None) -> np.ndarray:
         """Corrected `samples` [base_unit] (Eq. 4, after the temperature step with the
-        `temperature` of each sample [degC] when the correction has one)."""
+        `temperature` of each sample [degC] when the correction has one, and the time drift's
+        gains at the samples' `times` [s] when the parameters have one)."""
         units.check_compatible(self.unit, base_unit, "the log", "the calibration")
+        if self.time_drift_alone:
+            assert isinstance(self.parameters, TemperatureCalibrationResult)
+            return self.parameters.apply(samples, None, times=times)
         if self.temperature_column is None:
             if self.parameters is None:
                 raise InputError("nothing to apply: give parameters or a drift file")
             return correct(samples, self.parameters.model)  # Eq. 4 (at t0 with a model)
         if isinstance(self.parameters, TemperatureCalibrationResult):
-            return self.parameters.apply(samples, temperature)
+            return self.parameters.apply(samples, temperature, times=times)
         params = None if self.parameters is None else self.parameters.model
         return self.drift.correct(samples, temperature, params)  # type: ignore[union-attr]
+
+
+def drift_time_column(model: TemperatureCalibrationResult, given, log_columns) -> str:
+    """The log column of times a drift of the scale factors in time is applied with: `given`
+    (--time-column), else the column the parameters were fitted with, else an observatory
+    file's TIME_COLUMN; InputError when the log has none of them."""
+    head = pd.DataFrame(columns=[str(c) for c in log_columns])
+    if given is not None:
+        return column_name(head, given, "time column")
+    for name in (model.time_column, TIME_COLUMN):
+        if name and name.lower() in {column.lower() for column in head.columns}:
+            return column_name(head, name, "time column")
+    fitted = f" (fitted with times from {model.time_column!r})" if model.time_column else ""
+    raise InputError(
+        f"the parameters' scale factors drift in time{fitted} and the log has no column of "
+        f"times; pass --time-column COL (ISO 8601 or seconds on the calibration log's clock)"
+    )
+
+
+def chunk_times(chunk, column: str | None, valid) -> np.ndarray | None:
+    """The times [s] of a streamed chunk's readings (`valid`) in `column`, or None without a
+    column; InputError when a reading has no time."""
+    if column is None:
+        return None
+    times = seconds(chunk.frame[column].to_numpy())[valid]
+    bad = int(np.isnan(times).sum())
+    if bad:
+        raise InputError(
+            f"{bad} reading(s) have no time in {column!r} (ISO 8601 text or seconds); fix "
+            f"them or drop them from the log"
+        )
+    return times
 
 
 def outliers(correction: Correction, corrected) -> np.ndarray:
@@ -261,7 +327,8 @@ def corrected_chunks(
             if temperature.size:
                 seen = [min(seen[0], temperature.min()), max(seen[1], temperature.max())]
         samples = chunk.raw[valid] * stream.factor
-        corrected = correction.correct(samples, stream.base_unit, temperature)
+        times = chunk_times(chunk, correction.time_column, valid)
+        corrected = correction.correct(samples, stream.base_unit, temperature, times)
         magnitude = np.linalg.norm(corrected, axis=1)
         if tally is not None:
             tally(np.linalg.norm(samples, axis=1), magnitude)
@@ -326,7 +393,9 @@ def statistics_rows(log: Log, correction: Correction | None = None) -> tuple:
             rows[1]["rmse"] = rmse(np.linalg.norm(corrected, axis=1), reference)  # Eq. 10
     if reference is not None:
         rows[0]["rmse"] = rmse(np.linalg.norm(log.samples, axis=1), reference)  # Eq. 10
-    if correction is not None and correction.temperature_column is not None:
+    if correction is not None and correction.time_drift_alone:
+        rows.append(evaluation_row("corrected + time drift", correction.apply(log), reference))
+    elif correction is not None and correction.temperature_column is not None:
         label = "corrected + temperature" if correction.parameters is not None else "temperature"
         rows.append(evaluation_row(label, correction.apply(log), reference))
     for row in rows:

@@ -16,6 +16,7 @@ from nlpcal.cli import main
 from nlpcal.drift.temperature import TemperatureCalibrationResult, calibrate_temperature
 from nlpcal.errors import InputError
 from nlpcal.formats.affine import TemperatureDrift
+from nlpcal.schemas import validate
 from synthetic import PAPER_TRUTH, drifting_sensor_output, uniform_directions
 
 WITHIN_SE = 5.0
@@ -25,12 +26,18 @@ ZETA = np.array([0.3, -0.2, 0.5])  # [nT/degC]
 ETA_DEG = np.array([2.0, -1.0, 3.0]) / 3600.0  # [deg/degC]
 DRIFT = np.array([3e-6, -2e-6, 5e-6])  # [1/d]
 ARCSEC = 1.0 / 3600.0  # [deg]
+NOISE = 0.1  # of each axis of the swarm-like record [nT]
 
 
 def swarm_like(n=100_000, noise=0.1, seed=3, days=None, drift=(0.0, 0.0, 0.0)):
     """Uniform attitudes, a field magnitude that goes from 25 000 to 50 000 nT along an orbit, a
     25 degC temperature swing up and down, white noise of `noise` nT per axis; the scalar
     reference exact. Returns (raw [nT], temperature [degC], reference [nT])."""
+    return swarm_record(n, noise, seed, days, drift)[:3]
+
+
+def swarm_record(n=100_000, noise=NOISE, seed=3, days=None, drift=(0.0, 0.0, 0.0)):
+    """`swarm_like`, and the true field vectors in the ideal frame [nT] last."""
     rng = np.random.default_rng(seed)
     u = np.arange(n) / n
     temperature = T0 + 12.5 * np.sin(2 * np.pi * 7.3 * u) * np.sqrt(np.sin(np.pi * u))
@@ -40,7 +47,7 @@ def swarm_like(n=100_000, noise=0.1, seed=3, days=None, drift=(0.0, 0.0, 0.0)):
     raw = drifting_sensor_output(
         field, PAPER_TRUTH, temperature - T0, days, SIGMA, ZETA, ETA_DEG, np.asarray(drift)
     )
-    return raw + noise * rng.standard_normal(raw.shape), temperature, magnitude
+    return raw + noise * rng.standard_normal(raw.shape), temperature, magnitude, field
 
 
 def test_the_full_temperature_model_on_a_swarm_like_record():
@@ -130,18 +137,28 @@ def test_what_a_scalar_reference_cannot_determine_is_refused():
             calibrate_temperature(raw, temps, reference, times=when, time_drift=kind)
 
 
-def test_the_command_line_records_both_terms_and_apply_refuses_the_time_drift(tmp_path, capsys):
-    n = 20_000
+def long_log(path, n=20_000, with_times=True):
+    """A 30-day log of the swarm-like record with drifting scale factors, written to `path`:
+    UTC times in "utc", temperatures, the scalar reference. Returns (times [s], the true field
+    vectors in the ideal frame [nT], the start)."""
     times = np.linspace(0.0, 30.0 * 86_400.0, n)
-    raw, temperature, reference = swarm_like(
-        n=n, days=(times - times[-1] / 2) / 86_400.0, drift=DRIFT
-    )
+    days = (times - times[-1] / 2) / 86_400.0
+    raw, temperature, reference, field = swarm_record(n=n, days=days, drift=DRIFT)
     start = pd.Timestamp("2026-01-01T00:00:00Z")
     frame = pd.DataFrame(raw, columns=["bx", "by", "bz"])
-    frame["utc"] = (start + pd.to_timedelta(times, unit="s")).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+    if with_times:
+        frame["utc"] = (start + pd.to_timedelta(times, unit="s")).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
     frame["temp_c"] = temperature
     frame["scalar_nT"] = reference
-    frame.to_csv(tmp_path / "long.csv", index=False)
+    frame.to_csv(path, index=False)
+    return times, field, start
+
+
+def test_the_command_line_records_both_terms_and_apply_takes_them_out(tmp_path, capsys):
+    """calibrate --temperature-model full --time-drift per-axis, then apply (streamed, and read
+    whole with --flag-outliers) and stats with the log's times: |B| spread at the noise level and
+    the corrected vectors on the forward model's true field."""
+    times, field, start = long_log(tmp_path / "long.csv")
     output = tmp_path / "p.json"
     argv = ["calibrate", str(tmp_path / "long.csv"), "--reference-column", "scalar_nT",
             "--temperature-column", "temp_c", "--temperature-model", "full",
@@ -150,20 +167,135 @@ def test_the_command_line_records_both_terms_and_apply_refuses_the_time_drift(tm
     document = json.loads(output.read_text())
     assert document["temperature_model"]["kind"] == "full"
     drift = document["time_drift"]
+    validate(document)
     assert drift["kind"] == "per-axis" and drift["time_column"] == "utc"
     assert drift["reference_time_s"] == pytest.approx(start.timestamp() + 15 * 86_400.0)
     for k, axis in enumerate("xyz"):
         gap = abs(drift["scale_slope_per_day"][k] - DRIFT[k])
         assert gap < WITHIN_SE * drift["standard_errors"][f"scale_slope_{axis}_per_day"]
     capsys.readouterr()
-    code = main(["apply", str(output), str(tmp_path / "long.csv"), "-o", str(tmp_path / "o.csv")])
-    err = capsys.readouterr().err
-    assert code == 2 and "time_drift" in err and not (tmp_path / "o.csv").exists()
+    for name, extra in (("streamed.csv", []), ("whole.csv", ["--flag-outliers"])):
+        argv = ["apply", str(output), str(tmp_path / "long.csv"), "-o", str(tmp_path / name)]
+        assert main(argv + extra) == 0, capsys.readouterr().err
+        corrected = pd.read_csv(tmp_path / name)[["bx", "by", "bz"]].to_numpy()
+        spread = np.std(np.linalg.norm(corrected, axis=1) - np.linalg.norm(field, axis=1))
+        assert spread <= 1.1 * NOISE  # the residual |B| at the noise level
+        # the vectors: the noise of each axis plus the parameters' errors, far below the
+        # 30-day drift they would keep without the time drift (5e-6/d x 15 d x 50 000 nT)
+        error = np.sqrt(np.mean((corrected - field) ** 2, axis=0))
+        assert np.all(error <= 1.5 * NOISE), error
+    capsys.readouterr()
+    argv = ["stats", str(tmp_path / "long.csv"), "--params", str(output),
+            "--reference-column", "scalar_nT", "--time-column", "utc", "--json"]  # fmt: skip
+    assert main(argv) == 0, capsys.readouterr().err
+    rows = json.loads(capsys.readouterr().out)["rows"]
+    assert rows[-1]["label"] == "corrected + temperature" and rows[-1]["rmse"] <= 1.1 * NOISE
+
+
+def test_apply_refuses_a_time_drift_on_a_log_without_times(tmp_path, capsys):
+    long_log(tmp_path / "long.csv", n=4_000)
+    long_log(tmp_path / "untimed.csv", n=4_000, with_times=False)
+    output = tmp_path / "p.json"
+    argv = ["calibrate", str(tmp_path / "long.csv"), "--reference-column", "scalar_nT",
+            "--temperature-column", "temp_c", "--time-drift", "common",
+            "--time-column", "utc", "-o", str(output)]  # fmt: skip
+    assert main(argv) == 0, capsys.readouterr().err
+    for log, extra in (("untimed.csv", []), ("long.csv", ["--time-column", "nowhere"])):
+        capsys.readouterr()
+        argv = ["apply", str(output), str(tmp_path / log), "-o", str(tmp_path / "o.csv"), *extra]
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert "--time-column" in err or "nowhere" in err
+        assert "Traceback" not in err and not (tmp_path / "o.csv").exists()
+    argv = ["calibrate", str(tmp_path / "long.csv"), "--reference-column", "scalar_nT",
+            "--temperature-column", "temp_c", "--time-drift", "common",
+            "-o", str(tmp_path / "q.json")]  # fmt: skip
+    assert main(argv) == 2 and not (tmp_path / "q.json").exists()  # without times
+    assert "Traceback" not in capsys.readouterr().err
+
+
+def time_drifting_record(n, drift, noise=NOISE, seed=5):
+    """A sensor whose scale factors drift in time, at one temperature: 40 days of uniform
+    attitudes in a field of 25 000 .. 50 000 nT, white noise of `noise` nT per axis, the
+    scalar reference exact. Returns (raw [nT], times [s], reference [nT], true field [nT])."""
+    rng = np.random.default_rng(seed)
+    times = np.linspace(0.0, 40.0 * 86_400.0, n)
+    magnitude = 37_500.0 + 12_500.0 * np.cos(2 * np.pi * 15.5 * np.arange(n) / n)
+    field = magnitude[:, None] * uniform_directions(n, rng)
+    days = (times - times[-1] / 2) / 86_400.0
+    zero = np.zeros(3)
+    raw = drifting_sensor_output(field, PAPER_TRUTH, np.zeros(n), days, zero, zero, zero, drift)
+    return raw + noise * rng.standard_normal(raw.shape), times, magnitude, field
+
+
+@pytest.mark.parametrize("kind", ["common", "per-axis"])
+def test_a_time_drift_alone_is_recovered_without_temperatures(kind):
+    drift = np.full(3, DRIFT[0]) if kind == "common" else DRIFT
+    raw, times, reference, _ = time_drifting_record(20_000, drift)
+    result = calibrate_temperature(raw, None, reference, times=times, time_drift=kind)
+    assert result.temperature_model is None and result.time_drift.kind == kind
+    errors = result.time_drift_standard_errors
+    names = (
+        ["scale_slope_per_day"] if kind == "common" else [f"scale_slope_{a}_per_day" for a in "xyz"]
+    )
+    for k, name in enumerate(names):
+        assert abs(result.time_drift.scale_slope_per_day[k] - drift[k]) < WITHIN_SE * errors[name]
+        assert errors[name] < 0.05 * abs(drift[k])
+    for name, value in result.parameters.items():
+        assert (
+            abs(value - PAPER_TRUTH[name]) < WITHIN_SE * result.calibration.standard_errors[name]
+        ), name
+    assert result.statistics[-1]["rmse"] <= 1.1 * NOISE
+    assert not result.calibration.identifiability["not_identifiable"] and not result.warnings
+    document = json.loads(result.to_json())
+    assert "temperature_model" not in document and document["time_drift"]["kind"] == kind
+    again = TemperatureCalibrationResult.from_json(result.to_json())
+    corrected = again.apply(raw[:50], None, times=times[:50])
+    assert np.allclose(np.linalg.norm(corrected, axis=1), reference[:50], atol=1.0)
+    with pytest.raises(InputError):
+        TemperatureDrift.from_result(again, "nT")  # the exports carry no drift in time
+    with pytest.raises(InputError):
+        calibrate_temperature(raw, None, reference, times=times)  # neither term
+    with pytest.raises(InputError):
+        calibrate_temperature(raw, None, reference, time_drift=kind)  # no times
+    with pytest.raises(InputError):  # a temperature model without temperatures
+        calibrate_temperature(
+            raw, None, reference, temperature_model="full", times=times, time_drift=kind
+        )
+
+
+def test_the_command_line_fits_and_applies_a_time_drift_alone(tmp_path, capsys):
+    raw, times, reference, field = time_drifting_record(20_000, DRIFT)
+    start = pd.Timestamp("2026-01-01T00:00:00Z")
+    frame = pd.DataFrame(raw, columns=["bx", "by", "bz"])
+    frame["utc"] = (start + pd.to_timedelta(times, unit="s")).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+    frame["scalar_nT"] = reference
+    log = tmp_path / "timed.csv"
+    frame.to_csv(log, index=False)
+    output = tmp_path / "p.json"
+    argv = ["calibrate", str(log), "--reference-column", "scalar_nT", "--time-drift",
+            "per-axis", "--time-column", "utc", "-o", str(output)]  # fmt: skip
+    assert main(argv) == 0, capsys.readouterr().err
+    document = json.loads(output.read_text())
+    assert "temperature_model" not in document and document["time_drift"]["time_column"] == "utc"
+    validate(document)  # the schema takes a time drift without a temperature model
+    capsys.readouterr()
+    assert main(["apply", str(output), str(log), "-o", str(tmp_path / "o.csv")]) == 0
+    corrected = pd.read_csv(tmp_path / "o.csv")[["bx", "by", "bz"]].to_numpy()
+    assert np.std(np.linalg.norm(corrected, axis=1) - reference) <= 1.1 * NOISE
+    error = np.sqrt(np.mean((corrected - field) ** 2, axis=0))
+    assert np.all(error <= 1.5 * NOISE), error
+    capsys.readouterr()
+    argv = ["stats", str(log), "--params", str(output), "--reference-column", "scalar_nT",
+            "--time-column", "utc", "--json"]  # fmt: skip
+    assert main(argv) == 0, capsys.readouterr().err
+    rows = json.loads(capsys.readouterr().out)["rows"]
+    assert rows[-1]["label"] == "corrected + time drift" and rows[-1]["rmse"] <= 1.1 * NOISE
     for bad in (
-        ["--time-drift", "common"],  # without a temperature column
-        ["--temperature-column", "temp_c", "--time-drift", "common"],  # without times
+        ["--time-drift", "common"],  # without times
+        ["--time-drift", "common", "--time-column", "utc", "--temperature-model", "full"],
     ):
-        code = main(["calibrate", str(tmp_path / "long.csv"), "--reference-column", "scalar_nT",
-                     *bad, "-o", str(tmp_path / "q.json")])  # fmt: skip
-        assert code == 2 and not (tmp_path / "q.json").exists()
+        argv = ["calibrate", str(log), "--reference-column", "scalar_nT", *bad,
+                "-o", str(tmp_path / "q.json")]  # fmt: skip
+        assert main(argv) == 2 and not (tmp_path / "q.json").exists()
         assert "Traceback" not in capsys.readouterr().err

@@ -114,7 +114,7 @@ is read and written in chunks, in bounded memory whatever its size (with --plot 
     add_precision_argument(parser)
     add_plot_argument(parser)
     add_reference_model_arguments(parser)
-    parser.set_defaults(func=run_apply)
+    parser.set_defaults(func=run_apply, log_time_column=True)  # --time-column: a time drift's
 
 
 def correction_for(args, columns, require_temperature: bool):
@@ -133,6 +133,7 @@ def correction_for(args, columns, require_temperature: bool):
         args.temperature_column,
         log_columns=columns,
         require_temperature=require_temperature,
+        time_column=getattr(args, "time_column", None),
     )
 
 

@@ -161,9 +161,9 @@ them (say, the sensor was never turned over); --allow-unidentifiable writes them
         "--time-drift",
         choices=TIME_DRIFTS,
         default="none",
-        help="with --temperature-column: scale factors linear in time, one slope for all axes "
-        "(common) or one per axis (per-axis), per day from the middle of the log; needs "
-        "--time-column (default: none)",
+        help="scale factors linear in time, one slope for all axes (common) or one per axis "
+        "(per-axis), per day from the middle of the log, fitted against --reference-column "
+        "with or without --temperature-column; needs --time-column (default: none)",
     )
     parser.add_argument(
         "--base-temperature",
@@ -292,14 +292,10 @@ def _run_calibrate(args) -> int:
     check_output_path(args.output, args.log)
     check_plot(args)
     sensor_id = None if args.sensor_id is None else validation.sensor_id(args.sensor_id)
-    temperature = args.temperature_column or args.temperature_model
+    # the joint calibration of drift terms: a temperature model, a time drift, or both
+    temperature = args.temperature_column or args.temperature_model or args.time_drift != "none"
     if args.temperature_model and not args.temperature_column:
         raise InputError("--temperature-model needs --temperature-column COL")
-    if args.time_drift != "none" and not args.temperature_column:
-        raise InputError(
-            "--time-drift is estimated with the temperature model: it needs "
-            "--temperature-column COL (and --time-column COL)"
-        )
     if temperature and args.model != "full":
         raise InputError(
             "--model applies to the nine-parameter calibration; the temperature calibration "
@@ -333,7 +329,7 @@ def _run_calibrate(args) -> int:
                 result = calibrate_temperature_log(
                     log,
                     args.temperature_column,
-                    model=args.temperature_model or "common",
+                    model=args.temperature_model or "common" if args.temperature_column else None,
                     base_temperature=args.base_temperature,
                     **_times(args, log),
                 )
@@ -473,5 +469,8 @@ def _apply_temperature(result, log, temperature_column):
     """The log corrected by a temperature calibration (for its figure). [base unit]"""
     from ..correction import Correction
 
-    correction = Correction.plan(result, None, temperature_column, log_columns=list(log.extras))
+    columns = list(log.extras) if log.frame is None else [str(c) for c in log.frame.columns]
+    correction = Correction.plan(
+        result, None, temperature_column, log_columns=columns, time_column=result.time_column
+    )
     return correction.apply(log)

@@ -412,6 +412,7 @@ def reference_model(args):
         timed = getattr(args, "reference_log", None) is not None  # the log's times serve it too
         timed = timed or getattr(args, "time_drift", "none") != "none"
         timed = timed or hasattr(args, "lag")  # a command with --lag reads --time-column itself
+        timed = timed or getattr(args, "log_time_column", False)  # apply: a time drift's times
         used = [
             f"--{name.replace('_', '-')}"
             for name, value in given.items()

@@ -37,7 +37,13 @@ from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
 from ..models.zhou2010 import correct as zhou_correct
 from ..moments import sphere_frame
 from ..nlp.blocks import variable_scale
-from ..nlp.temperature import STEP_OPTIONS, gauss_newton_pass, minimise, n_coefficients
+from ..nlp.temperature import (
+    NO_TEMPERATURE,
+    STEP_OPTIONS,
+    gauss_newton_pass,
+    minimise,
+    n_coefficients,
+)
 from ..results import Document, DocumentReader, Provenance, TableRow
 from ..statistics import format_table
 from ..verdict import Verdict
@@ -48,12 +54,17 @@ MIN_SPAN_DEGC = 0.5
 #: Warn when a temperature coefficient's standard error exceeds this fraction of its variable
 #: scale (its typical size). [1]
 POOR_TEMPERATURE_SE = 0.5
+#: The temperature model of a time drift alone: every slope zero, the nine parameters at every
+#: temperature (`TemperatureCalibrationResult.apply` without a temperature model).
+NEUTRAL = TemperatureModel("per-axis", 0.0)
 
 
 def coefficient_names(kind: str, time_drift: str = "none") -> tuple:
     """Names of the coefficients of a temperature model and a time drift."""
     if kind == "common":
         names: tuple = ("k_slope_per_degC",)
+    elif kind == NO_TEMPERATURE:
+        names = ()
     else:
         names = tuple(f"scale_slope_{a}_per_degC" for a in "xyz") + tuple(
             f"offset_slope_{a}_per_degC" for a in "xyz"
@@ -75,6 +86,7 @@ def coefficient_scale(
     |tau| from its middle (time drift [1/d])."""
     span = max(max_dt, 1.0)
     sizes = [1e-3 / span] if kind == "common" else [1e-3 / span] * 3 + [1e-3 * radius / span] * 3
+    sizes = [] if kind == NO_TEMPERATURE else sizes
     if kind == "full":
         sizes += [1e-3 / span] * 3
     sizes += [1e-3 / max(max_days, 1e-6)] * {"none": 0, "common": 1, "per-axis": 3}[time_drift]
@@ -99,11 +111,13 @@ def theta_of(
 
 
 def model_of(theta, kind: str, t0: float, time_drift: str = "none", t_ref: float = 0.0):
-    """(Zhou2010Parameters, TemperatureModel, TimeDrift) of an internal vector."""
+    """(Zhou2010Parameters, TemperatureModel or None (NO_TEMPERATURE), TimeDrift) of an
+    internal vector."""
     params = Zhou2010Parameters.from_theta(theta[:9])
+    model: TemperatureModel | None = None
     if kind == "common":
         model = TemperatureModel("common", t0, k_slope_per_degC=float(theta[9]))
-    else:
+    elif kind != NO_TEMPERATURE:
         model = TemperatureModel(
             kind,
             t0,
@@ -158,8 +172,9 @@ class TemperatureCalibrationResult(Document):
     calibration : CalibrationResult
         The nine parameters at the base temperature t0 (so a reader that knows nothing of
         temperature still finds the system correction at t0).
-    temperature_model : TemperatureModel
-        How the parameters change with temperature.
+    temperature_model : TemperatureModel or None
+        How the parameters change with temperature; None for a time drift alone (no
+        "temperature_model" in the document).
     temperature_column : str or None
         The log column the model was fitted with (used by `nlpcal apply`).
     temperature_range : tuple
@@ -192,7 +207,7 @@ class TemperatureCalibrationResult(Document):
     carries_parameters = True
 
     calibration: CalibrationResult
-    temperature_model: TemperatureModel
+    temperature_model: TemperatureModel | None
     temperature_column: str | None = None
     temperature_range: tuple = (float("nan"), float("nan"))
     temperature_standard_errors: dict | None = None
@@ -256,6 +271,9 @@ class TemperatureCalibrationResult(Document):
         samples = validation.vectors(samples)
         unit = unit or self.unit
         units.check_compatible(self.unit, unit, "the samples")
+        model = self.temperature_model or NEUTRAL  # a time drift alone: no temperature
+        if self.temperature_model is None:
+            temperature = np.zeros(samples.shape[0])
         temperature = validation.temperature(temperature, samples.shape[0])
         time_gains = None
         if self.drifts_in_time:
@@ -267,7 +285,7 @@ class TemperatureCalibrationResult(Document):
             drift = self.time_drift
             assert drift is not None
             time_gains = drift.gains(validation.times(times, samples.shape[0]))
-        gains, _ = self.temperature_model.gains_offsets(self.model, temperature)
+        gains, _ = model.gains_offsets(self.model, temperature)
         if not (gains > 0).all():
             raise InputError(
                 "the temperature model gives a non-positive axis gain for "
@@ -278,7 +296,7 @@ class TemperatureCalibrationResult(Document):
             units.to_base(samples, unit),
             temperature,
             self.model,
-            self.temperature_model,
+            model,
             time_gains,
         )
         return units.from_base(corrected, unit)
@@ -292,12 +310,13 @@ class TemperatureCalibrationResult(Document):
 
     def body(self) -> dict:
         document = self.calibration.body()
-        document["temperature_model"] = {
-            **self.temperature_model.to_dict(),
-            "temperature_column": self.temperature_column,
-            "temperature_range_degC": [float(v) for v in self.temperature_range],
-            "standard_errors": self.temperature_standard_errors,
-        }
+        if self.temperature_model is not None:
+            document["temperature_model"] = {
+                **self.temperature_model.to_dict(),
+                "temperature_column": self.temperature_column,
+                "temperature_range_degC": [float(v) for v in self.temperature_range],
+                "standard_errors": self.temperature_standard_errors,
+            }
         if self.drifts_in_time:
             assert self.time_drift is not None
             document["time_drift"] = {
@@ -310,7 +329,11 @@ class TemperatureCalibrationResult(Document):
     @classmethod
     def from_body(cls, reader: DocumentReader) -> TemperatureCalibrationResult:
         calibration = CalibrationResult(**CalibrationResult.fields_from(reader))
-        block = reader.reader("temperature_model")
+        block = reader.reader("temperature_model", None)
+        if block is None:  # a time drift alone
+            return cls(
+                calibration=calibration, temperature_model=None, **_time_drift_fields(reader)
+            )
         span = block.array("temperature_range_degC", (2,), np.full(2, np.nan))
         errors = block.mapping("standard_errors", None)
         return cls(
@@ -359,8 +382,9 @@ def calibrate_temperature(
     ----------
     samples : array_like, shape (N, 3)
         Raw output over many attitudes and temperatures. [unit]
-    temperature : array_like, shape (N,)
-        Temperatures t_i (`--temperature-column`). [degC]
+    temperature : array_like, shape (N,), or None
+        Temperatures t_i (`--temperature-column`) [degC]; None for a time drift alone (no
+        temperature model: the nine parameters and the drift of the scale factors in time).
     reference : float or array_like of shape (N,)
         Reference magnitudes F_i (a proton magnetometer), or one number. [reference_unit]
     temperature_model : {"common", "per-axis", "full"}
@@ -410,9 +434,14 @@ def calibrate_temperature(
     >>> abs(result.temperature_model.k_slope_per_degC - 2e-4) < 1e-5  # [1/degC]
     True
     """
-    model = validation.renamed(temperature_model, model, "temperature_model", "model") or "common"
+    given = validation.renamed(temperature_model, model, "temperature_model", "model")
+    model = given or "common"
     validation.choice(model, "temperature model", TEMPERATURE_MODELS)
     validation.choice(time_drift, "time drift", TIME_DRIFTS)
+    timed_only = temperature is None
+    if timed_only:  # a time drift alone: no temperature model, every temperature zero
+        model, base_temperature = _time_drift_alone(given, time_drift)
+        temperature = np.zeros(validation.samples(samples).shape[0])
     samples, temperature, reference = _checked_series(
         samples, temperature, reference, unit, reference_unit
     )
@@ -425,7 +454,7 @@ def calibrate_temperature(
         if base_temperature is None
         else validation.number(base_temperature, "the base temperature")
     )
-    t_low, t_high = _temperature_range(temperature)
+    t_low, t_high = (np.nan, np.nan) if timed_only else _temperature_range(temperature)
     t_ref, days = _days(times, time_drift, temperature)
     dt = temperature - base_temperature
     start, scale = _start_and_scale(model, time_drift, nx, samples, reference, dt, days)
@@ -447,18 +476,17 @@ def calibrate_temperature(
     uncertainty = inference.estimate(sums.a * n, meat=meat, dof=n - nx)
     not_identifiable = [names[i] for i in uncertainty.weak]
     errors, coefficient_errors, poor = _standard_errors(uncertainty, scale, names, model)
-    warnings = _warnings(t_high - t_low, not_identifiable, poor)
+    warnings = _warnings(np.inf if timed_only else t_high - t_low, not_identifiable, poor)
     time_gains = drift.gains(times) if time_drift != "none" else None
-    label = f"system + temperature ({model})" + (
-        f" + time drift ({time_drift})" if time_drift != "none" else ""
+    label, method, stage = _labels(model, time_drift, timed_only)
+    rows = _statistics_rows(
+        label, samples, temperature, reference, params, fitted or NEUTRAL, time_gains
     )
-    rows = _statistics_rows(label, samples, temperature, reference, params, fitted, time_gains)
     rows[-1].update(iterations=iterations, wall_s=wall)  # the temperature solve's
-    stage = f"joint-temperature-{model}" + (f"-time-{time_drift}" if time_drift != "none" else "")
     calibration = CalibrationResult(
         parameters=params.to_dict(),
         statistics=[TableRow.from_dict(row) for row in rows],
-        method=f"joint-temperature-{model}",
+        method=method,
         reference=Reference("series", field_mean=float(np.mean(reference))),
         gauge=None,
         solver=_solver_report(stage, iterations, status, steps),
@@ -478,8 +506,8 @@ def calibrate_temperature(
     return TemperatureCalibrationResult(
         calibration=calibration,
         temperature_model=fitted,
-        temperature_column=temperature_column,
-        temperature_range=(t_low, t_high),
+        temperature_column=None if timed_only else temperature_column,
+        temperature_range=(np.nan, np.nan) if timed_only else (t_low, t_high),
         temperature_standard_errors=None
         if coefficient_errors is None
         else {k: v for k, v in coefficient_errors.items() if k not in drift_names},
@@ -513,7 +541,8 @@ def _days(times, time_drift: str, temperature: np.ndarray) -> tuple:
             f"all {n} samples have the same time; a drift of the scale factors in time needs "
             f"a log over a span of time"
         )
-    correlation = float(np.corrcoef(times, temperature)[0, 1])
+    varies = temperature.max() > temperature.min()  # not a time drift alone
+    correlation = float(np.corrcoef(times, temperature)[0, 1]) if varies else 0.0
     if abs(correlation) > COLLINEAR:
         raise InputError(
             f"the temperature changes in step with time (correlation {correlation:.4f}), so a "
@@ -564,6 +593,32 @@ def _standard_errors(uncertainty, scale, names, model: str) -> tuple:
             if v > POOR_TEMPERATURE_SE * (np.degrees(size) if "_deg_" in name else size)
         ]
     return errors, coefficient_errors, poor
+
+
+def _time_drift_alone(temperature_model: str | None, time_drift: str) -> tuple:
+    """(NO_TEMPERATURE, base temperature 0 [degC]) for a calibration without temperatures:
+    a time drift alone; InputError when a temperature model or no time drift is asked for."""
+    if temperature_model is not None:
+        raise InputError(
+            f"a {temperature_model} temperature model needs the samples' temperatures "
+            f"(--temperature-column COL)"
+        )
+    if time_drift == "none":
+        raise InputError(
+            "the temperature calibration needs the samples' temperatures, or a time drift "
+            "(--temperature-column COL or --time-drift common|per-axis)"
+        )
+    return NO_TEMPERATURE, 0.0
+
+
+def _labels(model: str, time_drift: str, timed_only: bool) -> tuple:
+    """(the Table 1 label of the fitted row, the method, the solver stage) of a temperature
+    model and a time drift (`timed_only`: a time drift alone)."""
+    terms = [] if timed_only else [f"temperature ({model})"]
+    terms += [f"time drift ({time_drift})"] if time_drift != "none" else []
+    method = f"joint-time-{time_drift}" if timed_only else f"joint-temperature-{model}"
+    stage = method if timed_only else method + (f"-time-{time_drift}" * (time_drift != "none"))
+    return "system + " + " + ".join(terms), method, stage
 
 
 def _temperature_range(temperature) -> tuple:
@@ -683,9 +738,9 @@ def objective_value(
 
 def calibrate_temperature_log(
     log,
-    temperature_column: str,
+    temperature_column: str | None,
     *,
-    model: str = "common",
+    model: str | None = None,
     base_temperature: float | None = None,
     time_drift: str = "none",
     times=None,
@@ -693,21 +748,22 @@ def calibrate_temperature_log(
 ) -> TemperatureCalibrationResult:
     """`calibrate_temperature` on a log read by `nlpcal.io.read_log` with its reference column
     and `temperature_column` [degC] (and the samples' `times` [s] from `time_column` for a
-    `time_drift`); the result records the log under `input`."""
-    temperature_column = log.column(temperature_column)
+    `time_drift`; a time drift alone without `temperature_column`); the result records the
+    log under `input`."""
+    temperature_column = None if temperature_column is None else log.column(temperature_column)
     if log.reference is None:
         raise InputError(
             "the temperature calibration needs --reference-column COL, a reference "
             "magnitude per sample (for example a proton magnetometer)"
         )
-    if temperature_column == log.reference_column:
+    if temperature_column is not None and temperature_column == log.reference_column:
         raise InputError(
             f"the temperature and reference columns are both "
             f"{temperature_column!r}; they must be different columns"
         )
     result = calibrate_temperature(
         log.samples,
-        log.values(temperature_column),
+        None if temperature_column is None else log.values(temperature_column),
         log.reference,
         temperature_model=model,
         base_temperature=base_temperature,

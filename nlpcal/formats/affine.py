@@ -91,7 +91,7 @@ class TemperatureDrift:
     def from_result(cls, result, unit: str) -> TemperatureDrift:
         """The drift of a temperature calibration, with zeta in `unit` per degC."""
         model = result.temperature_model
-        if any(model.angle_slope_deg_per_degC) or result.drifts_in_time:
+        if result.drifts_in_time or any(model.angle_slope_deg_per_degC):
             raise InputError(
                 "the exports carry offsets and scales that drift with temperature, not angles "
                 "that drift (--temperature-model full) nor a drift in time (--time-drift); "

@@ -52,12 +52,15 @@ STEP_RTOL = 1e-13
 
 
 #: Temperature coefficients of each model: c (common); sigma and zeta per axis (per-axis); and
-#: eta per angle (full).
-TEMPERATURE_COEFFICIENTS = {"common": 1, "per-axis": 6, "full": 9}
+#: eta per angle (full); none for a time drift alone (NO_TEMPERATURE).
+NO_TEMPERATURE = "none"
+TEMPERATURE_COEFFICIENTS = {NO_TEMPERATURE: 0, "common": 1, "per-axis": 6, "full": 9}
 #: Time-drift coefficients: none, d for all axes, d per axis.
 TIME_COEFFICIENTS = {"none": 0, "common": 1, "per-axis": 3}
 #: Every (temperature model, time drift) pair, the problems built.
-TERMS = [(kind, drift) for kind in TEMPERATURE_MODELS for drift in TIME_DRIFTS]
+TERMS = [(kind, drift) for kind in TEMPERATURE_MODELS for drift in TIME_DRIFTS] + [
+    (NO_TEMPERATURE, drift) for drift in TIME_DRIFTS[1:]
+]
 
 
 def n_coefficients(kind: str, time_drift: str = "none") -> int:
@@ -69,7 +72,8 @@ def magnitude_expression(theta, samples, dt, kind: str, days=None, time_drift: s
     """|B1_i(t_i)| as a 1 x W CasADi expression (Eq. 2 and 9 in [1], Eq. 4 in [2]).
 
     theta : z [field], s [1], angles [rad], then c [1/degC] (common) or sigma [1/degC] and
-        zeta [field/degC] (per-axis; and eta [rad/degC], full), then d [1/d] (time drift).
+        zeta [field/degC] (per-axis; and eta [rad/degC], full; nothing for NO_TEMPERATURE),
+        then d [1/d] (time drift).
     samples : 3 x W raw output; dt : 1 x W values t_i - t0 [degC]; days : 1 x W times tau_i
         from the log's middle [d].
     """
@@ -80,6 +84,8 @@ def magnitude_expression(theta, samples, dt, kind: str, days=None, time_drift: s
         k = 1 + theta[9] * dt  # Eq. 9: k(t) = 1 + c (t - t0)
         gains = ca.repmat(1 + s, 1, width) * ca.repmat(k, 3, 1)  # Eq. 9: alpha = k alpha_0
         offsets = z @ k  # Eq. 9: B_b = k B_b0
+    elif kind == NO_TEMPERATURE:  # a time drift alone: the nine parameters at every sample
+        gains, offsets = ca.repmat(1 + s, 1, width), ca.repmat(z, 1, width)
     else:
         gains = ca.repmat(1 + s, 1, width) * (1 + theta[9:12] @ dt)
         offsets = ca.repmat(z, 1, width) + theta[12:15] @ dt
