@@ -110,6 +110,19 @@ def sample_interval(times: np.ndarray) -> float:
     return float(np.median(np.diff(times))) if times.size > 1 else float("nan")
 
 
+def check_span(seconds: float, times: np.ndarray) -> float:
+    """A lag given (`--lag SECONDS`, or a parameters file's) that leaves rows with a reference:
+    shorter than the span of the times, else InputError (`shifted` would hold one end's value
+    on every row). [s]"""
+    span = float(times[-1] - times[0]) if times.size else 0.0
+    if abs(seconds) >= span:
+        raise InputError(
+            f"a lag of {seconds:g} s moves the reference off the log, which spans {span:g} s: "
+            f"no row would keep a reference value"
+        )
+    return seconds
+
+
 def shifted(reference, times: np.ndarray, tau: float) -> np.ndarray:
     """R(t + tau) on the rows, by linear interpolation (`nlpcal.timing.reference_at`): the
     reference moved so that a lag tau is taken out (L1). The rows it leaves without a value

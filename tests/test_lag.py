@@ -176,6 +176,17 @@ def test_unusable_lag_options_are_refused(lag, times, message):
         nlpcal.calibrate(samples, reference_field=reference, times=stamps, lag=lag)
 
 
+@pytest.mark.parametrize("seconds", [60.0, -1e9])
+def test_a_given_lag_beyond_the_log_is_refused(seconds):
+    """A lag as long as the log leaves no row a reference of its own: every row would get the
+    value held at one end, a constant reference that a calibration would fit all the same."""
+    samples, reference, times, _ = lagged_log(seed=7, seconds=60.0)
+    with pytest.raises(InputError):
+        nlpcal.calibrate(samples, reference_field=reference, times=times, lag=seconds)
+    with pytest.raises(InputError):
+        delta_f_report(samples, reference, times, lag=seconds)
+
+
 def test_a_parameters_file_with_a_bad_lag_is_refused(hour_result, tmp_path):
     document = json.loads(hour_result.to_json())
     validate(document)

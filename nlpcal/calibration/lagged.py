@@ -40,6 +40,7 @@ def calibrate_lagged(calibrate, samples, reference, times, lag, options: dict) -
     times = lags.check_times(times, len(reference))
     values = np.asarray(reference, dtype=float)
     if isinstance(lag, float):
+        lags.check_span(lag, times)
         result = calibrate(rows, reference_field=lags.shifted(values, times, lag), **options)
         result.lag = lags.given_lag(lag)
         return result
