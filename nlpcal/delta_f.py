@@ -115,6 +115,7 @@ def delta_f_report(
     used = lag_in_force(lag, lag_in_parameters)
     if used or lag == "auto":
         times = lags.check_times(times, reference.size)
+        lags.check_span(used, times)
     aligned = lags.shifted(reference, times, used) if used else reference
     theta = np.zeros(9) if parameters is None else parameters.theta
     corrected = samples if parameters is None else correct(samples, parameters)

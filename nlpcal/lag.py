@@ -110,6 +110,19 @@ def sample_interval(times: np.ndarray) -> float:
     return float(np.median(np.diff(times))) if times.size > 1 else float("nan")
 
 
+def check_span(seconds: float, times: np.ndarray) -> float:
+    """A lag given (`--lag SECONDS`, or a parameters file's) that leaves rows with a reference:
+    shorter than the span of the times, else InputError (`shifted` would hold one end's value
+    on every row). [s]"""
+    span = float(times[-1] - times[0]) if times.size else 0.0
+    if abs(seconds) >= span:
+        raise InputError(
+            f"a lag of {seconds:g} s moves the reference off the log, which spans {span:g} s: "
+            f"no row would keep a reference value"
+        )
+    return seconds
+
+
 def shifted(reference, times: np.ndarray, tau: float) -> np.ndarray:
     """R(t + tau) on the rows, by linear interpolation (`nlpcal.timing.reference_at`): the
     reference moved so that a lag tau is taken out (L1). The rows it leaves without a value
@@ -176,14 +189,26 @@ def _overlapped_columns(reference, times, block_info=None):
     return np.column_stack([own, *derivative_columns(reference, times, lead, rows)])
 
 
+def halo_chunks(sizes) -> tuple:
+    """Block sizes with none below HALO rows (`dask.array.map_overlap` reads HALO rows of each
+    neighbour): a short block is merged into the one before it (the first into the next), so
+    that the blocks declared are the blocks computed."""
+    merged: list = []
+    for size in sizes:
+        if merged and (size < HALO or merged[-1] < HALO):
+            merged[-1] += size
+        else:
+            merged.append(size)
+    return tuple(merged)
+
+
 def lazy_columns(reference, times) -> passes.LazySamples:
     """The columns R, D, q, third of a Dask reference, each block computed with the HALO rows
     of its neighbours (`dask.array.map_overlap`)."""
     import dask.array as da
 
     array = reference.array if isinstance(reference, passes.LazySamples) else reference
-    if min(array.chunks[0]) < HALO:
-        array = array.rechunk({0: max(HALO, max(array.chunks[0]))})
+    array = array.rechunk({0: halo_chunks(array.chunks[0])})
     stamps = da.from_array(np.asarray(times, dtype=float), chunks=array.chunks)
     stacked = da.map_overlap(
         _overlapped_columns,

@@ -18,13 +18,12 @@ from synthetic import PAPER_FIELD, band_directions, make_log
 
 
 def test_every_keyword_of_calibrate_is_packed_into_the_settings():
-    # the keywords of calibrate, besides the samples, the progress callback and the lag of a
-    # reference (which runs calibrations of its own, `nlpcal.calibration.lagged`), are those of
+    # the keywords of calibrate, besides the samples and the progress callback, are those of
     # CalibrationSettings.of with the same defaults: a keyword added to one and not the other
     # fails here
     calibrate = inspect.signature(nlpcal.calibrate).parameters
     packed = inspect.signature(CalibrationSettings.of).parameters
-    apart = ("samples", "progress", "lag", "times")
+    apart = ("samples", "progress")
     mine = {n: p.default for n, p in calibrate.items() if n not in apart}
     assert mine == {n: p.default for n, p in packed.items()}
 
@@ -43,7 +42,14 @@ def test_the_settings_are_frozen_and_in_the_base_unit():
 
 @pytest.mark.parametrize(
     "options",
-    [{"method": "newton"}, {"model": "quadric"}, {"cycles": 0}, {"threads": 1.5}, {"loss": "x"}],
+    [
+        {"method": "newton"},
+        {"model": "quadric"},
+        {"cycles": 0},
+        {"threads": 1.5},
+        {"loss": "x"},
+        {"lag": "soon"},
+    ],
 )
 def test_options_are_checked_before_the_samples_are_read(options):
     # the samples are not even an array: the option's error comes first

@@ -140,6 +140,22 @@ def test_a_dask_log_gives_the_lag_of_the_same_log_in_memory():
     assert lazy.standard_error_s == pytest.approx(memory.standard_error_s, rel=1e-6)
 
 
+@pytest.mark.parametrize("lazy_reference", [True, False])
+def test_a_dask_block_shorter_than_the_halo_gives_the_moments_in_memory(lazy_reference):
+    """1001 rows in blocks of 500: the last block holds one row, fewer than the HALO rows its
+    neighbour reads; the blocks are merged, not declared one way and computed another."""
+    da = pytest.importorskip("dask.array")
+    samples, reference, times, _ = lagged_log(seed=8, tau=TAU, seconds=100.1)
+    assert len(reference) % 500 == 1
+    moments = accumulate(samples, reference)
+    whole = lags.lag_moments(samples, reference, times, moments)
+    lazy_ref = da.from_array(reference, chunks=500) if lazy_reference else reference
+    split = lags.lag_moments(da.from_array(samples, chunks=(500, 3)), lazy_ref, times, moments)
+    np.testing.assert_allclose(split.g, whole.g, rtol=1e-9, atol=1e-12 * np.abs(whole.g).max())
+    assert split.c_observed == pytest.approx(whole.c_observed, rel=1e-12)
+    assert split.noise == pytest.approx(whole.noise, rel=1e-12)
+
+
 def test_a_given_lag_is_taken_out_and_recorded():
     samples, reference, times, _ = lagged_log(seed=7, tau=TAU, seconds=300.0)
     result = nlpcal.calibrate(samples, reference_field=reference, times=times, lag=TAU)
@@ -158,6 +174,17 @@ def test_unusable_lag_options_are_refused(lag, times, message):
     stamps = {"ok": stamps, None: None, "backwards": stamps[::-1]}[times]
     with pytest.raises(InputError, match=message):
         nlpcal.calibrate(samples, reference_field=reference, times=stamps, lag=lag)
+
+
+@pytest.mark.parametrize("seconds", [60.0, -1e9])
+def test_a_given_lag_beyond_the_log_is_refused(seconds):
+    """A lag as long as the log leaves no row a reference of its own: every row would get the
+    value held at one end, a constant reference that a calibration would fit all the same."""
+    samples, reference, times, _ = lagged_log(seed=7, seconds=60.0)
+    with pytest.raises(InputError):
+        nlpcal.calibrate(samples, reference_field=reference, times=times, lag=seconds)
+    with pytest.raises(InputError):
+        delta_f_report(samples, reference, times, lag=seconds)
 
 
 def test_a_parameters_file_with_a_bad_lag_is_refused(hour_result, tmp_path):

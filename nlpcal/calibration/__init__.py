@@ -164,9 +164,6 @@ def calibrate(
     >>> corrected.shape
     (2000, 3)
     """
-    if lag is not None:  # the lag of a reference series, given or estimated (nlpcal.lag)
-        options = {k: v for k, v in locals().items() if k not in LAG_ARGUMENTS}
-        return calibrate_lagged(calibrate, samples, reference_field, times, lag, options)
     settings = CalibrationSettings.of(
         method=method,
         model=model,
@@ -184,7 +181,12 @@ def calibrate(
         verbose=verbose,
         threads=threads,
         ipopt_options=ipopt_options,
+        lag=lag,
+        times=times,
     )
+    if settings.lag.value is not None:  # the lag of a reference series (nlpcal.lag)
+        options = {k: v for k, v in locals().items() if k not in (*LAG_ARGUMENTS, "settings")}
+        return calibrate_lagged(calibrate, samples, reference_field, settings.lag, options)
     with chunks.call_threads(settings.input.threads):
         return calibrate_prepared(prepare(samples, settings), settings, progress)
 

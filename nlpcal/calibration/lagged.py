@@ -19,6 +19,7 @@ from ..errors import InputError, QualityError
 from ..io.lazy import field_samples
 from ..models.zhou2010 import Zhou2010Parameters, model_directions
 from .result import CalibrationResult
+from .settings import LagSettings
 
 #: Rows, evenly strided, that judge whether the sensor's attitude changes.
 FIXED_SENSOR_PROBE = 20_000
@@ -27,11 +28,13 @@ FIXED_SENSOR_PROBE = 20_000
 LAG_ARGUMENTS = ("samples", "reference_field", "lag", "times")
 
 
-def calibrate_lagged(calibrate, samples, reference, times, lag, options: dict) -> CalibrationResult:
-    """`calibrate(samples, reference_field=..., **options)` with the lag `lag` ("auto" or
-    seconds) of the reference series at `times` [s]; a "lag" block in the result. An
-    undetermined lag raises QualityError holding the no-lag result."""
-    lag = lags.lag_option(lag)
+def calibrate_lagged(
+    calibrate, samples, reference, settings: LagSettings, options: dict
+) -> CalibrationResult:
+    """`calibrate(samples, reference_field=..., **options)` with the lag of the reference series
+    `settings.value` ("auto" or seconds) at `settings.times` [s]; a "lag" block in the result.
+    An undetermined lag raises QualityError holding the no-lag result."""
+    lag, times = settings.value, settings.times
     if reference is None or np.ndim(reference) != 1:
         raise InputError(
             "a lag needs a reference series, one value per sample (--reference-column)"
@@ -40,6 +43,7 @@ def calibrate_lagged(calibrate, samples, reference, times, lag, options: dict) -
     times = lags.check_times(times, len(reference))
     values = np.asarray(reference, dtype=float)
     if isinstance(lag, float):
+        lags.check_span(lag, times)
         result = calibrate(rows, reference_field=lags.shifted(values, times, lag), **options)
         result.lag = lags.given_lag(lag)
         return result

@@ -11,6 +11,7 @@ assemble, gate) take the groups they need instead of loose arguments:
     Loss               loss, loss_scale                              solve, diagnose
     QualityGate        require_identifiable, allow_unconverged       gate
     IpoptOptions       ipopt_options, verbose                        solve
+    LagSettings        lag, times                                    `nlpcal.calibration.lagged`
 
 A new keyword is one field of the group it belongs to, packed in `CalibrationSettings.of`, and
 read by the one step that needs it.
@@ -26,6 +27,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 from .. import units, validation
+from ..lag import lag_option
 from ..nlp.blocks import OPTIONS
 from ..nlp.solver import IpoptOptions
 from ..robust import Loss
@@ -98,6 +100,23 @@ class QualityGate:
     allow_unconverged: bool = False
 
 
+@dataclass(frozen=True)
+class LagSettings:
+    """The lag of a reference series (`nlpcal.calibration.lagged`, which runs calibrations of
+    its own around the steps).
+
+    Attributes
+    ----------
+    value : None, "auto" or float
+        No lag, a lag estimated with the parameters, or one given and taken out (`--lag`). [s]
+    times : None or array_like of shape (N,)
+        The times of the samples, seconds from any origin (`--time-column`). [s]
+    """
+
+    value: str | float | None = None
+    times: Any = field(default=None, compare=False)
+
+
 #: The gate of a trial calibration (model "auto", the full model a restriction is judged
 #: against): every result that solved is returned.
 NO_GATE = QualityGate(require_identifiable=False, allow_unconverged=True)
@@ -147,6 +166,7 @@ class CalibrationSettings:
     loss: Loss = field(default_factory=Loss)
     gate: QualityGate = field(default_factory=QualityGate)
     ipopt: IpoptOptions = OPTIONS
+    lag: LagSettings = field(default_factory=LagSettings)
 
     @classmethod
     def of(
@@ -168,6 +188,8 @@ class CalibrationSettings:
         verbose: bool = False,
         threads: int | None = None,
         ipopt_options: dict | None = None,
+        lag=None,
+        times=None,
     ) -> CalibrationSettings:
         """The settings of `nlpcal.calibrate`'s keywords (see there), each checked: InputError
         names the first that is unusable. Quantities are in `unit` (default nT) and are stored
@@ -206,4 +228,5 @@ class CalibrationSettings:
                 require_identifiable=require_identifiable, allow_unconverged=allow_unconverged
             ),
             ipopt=ipopt,
+            lag=LagSettings(value=lag_option(lag), times=times),
         )

@@ -440,8 +440,7 @@ def calibrate_temperature(
     validation.choice(time_drift, "time drift", TIME_DRIFTS)
     timed_only = temperature is None
     if timed_only:  # a time drift alone: no temperature model, every temperature zero
-        model, base_temperature = _time_drift_alone(given, time_drift)
-        temperature = np.zeros(validation.samples(samples).shape[0])
+        model, base_temperature, temperature = _time_drift_alone(given, time_drift, samples)
     samples, temperature, reference = _checked_series(
         samples, temperature, reference, unit, reference_unit
     )
@@ -479,9 +478,7 @@ def calibrate_temperature(
     warnings = _warnings(np.inf if timed_only else t_high - t_low, not_identifiable, poor)
     time_gains = drift.gains(times) if time_drift != "none" else None
     label, method, stage = _labels(model, time_drift, timed_only)
-    rows = _statistics_rows(
-        label, samples, temperature, reference, params, fitted or NEUTRAL, time_gains
-    )
+    rows = _statistics_rows(label, samples, temperature, reference, params, fitted, time_gains)
     rows[-1].update(iterations=iterations, wall_s=wall)  # the temperature solve's
     calibration = CalibrationResult(
         parameters=params.to_dict(),
@@ -595,9 +592,10 @@ def _standard_errors(uncertainty, scale, names, model: str) -> tuple:
     return errors, coefficient_errors, poor
 
 
-def _time_drift_alone(temperature_model: str | None, time_drift: str) -> tuple:
-    """(NO_TEMPERATURE, base temperature 0 [degC]) for a calibration without temperatures:
-    a time drift alone; InputError when a temperature model or no time drift is asked for."""
+def _time_drift_alone(temperature_model: str | None, time_drift: str, samples) -> tuple:
+    """(NO_TEMPERATURE, base temperature 0 [degC], a zero temperature per sample) for a
+    calibration without temperatures: a time drift alone; InputError when a temperature model
+    or no time drift is asked for."""
     if temperature_model is not None:
         raise InputError(
             f"a {temperature_model} temperature model needs the samples' temperatures "
@@ -608,7 +606,7 @@ def _time_drift_alone(temperature_model: str | None, time_drift: str) -> tuple:
             "the temperature calibration needs the samples' temperatures, or a time drift "
             "(--temperature-column COL or --time-drift common|per-axis)"
         )
-    return NO_TEMPERATURE, 0.0
+    return NO_TEMPERATURE, 0.0, np.zeros(validation.samples(samples).shape[0])
 
 
 def _labels(model: str, time_drift: str, timed_only: bool) -> tuple:
@@ -673,7 +671,7 @@ def _statistics_rows(label: str, samples, temperature, reference, params, fitted
         {
             **evaluation_row(
                 label,
-                liu2022.correct(samples, temperature, params, fitted, gains),
+                liu2022.correct(samples, temperature, params, fitted or NEUTRAL, gains),
                 reference,
             ),
             "iterations": 0,
