@@ -97,6 +97,7 @@ def delta_f_report(
     parameters: Zhou2010Parameters | None = None,
     lag=None,
     lag_in_parameters: dict | None = None,
+    tolerance: float = lags.LAG_TOLERANCE_S,
 ) -> dict:
     """delta F = |B| - F per period (`periods`), before and after the correction.
 
@@ -106,6 +107,8 @@ def delta_f_report(
         `nlpcal.lag.estimate_lag` with no free parameter) and adds the spread of delta F with
         it taken out; seconds take it out of the reference everywhere. None takes the lag of
         the parameters file (`lag_in_parameters`, estimated or given) out, if any.
+    tolerance : the standard error that determines a lag near zero (`nlpcal.lag.is_determined`).
+        [s]
     Returns {"fixed_sensor", "attitude_spread_deg", "lag_used_s", "periods": [{"period", "n",
     "before", "after", "lag", "after_lag"}]}. [unit], [s]
     """
@@ -133,7 +136,12 @@ def delta_f_report(
             row["after"] = Spread.of(magnitude[rows_of] - aligned[rows_of]).to_dict()
         if lag == "auto":
             estimate = lags.estimate_lag(
-                samples[rows_of], reference[rows_of], times[rows_of], theta, lags.fixed_directions()
+                samples[rows_of],
+                reference[rows_of],
+                times[rows_of],
+                theta,
+                lags.fixed_directions(),
+                tolerance,
             )
             row["lag"] = estimate.to_dict()
             moved = lags.shifted(reference[rows_of], times[rows_of], estimate.seconds or 0.0)
@@ -213,15 +221,26 @@ def fixed_sensor_message(spread_deg: float) -> str:
     )
 
 
-def log_delta_f(log, parameters=None, lag=None, lag_in_parameters: dict | None = None) -> dict:
+def log_delta_f(
+    log, parameters=None, lag=None, lag_in_parameters: dict | None = None, tolerance=None
+) -> dict:
     """`delta_f_report` of a log read with its reference series and times (`nlpcal.io.Log`).
 
     parameters : a CalibrationResult (its nine parameters correct the "after" columns) or None.
+    tolerance : `--lag-tolerance` [s], None for `nlpcal.lag.LAG_TOLERANCE_S`.
     """
     if log.reference is None or np.ndim(log.reference) != 1:
         raise InputError("delta F and the lag need a reference series (--reference-column COL)")
     model = parameters.model if parameters is not None else None
-    return delta_f_report(log.samples, log.reference, log.times, model, lag, lag_in_parameters)
+    return delta_f_report(
+        log.samples,
+        log.reference,
+        log.times,
+        model,
+        lag,
+        lag_in_parameters,
+        lags.tolerance_option(tolerance),
+    )
 
 
 def check_lags(report: dict) -> None:
@@ -230,7 +249,8 @@ def check_lags(report: dict) -> None:
     if periods:
         raise QualityError(
             f"lag undetermined in {', '.join(periods)}: dF/dt is too small against the noise "
-            f"(its standard error exceeds {lags.MAX_ERROR_SAMPLES:g} of the sample interval)",
+            f"(the lag is within {lags.MIN_SIGNIFICANCE:g} standard errors of zero and its "
+            f"standard error exceeds the tolerance, --lag-tolerance)",
             "Lag_Undetermined",
         )
 

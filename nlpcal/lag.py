@@ -41,8 +41,13 @@ moving-block jackknife of `nlpcal.inference.moving_block_jackknife`.
 When |tau| exceeds half a sample, (L1) is no longer a small correction: the reference is
 re-interpolated linearly at t + tau and the lag about it estimated again.
 
-The lag is undetermined when its standard error exceeds MAX_ERROR_SAMPLES of the sample
-interval: dF/dt too small against the noise (a quiet day at an observatory).
+The lag is determined when it stands MIN_SIGNIFICANCE standard errors from zero, or when its
+standard error is within a tolerance (`--lag-tolerance`, LAG_TOLERANCE_S by default: the
+time-stamp accuracy of INTERMAGNET's one-second data, so that a lag known to be near zero is
+estimated, not undetermined). Neither test depends on the sample interval: the standard error
+falls as 1 / sqrt(rate), and a limit in samples (~ 1 / rate) would tighten faster than it.
+Otherwise it is undetermined: dF/dt too small against the noise (a quiet day at an
+observatory).
 
 References
 ----------
@@ -69,9 +74,11 @@ STATUSES = ("estimated", "given", "undetermined")
 #: Rows a block reads beyond each of its ends: one behind, two ahead (central and third
 #: differences).
 HALO = 2
-#: The lag is undetermined when its standard error exceeds this fraction of the sample interval.
-#: [1]
-MAX_ERROR_SAMPLES = 0.02
+#: A lag is determined when it is this many standard errors from zero ... [1]
+MIN_SIGNIFICANCE = 3.0
+#: ... or when its standard error is within this tolerance (`--lag-tolerance`): the 10 ms
+#: time-stamp accuracy INTERMAGNET asks of one-second data. [s]
+LAG_TOLERANCE_S = 0.01
 #: Re-interpolations of the reference before the lag is given up as not converging.
 MAX_REINTERPOLATIONS = 6
 #: Newton iterations of one joint solve; it stops when no step exceeds STEP_TOLERANCE standard
@@ -89,6 +96,21 @@ def lag_option(value) -> str | float | None:
     if value is None or (isinstance(value, str) and value == "auto"):
         return value
     return validation.number(value, "--lag ('auto', or a lag in seconds)")
+
+
+def tolerance_option(value) -> float:
+    """The tolerance of the standard error of a lag (`--lag-tolerance`), LAG_TOLERANCE_S when
+    None. [s]"""
+    if value is None:
+        return LAG_TOLERANCE_S
+    return validation.number(value, "--lag-tolerance (seconds)", minimum=0.0)
+
+
+def is_determined(seconds: float, error: float, tolerance: float = LAG_TOLERANCE_S) -> bool:
+    """Whether a lag [s] with standard error `error` [s] is determined: MIN_SIGNIFICANCE
+    standard errors from zero, or an error within `tolerance` [s]; neither depends on the
+    sample interval."""
+    return bool(error <= tolerance or abs(seconds) >= MIN_SIGNIFICANCE * error)
 
 
 def check_times(times, n: int) -> np.ndarray:
@@ -520,6 +542,7 @@ class LagEstimate:
     reinterpolations: int
     dependent: bool
     objective: float = float("nan")
+    tolerance_s: float = LAG_TOLERANCE_S
     notes: list = field(default_factory=list)
 
     @property
@@ -555,10 +578,10 @@ class LagEstimate:
                 f"{self.standard_error_s * 1e3:.2f} ms (positive: the reference is late)"
             )
         return (
-            f"lag undetermined: its standard error {self.standard_error_s * 1e3:.3g} ms exceeds "
-            f"{MAX_ERROR_SAMPLES:g} of the sample interval ({self.sample_interval_s:g} s); the "
-            f"field changes too slowly (rms dF/dt {self.rms_derivative:.3g} per s) against the "
-            f"noise"
+            f"lag undetermined: {self.seconds * 1e3:+.3g} ms is within {MIN_SIGNIFICANCE:g} "
+            f"standard errors ({self.standard_error_s * 1e3:.3g} ms) of zero and that error "
+            f"exceeds the tolerance of {self.tolerance_s * 1e3:g} ms; the field changes too "
+            f"slowly (rms dF/dt {self.rms_derivative:.3g} per s) against the noise"
         )
 
 
@@ -619,17 +642,19 @@ def lag_uncertainty(joint: JointSolve, directions, n: int, dependence: dict) -> 
     )
 
 
-def estimate_lag(samples, reference, times, theta_start, directions) -> LagEstimate:
+def estimate_lag(
+    samples, reference, times, theta_start, directions, tolerance: float = LAG_TOLERANCE_S
+) -> LagEstimate:
     """tau with the free directions of theta (L2), re-interpolating the reference while |tau|
     exceeds half a sample.
 
     samples : (N, 3) raw B_M [unit]; reference : (N,) R [unit]; times : (N,) [s];
     theta_start : the no-lag optimum [internal units]; directions : (9, k) the model's free
-    directions (`fixed_directions` for a fixed sensor).
+    directions (`fixed_directions` for a fixed sensor); tolerance : the standard error that
+    determines a lag near zero (`is_determined`). [s]
     """
     times = check_times(times, len(reference))
     interval = sample_interval(times)
-    limit = MAX_ERROR_SAMPLES * interval
     theta, tau, moved = np.asarray(theta_start, dtype=float), 0.0, 0
     while True:
         ref = reference if tau == 0.0 else shifted(np.asarray(reference), times, tau)
@@ -640,7 +665,8 @@ def estimate_lag(samples, reference, times, theta_start, directions) -> LagEstim
         joint = solve_joint(theta, moments, group, directions)
         theta = joint.theta
         white = lag_uncertainty(joint, directions, moments.n, WHITE)[0]
-        vague = not white <= limit  # a wandering estimate: nothing to re-interpolate for
+        # a wandering estimate: nothing to re-interpolate for
+        vague = not is_determined(tau + joint.tau, white, tolerance)
         if abs(joint.tau) <= interval / 2 or vague:
             break
         if (
@@ -657,7 +683,7 @@ def estimate_lag(samples, reference, times, theta_start, directions) -> LagEstim
         tau, moved = tau + joint.tau, moved + 1
     dependence = tau_dependence(samples, ref, times, theta, joint.tau, group.noise)
     error, correlations, dependent = lag_uncertainty(joint, directions, moments.n, dependence)
-    determined = not vague and error <= limit
+    determined = not vague and is_determined(tau + joint.tau, error, tolerance)
     return LagEstimate(
         status="estimated" if determined else "undetermined",
         seconds=tau + joint.tau,
@@ -670,6 +696,7 @@ def estimate_lag(samples, reference, times, theta_start, directions) -> LagEstim
         reinterpolations=moved,
         dependent=dependent,
         objective=joint.objective,
+        tolerance_s=tolerance,
     )
 
 

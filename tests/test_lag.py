@@ -355,3 +355,38 @@ def test_stats_takes_the_lag_of_the_parameters_file_out(tmp_path, capsys):
     assert document["delta_f"]["lag_used_s"] == lag
     after = document["delta_f"]["periods"][0]["after"]["std"]
     assert after < 0.1  # 0.3 s at 1 nT/s left in would be 0.3 nT
+
+
+@pytest.mark.parametrize(
+    ("rate_hz", "seconds", "tau", "rms_rate", "status"),
+    [
+        (1.0, 3600.0, 0.0, 1.0, "estimated"),  # near zero, SE ~1 ms: within the tolerance
+        (1.0, 3600.0, TAU, 0.02, "undetermined"),  # a quiet field: SE ~60 ms, ~0.6 SE
+        (10.0, 120.0, TAU, 1.0, "estimated"),  # SE ~3 ms (12 SE), 0.02 sample = 2 ms
+        (100.0, 600.0, 0.004, 1.0, "estimated"),  # SE ~0.9 ms (4 SE), 0.02 sample = 0.2 ms
+    ],
+)
+def test_the_undetermined_rule_does_not_tighten_with_the_rate(
+    rate_hz, seconds, tau, rms_rate, status
+):
+    """Determined when 3 SE from zero or an SE within the 10 ms tolerance, at every rate; the
+    former rule (SE <= 0.02 of the sample interval) called the 10 and 100 Hz lags
+    undetermined."""
+    samples, reference, times, _ = lagged_log(
+        seed=3, rate_hz=rate_hz, seconds=seconds, tau=tau, rms_rate=rms_rate
+    )
+    theta = Zhou2010Parameters.from_dict(PAPER_TRUTH).theta
+    estimate = lags.estimate_lag(samples, reference, times, theta, np.eye(9))
+    assert estimate.status == status
+    error = estimate.standard_error_s
+    assert lags.is_determined(estimate.seconds, error) == (status == "estimated")
+    if status == "estimated":
+        assert abs(estimate.seconds - tau) < Z * error
+
+
+def test_the_rule_of_a_determined_lag():
+    assert lags.is_determined(0.0, 0.01)  # at the tolerance
+    assert not lags.is_determined(0.0, 0.011)
+    assert lags.is_determined(0.033, 0.011)  # 3 SE
+    assert not lags.is_determined(-0.10, 0.066)  # a quiet day at 1 Hz
+    assert lags.is_determined(0.0, 0.05, tolerance=0.05)

@@ -52,6 +52,7 @@ def calibrate(
     ipopt_options: dict | None = None,
     lag=None,
     times=None,
+    lag_tolerance=None,
 ) -> CalibrationResult:
     """Estimate the nine parameters of Eq. 4 in [1] from a log of many attitudes.
 
@@ -124,6 +125,9 @@ def calibrate(
         QualityError.
     times : array_like of shape (N,), optional
         The times of the samples, seconds from any origin, for `lag` (`--time-column`). [s]
+    lag_tolerance : float, optional
+        A lag "auto" is determined when it is 3 standard errors from zero or its standard
+        error is within this tolerance (`--lag-tolerance`; default 0.01). [s]
 
     Returns
     -------
@@ -183,6 +187,7 @@ def calibrate(
         ipopt_options=ipopt_options,
         lag=lag,
         times=times,
+        lag_tolerance=lag_tolerance,
     )
     if settings.lag.value is not None:  # the lag of a reference series (nlpcal.lag)
         options = {k: v for k, v in locals().items() if k not in (*LAG_ARGUMENTS, "settings")}

@@ -10,6 +10,8 @@ estimated lag; the correlations with tau are recorded beside it).
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from .. import lag as lags
@@ -25,7 +27,7 @@ from .settings import LagSettings
 FIXED_SENSOR_PROBE = 20_000
 
 #: The arguments of `calibrate` that `calibrate_lagged` takes apart from the others.
-LAG_ARGUMENTS = ("samples", "reference_field", "lag", "times")
+LAG_ARGUMENTS = ("samples", "reference_field", "lag", "times", "lag_tolerance")
 
 
 def calibrate_lagged(
@@ -41,6 +43,7 @@ def calibrate_lagged(
         )
     rows = field_samples(samples)
     times = lags.check_times(times, len(reference))
+    settings = replace(settings, times=times)
     values = np.asarray(reference, dtype=float)
     if isinstance(lag, float):
         lags.check_span(lag, times)
@@ -49,14 +52,14 @@ def calibrate_lagged(
         return result
     spread = attitude_spread(rows[:: max(1, len(values) // FIXED_SENSOR_PROBE)])
     if spread < FIXED_SENSOR_DEG:
-        raise fixed_sensor_failure(rows, values, times, spread, options)
+        raise fixed_sensor_failure(rows, values, settings, spread, options)
     first = calibrate(rows, reference_field=values, **options)
     unit = first.unit if first.unit != "raw" else "raw"
     base = units.to_base(validation.samples(rows), options.get("unit") or unit)
     ref_base = units.to_base(values, options.get("reference_unit") or options.get("unit") or unit)
     directions = model_directions(first.model_name, True)
     theta = Zhou2010Parameters.from_dict(first.parameters).theta
-    estimate = lags.estimate_lag(base, ref_base, times, theta, directions)
+    estimate = lags.estimate_lag(base, ref_base, times, theta, directions, settings.tolerance)
     if not estimate.determined:
         first.lag = estimate.to_dict()
         first.warnings.append(estimate.message())
@@ -68,13 +71,17 @@ def calibrate_lagged(
     return result
 
 
-def fixed_sensor_failure(rows, values, times, spread: float, options: dict) -> QualityError:
+def fixed_sensor_failure(
+    rows, values, settings: LagSettings, spread: float, options: dict
+) -> QualityError:
     """The QualityError of a fixed sensor's log: the nine parameters not attempted, the lag
     estimated alone (`nlpcal.lag.fixed_directions`) and told."""
     unit = options.get("unit") or "nT"
     base = units.to_base(validation.samples(rows), unit)
     ref_base = units.to_base(values, options.get("reference_unit") or unit)
-    estimate = lags.estimate_lag(base, ref_base, times, np.zeros(9), lags.fixed_directions())
+    estimate = lags.estimate_lag(
+        base, ref_base, settings.times, np.zeros(9), lags.fixed_directions(), settings.tolerance
+    )
     return QualityError(
         f"{fixed_sensor_message(spread)}: {estimate.message()}; 'nlpcal stats LOG "
         f"--reference-column COL --time-column COL --lag auto' reports delta F by day",

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 from .. import units, validation
-from ..lag import lag_option
+from ..lag import LAG_TOLERANCE_S, lag_option, tolerance_option
 from ..nlp.blocks import OPTIONS
 from ..nlp.solver import IpoptOptions
 from ..robust import Loss
@@ -111,10 +111,14 @@ class LagSettings:
         No lag, a lag estimated with the parameters, or one given and taken out (`--lag`). [s]
     times : None or array_like of shape (N,)
         The times of the samples, seconds from any origin (`--time-column`). [s]
+    tolerance : float
+        The standard error that determines a lag near zero (`--lag-tolerance`,
+        `nlpcal.lag.is_determined`). [s]
     """
 
     value: str | float | None = None
     times: Any = field(default=None, compare=False)
+    tolerance: float = LAG_TOLERANCE_S
 
 
 #: The gate of a trial calibration (model "auto", the full model a restriction is judged
@@ -190,6 +194,7 @@ class CalibrationSettings:
         ipopt_options: dict | None = None,
         lag=None,
         times=None,
+        lag_tolerance=None,
     ) -> CalibrationSettings:
         """The settings of `nlpcal.calibrate`'s keywords (see there), each checked: InputError
         names the first that is unusable. Quantities are in `unit` (default nT) and are stored
@@ -228,5 +233,5 @@ class CalibrationSettings:
                 require_identifiable=require_identifiable, allow_unconverged=allow_unconverged
             ),
             ipopt=ipopt,
-            lag=LagSettings(value=lag_option(lag), times=times),
+            lag=LagSettings(lag_option(lag), times, tolerance_option(lag_tolerance)),
         )

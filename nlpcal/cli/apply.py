@@ -277,7 +277,7 @@ def run_stats(args) -> int:
     document = {"unit": log.base_unit, "std_ddof": 0, "rows": rows}
     report = None
     if args.lag is not None or isinstance(log.reference, np.ndarray):
-        report = log_delta_f(log, parameters, args.lag, lag_block)
+        report = log_delta_f(log, parameters, args.lag, lag_block, args.lag_tolerance)
         if report["fixed_sensor"]:
             tell([fixed_sensor_message(report["attitude_spread_deg"])])
         document["delta_f"] = report

@@ -440,6 +440,11 @@ def calibration_options(args) -> dict:
         "threads": args.threads,
         "ipopt_options": ipopt_options,
         **({"lag": args.lag} if getattr(args, "lag", None) is not None else {}),
+        **(
+            {"lag_tolerance": args.lag_tolerance}
+            if getattr(args, "lag_tolerance", None) is not None
+            else {}
+        ),
     }
 
 

@@ -550,6 +550,14 @@ def add_lag_argument(parser) -> None:
         "reports its standard error, a number takes it out; needs --reference-column and "
         "--time-column (ISO 8601 text, or seconds from any origin)",
     )
+    parser.add_argument(
+        "--lag-tolerance",
+        metavar="SECONDS",
+        type=float,
+        help="a lag 'auto' is estimated when it stands 3 standard errors from zero or its "
+        "standard error is within this tolerance, else undetermined [s] (default: 0.01, the "
+        "time-stamp accuracy of INTERMAGNET one-second data)",
+    )
 
 
 def emit_json(document, output) -> None:
