@@ -109,17 +109,23 @@ def delta_f_report(
         the parameters file (`lag_in_parameters`, estimated or given) out, if any.
     tolerance : the standard error that determines a lag near zero (`nlpcal.lag.is_determined`).
         [s]
-    Returns {"fixed_sensor", "attitude_spread_deg", "lag_used_s", "periods": [{"period", "n",
-    "before", "after", "lag", "after_lag"}]}. [unit], [s]
+    Returns {"fixed_sensor", "attitude_spread_deg", "lag_used_s", "rows_dropped", "periods":
+    [{"period", "n", "before", "after", "lag", "lag_applied_s", "after_lag"}]}. [unit], [s]
+    The rows a lag leaves without a reference (`nlpcal.lag.kept_rows`) are dropped and counted;
+    an undetermined lag is not applied ("lag_applied_s" 0).
     """
     samples = np.asarray(samples, dtype=float)
     reference = np.asarray(reference, dtype=float)
     lag = lags.lag_option(lag)
     used = lag_in_force(lag, lag_in_parameters)
+    total = reference.size
     if used or lag == "auto":
         times = lags.check_times(times, reference.size)
         lags.check_span(used, times)
     aligned = lags.shifted(reference, times, used) if used else reference
+    if used:  # the rows left without a reference go
+        kept = lags.kept_rows(times, used)
+        samples, reference, times = samples[kept], reference[kept], times[kept]
     theta = np.zeros(9) if parameters is None else parameters.theta
     corrected = samples if parameters is None else correct(samples, parameters)
     magnitude = np.linalg.norm(corrected, axis=1)
@@ -135,23 +141,32 @@ def delta_f_report(
         if parameters is not None:
             row["after"] = Spread.of(magnitude[rows_of] - aligned[rows_of]).to_dict()
         if lag == "auto":
-            estimate = lags.estimate_lag(
-                samples[rows_of],
-                reference[rows_of],
-                times[rows_of],
-                theta,
-                lags.fixed_directions(),
-                tolerance,
-            )
-            row["lag"] = estimate.to_dict()
-            moved = lags.shifted(reference[rows_of], times[rows_of], estimate.seconds or 0.0)
-            row["after_lag"] = Spread.of(magnitude[rows_of] - moved).to_dict()
+            period = (samples[rows_of], magnitude[rows_of], reference[rows_of], times[rows_of])
+            row.update(period_lag(*period, theta, tolerance))
         rows.append(row)
     return {
         "fixed_sensor": spread < FIXED_SENSOR_DEG,
         "attitude_spread_deg": spread,
         "lag_used_s": used,
+        "rows_dropped": total - reference.size,
         "periods": rows,
+    }
+
+
+def period_lag(samples, magnitude, reference, times, theta, tolerance: float) -> dict:
+    """The lag of one period, estimated alone (`nlpcal.lag.fixed_directions`), and the spread
+    of delta F with it taken out: {"lag", "lag_applied_s", "after_lag"}. An undetermined lag
+    is not applied (its spread is the one without a lag). [unit], [s]"""
+    estimate = lags.estimate_lag(
+        samples, reference, times, theta, lags.fixed_directions(), tolerance
+    )
+    seconds = float(estimate.seconds) if estimate.determined else 0.0  # type: ignore[arg-type]
+    kept = lags.kept_rows(times, seconds) if seconds else slice(None)
+    moved = lags.shifted(reference, times, seconds)
+    return {
+        "lag": estimate.to_dict(),
+        "lag_applied_s": seconds,
+        "after_lag": Spread.of(magnitude[kept] - moved).to_dict(),
     }
 
 
@@ -182,6 +197,11 @@ def format_report(report: dict, unit: str) -> str:
             seconds = block["seconds"] if block["seconds"] is not None else block.get("estimate_s")
             line += f"{_cell(seconds):>11}{_cell(block['standard_error_s']):>10}"
             line += f"{row['after_lag']['std']:>12.4f}  {block['status']}"
+            line += (
+                ""
+                if row["lag_applied_s"] or block["status"] != "undetermined"
+                else " (none applied)"
+            )
         lines.append(line)
     return "\n".join(lines)
 
@@ -207,7 +227,19 @@ def aligned_log(log, lag, lag_in_parameters: dict | None = None):
             "a lag needs a reference series, one value per sample (--reference-column)"
         )
     times = lags.check_times(log.times, len(log.reference))
-    return replace(log, reference=lags.shifted(log.reference, times, seconds))
+    kept = lags.kept_rows(times, seconds)
+    dropped = len(times) - (kept.stop - kept.start)
+    notes = [*log.notes, lags.dropped_note(dropped, seconds)] if dropped else log.notes
+    return replace(
+        log,
+        samples=log.samples[kept],
+        reference=lags.shifted(log.reference, times, seconds),
+        times=times[kept],
+        extras={name: values[kept] for name, values in log.extras.items()},
+        frame=None,
+        kept=None,
+        notes=notes,
+    )
 
 
 def fixed_sensor_message(spread_deg: float) -> str:

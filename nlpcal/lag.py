@@ -134,8 +134,7 @@ def sample_interval(times: np.ndarray) -> float:
 
 def check_span(seconds: float, times: np.ndarray) -> float:
     """A lag given (`--lag SECONDS`, or a parameters file's) that leaves rows with a reference:
-    shorter than the span of the times, else InputError (`shifted` would hold one end's value
-    on every row). [s]"""
+    shorter than the span of the times, else InputError (`kept_rows` would keep none). [s]"""
     span = float(times[-1] - times[0]) if times.size else 0.0
     if abs(seconds) >= span:
         raise InputError(
@@ -145,17 +144,35 @@ def check_span(seconds: float, times: np.ndarray) -> float:
     return seconds
 
 
+def kept_rows(times: np.ndarray, tau: float) -> slice:
+    """The rows whose time moved by the lag, t + tau, falls within the reference's span
+    [t_0, t_end] (the times increase: one stretch). The others, within |tau| of one end, have
+    no reference value once the lag is taken out and are dropped (`dropped_note`)."""
+    start = int(np.searchsorted(times, times[0] - tau, side="left"))
+    stop = int(np.searchsorted(times, times[-1] - tau, side="right"))
+    return slice(start, max(start, stop))
+
+
+def dropped_note(dropped: int, tau: float) -> str:
+    """The sentence that tells how many rows a lag [s] left without a reference."""
+    return (
+        f"{dropped} row(s) within {abs(tau):g} s of the {'end' if tau > 0 else 'start'} of the "
+        f"log dropped: once the lag is taken out, the reference has no value for them"
+    )
+
+
 def shifted(reference, times: np.ndarray, tau: float) -> np.ndarray:
-    """R(t + tau) on the rows, by linear interpolation (`nlpcal.timing.reference_at`): the
-    reference moved so that a lag tau is taken out (L1). The rows it leaves without a value
-    (within |tau| of the ends, or in a gap of the reference) keep the nearest values' line
-    (`numpy.interp`, the ends held), so that every row keeps its reference. [reference unit]"""
+    """R(t + tau) on the rows `kept_rows(times, tau)`, by linear interpolation
+    (`nlpcal.timing.reference_at`): the reference moved so that a lag tau is taken out (L1).
+    Rows in a gap of the reference keep the line of its nearest values (`numpy.interp`).
+    [reference unit]"""
     reference = np.asarray(reference, dtype=float)
     if tau == 0.0:
         return reference
-    moved = reference_at(times, reference, times + tau)
+    wanted = times[kept_rows(times, tau)] + tau
+    moved = reference_at(times, reference, wanted)
     missing = ~np.isfinite(moved)
-    moved[missing] = np.interp(times[missing] + tau, times, reference)
+    moved[missing] = np.interp(wanted[missing], times, reference)
     return moved
 
 
@@ -656,10 +673,17 @@ def estimate_lag(
     times = check_times(times, len(reference))
     interval = sample_interval(times)
     theta, tau, moved = np.asarray(theta_start, dtype=float), 0.0, 0
+    rows, ref, stamps = samples, reference, times
     while True:
-        ref = reference if tau == 0.0 else shifted(np.asarray(reference), times, tau)
-        moments = accumulate(samples, ref)
-        group = lag_moments(samples, ref, times, moments)
+        if tau != 0.0:
+            kept = kept_rows(times, tau)
+            rows, ref, stamps = (
+                samples[kept],
+                shifted(np.asarray(reference), times, tau),
+                times[kept],
+            )
+        moments = accumulate(rows, ref)
+        group = lag_moments(rows, ref, stamps, moments)
         if not group.c > 0:  # dF/dt lost in the reference's noise
             return silent_field(theta, interval, group, moved)
         joint = solve_joint(theta, moments, group, directions)
@@ -681,7 +705,7 @@ def estimate_lag(
                 else "a lag beyond half a sample needs the reference in memory to re-interpolate"
             )
         tau, moved = tau + joint.tau, moved + 1
-    dependence = tau_dependence(samples, ref, times, theta, joint.tau, group.noise)
+    dependence = tau_dependence(rows, ref, stamps, theta, joint.tau, group.noise)
     error, correlations, dependent = lag_uncertainty(joint, directions, moments.n, dependence)
     determined = not vague and is_determined(tau + joint.tau, error, tolerance)
     return LagEstimate(

@@ -390,3 +390,20 @@ def test_the_rule_of_a_determined_lag():
     assert lags.is_determined(0.033, 0.011)  # 3 SE
     assert not lags.is_determined(-0.10, 0.066)  # a quiet day at 1 Hz
     assert lags.is_determined(0.0, 0.05, tolerance=0.05)
+
+
+def test_a_given_lag_drops_the_rows_it_leaves_without_a_reference():
+    """A lag of 5 s at 10 Hz leaves the last 50 rows with no reference: they are dropped and
+    counted, not given the last value held (which put up to 5 s of dF/dt into delta F)."""
+    samples, reference, times, _ = lagged_log(seed=2, seconds=120.0, tau=5.0)
+    truth = Zhou2010Parameters.from_dict(PAPER_TRUTH)
+    report = delta_f_report(samples, reference, times, truth, lag=5.0)
+    assert report["rows_dropped"] == 50
+    whole = report["periods"][0]
+    assert whole["n"] == times.size - 50
+    # what is left is the noise: 0.05 nT on the reference and on each axis
+    assert whole["after"]["std"] < 0.1
+    result = nlpcal.calibrate(samples, reference_field=reference, times=times, lag=5.0)
+    assert result.lag["status"] == "given"
+    assert any("50 row" in note for note in result.notes)
+    assert lags.shifted(reference, times, -5.0).size == times.size - 50

@@ -47,7 +47,7 @@ def calibrate_lagged(
     values = np.asarray(reference, dtype=float)
     if isinstance(lag, float):
         lags.check_span(lag, times)
-        result = calibrate(rows, reference_field=lags.shifted(values, times, lag), **options)
+        result = calibrate_moved(calibrate, rows, values, times, lag, options)
         result.lag = lags.given_lag(lag)
         return result
     spread = attitude_spread(rows[:: max(1, len(values) // FIXED_SENSOR_PROBE)])
@@ -65,9 +65,21 @@ def calibrate_lagged(
         first.warnings.append(estimate.message())
         raise QualityError(estimate.message(), "Lag_Undetermined", result=first)
     seconds = float(estimate.seconds)  # type: ignore[arg-type]  # determined: a number
-    result = calibrate(rows, reference_field=lags.shifted(values, times, seconds), **options)
+    result = calibrate_moved(calibrate, rows, values, times, seconds, options)
     result.lag = estimate.to_dict()
     result.notes.append(estimate.message())
+    return result
+
+
+def calibrate_moved(calibrate, rows, values, times, seconds: float, options: dict):
+    """`calibrate` on the rows that keep a reference once the lag `seconds` [s] is taken out of
+    it (`nlpcal.lag.kept_rows`), R(t + tau); a note counts the rows dropped at the ends."""
+    kept = lags.kept_rows(times, seconds)
+    moved = lags.shifted(values, times, seconds)
+    result = calibrate(rows[kept], reference_field=moved, **options)
+    dropped = len(values) - len(moved)
+    if dropped:
+        result.notes.append(lags.dropped_note(dropped, seconds))
     return result
 
 

@@ -271,7 +271,9 @@ def run_stats(args) -> int:
     report_log(log)
     parameters = correction.parameters if correction is not None else None
     lag_block = getattr(parameters, "lag", None)
-    rows, extra = statistics_rows(aligned_log(log, args.lag, lag_block), correction)
+    aligned = aligned_log(log, args.lag, lag_block)
+    tell(aligned.notes[len(log.notes) :])  # the rows a lag left without a reference
+    rows, extra = statistics_rows(aligned, correction)
     if correction is not None:
         tell(correction.notes)
     document = {"unit": log.base_unit, "std_ddof": 0, "rows": rows}
