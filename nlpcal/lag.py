@@ -39,7 +39,10 @@ A_c the corrected one), widened, when the scores of neighbouring samples are ali
 moving-block jackknife of `nlpcal.inference.moving_block_jackknife`.
 
 When |tau| exceeds half a sample, (L1) is no longer a small correction: the reference is
-re-interpolated linearly at t + tau and the lag about it estimated again.
+re-interpolated linearly at t + tau and the lag about it estimated again. The interpolation,
+a fraction a of the way between rows, smooths the noise: sigma^2 is estimated once on the
+rows as logged and the derivative's noise variance scaled by (1 - a)^2 + a^2
+(`interpolated_share`).
 
 The lag is determined when it stands MIN_SIGNIFICANCE standard errors from zero, or when its
 standard error is within a tolerance (`--lag-tolerance`, LAG_TOLERANCE_S by default: the
@@ -369,13 +372,16 @@ class LagMoments:
     rms_derivative: float
 
 
-def lag_moments(samples, reference, times, moments: Moments) -> LagMoments:
-    """One pass over a log for the lag's moments (`LagBlock`), in the frame of `moments`."""
+def lag_moments(samples, reference, times, moments: Moments, noise=None) -> LagMoments:
+    """One pass over a log for the lag's moments (`LagBlock`), in the frame of `moments`.
+    noise : the noise variance that multiplies q in the derivative [unit^2]; None: the
+    reference's, from its third differences (white noise on the rows)."""
     samples, ref, series = _pass_inputs(samples, reference, times)
     work = LagBlock(series, moments.frame.centre, moments.length, moments.layout)
     sums = passes.reduce(samples, ref, work, _add, CHUNK_ROWS, indexed=True)
     n = moments.n
-    noise = sums.third / (20.0 * sums.thirds) if sums.thirds else 0.0
+    if noise is None:
+        noise = sums.third / (20.0 * sums.thirds) if sums.thirds else 0.0
     c_observed = sums.c / n
     c = c_observed - noise * (sums.q / n) / moments.length**2
     rms = moments.length * float(np.sqrt(max(c, 0.0)))
@@ -674,6 +680,7 @@ def estimate_lag(
     interval = sample_interval(times)
     theta, tau, moved = np.asarray(theta_start, dtype=float), 0.0, 0
     rows, ref, stamps = samples, reference, times
+    sigma2 = None  # the reference's noise variance, from its own rows [unit^2]
     while True:
         if tau != 0.0:
             kept = kept_rows(times, tau)
@@ -683,7 +690,9 @@ def estimate_lag(
                 times[kept],
             )
         moments = accumulate(rows, ref)
-        group = lag_moments(rows, ref, stamps, moments)
+        share = None if sigma2 is None else sigma2 * interpolated_share(tau, interval)
+        group = lag_moments(rows, ref, stamps, moments, share)
+        sigma2 = group.noise if sigma2 is None else sigma2
         if not group.c > 0:  # dF/dt lost in the reference's noise
             return silent_field(theta, interval, group, moved)
         joint = solve_joint(theta, moments, group, directions)
@@ -716,12 +725,23 @@ def estimate_lag(
         theta=theta,
         sample_interval_s=interval,
         rms_derivative=group.rms_derivative,
-        reference_noise=float(np.sqrt(group.noise)),
+        reference_noise=float(np.sqrt(sigma2)),
         reinterpolations=moved,
         dependent=dependent,
         objective=joint.objective,
         tolerance_s=tolerance,
     )
+
+
+def interpolated_share(tau: float, interval: float) -> float:
+    """The share of the reference's noise variance left in R(t + tau) interpolated linearly a
+    fraction a = frac(tau / interval) of the way between its rows, (1 - a)^2 + a^2 [1]: each
+    interpolated value weighs two noise terms by 1 - a and a, and so does its central
+    difference (whose noise stays uncorrelated with the value's). The third differences of
+    the interpolated series would state less, 20 (1 - a)^2 + 20 a^2 - 30 a (1 - a) over 20
+    (1/8 at a = 1/2), the smoothing counted twice: sigma^2 is taken from the rows as logged."""
+    a = float(np.mod(tau / interval, 1.0))
+    return (1.0 - a) ** 2 + a**2
 
 
 def silent_field(theta, interval: float, group: LagMoments, moved: int) -> LagEstimate:

@@ -407,3 +407,19 @@ def test_a_given_lag_drops_the_rows_it_leaves_without_a_reference():
     assert result.lag["status"] == "given"
     assert any("50 row" in note for note in result.notes)
     assert lags.shifted(reference, times, -5.0).size == times.size - 50
+
+
+@pytest.mark.parametrize("tau", [0.25, -0.17])
+def test_a_reinterpolated_reference_keeps_its_noise_and_its_lag(tau):
+    """Linear interpolation half-way between rows smooths the noise: its third differences
+    state 1/8 of the variance, its derivative holds 1/2. sigma is taken from the rows as
+    logged and the derivative's noise scaled by (1 - a)^2 + a^2, so that 0.15 nT of noise (a
+    derivative as noisy as dF/dt) neither shows as less nor attenuates the lag."""
+    samples, reference, times, _ = lagged_log(seed=8, seconds=1800.0, tau=tau, reference_noise=0.15)
+    theta = Zhou2010Parameters.from_dict(PAPER_TRUTH).theta
+    estimate = lags.estimate_lag(samples, reference, times, theta, np.eye(9))
+    assert estimate.reinterpolations > 0
+    assert estimate.reference_noise == pytest.approx(0.15, rel=0.05)  # 18 000 third differences
+    assert abs(estimate.seconds - tau) < Z * estimate.standard_error_s
+    assert lags.interpolated_share(0.05, 0.1) == pytest.approx(0.5)
+    assert lags.interpolated_share(-0.025, 0.1) == pytest.approx(0.625)  # a = 3/4
