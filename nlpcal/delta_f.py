@@ -131,6 +131,8 @@ def delta_f_report(
     magnitude = np.linalg.norm(corrected, axis=1)
     raw = np.linalg.norm(samples, axis=1)
     spread = attitude_spread(samples)
+    if lag == "auto" and parameters is None and spread >= FIXED_SENSOR_DEG:
+        raise InputError(uncalibrated_message(spread))
     rows = []
     for label, rows_of in periods(times):
         row = {
@@ -239,6 +241,15 @@ def aligned_log(log, lag, lag_in_parameters: dict | None = None):
         frame=None,
         kept=None,
         notes=notes,
+    )
+
+
+def uncalibrated_message(spread_deg: float) -> str:
+    """Why the lag of a moving sensor's log is not estimated without its parameters."""
+    return (
+        f"the sensor's attitude changes ({spread_deg:.2g} deg rms) and it is uncalibrated (no "
+        f"--params): |B_M| - F follows the attitude, not the lag; give --params from a "
+        f"calibration, or estimate the lag with the nine parameters (calibrate --lag auto)"
     )
 
 

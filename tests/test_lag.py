@@ -423,3 +423,21 @@ def test_a_reinterpolated_reference_keeps_its_noise_and_its_lag(tau):
     assert abs(estimate.seconds - tau) < Z * estimate.standard_error_s
     assert lags.interpolated_share(0.05, 0.1) == pytest.approx(0.5)
     assert lags.interpolated_share(-0.025, 0.1) == pytest.approx(0.625)  # a = 3/4
+
+
+def test_an_undetermined_lag_is_not_applied_to_delta_f():
+    samples, reference, times, _ = lagged_log(
+        seed=3, rate_hz=1.0, seconds=3600.0, tau=TAU, rms_rate=0.02
+    )
+    truth = Zhou2010Parameters.from_dict(PAPER_TRUTH)
+    row = delta_f_report(samples, reference, times, truth, lag="auto")["periods"][0]
+    assert row["lag"]["status"] == "undetermined" and row["lag"]["estimate_s"] is not None
+    assert row["lag_applied_s"] == 0.0
+    assert row["after_lag"] == row["after"]
+
+
+def test_the_lag_of_a_moving_uncalibrated_sensor_is_refused():
+    """|B_M| - F of a moving sensor follows its attitude: the lag needs its parameters."""
+    samples, reference, times, _ = lagged_log(seed=4, seconds=120.0, tau=TAU)
+    with pytest.raises(InputError, match="uncalibrated"):
+        delta_f_report(samples, reference, times, None, lag="auto")

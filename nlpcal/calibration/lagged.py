@@ -19,6 +19,7 @@ from .. import units, validation
 from ..delta_f import FIXED_SENSOR_DEG, attitude_spread, fixed_sensor_message
 from ..errors import InputError, QualityError
 from ..io.lazy import field_samples
+from ..io.logs import settle_unit
 from ..models.zhou2010 import Zhou2010Parameters, model_directions
 from .result import CalibrationResult
 from .settings import LagSettings
@@ -54,9 +55,7 @@ def calibrate_lagged(
     if spread < FIXED_SENSOR_DEG:
         raise fixed_sensor_failure(rows, values, settings, spread, options)
     first = calibrate(rows, reference_field=values, **options)
-    unit = first.unit if first.unit != "raw" else "raw"
-    base = units.to_base(validation.samples(rows), options.get("unit") or unit)
-    ref_base = units.to_base(values, options.get("reference_unit") or options.get("unit") or unit)
+    base, ref_base = in_base(rows, values, options)
     directions = model_directions(first.model_name, True)
     theta = Zhou2010Parameters.from_dict(first.parameters).theta
     estimate = lags.estimate_lag(base, ref_base, times, theta, directions, settings.tolerance)
@@ -69,6 +68,18 @@ def calibrate_lagged(
     result.lag = estimate.to_dict()
     result.notes.append(estimate.message())
     return result
+
+
+def in_base(rows, values, options: dict) -> tuple:
+    """(samples, reference) in the base unit, the samples' unit settled as `calibrate` settles
+    it (`unit=`, else nT assumed and taken as raw counts when the magnitudes are far from
+    Earth's field, `nlpcal.io.logs.settle_unit`), the reference's `reference_unit=` or the
+    samples' unit. [nT or raw]"""
+    given = options.get("unit")
+    unit = given or "nT"
+    samples = units.to_base(validation.samples(rows), unit)
+    samples, unit, _ = settle_unit(samples, unit, "option" if given else "assumed")
+    return samples, units.to_base(values, options.get("reference_unit") or unit)
 
 
 def calibrate_moved(calibrate, rows, values, times, seconds: float, options: dict):
@@ -88,9 +99,7 @@ def fixed_sensor_failure(
 ) -> QualityError:
     """The QualityError of a fixed sensor's log: the nine parameters not attempted, the lag
     estimated alone (`nlpcal.lag.fixed_directions`) and told."""
-    unit = options.get("unit") or "nT"
-    base = units.to_base(validation.samples(rows), unit)
-    ref_base = units.to_base(values, options.get("reference_unit") or unit)
+    base, ref_base = in_base(rows, values, options)
     estimate = lags.estimate_lag(
         base, ref_base, settings.times, np.zeros(9), lags.fixed_directions(), settings.tolerance
     )
