@@ -110,7 +110,8 @@ def delta_f_report(
     tolerance : the standard error that determines a lag near zero (`nlpcal.lag.is_determined`).
         [s]
     Returns {"fixed_sensor", "attitude_spread_deg", "lag_used_s", "rows_dropped", "periods":
-    [{"period", "n", "before", "after", "lag", "lag_applied_s", "after_lag"}]}. [unit], [s]
+    [{"period", "n", "before", "after", "lag", "lag_applied_s", "after_lag", "warnings"}]}.
+    [unit], [s]
     The rows a lag leaves without a reference (`nlpcal.lag.kept_rows`) are dropped and counted;
     an undetermined lag is not applied ("lag_applied_s" 0).
     """
@@ -165,11 +166,22 @@ def period_lag(samples, magnitude, reference, times, theta, tolerance: float) ->
     seconds = float(estimate.seconds) if estimate.determined else 0.0  # type: ignore[arg-type]
     kept = lags.kept_rows(times, seconds) if seconds else slice(None)
     moved = lags.shifted(reference, times, seconds)
+    colour = estimate.colour_warning()
     return {
         "lag": estimate.to_dict(),
         "lag_applied_s": seconds,
         "after_lag": Spread.of(magnitude[kept] - moved).to_dict(),
+        "warnings": [colour] if colour else [],
     }
+
+
+def report_warnings(report: dict) -> list:
+    """The warnings of a report's lags, each with its period (coloured reference noise)."""
+    return [
+        f"{row['period']}: {warning}"
+        for row in report["periods"]
+        for warning in row.get("warnings", [])
+    ]
 
 
 def undetermined_periods(report: dict) -> list:

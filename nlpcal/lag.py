@@ -38,6 +38,10 @@ is the sandwich A_c^-1 A A_c^-1 (A the Gauss-Newton information with the observe
 A_c the corrected one), widened, when the scores of neighbouring samples are alike, by the
 moving-block jackknife of `nlpcal.inference.moving_block_jackknife`.
 
+The correction takes the reference's noise as white on the rows; a filtered or interpolated
+reference's is not (its third differences understate the derivative's noise, and tau is
+attenuated). `third_autocorrelations` checks it and the estimate says so (`colour_warning`).
+
 When |tau| exceeds half a sample, (L1) is no longer a small correction: the reference is
 re-interpolated linearly at t + tau and the lag about it estimated again. The interpolation,
 a fraction a of the way between rows, smooths the noise: sigma^2 is estimated once on the
@@ -82,6 +86,14 @@ MIN_SIGNIFICANCE = 3.0
 #: ... or when its standard error is within this tolerance (`--lag-tolerance`): the 10 ms
 #: time-stamp accuracy INTERMAGNET asks of one-second data. [s]
 LAG_TOLERANCE_S = 0.01
+#: The autocorrelations at lags 1, 2, 3 of the third differences of white noise, (-15, 6, -1)
+#: / 20. A reference averaged over 3 samples keeps -0.75 at lag 1 but gives 0.5 and -0.5 at
+#: lags 2 and 3; one averaged over 2 samples gives -0.4 at lag 1. [1]
+WHITE_THIRDS = (-0.75, 0.3, -0.05)
+#: The noise is taken as coloured when one of them departs by more than this. [1]
+COLOUR_TOLERANCE = 0.1
+#: Rows of the reference, from its start, that judge the colour of its noise.
+COLOUR_PROBE = 1_000_000
 #: Re-interpolations of the reference before the lag is given up as not converging.
 MAX_REINTERPOLATIONS = 6
 #: Newton iterations of one joint solve; it stops when no step exceeds STEP_TOLERANCE standard
@@ -114,6 +126,20 @@ def is_determined(seconds: float, error: float, tolerance: float = LAG_TOLERANCE
     standard errors from zero, or an error within `tolerance` [s]; neither depends on the
     sample interval."""
     return bool(error <= tolerance or abs(seconds) >= MIN_SIGNIFICANCE * error)
+
+
+def third_autocorrelations(reference) -> tuple:
+    """The autocorrelations at lags 1, 2, 3 of the third differences of the reference's first
+    COLOUR_PROBE rows: a sample of its noise nearly free of a field smooth over four samples,
+    to compare with WHITE_THIRDS (the noise correction takes the noise as white). [1]"""
+    if isinstance(reference, passes.LazySamples):
+        reference = reference.array
+    thirds = np.diff(np.asarray(reference[:COLOUR_PROBE], dtype=float), 3)
+    thirds = thirds[np.isfinite(thirds)]
+    power = float(thirds @ thirds)
+    if thirds.size < 100 or not power > 0:
+        return WHITE_THIRDS
+    return tuple(float(thirds[:-k] @ thirds[k:]) / power for k in (1, 2, 3))
 
 
 def check_times(times, n: int) -> np.ndarray:
@@ -566,11 +592,31 @@ class LagEstimate:
     dependent: bool
     objective: float = float("nan")
     tolerance_s: float = LAG_TOLERANCE_S
+    noise_autocorrelation: tuple = WHITE_THIRDS
     notes: list = field(default_factory=list)
 
     @property
     def determined(self) -> bool:
         return self.status == "estimated"
+
+    @property
+    def noise_white(self) -> bool:
+        """Whether the reference's noise looks white (`third_autocorrelations`)."""
+        departure = np.subtract(self.noise_autocorrelation, WHITE_THIRDS)
+        return bool(np.all(np.abs(departure) <= COLOUR_TOLERANCE))
+
+    def colour_warning(self) -> str | None:
+        """The sentence that says tau may be attenuated by coloured reference noise, if so."""
+        if self.noise_white:
+            return None
+        found = ", ".join(f"{value:.2f}" for value in self.noise_autocorrelation)
+        return (
+            f"the reference's noise is not white (autocorrelations of its third differences "
+            f"{found} at lags 1-3, white noise {', '.join(f'{v:g}' for v in WHITE_THIRDS)}: "
+            f"filtered, interpolated, or a field not smooth over four samples); the correction "
+            f"for the derivative's noise assumes white noise, so the lag may be attenuated "
+            f"towards zero (a low-passed reference) or biased"
+        )
 
     def to_dict(self) -> dict:
         """The "lag" block of a parameters file (the undetermined estimate kept apart)."""
@@ -583,6 +629,8 @@ class LagEstimate:
             "reference_noise": self.reference_noise,
             "reinterpolations": self.reinterpolations,
             "correlations": dict(self.correlations),
+            "noise_white": self.noise_white,
+            "noise_autocorrelation": list(self.noise_autocorrelation),
         }
         if not self.determined:
             document["estimate_s"] = self.seconds
@@ -730,6 +778,7 @@ def estimate_lag(
         dependent=dependent,
         objective=joint.objective,
         tolerance_s=tolerance,
+        noise_autocorrelation=third_autocorrelations(reference),
     )
 
 

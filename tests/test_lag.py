@@ -441,3 +441,28 @@ def test_the_lag_of_a_moving_uncalibrated_sensor_is_refused():
     samples, reference, times, _ = lagged_log(seed=4, seconds=120.0, tau=TAU)
     with pytest.raises(InputError, match="uncalibrated"):
         delta_f_report(samples, reference, times, None, lag="auto")
+
+
+def test_coloured_reference_noise_is_told():
+    """A reference averaged over 3 samples: its third differences understate the derivative's
+    noise, and the lag comes out attenuated; the estimate says its noise is not white (the
+    lag-1 autocorrelation alone stays at the white -0.75; lags 2 and 3 give 0.5 and -0.5)."""
+    samples, clean, times, _ = lagged_log(seed=6, tau=TAU, reference_noise=0.0)
+    rng = np.random.default_rng(1)
+    e = 0.15 * np.sqrt(3) * rng.standard_normal(clean.size + 2)
+    coloured = clean + (e[:-2] + e[1:-1] + e[2:]) / 3
+    white = clean + 0.15 * rng.standard_normal(clean.size)
+    theta = Zhou2010Parameters.from_dict(PAPER_TRUTH).theta
+    plain = lags.estimate_lag(samples, white, times, theta, np.eye(9))
+    assert plain.noise_white and plain.colour_warning() is None
+    assert abs(plain.seconds - TAU) < Z * plain.standard_error_s
+    estimate = lags.estimate_lag(samples, coloured, times, theta, np.eye(9))
+    assert estimate.seconds < TAU - Z * estimate.standard_error_s  # attenuated ...
+    block = estimate.to_dict()
+    assert block["noise_white"] is False and estimate.colour_warning()  # ... and told
+    assert block["noise_autocorrelation"][0] == pytest.approx(-0.75, abs=0.05)
+    result = nlpcal.calibrate(samples, reference_field=coloured, times=times, lag="auto")
+    assert result.lag["noise_white"] is False
+    assert len(result.warnings) > len(
+        nlpcal.calibrate(samples, reference_field=white, times=times, lag="auto").warnings
+    )

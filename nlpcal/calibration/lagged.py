@@ -59,6 +59,9 @@ def calibrate_lagged(
     directions = model_directions(first.model_name, True)
     theta = Zhou2010Parameters.from_dict(first.parameters).theta
     estimate = lags.estimate_lag(base, ref_base, times, theta, directions, settings.tolerance)
+    colour = estimate.colour_warning()
+    if colour:
+        first.warnings.append(colour)
     if not estimate.determined:
         first.lag = estimate.to_dict()
         first.warnings.append(estimate.message())
@@ -67,6 +70,7 @@ def calibrate_lagged(
     result = calibrate_moved(calibrate, rows, values, times, seconds, options)
     result.lag = estimate.to_dict()
     result.notes.append(estimate.message())
+    result.warnings.extend([colour] if colour else [])
     return result
 
 
@@ -103,8 +107,10 @@ def fixed_sensor_failure(
     estimate = lags.estimate_lag(
         base, ref_base, settings.times, np.zeros(9), lags.fixed_directions(), settings.tolerance
     )
+    colour = estimate.colour_warning()
     return QualityError(
-        f"{fixed_sensor_message(spread)}: {estimate.message()}; 'nlpcal stats LOG "
+        f"{fixed_sensor_message(spread)}: {estimate.message()}{'; ' + colour if colour else ''}"
+        f"; 'nlpcal stats LOG "
         f"--reference-column COL --time-column COL --lag auto' reports delta F by day",
         "Fixed_Sensor",
     )

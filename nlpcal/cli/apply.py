@@ -35,6 +35,7 @@ from .common import (
     tell,
     tell_written,
     warn,
+    warning,
     write_plot,
 )
 
@@ -257,6 +258,7 @@ def run_stats(args) -> int:
         fixed_sensor_message,
         format_report,
         log_delta_f,
+        report_warnings,
     )
     from ..io import read_log, read_table
     from ..statistics import format_table
@@ -282,6 +284,8 @@ def run_stats(args) -> int:
         report = log_delta_f(log, parameters, args.lag, lag_block, args.lag_tolerance)
         if report["fixed_sensor"]:
             tell([fixed_sensor_message(report["attitude_spread_deg"])])
+        for message in report_warnings(report):
+            warning(message)
         document["delta_f"] = report
     if args.json:
         emit_json(document, None)
