@@ -67,13 +67,14 @@ N_PSI = len(PSI_EXPONENTS)
 PAIR_INDICES = tuple((k, l) for k in range(N_PSI) for l in range(k, N_PSI))
 
 
-def _monomials(max_degree: int):
-    """Exponent triples of degree <= max_degree, by degree, and how to build each one."""
-    exps: list[tuple[int, ...]] = [(0, 0, 0)]
+def monomials(max_degree: int, variables: int = 3):
+    """Exponent tuples of `variables` variables of degree <= max_degree, by degree, and how to
+    build each one: (parent index, variable), the monomial being its parent times the variable."""
+    exps: list[tuple[int, ...]] = [(0,) * variables]
     recipe = [(-1, -1)]  # (parent index, variable): monomial = parent * d[:, variable]
     for degree in range(1, max_degree + 1):
-        for combo in combinations_with_replacement(range(3), degree):
-            e = [0, 0, 0]
+        for combo in combinations_with_replacement(range(variables), degree):
+            e = [0] * variables
             for v in combo:
                 e[v] += 1
             parent = list(e)
@@ -83,7 +84,7 @@ def _monomials(max_degree: int):
     return tuple(exps), tuple(recipe)
 
 
-MONOMIALS, _RECIPE = _monomials(4)  # 35 monomials of degree <= 4
+MONOMIALS, _RECIPE = monomials(4)  # 35 monomials of degree <= 4
 
 
 def _add(a, b):

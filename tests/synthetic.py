@@ -144,3 +144,15 @@ def gauge_truth(truth=PAPER_TRUTH):
     1 + s divided by their mean, so that s_x + s_y + s_z = 0."""
     mean = np.mean([1.0 + truth[f"s_{a}"] for a in "xyz"])
     return {**truth, **{f"s_{a}": (1.0 + truth[f"s_{a}"]) / mean - 1.0 for a in "xyz"}}
+
+
+def motor_current_log(n=20_000, noise=5.0, seed=27, per_amp=(120.0, -80.0, 300.0), amps=40.0):
+    """(B_M, current [A]) of a sensor near a motor: Eq. 4 typed in again (`sensor_output`) plus
+    a stray field per_amp * current [nT/A] added in the sensor's axes, the offset that follows
+    the current; the current uniform on 0..amps A, drawn independently of the attitudes."""
+    rng = np.random.default_rng(seed)
+    field_ideal = PAPER_FIELD * uniform_directions(n, rng)
+    current = rng.uniform(0.0, amps, n)
+    stray = current[:, None] * np.asarray(per_amp, dtype=float)[None, :]
+    samples = sensor_output(field_ideal, PAPER_TRUTH) + stray
+    return samples + noise * rng.standard_normal(samples.shape), current

@@ -38,6 +38,7 @@ LAYERS = {
     "plots": 1,
     "geomagnetic": 1,
     "nlp": 1,
+    "auxiliary": 1,
     "calibration": 2,
     "comparison": 2,
     "compass": 2,

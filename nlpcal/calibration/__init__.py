@@ -32,6 +32,7 @@ from .diagnostics import (
     undetermined_message,
     warnings_for,
 )
+from .channels import attach, check_aux_options, check_identifiable, fit_channels, prepare_channels
 from .joint import reweighting_limit_warning, run_joint
 from .problem import Problem
 from .result import BlockSolve, CalibrationResult, SolverReport
@@ -81,6 +82,8 @@ def calibrate(
     verbose: bool = False,
     threads: int | None = None,
     ipopt_options: dict | None = None,
+    aux_columns=None,
+    aux_kind=None,
 ) -> CalibrationResult:
     """Estimate the nine parameters of Eq. 4 in [1] from a log of many attitudes.
 
@@ -146,6 +149,15 @@ def calibrate(
         (`nlpcal.nlp.blocks.OPTIONS`). IPOPT checks them first (InputError for an option it does
         not know or a value it refuses); the result records every option IPOPT was given under
         `solver.ipopt_options`.
+    aux_columns : list of str or mapping, optional
+        Auxiliary channels c_k (`--aux-columns`): columns of a DataFrame `samples`, or a mapping
+        of names to (N,) values. Their stray fields v_k c_k are estimated jointly with the nine
+        parameters, B1 = O_p S_p (B_M - Z_p - sum_k v_k c_k) (`nlpcal.calibration.channels`),
+        and recorded under the result's `aux`. Least squares with the model "full", "diagonal"
+        or "offset". [channel unit]
+    aux_kind : str or list of str, optional
+        What each channel is (`--aux-kind`): "current" [A], "throttle" [fraction] or "other"
+        (the default), one for all or one per channel.
 
     Returns
     -------
@@ -200,6 +212,10 @@ def calibrate(
                 validation.optional_number(loss_scale, "the loss scale", positive=True), unit
             ),
         )
+        channels = None
+        if aux_columns is not None:
+            check_aux_options(loss, model)
+            samples, channels = prepare_channels(samples, aux_columns, aux_kind)
         # A Dask array or DataFrame stays on its cluster: one survey pass checks it (passes).
         samples, reference_field = passes.surveyed(field_samples(samples), reference_field)
         samples = validation.samples(samples)
@@ -216,7 +232,13 @@ def calibrate(
             units.to_base(target_range, unit),
         )
         validation.reference_scale(reference, validation.mean_magnitude(samples))
-        moments = accumulate(samples, reference)
+        moments = raw_moments = accumulate(samples, reference)
+        fit = None
+        if channels is not None:  # the joint solve; the nine's estimate on the compensated log
+            fit = fit_channels(samples, channels, reference, moments, model, ipopt)
+            check_identifiable(fit, require_identifiable)
+            samples = fit.compensated(samples)
+            moments = accumulate(samples, reference)
 
         def problem_for(form: str) -> Problem:
             return Problem(
@@ -259,6 +281,8 @@ def calibrate(
                     record_selection(failure.result, selection)
             raise
         record_unit(result, unit_source, unit_warnings)
+        if fit is not None:
+            attach(result, fit, raw_moments)
         if selection is not None:
             record_selection(result, selection)
         elif model != "full":  # a form the user chose: do the data contradict what it fixes?

@@ -12,6 +12,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from .. import inference, units, validation
+from ..auxiliary.model import read_aux
 from ..errors import InputError
 from ..models.zhou2010 import (
     MODELS,
@@ -388,6 +389,10 @@ class CalibrationResult(Document):
         How the sensor is mounted, as the file a calibration was imported from states it
         ({"system", "parameter", "value"[, "name"]}, e.g. ArduPilot's COMPASS_ORIENT); carried,
         not applied ("orientation" in the document, written when given).
+    aux : list of AuxChannel
+        The stray fields v_k c_k of auxiliary channels (`nlpcal.auxiliary.model`), estimated
+        with the nine parameters ("aux" in the document, written when any). [unit per channel
+        unit]
 
     References
     ----------
@@ -437,6 +442,7 @@ class CalibrationResult(Document):
     model_selection: dict | None = None
     sensor_id: int | str | None = None
     orientation: dict | None = None
+    aux: list = field(default_factory=list)
 
     @property
     def estimated_parameters(self) -> list:
@@ -561,6 +567,8 @@ class CalibrationResult(Document):
             document["sensor_id"] = self.sensor_id
         if self.orientation is not None:
             document["orientation"] = dict(self.orientation)
+        if self.aux:
+            document["aux"] = {c.name: c.to_dict(self.unit) for c in self.aux}
         return document
 
     @classmethod
@@ -570,6 +578,7 @@ class CalibrationResult(Document):
         model_name = reader.string("model", "full", options=list(MODELS))
         reference = Reference.read(reader)
         scale_known = reference.scale_known
+        unit = reader.string("unit", "nT", options=list(units.FIELD_UNITS_NT))
         estimated = estimated_parameters(model_name, scale_known)
         parameters = read_parameters(reader).to_dict()
         check_model(parameters, model_name, scale_known, reader.source)
@@ -580,7 +589,7 @@ class CalibrationResult(Document):
             "reference": reference,
             "gauge": reader.mapping("gauge", None),
             "solver": SolverReport.from_dict(reader.mapping("solver", {}), reader.source),
-            "unit": reader.string("unit", "nT", options=list(units.FIELD_UNITS_NT)),
+            "unit": unit,
             "unit_source": reader.string("unit_source", None, options=units.UNIT_SOURCES),
             "standard_errors": None
             if errors is None
@@ -607,6 +616,7 @@ class CalibrationResult(Document):
             if not reader.has("sensor_id")
             else validation.sensor_id(reader.raw("sensor_id"), f"{reader.source}: sensor_id"),
             "orientation": read_orientation(reader),
+            "aux": read_aux(reader, unit),
         }
 
     @classmethod
