@@ -85,6 +85,10 @@ class Correction:
         A drift fit whose k(t) divides the raw vector first (Eq. 9 of Liu et al. 2022), or None.
     temperature_column : str or None
         The log's temperature column [degC], or None (no temperature step).
+    aux_columns : dict
+        Channel of the calibration -> the log's column it is read from, for parameters with
+        auxiliary channels (`nlpcal.auxiliary`); their stray field is subtracted from the raw
+        vector first, B_M - sum_k v_k c_k.
     notes : list of str
         What was decided on the user's behalf.
 
@@ -101,6 +105,7 @@ class Correction:
     drift: DriftFit | None = None
     temperature_column: str | None = None
     notes: list = field(default_factory=list)
+    aux_columns: dict = field(default_factory=dict)
 
     @classmethod
     def plan(
@@ -111,11 +116,15 @@ class Correction:
         *,
         log_columns=(),
         require_temperature: bool = True,
+        aux_columns=None,
     ) -> Correction:
         """Check that the pieces fit together and choose the temperature column.
 
         log_columns : the columns of the log it will be applied to (to find the temperature
-            column the model was fitted with).
+            column the model was fitted with, and the aux channels).
+        aux_columns : log column -> the calibration's channel it holds (`--aux-columns
+            NEW=OLD`), for channels recorded under another name; the others are read under
+            their own.
         require_temperature : a temperature model without its column is an error (apply);
             False leaves the temperature step out with a note (stats).
         """
@@ -149,7 +158,9 @@ class Correction:
                     f"the log has no column {stored!r} for the temperature model; "
                     f"pass --temperature-column COL for the temperature row"
                 )
-        return cls(parameters, drift, temperature_column, notes)
+        channels = list(getattr(parameters, "aux", None) or [])
+        aux = aux_sources(channels, aux_columns or {}, log_columns)
+        return cls(parameters, drift, temperature_column, notes, aux)
 
     @property
     def unit(self) -> str:
@@ -190,12 +201,16 @@ class Correction:
     def apply(self, log: Log) -> np.ndarray:
         """Corrected samples of the log. [base unit]"""
         temperature = self.temperature(log) if self.temperature_column is not None else None
-        return self.correct(log.samples, log.base_unit, temperature)
+        channels = {name: log.values(column) for name, column in self.aux_columns.items()}
+        return self.correct(log.samples, log.base_unit, temperature, channels)
 
-    def correct(self, samples, base_unit: str, temperature=None) -> np.ndarray:
+    def correct(self, samples, base_unit: str, temperature=None, channels=None) -> np.ndarray:
         """Corrected `samples` [base_unit] (Eq. 4, after the temperature step with the
-        `temperature` of each sample [degC] when the correction has one)."""
+        `temperature` of each sample [degC] when the correction has one; the stray field of
+        the aux channels, `channels` name -> (N,) values, subtracted first)."""
         units.check_compatible(self.unit, base_unit, "the log", "the calibration")
+        if self.aux_columns:
+            samples = samples - self.parameters.stray_field(channels or {})  # type: ignore[union-attr]
         if self.temperature_column is None:
             if self.parameters is None:
                 raise InputError("nothing to apply: give parameters or a drift file")
@@ -244,7 +259,10 @@ def corrected_chunks(
     is called with the |B| of each chunk's readings before and after the correction. [base
     unit]"""
     seen = [np.inf, -np.inf]
-    temperature_column = stream.extra[0] if correction.temperature_column else None
+    # the stream's names of the extra columns, in the order `extra_columns_for` asked for them
+    resolved = dict(zip(extra_columns_for(correction).values(), stream.extra))
+    temperature_column = resolved.get(correction.temperature_column)
+    aux = {name: resolved[column] for name, column in correction.aux_columns.items()}
     for chunk in stream:
         if precision is not None:
             precision.observe(chunk.frame[column] for column in stream.columns)
@@ -255,7 +273,8 @@ def corrected_chunks(
             if temperature.size:
                 seen = [min(seen[0], temperature.min()), max(seen[1], temperature.max())]
         samples = chunk.raw[valid] * stream.factor
-        corrected = correction.correct(samples, stream.base_unit, temperature)
+        channels = {name: chunk.extras[column][valid] for name, column in aux.items()}
+        corrected = correction.correct(samples, stream.base_unit, temperature, channels)
         magnitude = np.linalg.norm(corrected, axis=1)
         if tally is not None:
             tally(np.linalg.norm(samples, axis=1), magnitude)
@@ -272,11 +291,44 @@ def corrected_chunks(
         correction.note_range(float(seen[0]), float(seen[1]))
 
 
-def read_log_for(path, correction: Correction, *, reference_column=None, **kw) -> Log:
-    """Read a log to apply `correction` to: its temperature column comes along, and its unit
-    defaults to the unit of the log the parameters were estimated from."""
+def aux_sources(channels: list, mapping: dict, log_columns) -> dict:
+    """Channel name -> the log column it is read from: `mapping` (log column -> channel) where
+    given, else the channel's own name; InputError naming a channel the log lacks, or a mapped
+    name the calibration has no channel of."""
+    names = [c.name for c in channels]
+    for column, name in mapping.items():
+        if name not in names:
+            have = f"its channels are {', '.join(names)}" if names else "it has none"
+            raise InputError(
+                f"--aux-columns {column}={name}: the calibration has no aux channel {name!r} "
+                f"({have})"
+            )
+    by_channel = {name: column for column, name in mapping.items()}
+    sources = {name: by_channel.get(name, name) for name in names}
+    present = {str(c) for c in log_columns}
+    for name, column in sources.items():
+        if column not in present:
+            raise InputError(
+                f"the calibration needs the aux channel {name!r}, and the log has no column "
+                f"{column!r}; pass --aux-columns NEW={name} for a column named otherwise"
+            )
+    return sources
+
+
+def extra_columns_for(correction: Correction) -> dict:
+    """The log columns a correction reads besides the field, by role: the temperature column
+    and the aux channels' columns."""
     column = correction.temperature_column
     extra = {"the temperature column of the calibration": column} if column else {}
+    for name, source in correction.aux_columns.items():
+        extra[f"the aux channel {name!r}"] = source
+    return extra
+
+
+def read_log_for(path, correction: Correction, *, reference_column=None, **kw) -> Log:
+    """Read a log to apply `correction` to: its temperature and aux columns come along, and its
+    unit defaults to the unit of the log the parameters were estimated from."""
+    extra = extra_columns_for(correction)
     return read_log(
         path,
         reference_column=reference_column,

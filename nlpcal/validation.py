@@ -281,6 +281,19 @@ def temperature(values, n: int) -> np.ndarray:
     return array
 
 
+def channel(values, n: int | None, what: str) -> np.ndarray:
+    """N finite numbers of a channel logged with the samples (an aux channel, say). [its unit]"""
+    try:
+        array = np.asarray(values, dtype=float).ravel()
+    except (TypeError, ValueError):
+        raise InputError(f"{what} must be numbers") from None
+    if n is not None and array.size != n:
+        raise InputError(f"{what} has {array.size} values for {n} samples")
+    if not np.isfinite(array).all():
+        raise InputError(f"{what} holds NaN or infinite values; drop or fix those rows")
+    return array
+
+
 def angles(
     values, what: str = "angles", size: int = 3, names: str = "alpha beta gamma"
 ) -> np.ndarray:

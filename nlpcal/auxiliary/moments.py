@@ -206,8 +206,10 @@ def _stacked(channels, reference):
     if isinstance(channels, LazySamples) or isinstance(reference, LazySamples):
         import dask.array as da
 
-        lazy = [v.array if isinstance(v, LazySamples) else da.from_array(np.asarray(v)) for v in
-                (channels, reference)]
+        lazy = [
+            v.array if isinstance(v, LazySamples) else da.from_array(np.asarray(v))
+            for v in (channels, reference)
+        ]
         rows = lazy[0].chunks[0]
         return LazySamples(da.concatenate([lazy[0], lazy[1].rechunk({0: rows})[:, None]], axis=1))
     return np.column_stack([np.asarray(channels, dtype=float), np.asarray(reference, dtype=float)])

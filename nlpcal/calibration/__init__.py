@@ -20,6 +20,14 @@ from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
 from ..moments import accumulate
 from ..nlp.blocks import GAUGE, OPTIONS
 from ..robust import TUNING, Loss
+from .channels import (
+    attach,
+    check_aux_options,
+    check_identifiable,
+    fit_channels,
+    log_channels,
+    prepare_channels,
+)
 from .coverage import coverage_centre, direction_coverage
 from .diagnostics import (
     explain_failure,
@@ -32,7 +40,6 @@ from .diagnostics import (
     undetermined_message,
     warnings_for,
 )
-from .channels import attach, check_aux_options, check_identifiable, fit_channels, prepare_channels
 from .joint import reweighting_limit_warning, run_joint
 from .problem import Problem
 from .result import BlockSolve, CalibrationResult, SolverReport
@@ -592,6 +599,8 @@ def calibrate_log(
     `input`, and the reader's warnings (a unit that does not fit the magnitudes) first among its
     own; so does the result a QualityError holds.
     """
+    if isinstance(options.get("aux_columns"), (list, tuple)):  # their values come with the log
+        options["aux_columns"] = log_channels(log, options["aux_columns"])
     try:
         result = calibrate(
             log.samples,

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from .. import passes
+from .. import passes, validation
 from ..auxiliary.model import DEFAULT_KIND, KINDS, AuxChannel
 from ..auxiliary.moments import accumulate_channels, subsample
 from ..errors import InputError, QualityError, SolveError
@@ -95,21 +95,36 @@ def _kinds(aux_kind, count: int) -> tuple:
     return tuple(kinds)
 
 
+def _names(aux_columns) -> list:
+    """The channels' names: at least one, none empty, none twice."""
+    names = [str(name) for name in aux_columns]
+    if not names or any(not name.strip() for name in names):
+        raise InputError("aux_columns must name at least one channel, each by a non-empty name")
+    if len(set(names)) != len(names):
+        raise InputError(f"aux_columns names a channel twice: {', '.join(names)}")
+    return names
+
+
+def log_channels(log, names) -> dict:
+    """name -> values of the aux columns of a log read with them (`nlpcal.io.read_log`)."""
+    return {name: log.values(name) for name in _names(names)}
+
+
 def prepare_channels(samples, aux_columns, aux_kind=None) -> tuple:
     """(samples, Channels) from `calibrate`'s arguments: `aux_columns` names columns of a pandas
     or Dask DataFrame `samples`, or maps names to (N,) values; `aux_kind` is one kind for all,
     or one per channel. Checks the names, the kinds and the values (finite, N rows, varying)."""
     if isinstance(aux_columns, str) or not isinstance(aux_columns, (Mapping, list, tuple)):
         raise InputError("aux_columns must be a list of column names (or a name -> values map)")
-    names = [str(name) for name in aux_columns]
-    if not names or any(not name.strip() for name in names):
-        raise InputError("aux_columns must name at least one channel, each by a non-empty name")
-    if len(set(names)) != len(names):
-        raise InputError(f"aux_columns names a channel twice: {', '.join(names)}")
+    names = _names(aux_columns)
     kinds = _kinds(aux_kind, len(names))
     if isinstance(aux_columns, Mapping):
-        columns = [np.asarray(aux_columns[name], dtype=float) for name in aux_columns]
-        values: object = np.column_stack(columns) if columns else None
+        values: object = np.column_stack(
+            [
+                validation.channel(aux_columns[name], None, f"aux column {name!r}")
+                for name in aux_columns
+            ]
+        )
     else:
         values, samples = _from_frame(samples, names)
     channels = Channels(tuple(names), kinds, passes.as_rows(values))
@@ -128,8 +143,7 @@ def _from_frame(samples, names) -> tuple:
     missing = [name for name in names if name not in present]
     if missing:
         raise InputError(
-            f"aux column {missing[0]!r} is not in the log (its columns: "
-            f"{', '.join(present)})"
+            f"aux column {missing[0]!r} is not in the log (its columns: {', '.join(present)})"
         )
     picked = samples[[present[name] for name in names]]
     rest = samples.drop(columns=[present[name] for name in names])

@@ -12,7 +12,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from .. import inference, units, validation
-from ..auxiliary.model import read_aux
+from ..auxiliary.model import read_aux, stray_field
 from ..errors import InputError
 from ..models.zhou2010 import (
     MODELS,
@@ -481,17 +481,36 @@ class CalibrationResult(Document):
             return "the reference field"
         return None
 
-    def apply(self, samples, unit: str | None = None) -> np.ndarray:
-        """Corrected field B1 = O_p S_p (B_M - Z_p), Eq. 4 in [1].
+    def apply(self, samples, unit: str | None = None, aux=None) -> np.ndarray:
+        """Corrected field B1 = O_p S_p (B_M - Z_p), Eq. 4 in [1]; with aux channels
+        B1 = O_p S_p (B_M - Z_p - sum_k v_k c_k) (`nlpcal.auxiliary.model`).
 
         samples : (N, 3) raw output, in `unit` (default: the unit of the calibration).
+        aux : channel name -> (N,) values (a DataFrame's columns do), for a result with aux
+            channels. [channel unit]
         Returns (N, 3) corrected field in the same unit as `samples`.
         """
         samples = validation.vectors(samples)
         unit = unit or self.unit
         units.check_compatible(self.unit, unit, "the samples")
-        corrected = correct(units.to_base(samples, unit), self.model)
-        return units.from_base(corrected, unit)
+        base = units.to_base(samples, unit)
+        if self.aux:
+            base = base - self.stray_field(aux if aux is not None else {}, len(base))
+        return units.from_base(correct(base, self.model), unit)
+
+    def stray_field(self, aux, rows: int | None = None) -> np.ndarray:
+        """sum_k v_k c_k of the aux channels for `aux`, channel name -> (N,) values; InputError
+        naming a channel it lacks or whose values are not N finite numbers. [unit]"""
+        values = []
+        for channel in self.aux:
+            if channel.name not in aux:
+                raise InputError(
+                    f"the calibration needs the aux channel {channel.name!r}; pass its values"
+                )
+            values.append(
+                validation.channel(aux[channel.name], rows, f"aux channel {channel.name!r}")
+            )
+        return stray_field(self.aux, np.column_stack(values))
 
     def correlation(self) -> np.ndarray | None:
         """(9, 9) correlation matrix of the parameters, or None without a covariance. [1]"""

@@ -144,9 +144,7 @@ def _objective(reference: str, channels: int, model: str):
     cen, length = ca.SX.sym("centre", 3), ca.SX.sym("L")
     c0, cs = ca.SX.sym("c0", channels), ca.SX.sym("cs", channels)
     layout = channel_layout(reference == "series", channels)
-    U, P = feature_coefficients(
-        channel_coefficients(th, vv, cen, length, c0, cs, channels), layout
-    )
+    U, P = feature_coefficients(channel_coefficients(th, vv, cen, length, c0, cs, channels), layout)
     coefficients = ca.Function("channel_coefficients", [th, vv, cen, length, c0, cs], [U, P])
     U, P = coefficients(theta, v, s.centre, s.length, s.c0, s.cs)
     m = ca.vertcat(*power_moments(U, P, s.gram, layout))
