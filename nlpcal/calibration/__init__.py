@@ -23,7 +23,6 @@ from ..robust import TUNING, Loss
 from .channels import (
     attach,
     check_aux_options,
-    check_identifiable,
     fit_channels,
     log_channels,
     prepare_channels,
@@ -242,8 +241,9 @@ def calibrate(
         moments = raw_moments = accumulate(samples, reference)
         fit = None
         if channels is not None:  # the joint solve; the nine's estimate on the compensated log
-            fit = fit_channels(samples, channels, reference, moments, model, ipopt)
-            check_identifiable(fit, require_identifiable)
+            fit = fit_channels(
+                samples, channels, reference, moments, model, ipopt, require_identifiable
+            )
             samples = fit.compensated(samples)
             moments = accumulate(samples, reference)
 

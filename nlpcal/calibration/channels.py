@@ -213,7 +213,7 @@ class ChannelFit:
 
     @property
     def not_identifiable(self) -> list:
-        return [name for name, r2 in self.r2.items() if r2 >= ATTITUDE_R2]
+        return blind_channels(self.r2)
 
     def compensated(self, samples):
         """B_M - sum_k v_k c_k, the samples without the stray field (a Dask log stays lazy).
@@ -248,13 +248,22 @@ def _start(samples, channels: Channels, moments: Moments, model: str) -> tuple:
 
 
 def fit_channels(
-    samples, channels: Channels, reference, moments: Moments, model: str, ipopt: IpoptOptions
+    samples,
+    channels: Channels,
+    reference,
+    moments: Moments,
+    model: str,
+    ipopt: IpoptOptions,
+    require_identifiable: bool = True,
 ) -> ChannelFit:
     """The joint least-squares solve (IPOPT, then Newton steps with the exact Hessian) and the
     sandwich covariance of its scores (`joint_covariance`). samples [field unit], channels
     [channel unit], reference None, F or (N,) F_i [field unit]; `moments` of the raw samples
-    (their reference kind and scale)."""
+    (their reference kind and scale). Channels that vary only with the attitude are judged
+    first, about the centre of the raw samples' sphere (`check_identifiable`)."""
     kind, k = moments.reference, channels.count
+    r2 = attitude_r2(samples, channels, moments.frame.centre)
+    check_identifiable(r2, require_identifiable)
     theta0, v0, frame = _start(samples, channels, moments, model)
     length = frame.radius if kind == "none" else moments.length
     cm = accumulate_channels(samples, channels.values, reference, frame, length, kind)
@@ -273,7 +282,7 @@ def fit_channels(
     directions = _directions(free.matrix, k)
     y = np.concatenate([theta0, v0.ravel()]) / scale + directions @ x
     theta, v = y[:9] * scale[:9], (y[9:] * scale[9:]).reshape(k, 3)
-    fit = ChannelFit(channels, theta, v, None, {}, attitude_r2(samples, channels, theta[:3]), {})
+    fit = ChannelFit(channels, theta, v, None, {}, r2, {})
     fit.solve = {
         "status": outcome.status,
         "iterations": outcome.iterations,
@@ -388,9 +397,8 @@ def joint_covariance(fit, samples, reference, kind, scale, directions, basis, fr
     n = samples.shape[0]
     q = directions @ basis  # (9 + 3K, q): the directions of y the fit moves along
     dof = n / max(n - q.shape[1] - (kind == "none"), 1)
-    marginal = _sandwich(q, bread, meat) * dof
-    fixed = q[:, : q.shape[1] - 3 * k]
-    conditional = _sandwich(fixed, bread, meat) * dof
+    marginal = _sandwich(q, bread, meat, dof)
+    conditional = _sandwich(q[:, : q.shape[1] - 3 * k], bread, meat, dof)
     if marginal is None or conditional is None:
         return
     fit.v_errors = np.sqrt(np.maximum(np.diag(marginal)[9:], 0.0)).reshape(k, 3) * scale[
@@ -403,8 +411,8 @@ def joint_covariance(fit, samples, reference, kind, scale, directions, basis, fr
     }
 
 
-def _sandwich(q, bread, meat) -> np.ndarray | None:
-    """q (q^T B q)^-1 (q^T M q) (q^T B q)^-1 q^T, or None when q^T B q is singular."""
+def _sandwich(q, bread, meat, dof: float) -> np.ndarray | None:
+    """dof q (q^T B q)^-1 (q^T M q) (q^T B q)^-1 q^T, or None when q^T B q is singular."""
     b = q.T @ bread @ q
     try:
         inverse = np.linalg.inv(b)
@@ -412,17 +420,22 @@ def _sandwich(q, bread, meat) -> np.ndarray | None:
         return None
     if not np.isfinite(inverse).all() or np.linalg.cond(b) > 1e14:
         return None
-    return q @ inverse @ (q.T @ meat @ q) @ inverse @ q.T
+    return dof * (q @ inverse @ (q.T @ meat @ q) @ inverse @ q.T)
 
 
-def check_identifiable(fit: ChannelFit, require: bool) -> None:
-    """QualityError (Not_Identifiable) naming the channels that vary only with the attitude,
-    when `require`."""
-    blind = fit.not_identifiable
+def blind_channels(r2: dict) -> list:
+    """The channels that vary only with the attitude (`attitude_r2` >= ATTITUDE_R2)."""
+    return [name for name, value in r2.items() if value >= ATTITUDE_R2]
+
+
+def check_identifiable(r2: dict, require: bool) -> None:
+    """QualityError (Not_Identifiable) naming the channels that vary only with the attitude
+    (`attitude_r2`), when `require`."""
+    blind = blind_channels(r2)
     if require and blind:
-        r2 = ", ".join(f"{name} (R^2 {fit.r2[name]:.4f})" for name in blind)
+        named = ", ".join(f"{name} (R^2 {r2[name]:.4f})" for name in blind)
         raise QualityError(
-            f"aux channel {r2} varies only with the attitude: its stray field cannot be told "
+            f"aux channel {named} varies only with the attitude: its stray field cannot be told "
             f"apart from the scale errors and angles; record the channel while it changes "
             f"independently of the attitude",
             "Not_Identifiable",
