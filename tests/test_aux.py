@@ -227,3 +227,10 @@ def test_a_parameters_file_with_a_bad_aux_block_is_refused(logs, tmp_path):
         path.write_text(json.dumps({**document, "aux": bad}))
         with pytest.raises(InputError):
             nlpcal.load_parameters(path)
+
+
+@pytest.mark.parametrize("fmt", ["ardupilot", "px4", "matrix", "matlab", "c-header"])
+def test_exports_refuse_a_result_with_aux_channels(logs, fmt):
+    _, _, _, params = logs
+    with pytest.raises(InputError, match="current"):
+        nlpcal.export(nlpcal.load_parameters(params), fmt)

@@ -139,6 +139,7 @@ def export(
             max_rotation_deg, "--max-rotation-deg", minimum=0.0, maximum=180.0, unit="[deg]"
         )
     calibration = getattr(result, "calibration", result)  # a temperature calibration's own
+    refuse_aux(calibration, fmt)
     target = FORMATS[fmt].UNIT if fmt in AUTOPILOTS else unit or calibration.log_unit
     notes = scale_notes(calibration, target)
     correction = AffineCorrection.from_result(result, None if fmt in AUTOPILOTS else unit)
@@ -159,6 +160,18 @@ def export(
             f"not written to {fmt} (it has no place for them): {'; '.join(written.dropped)}"
         )
     return written
+
+
+def refuse_aux(calibration: CalibrationResult, fmt: str) -> None:
+    """InputError for a calibration with aux channels: the formats hold the correction of Eq. 4
+    alone, and written without the stray fields it would correct every sample wrongly."""
+    channels = getattr(calibration, "aux", None)
+    if channels:
+        names = ", ".join(f"{c.name} ({c.kind})" for c in channels)
+        raise InputError(
+            f"the calibration has aux channels {names}, whose stray fields {fmt} cannot hold "
+            f"in this version of nlpcal; apply it with 'nlpcal apply', which subtracts them"
+        )
 
 
 def dropped(calibration: CalibrationResult, correction: AffineCorrection, fmt: str) -> list:
