@@ -6,7 +6,9 @@ follows a motor current, not from nlpcal's model.
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import re
 
 import numpy as np
 import pandas as pd
@@ -15,6 +17,7 @@ import pytest
 import nlpcal
 from nlpcal.cli import main
 from nlpcal.errors import InputError, QualityError
+from nlpcal.models.zhou2010 import correction_matrix
 from nlpcal.schemas import validate
 from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log, motor_current_log
 
@@ -229,8 +232,133 @@ def test_a_parameters_file_with_a_bad_aux_block_is_refused(logs, tmp_path):
             nlpcal.load_parameters(path)
 
 
-@pytest.mark.parametrize("fmt", ["ardupilot", "px4", "matrix", "matlab", "c-header"])
-def test_exports_refuse_a_result_with_aux_channels(logs, fmt):
+# --- exports -------------------------------------------------------------------------------------
+#
+# ArduPilot 4.x, libraries/AP_Compass/AP_Compass_Backend.cpp, AP_Compass_Backend::correct_field
+# (the 4.x source, read at a revision where _state is indexed by Compass::StateIndex): the offsets
+# are added, the scale and the symmetric matrix applied, and then the motor offset is added,
+#
+#     mag = D (k (m + OFS));  motor_offset = MOT * c;  mag += motor_offset      [mGauss]
+#
+# c the battery current [A] (COMPASS_MOTCT 2, battery.current_amps) or the throttle 0..1
+# (COMPASS_MOTCT 1, Compass::set_throttle). PX4, src/lib/sensor_calibration/Magnetometer.hpp,
+# Correct: m' = S ((m + p COMP) - OFF) in gauss, p the throttle or the current in kA
+# (VehicleMagnetometer: bat_stat.current_a * 0.001f). The autopilots hold the symmetric factor P
+# of A = R P and give R^T B1; R comes from scipy's polar decomposition.
+
+#: The exports must reproduce `apply` to this: a double-precision budget on a 5e4 nT field. [nT]
+APPLY_NT = 1e-6
+
+
+def _parameters(text: str) -> dict:
+    values = {}
+    for line in text.splitlines():
+        if line.startswith("#") or not line.strip():
+            continue
+        fields = re.split(r"[,\t]", line)
+        name, value = (fields[2], fields[3]) if len(fields) == 5 else fields
+        values[name] = float(value)
+    return values
+
+
+def _symmetric(values: dict, diagonal: list, off: list) -> np.ndarray:
+    x, y, z = (values[k] for k in diagonal)
+    a, b, c = (values[k] for k in off)
+    return np.array([[x, a, b], [a, y, c], [b, c, z]])
+
+
+def _rotation(result) -> np.ndarray:
+    scipy_linalg = pytest.importorskip("scipy.linalg")
+    return scipy_linalg.polar(correction_matrix(result.model))[0]
+
+
+@pytest.mark.parametrize("instance", [1, 3])
+def test_the_ardupilot_export_applied_as_ardupilot_reproduces_apply(motor, instance):
+    samples, current, result = motor
+    p = _parameters(nlpcal.export(result, "ardupilot", instance=instance).text)
+    n = "" if instance == 1 else str(instance)
+    assert p["COMPASS_MOTCT"] == 2  # current
+    ofs = np.array([p[f"COMPASS_OFS{n}_{a}"] for a in "XYZ"])
+    mot = np.array([p[f"COMPASS_MOT{n}_{a}"] for a in "XYZ"])
+    d = _symmetric(
+        p, [f"COMPASS_DIA{n}_{a}" for a in "XYZ"], [f"COMPASS_ODI{n}_{a}" for a in "XYZ"]
+    )
+    k = p[f"COMPASS_SCALE{n}"]
+    m = samples / 100.0  # nT -> mGauss
+    ardupilot = ((k * (m + ofs)) @ d.T + np.outer(current, mot)) * 100.0  # correct_field, nT
+    b1 = result.apply(samples, aux={"current": current})
+    assert np.abs(ardupilot - b1 @ _rotation(result)).max() < APPLY_NT  # R^T B1
+
+
+def test_the_px4_export_applied_as_px4_reproduces_apply(motor):
+    samples, current, result = motor
+    p = _parameters(nlpcal.export(result, "px4", instance=1).text)
+    assert p["CAL_MAG_COMP_TYP"] == 2
+    off = np.array([p[f"CAL_MAG1_{a}OFF"] for a in "XYZ"])
+    comp = np.array([p[f"CAL_MAG1_{a}COMP"] for a in "XYZ"])  # [G/kA]
+    s = _symmetric(p, [f"CAL_MAG1_{a}SCALE" for a in "XYZ"], [f"CAL_MAG1_{a}ODIAG" for a in "XYZ"])
+    power = current * 0.001  # [kA]
+    px4 = ((samples / 1e5 + np.outer(power, comp)) - off) @ s.T * 1e5  # Correct, in nT
+    b1 = result.apply(samples, aux={"current": current})
+    assert np.abs(px4 - b1 @ _rotation(result)).max() < APPLY_NT
+
+
+def _with_channels(result, *channels):
+    return dataclasses.replace(result, aux=list(channels))
+
+
+def test_a_throttle_channel_exports_as_throttle_compensation(motor):
+    samples, current, result = motor
+    (channel,) = result.aux
+    throttle = dataclasses.replace(channel, name="thr", kind="throttle")
+    fraction = current / 40.0
+    scaled = dataclasses.replace(throttle, coefficients=channel.coefficients * 40.0)
+    as_throttle = _with_channels(result, scaled)
+    ap = _parameters(nlpcal.export(as_throttle, "ardupilot").text)
+    px = _parameters(nlpcal.export(as_throttle, "px4").text)
+    assert ap["COMPASS_MOTCT"] == 1 and px["CAL_MAG_COMP_TYP"] == 1
+    b1 = as_throttle.apply(samples, aux={"thr": fraction}) @ _rotation(result)
+    s = _symmetric(px, [f"CAL_MAG0_{a}SCALE" for a in "XYZ"], [f"CAL_MAG0_{a}ODIAG" for a in "XYZ"])
+    comp = np.array([px[f"CAL_MAG0_{a}COMP"] for a in "XYZ"])  # [G per full throttle]
+    off = np.array([px[f"CAL_MAG0_{a}OFF"] for a in "XYZ"])
+    px4 = ((samples / 1e5 + np.outer(fraction, comp)) - off) @ s.T * 1e5
+    assert np.abs(px4 - b1).max() < APPLY_NT
+
+
+def test_exports_refuse_channels_they_cannot_hold(motor):
+    _, _, result = motor
+    (channel,) = result.aux
+    other = _with_channels(result, dataclasses.replace(channel, name="heater", kind="other"))
+    two = _with_channels(result, channel, dataclasses.replace(channel, name="second"))
+    for fmt in ("ardupilot", "px4"):
+        with pytest.raises(InputError, match="heater"):
+            nlpcal.export(other, fmt)
+        with pytest.raises(InputError, match="second"):
+            nlpcal.export(two, fmt)
+    for fmt in ("matrix", "matlab", "c-header"):
+        with pytest.raises(InputError, match="current"):
+            nlpcal.export(result, fmt)
+
+
+@pytest.mark.parametrize(("fmt", "suffix"), [("ardupilot", "param"), ("px4", "params")])
+def test_an_export_imports_back_with_its_channel(motor, tmp_path, fmt, suffix):
+    _, _, result = motor
+    path = tmp_path / f"out.{suffix}"
+    path.write_text(nlpcal.export(result, fmt).text)
+    back, _ = nlpcal.formats.import_file(path, fmt)
+    (channel,) = back.aux
+    assert channel.kind == "current" and channel.name == "current"
+    # through the file's shortest round-trip digits: the coefficients to rounding
+    np.testing.assert_allclose(channel.coefficients, result.aux[0].coefficients, rtol=1e-9)
+
+
+def test_the_cli_export_of_an_other_channel_is_exit_2(logs, tmp_path, capsys):
     _, _, _, params = logs
-    with pytest.raises(InputError, match="current"):
-        nlpcal.export(nlpcal.load_parameters(params), fmt)
+    document = json.loads(params.read_text())
+    document["aux"]["current"]["kind"] = "other"
+    document["aux"]["current"]["unit"] = "nT per channel unit"
+    path = tmp_path / "other.json"
+    path.write_text(json.dumps(document))
+    assert _cli("export", path, "--format", "ardupilot", "-o", tmp_path / "x.param") == 2
+    assert "other" in capsys.readouterr().err
+    assert not (tmp_path / "x.param").exists()

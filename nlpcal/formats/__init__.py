@@ -163,14 +163,16 @@ def export(
 
 
 def refuse_aux(calibration: CalibrationResult, fmt: str) -> None:
-    """InputError for a calibration with aux channels: the formats hold the correction of Eq. 4
-    alone, and written without the stray fields it would correct every sample wrongly."""
+    """InputError for a calibration with aux channels in a format that holds the correction of
+    Eq. 4 alone (the autopilots' motor compensation takes one current or throttle channel):
+    written without the stray fields it would correct every sample wrongly."""
     channels = getattr(calibration, "aux", None)
-    if channels:
+    if channels and fmt not in AUTOPILOTS:
         names = ", ".join(f"{c.name} ({c.kind})" for c in channels)
         raise InputError(
-            f"the calibration has aux channels {names}, whose stray fields {fmt} cannot hold "
-            f"in this version of nlpcal; apply it with 'nlpcal apply', which subtracts them"
+            f"the calibration has aux channels {names}, whose stray fields {fmt} has no place "
+            f"for; apply it with 'nlpcal apply', which subtracts them, or export to ardupilot "
+            f"or px4 (one current or throttle channel)"
         )
 
 
