@@ -15,9 +15,12 @@ import pandas as pd
 import pytest
 
 import nlpcal
+from nlpcal.calibration.channels import fit_channels, prepare_channels
 from nlpcal.cli import main
 from nlpcal.errors import InputError, QualityError
 from nlpcal.models.zhou2010 import correction_matrix
+from nlpcal.moments import accumulate
+from nlpcal.nlp.blocks import OPTIONS
 from nlpcal.schemas import validate
 from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log, motor_current_log
 
@@ -99,6 +102,64 @@ def test_a_data_frame_and_a_dask_frame_give_the_same_fit(motor):
             np.abs(channel.coefficients - result.aux[0].coefficients)
             < 0.01 * result.aux[0].standard_errors
         )
+
+
+@pytest.mark.parametrize("reference", ["none", "series"])
+def test_two_channels_under_every_reference_kind(motor, reference):
+    samples, current, _ = motor
+    throttle = np.random.default_rng(7).uniform(0.0, 1.0, N)
+    per_throttle = np.array([50.0, 20.0, -40.0])  # [nT per full throttle]
+    field = None if reference == "none" else np.full(N, PAPER_FIELD)
+    result = nlpcal.calibrate(
+        samples + np.outer(throttle, per_throttle),
+        reference_field=field,
+        method="joint",
+        aux_columns={"current": current, "thr": throttle},
+        aux_kind=["current", "throttle"],
+    )
+    amps, thr = result.aux
+    assert (amps.kind, thr.kind, thr.unit(result.unit)) == (
+        "current",
+        "throttle",
+        "nT per throttle fraction",
+    )
+    for channel, truth in ((amps, PER_AMP), (thr, per_throttle)):
+        assert np.all(np.abs(channel.coefficients - truth) < COVER * channel.standard_errors)
+
+
+def test_a_log_read_with_low_memory_stays_mapped_and_fits_alike(motor, tmp_path):
+    samples, current, result = motor
+    path = tmp_path / "log.csv"
+    frame = pd.DataFrame({"bx": samples[:, 0], "by": samples[:, 1], "bz": samples[:, 2]})
+    frame.assign(current=current).to_csv(path, index=False)
+    fits = []
+    for low_memory in (True, False):
+        log = nlpcal.read_log(
+            path, extra_columns=["current"], low_memory=low_memory, reference_field=PAPER_FIELD
+        )
+        fits.append(
+            nlpcal.calibration.calibrate_log(
+                log, method="joint", aux_columns=["current"], aux_kind="current"
+            )
+        )
+        values = {"current": log.values("current")}
+        _, channels = prepare_channels(log.samples, values)
+        fit = fit_channels(
+            log.samples,
+            channels,
+            PAPER_FIELD,
+            accumulate(log.samples, PAPER_FIELD),
+            "full",
+            OPTIONS,
+        )
+        # the samples without the stray field: a memory map of their own for a mapped log
+        assert isinstance(fit.compensated(log.samples), np.memmap) == low_memory
+    mapped, whole = fits
+    # the same sums in another order of additions: within 0.01 standard errors
+    assert np.all(
+        np.abs(mapped.aux[0].coefficients - whole.aux[0].coefficients)
+        < 0.01 * whole.aux[0].standard_errors
+    )
 
 
 def test_a_channel_that_never_varies_is_refused_by_name():

@@ -194,14 +194,14 @@ def accumulate_channels(samples, channels, reference, frame: mom.Frame, length: 
     "series".
     """
     cframe = channel_frame(channels)
-    extra = channels if kind != "series" else _stacked(channels, reference)
+    extra = channels if kind != "series" else stacked(channels, reference)
     work = ChannelGram(frame.centre, length, cframe, kind == "series")
     gram = reduce(samples, extra, work, np.add, mom.CHUNK_ROWS)
     n = samples.shape[0]
     return ChannelMoments(gram / n, frame, length, cframe, kind, n)
 
 
-def _stacked(channels, reference):
+def stacked(channels, reference):
     """The channels and the reference series side by side, (N, K + 1), in memory or on Dask."""
     if isinstance(channels, LazySamples) or isinstance(reference, LazySamples):
         import dask.array as da

@@ -23,6 +23,7 @@ References
 
 from __future__ import annotations
 
+import tempfile
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -31,7 +32,7 @@ import pandas as pd
 
 from .. import passes, validation
 from ..auxiliary.model import DEFAULT_KIND, KINDS, AuxChannel
-from ..auxiliary.moments import accumulate_channels, subsample
+from ..auxiliary.moments import accumulate_channels, stacked, subsample
 from ..errors import InputError, QualityError, SolveError
 from ..models.zhou2010 import PARAMETER_NAMES
 from ..moments import Moments, sphere_frame
@@ -51,6 +52,8 @@ CONSTANT_SPREAD = 1e-9
 NEWTON_STEPS = 6
 #: Rows per chunk of the scores pass.
 CHUNK_ROWS = 8192
+#: Rows per block written to a temporary memory map (`spooled`): 64 k rows of 3 doubles, 1.5 MB.
+SPOOL_ROWS = 65536
 
 
 @dataclass(frozen=True)
@@ -119,17 +122,50 @@ def prepare_channels(samples, aux_columns, aux_kind=None) -> tuple:
     names = _names(aux_columns)
     kinds = _kinds(aux_kind, len(names))
     if isinstance(aux_columns, Mapping):
-        values: object = np.column_stack(
-            [
-                validation.channel(aux_columns[name], None, f"aux column {name!r}")
-                for name in aux_columns
-            ]
-        )
+        values: object = _stacked_columns([aux_columns[name] for name in aux_columns], names)
     else:
         values, samples = _from_frame(samples, names)
     channels = Channels(tuple(names), kinds, passes.as_rows(values))
     _check_values(channels, len(samples))
     return samples, channels
+
+
+def _stacked_columns(columns: list, names: list) -> np.ndarray:
+    """(N, K) of the channels' values: in memory, or in a temporary memory map when any of them
+    is one (a log read with low_memory stays out of memory). Checked to be numbers; finiteness
+    and variation are `_check_values`'."""
+    mapped = [c for c in columns if _mapped(c)]
+    if not mapped:
+        return np.column_stack(
+            [validation.channel(c, None, f"aux column {n!r}") for c, n in zip(columns, names)]
+        )
+    rows = mapped[0].shape[0]
+    for column, name in zip(columns, names):
+        if np.ndim(column) != 1 or len(column) != rows:
+            raise InputError(f"aux column {name!r} must be {rows} numbers, as the others")
+    return spooled(lambda start, stop: np.column_stack([c[start:stop] for c in columns]), rows)
+
+
+def _mapped(values) -> bool:
+    """Whether an array is, or views, a memory map (a log read with low_memory)."""
+    while isinstance(values, np.ndarray):
+        if isinstance(values, np.memmap):
+            return True
+        values = values.base
+    return isinstance(values, np.memmap)
+
+
+def spooled(block, rows: int) -> np.ndarray:
+    """A read-only (rows, k) float64 memory map on an unlinked temporary file, written block by
+    block from block(start, stop) (freed when dropped): O(chunk) memory for any N."""
+    store = tempfile.TemporaryFile()
+    width = 0
+    for start in range(0, rows, SPOOL_ROWS):
+        values = np.ascontiguousarray(block(start, min(start + SPOOL_ROWS, rows)), dtype=float)
+        width = values.shape[1]
+        store.write(values.tobytes())
+    store.flush()
+    return np.memmap(store, dtype=np.float64, mode="r", shape=(rows, width))
 
 
 def _from_frame(samples, names) -> tuple:
@@ -228,6 +264,8 @@ class ChannelFit:
             ]
             stray = lazy[1].rechunk({0: lazy[0].chunks[0], 1: -1}) @ self.v
             return LazySamples(lazy[0] - stray)
+        if _mapped(samples) or _mapped(values):
+            return spooled(lambda a, b: samples[a:b] - values[a:b] @ self.v, len(samples))
         return np.asarray(samples, dtype=float) - np.asarray(values) @ self.v
 
 
@@ -382,9 +420,7 @@ def joint_covariance(fit, samples, reference, kind, scale, directions, basis, fr
     constant = float(reference) if reference is not None and np.ndim(reference) == 0 else None
     extra = fit.channels.values
     if kind == "series":
-        from ..auxiliary.moments import _stacked
-
-        extra = _stacked(extra, reference)
+        extra = stacked(extra, reference)
     centre = mean_j = None
     if kind == "none":  # the mean |B1| and mean J profiled out, from an even stride
         raw, c = subsample(samples), subsample(fit.channels.values)

@@ -164,11 +164,11 @@ def _motor_lines(correction: AffineCorrection, p: np.ndarray, keys: dict, notes:
 
 
 def read(text: str, source: str, instance: int = 1) -> AffineCorrection:
-    """The correction ArduPilot applies with the file's parameters of one compass instance."""
+    """The correction ArduPilot applies with the file's parameters of one compass instance, its
+    motor compensation as an aux channel (the module docstring)."""
     values = parameters(text, source)
     keys = names(instance)
     wanted = [*keys["OFS"], *keys["DIA"], *keys["ODI"], keys["SCALE"]]
-    used = [*wanted, *keys["MOT"], keys["MOTCT"], keys["DEV_ID"], keys["ORIENT"]]
     if not any(name in values for name in wanted):
         raise InputError(
             f"{source}: no {keys['OFS'][0]}, {keys['DIA'][0]}, ... for compass "
@@ -184,11 +184,14 @@ def read(text: str, source: str, instance: int = 1) -> AffineCorrection:
         scale = 1.0  # have_scale_factor: outside the range the scale is not applied
     d = np.array([[dia[0], odi[0], odi[1]], [odi[0], dia[1], odi[2]], [odi[1], odi[2], dia[2]]])
     mot = np.array([values.get(k, 0.0) for k in keys["MOT"]])
+    aux = autopilot.motor_aux(values.get(keys["MOTCT"], 0.0), mot, source, scale * d)
+    motor = [*keys["MOT"], keys["MOTCT"]] if aux else []  # else named among the unused
+    used = [*wanted, *motor, keys["DEV_ID"], keys["ORIENT"]]
     return AffineCorrection(
         matrix=scale * d,
         offsets=-ofs,
         unit=UNIT,
         source={"file": source, "format": "ardupilot", "instance": instance},
-        aux=autopilot.motor_aux(values.get(keys["MOTCT"], 0.0), mot, source, scale * d),
+        aux=aux,
         **autopilot.identity(values, used, "ardupilot", ROTATIONS, PREFIX, source),
     )

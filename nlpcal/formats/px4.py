@@ -207,8 +207,7 @@ def read(text: str, source: str, instance: int = 0) -> AffineCorrection:
     """The correction PX4 applies with the file's parameters of one calibration slot."""
     values = parameters(text, source)
     keys = names(instance)
-    used = [*keys["OFF"], *keys["SCALE"], *keys["ODIAG"], *keys["COMP"], keys["COMP_TYP"]]
-    used += [keys["ID"], keys["ROT"]]
+    used = [*keys["OFF"], *keys["SCALE"], *keys["ODIAG"], keys["ID"], keys["ROT"]]
     if not any(name in values for name in used[:9]):
         raise InputError(f"{source}: no CAL_MAG{instance}_XOFF, ... found (pass --instance)")
     off = np.array([values.get(k, 0.0) for k in keys["OFF"]])
@@ -219,11 +218,14 @@ def read(text: str, source: str, instance: int = 0) -> AffineCorrection:
     comp = np.array([values.get(k, 0.0) for k in keys["COMP"]])
     kind = COMPENSATION_KINDS.get(int(kind_value), "") if float(kind_value).is_integer() else ""
     comp = comp * POWER_PER_UNIT.get(kind, 1.0)  # [G per channel unit]
+    aux = autopilot.motor_aux(kind_value, comp, source, kinds=COMPENSATION_KINDS)
+    if aux:  # else named among the unused
+        used[-2:-2] = [*keys["COMP"], keys["COMP_TYP"]]
     return AffineCorrection(
         matrix=s,
         offsets=off,
         unit=UNIT,
         source={"file": source, "format": "px4", "instance": instance},
-        aux=autopilot.motor_aux(kind_value, comp, source, kinds=COMPENSATION_KINDS),
+        aux=aux,
         **autopilot.identity(values, used, "px4", {-1: "board"}, PREFIX, source),
     )

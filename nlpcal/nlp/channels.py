@@ -154,7 +154,7 @@ def _objective(reference: str, channels: int, model: str):
 
 
 @problem(
-    "channels.joint",
+    "zhou2010.channels",
     examples=[(r, k) for r in ("none", "constant", "series") for k in (1, 2)],
 )
 def channel_problem(
@@ -167,7 +167,7 @@ def channel_problem(
 
 
 @problem(
-    "channels.derivatives",
+    "zhou2010.channel_derivatives",
     examples=[(r, k) for r in ("none", "constant", "series") for k in (1, 2)],
 )
 def channel_derivatives(reference: str, channels: int, model: str = "full") -> Evaluation:
