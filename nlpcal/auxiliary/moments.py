@@ -201,15 +201,23 @@ def accumulate_channels(samples, channels, reference, frame: mom.Frame, length: 
     return ChannelMoments(gram / n, frame, length, cframe, kind, n)
 
 
+def dask_rows(*values) -> list:
+    """Dask arrays of `values` (LazySamples, or arrays in memory) in the row blocks of the
+    first, every column in one block."""
+    import dask.array as da
+
+    arrays = [
+        v.array if isinstance(v, LazySamples) else da.from_array(np.asarray(v)) for v in values
+    ]
+    rows = arrays[0].chunks[0]
+    return [a.rechunk({0: rows, **({1: -1} if a.ndim == 2 else {})}) for a in arrays]
+
+
 def stacked(channels, reference):
     """The channels and the reference series side by side, (N, K + 1), in memory or on Dask."""
     if isinstance(channels, LazySamples) or isinstance(reference, LazySamples):
         import dask.array as da
 
-        lazy = [
-            v.array if isinstance(v, LazySamples) else da.from_array(np.asarray(v))
-            for v in (channels, reference)
-        ]
-        rows = lazy[0].chunks[0]
-        return LazySamples(da.concatenate([lazy[0], lazy[1].rechunk({0: rows})[:, None]], axis=1))
+        lazy_channels, lazy_reference = dask_rows(channels, reference)
+        return LazySamples(da.concatenate([lazy_channels, lazy_reference[:, None]], axis=1))
     return np.column_stack([np.asarray(channels, dtype=float), np.asarray(reference, dtype=float)])

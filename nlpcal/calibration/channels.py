@@ -26,13 +26,14 @@ from __future__ import annotations
 import tempfile
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from .. import passes, validation
 from ..auxiliary.model import DEFAULT_KIND, KINDS, AuxChannel
-from ..auxiliary.moments import accumulate_channels, stacked, subsample
+from ..auxiliary.moments import accumulate_channels, dask_rows, stacked, subsample
 from ..errors import InputError, QualityError, SolveError
 from ..models.zhou2010 import PARAMETER_NAMES
 from ..moments import Moments, sphere_frame
@@ -63,7 +64,7 @@ class Channels:
 
     names: tuple
     kinds: tuple
-    values: object
+    values: Any
 
     @property
     def count(self) -> int:
@@ -193,10 +194,8 @@ def _from_frame(samples, names) -> tuple:
 
 def _check_values(channels: Channels, n: int) -> None:
     values = channels.values
-    if values.shape[0] != n:  # type: ignore[attr-defined]
-        raise InputError(
-            f"the aux channels have {values.shape[0]} rows, the samples {n}"  # type: ignore[attr-defined]
-        )
+    if values.shape[0] != n:
+        raise InputError(f"the aux channels have {values.shape[0]} rows, the samples {n}")
     if isinstance(values, LazySamples):
         low, high = values.survey().low, values.survey().high
     else:
@@ -256,14 +255,8 @@ class ChannelFit:
         [field unit]"""
         values = self.channels.values
         if isinstance(samples, LazySamples) or isinstance(values, LazySamples):
-            import dask.array as da
-
-            lazy = [
-                v.array if isinstance(v, LazySamples) else da.from_array(np.asarray(v))
-                for v in (samples, values)
-            ]
-            stray = lazy[1].rechunk({0: lazy[0].chunks[0], 1: -1}) @ self.v
-            return LazySamples(lazy[0] - stray)
+            lazy_samples, lazy_values = dask_rows(samples, values)
+            return LazySamples(lazy_samples - lazy_values @ self.v)
         if _mapped(samples) or _mapped(values):
             return spooled(lambda a, b: samples[a:b] - values[a:b] @ self.v, len(samples))
         return np.asarray(samples, dtype=float) - np.asarray(values) @ self.v
