@@ -201,8 +201,18 @@ class Correction:
     def apply(self, log: Log) -> np.ndarray:
         """Corrected samples of the log. [base unit]"""
         temperature = self.temperature(log) if self.temperature_column is not None else None
-        channels = {name: log.values(column) for name, column in self.aux_columns.items()}
-        return self.correct(log.samples, log.base_unit, temperature, channels)
+        return self.correct(log.samples, log.base_unit, temperature, self.channels(log))
+
+    def channels(self, log: Log) -> dict:
+        """The aux channels of the calibration, name -> the log's values. [channel unit]"""
+        return {name: log.values(column) for name, column in self.aux_columns.items()}
+
+    def without_stray(self, log: Log) -> np.ndarray:
+        """The log's raw samples less the stray field of the aux channels, B_M - sum_k v_k c_k
+        (the samples themselves without aux channels). [base unit]"""
+        if not self.aux_columns:
+            return log.samples
+        return log.samples - self.parameters.stray_field(self.channels(log))  # type: ignore[union-attr]
 
     def correct(self, samples, base_unit: str, temperature=None, channels=None) -> np.ndarray:
         """Corrected `samples` [base_unit] (Eq. 4, after the temperature step with the
@@ -366,9 +376,10 @@ def statistics_rows(log: Log, correction: Correction | None = None) -> tuple:
             mean = float(np.mean(np.asarray(reference, dtype=float)))
             _compare_references(correction, mean, log.base_unit)
         params = correction.parameters.model  # the nine parameters (at t0 with a model)
-        rows.append({"label": "corrected", **field_statistics(log.samples, params.theta)})
+        raw = correction.without_stray(log)  # less the stray field of aux channels
+        rows.append({"label": "corrected", **field_statistics(raw, params.theta)})
         if reference is not None:
-            corrected = correct(log.samples, params)  # Eq. 4
+            corrected = correct(raw, params)  # Eq. 4
             rows[1]["rmse"] = rmse(np.linalg.norm(corrected, axis=1), reference)  # Eq. 10
     if reference is not None:
         rows[0]["rmse"] = rmse(np.linalg.norm(log.samples, axis=1), reference)  # Eq. 10

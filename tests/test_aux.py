@@ -246,6 +246,14 @@ def test_streaming_apply_subtracts_the_stray_field_as_the_library_does(logs):
     np.testing.assert_allclose(written, expected, rtol=1e-12, atol=1e-9)
 
 
+def test_stats_subtracts_the_stray_field(logs, capsys):
+    folder, _, _, params = logs
+    argv = ["stats", folder / "renamed.csv", "--params", params, "--aux-columns", "amps=current"]
+    assert _cli(*argv, "--json") == 0
+    rows = {row["label"]: row for row in json.loads(capsys.readouterr().out)["rows"]}
+    assert rows["measured"]["std"] > 1000.0 and rows["corrected"]["std"] < 6.0  # 5 nT noise
+
+
 @pytest.mark.parametrize(
     "argv",
     [

@@ -53,6 +53,19 @@ def add_correction_arguments(parser):
     parser.add_argument("log", metavar="LOG", help=LOG_HELP)
     add_log_arguments(parser, CALIBRATED_LOG_UNIT)
     add_temperature_arguments(parser)
+    add_aux_argument(parser)
+
+
+def add_aux_argument(parser):
+    """--aux-columns NEW=OLD: where the calibration's aux channels are in the log."""
+    parser.add_argument(
+        "--aux-columns",
+        nargs="+",
+        type=aux_source,
+        metavar="NEW=OLD",
+        help="read the calibration's aux channel OLD from the log's column NEW (default: each "
+        "channel from the column of its own name)",
+    )
 
 
 def add_temperature_arguments(parser):
@@ -95,14 +108,6 @@ is read and written in chunks, in bounded memory whatever its size (with --plot 
         ),
     )
     add_correction_arguments(parser)
-    parser.add_argument(
-        "--aux-columns",
-        nargs="+",
-        type=aux_source,
-        metavar="NEW=OLD",
-        help="read the calibration's aux channel OLD from the log's column NEW (default: each "
-        "channel from the column of its own name)",
-    )
     parser.add_argument(
         "--flag-outliers",
         action="store_true",
@@ -243,6 +248,7 @@ the reference (Eq. 10 of Liu et al. 2022).""",
         help="parameters written by 'nlpcal calibrate': add the corrected row",
     )
     add_temperature_arguments(parser)
+    add_aux_argument(parser)
     parser.add_argument(
         "--reference-column",
         metavar="COL",
