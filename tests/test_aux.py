@@ -431,3 +431,47 @@ def test_the_cli_export_of_an_other_channel_is_exit_2(logs, tmp_path, capsys):
     assert _cli("export", path, "--format", "ardupilot", "-o", tmp_path / "x.param") == 2
     assert "other" in capsys.readouterr().err
     assert not (tmp_path / "x.param").exists()
+
+
+# --- fuzz: random values of the new flags -------------------------------------------------------
+
+hypothesis = pytest.importorskip("hypothesis")
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+TOKENS = st.one_of(
+    st.sampled_from(["current", "amps", "bx", "=", "current=", "=current", "a=b=c", "", " "]),
+    st.sampled_from(["current", "throttle", "other", "CURRENT", "-1", "nan", "inf", "--"]),
+    st.text(alphabet="abc=,-_ 0\u00e9", max_size=8),
+)
+
+
+def _contract(argv, capsys, never):
+    status = _cli(*argv)
+    err = capsys.readouterr().err
+    assert status in (0, 1, 2), (argv, err)
+    assert "Traceback" not in err and "internal error" not in err, (argv, err)
+    if status:
+        assert any(line.startswith("nlpcal") for line in err.splitlines()), (argv, err)
+        assert not never.exists(), argv
+
+
+@settings(
+    max_examples=25,
+    deadline=None,
+    derandomize=True,
+    suppress_health_check=[HealthCheck.function_scoped_fixture],
+)
+@given(columns=st.lists(TOKENS, max_size=3), kinds=st.lists(TOKENS, max_size=3))
+def test_fuzzed_aux_flags_never_crash(logs, capsys, columns, kinds):
+    folder, _, _, params = logs
+    never = folder / "fuzz-never.json"
+    argv = ["calibrate", folder / "log.csv", "--reference-field", PAPER_FIELD]
+    argv += ["--aux-columns", *columns] if columns else []
+    argv += ["--aux-kind", *kinds] if kinds else []
+    _contract([*argv, "-o", never], capsys, never)
+    never.unlink(missing_ok=True)
+    out = folder / "fuzz-never.csv"
+    mapping = ["--aux-columns", *columns] if columns else []
+    _contract(["apply", params, folder / "renamed.csv", *mapping, "-o", out], capsys, out)
+    out.unlink(missing_ok=True)
