@@ -22,7 +22,7 @@ from nlpcal.models.zhou2010 import correction_matrix
 from nlpcal.moments import accumulate
 from nlpcal.nlp.blocks import OPTIONS
 from nlpcal.schemas import validate
-from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log, motor_current_log
+from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log, motor_current_log, smooth_motor_log
 
 PER_AMP = np.array([120.0, -80.0, 300.0])  # [nT/A]
 #: A covering standard error: the truth within this many of them. A 4-sigma band fails a correct
@@ -160,6 +160,22 @@ def test_a_log_read_with_low_memory_stays_mapped_and_fits_alike(motor, tmp_path)
         np.abs(mapped.aux[0].coefficients - whole.aux[0].coefficients)
         < 0.01 * whole.aux[0].standard_errors
     )
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_smooth_flight_gets_standard_errors_that_follow_its_dependence(seed):
+    samples, current = smooth_motor_log(seed=seed)
+    result = nlpcal.calibrate(
+        samples,
+        reference_field=PAPER_FIELD,
+        method="joint",
+        aux_columns={"current": current},
+        require_identifiable=False,  # a smooth path leaves some of the nine poorly determined
+    )
+    assert result.identifiability["aux"]["standard_errors"]["method"] == "block-jackknife"
+    (channel,) = result.aux
+    # the sandwich of independent samples states errors 10-30 times too small here
+    assert np.all(np.abs(channel.coefficients - PER_AMP) < COVER * channel.standard_errors)
 
 
 def test_a_channel_that_never_varies_is_refused_by_name():

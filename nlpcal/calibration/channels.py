@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import tempfile
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -33,15 +33,14 @@ import pandas as pd
 
 from .. import passes, validation
 from ..auxiliary.model import DEFAULT_KIND, KINDS, AuxChannel
-from ..auxiliary.moments import accumulate_channels, dask_rows, stacked, subsample
+from ..auxiliary.moments import accumulate_channels, dask_rows, subsample
 from ..errors import InputError, QualityError, SolveError
-from ..models.zhou2010 import PARAMETER_NAMES
 from ..moments import Moments, sphere_frame
 from ..nlp.blocks import variable_scale, variables
 from ..nlp.channels import channel_derivatives, channel_parameters, channel_problem, v_scale
 from ..nlp.solver import IpoptOptions, solve
-from ..passes import LazySamples, reduce
-from .scores import entry_derivatives, sensitivities
+from ..passes import LazySamples
+from .channel_errors import joint_covariance
 
 #: A channel whose variance a quadratic fit on the sample direction explains to this fraction
 #: varies only with the attitude: its stray field is a change of O_p S_p. [1]
@@ -236,6 +235,7 @@ class ChannelFit:
     v_errors : (K, 3) their standard errors, or None; inflation : the nine parameters' standard
     errors at v estimated over those at v fixed (name -> factor >= 1); r2 : `attitude_r2`;
     solve : how the solve ended (IPOPT's status and iterations, Newton steps taken).
+    errors : how the standard errors were estimated (`channel_errors.joint_covariance`).
     """
 
     channels: Channels
@@ -245,6 +245,7 @@ class ChannelFit:
     inflation: dict
     r2: dict
     solve: dict
+    errors: dict = field(default_factory=dict)
 
     @property
     def not_identifiable(self) -> list:
@@ -319,7 +320,7 @@ def fit_channels(
         "iterations": outcome.iterations,
         "newton_steps": steps,
     }
-    joint_covariance(fit, samples, reference, kind, scale, directions, basis, free)
+    fit.errors = joint_covariance(fit, samples, reference, kind, scale, directions @ basis)
     return fit
 
 
@@ -364,94 +365,6 @@ def _newton(derivatives, x, p, basis) -> tuple:
     return x, kept
 
 
-@dataclass(frozen=True)
-class ChannelScores:
-    """The work of the scores pass on one block: sum J J^T and sum r^2 J J^T of the residuals
-    r_i = |B1_i| - F_i (or - centre) and their sensitivities J_i to the scaled parameters y
-    (J less its mean `mean_j` without a reference). [field unit^2]"""
-
-    theta: np.ndarray
-    v: np.ndarray
-    scale: np.ndarray
-    derivatives: np.ndarray
-    centre: float | None
-    mean_j: np.ndarray | None
-    channels: int
-    constant: float | None
-
-    def __call__(self, samples, extra) -> np.ndarray:
-        samples, extra = np.asarray(samples, dtype=float), np.asarray(extra, dtype=float)
-        k, width = self.channels, 9 + 3 * self.channels
-        sums = np.zeros((2, width, width))
-        for start in range(0, samples.shape[0], CHUNK_ROWS):
-            stop = min(start + CHUNK_ROWS, samples.shape[0])
-            c = extra[start:stop, :k]
-            raw = samples[start:stop] - c @ self.v
-            magnitude, jac, g = sensitivities(raw, self.theta, self.derivatives, self.scale[:9])
-            j = np.empty((raw.shape[0], width))
-            j[:, :9] = jac
-            j[:, 9:] = -(c[:, :, None] * g[:, None, :]).reshape(raw.shape[0], -1) * self.scale[9:]
-            if self.constant is not None:
-                r = magnitude - self.constant
-            elif extra.shape[1] > k:
-                r = magnitude - extra[start:stop, k]
-            else:
-                r = magnitude - self.centre
-                j -= self.mean_j
-            sums[0] += j.T @ j
-            sums[1] += (j * (r * r)[:, None]).T @ j
-        return sums
-
-
-def joint_covariance(fit, samples, reference, kind, scale, directions, basis, free) -> None:
-    """The sandwich covariance B^-1 M B^-1 of the joint scores (B = sum J J^T, M = sum r^2 J
-    J^T, within the problem's directions, times N / (N - p)); sets v's standard errors and the
-    nine parameters' inflation factors (marginal over conditional standard errors)."""
-    k = fit.channels.count
-    theta, v = fit.theta, fit.v
-    derivatives = entry_derivatives(theta)
-    constant = float(reference) if reference is not None and np.ndim(reference) == 0 else None
-    extra = fit.channels.values
-    if kind == "series":
-        extra = stacked(extra, reference)
-    centre = mean_j = None
-    if kind == "none":  # the mean |B1| and mean J profiled out, from an even stride
-        raw, c = subsample(samples), subsample(fit.channels.values)
-        magnitude, jac, g = sensitivities(raw - c @ v, theta, derivatives, scale[:9])
-        centre = float(magnitude.mean())
-        jv = -(c[:, :, None] * g[:, None, :]).reshape(len(c), -1) * scale[9:]
-        mean_j = np.concatenate([jac, jv], axis=1).mean(axis=0)
-    work = ChannelScores(theta, v, scale, derivatives, centre, mean_j, k, constant)
-    bread, meat = reduce(samples, extra, work, np.add, CHUNK_ROWS)
-    n = samples.shape[0]
-    q = directions @ basis  # (9 + 3K, q): the directions of y the fit moves along
-    dof = n / max(n - q.shape[1] - (kind == "none"), 1)
-    marginal = _sandwich(q, bread, meat, dof)
-    conditional = _sandwich(q[:, : q.shape[1] - 3 * k], bread, meat, dof)
-    if marginal is None or conditional is None:
-        return
-    fit.v_errors = np.sqrt(np.maximum(np.diag(marginal)[9:], 0.0)).reshape(k, 3) * scale[
-        9:
-    ].reshape(k, 3)
-    estimated = [i for i in range(9) if conditional[i, i] > 0]
-    fit.inflation = {
-        PARAMETER_NAMES[i]: float(np.sqrt(max(marginal[i, i], 0.0) / conditional[i, i]))
-        for i in estimated
-    }
-
-
-def _sandwich(q, bread, meat, dof: float) -> np.ndarray | None:
-    """dof q (q^T B q)^-1 (q^T M q) (q^T B q)^-1 q^T, or None when q^T B q is singular."""
-    b = q.T @ bread @ q
-    try:
-        inverse = np.linalg.inv(b)
-    except np.linalg.LinAlgError:
-        return None
-    if not np.isfinite(inverse).all() or np.linalg.cond(b) > 1e14:
-        return None
-    return dof * (q @ inverse @ (q.T @ meat @ q) @ inverse @ q.T)
-
-
 def blind_channels(r2: dict) -> list:
     """The channels that vary only with the attitude (`attitude_r2` >= ATTITUDE_R2)."""
     return [name for name, value in r2.items() if value >= ATTITUDE_R2]
@@ -491,6 +404,7 @@ def attach(result, fit: ChannelFit, raw_moments: Moments) -> None:
         "not_identifiable": fit.not_identifiable,
         "standard_error_inflation": dict(fit.inflation),
         "solve": dict(fit.solve),
+        "standard_errors": dict(fit.errors),
     }
     result.identifiability["aux"] = block
     if fit.not_identifiable:
