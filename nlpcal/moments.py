@@ -215,19 +215,21 @@ def _groups(varying_gamma: bool):
     return tuple((g, p, np.array(c), np.array(m)) for (g, p), (c, m) in groups.items())
 
 
-def _features(d, a, gamma, lay: Layout, out) -> None:
+def fill_features(d, a, gamma, lay: Layout, out, recipe=_RECIPE, groups=None) -> None:
     """Fill `out` (lay.size x rows) with the distinct features gamma^j a^k d^m of one chunk.
 
     Features are rows, samples are columns: every operation runs along contiguous memory. With
     gamma constant the first rows of the layout are the monomials themselves, built in place.
+    `recipe` and `groups` (default: those of d's three coordinates) build the monomials of
+    other variables, the rows of `d` (the channels' feature group, `nlpcal.auxiliary.moments`).
     """
     in_place = not lay.varying_gamma
-    mono = out[: len(MONOMIALS)] if in_place else np.empty((len(MONOMIALS), d.shape[1]))
+    mono = out[: len(recipe)] if in_place else np.empty((len(recipe), d.shape[1]))
     mono[0] = 1.0
-    for index in range(1, len(MONOMIALS)):
-        parent, variable = _RECIPE[index]
+    for index in range(1, len(recipe)):
+        parent, variable = recipe[index]
         np.multiply(mono[parent], d[variable], out=mono[index])
-    for g_pow, a_pow, rows, monos in _groups(lay.varying_gamma):
+    for g_pow, a_pow, rows, monos in groups or _groups(lay.varying_gamma):
         if in_place and not (g_pow or a_pow):
             continue
         block = mono[monos]
@@ -279,7 +281,7 @@ class GramBlock:
                 gamma = (self.length / ref) ** 2
                 a = gamma * radius_sq - 1.0
             chunk = buffer[:, : stop - start]
-            _features(d, a, gamma, self.lay, chunk)
+            fill_features(d, a, gamma, self.lay, chunk)
             root = ref / self.length if series else None  # sqrt of w_i
             if self.weight is not None:
                 omega = np.asarray(self.weight(raw, ref), dtype=float)

@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import re
 
 import numpy as np
 import pandas as pd
 import pytest
+from test_formats import _parameters as parameter_values
 
 import nlpcal
 from nlpcal.calibration.channels import fit_channels, prepare_channels
@@ -335,17 +335,6 @@ def test_a_parameters_file_with_a_bad_aux_block_is_refused(logs, tmp_path):
 APPLY_NT = 1e-6
 
 
-def _parameters(text: str) -> dict:
-    values = {}
-    for line in text.splitlines():
-        if line.startswith("#") or not line.strip():
-            continue
-        fields = re.split(r"[,\t]", line)
-        name, value = (fields[2], fields[3]) if len(fields) == 5 else fields
-        values[name] = float(value)
-    return values
-
-
 def _symmetric(values: dict, diagonal: list, off: list) -> np.ndarray:
     x, y, z = (values[k] for k in diagonal)
     a, b, c = (values[k] for k in off)
@@ -360,7 +349,7 @@ def _rotation(result) -> np.ndarray:
 @pytest.mark.parametrize("instance", [1, 3])
 def test_the_ardupilot_export_applied_as_ardupilot_reproduces_apply(motor, instance):
     samples, current, result = motor
-    p = _parameters(nlpcal.export(result, "ardupilot", instance=instance).text)
+    p = parameter_values(nlpcal.export(result, "ardupilot", instance=instance).text)
     n = "" if instance == 1 else str(instance)
     assert p["COMPASS_MOTCT"] == 2  # current
     ofs = np.array([p[f"COMPASS_OFS{n}_{a}"] for a in "XYZ"])
@@ -377,7 +366,7 @@ def test_the_ardupilot_export_applied_as_ardupilot_reproduces_apply(motor, insta
 
 def test_the_px4_export_applied_as_px4_reproduces_apply(motor):
     samples, current, result = motor
-    p = _parameters(nlpcal.export(result, "px4", instance=1).text)
+    p = parameter_values(nlpcal.export(result, "px4", instance=1).text)
     assert p["CAL_MAG_COMP_TYP"] == 2
     off = np.array([p[f"CAL_MAG1_{a}OFF"] for a in "XYZ"])
     comp = np.array([p[f"CAL_MAG1_{a}COMP"] for a in "XYZ"])  # [G/kA]
@@ -399,8 +388,8 @@ def test_a_throttle_channel_exports_as_throttle_compensation(motor):
     fraction = current / 40.0
     scaled = dataclasses.replace(throttle, coefficients=channel.coefficients * 40.0)
     as_throttle = _with_channels(result, scaled)
-    ap = _parameters(nlpcal.export(as_throttle, "ardupilot").text)
-    px = _parameters(nlpcal.export(as_throttle, "px4").text)
+    ap = parameter_values(nlpcal.export(as_throttle, "ardupilot").text)
+    px = parameter_values(nlpcal.export(as_throttle, "px4").text)
     assert ap["COMPASS_MOTCT"] == 1 and px["CAL_MAG_COMP_TYP"] == 1
     b1 = as_throttle.apply(samples, aux={"thr": fraction}) @ _rotation(result)
     s = _symmetric(px, [f"CAL_MAG0_{a}SCALE" for a in "XYZ"], [f"CAL_MAG0_{a}ODIAG" for a in "XYZ"])

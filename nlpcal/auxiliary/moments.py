@@ -131,19 +131,14 @@ class ChannelGram:
         samples, extra = np.asarray(samples, dtype=float), np.asarray(extra, dtype=float)
         k = self.channels.centre.size
         recipe, groups = _recipe(k, self.series)
-        size = channel_layout(self.series, k).size
+        lay = channel_layout(self.series, k)
+        size = lay.size
         gram = np.zeros((size, size))
         for start in range(0, samples.shape[0], self.chunk_rows):
             stop = min(start + self.chunk_rows, samples.shape[0])
             d = (samples[start:stop] - self.centre).T / self.length
             c = ((extra[start:stop, :k] - self.channels.centre) / self.channels.scale).T
             radius_sq = np.einsum("ij,ij->j", d, d)
-            mono = np.empty((len(recipe), stop - start))
-            mono[0] = 1.0
-            variables = np.vstack([d, c])
-            for i in range(1, len(recipe)):
-                parent, variable = recipe[i]
-                np.multiply(mono[parent], variables[variable], out=mono[i])
             if self.series:
                 reference = extra[start:stop, k]
                 gamma = (self.length / reference) ** 2
@@ -151,13 +146,7 @@ class ChannelGram:
             else:
                 gamma, a = None, radius_sq - 1.0
             features = np.empty((size, stop - start))
-            for g_pow, a_pow, rows, monos in groups:
-                block = mono[monos]
-                if a_pow:
-                    block *= a**a_pow
-                if g_pow:
-                    block *= gamma**g_pow
-                features[rows] = block
+            mom.fill_features(np.vstack([d, c]), a, gamma, lay, features, recipe, groups)
             if self.series:
                 features *= reference / self.length  # sqrt of w_i = F_i^2 / L^2
             gram += features @ features.T

@@ -138,8 +138,7 @@ def export(
         max_rotation_deg = validation.number(
             max_rotation_deg, "--max-rotation-deg", minimum=0.0, maximum=180.0, unit="[deg]"
         )
-    calibration = getattr(result, "calibration", result)  # a temperature calibration's own
-    refuse_aux(calibration, fmt)
+    calibration = refuse_aux(getattr(result, "calibration", result), fmt)  # a temperature's own
     target = FORMATS[fmt].UNIT if fmt in AUTOPILOTS else unit or calibration.log_unit
     notes = scale_notes(calibration, target)
     correction = AffineCorrection.from_result(result, None if fmt in AUTOPILOTS else unit)
@@ -162,7 +161,7 @@ def export(
     return written
 
 
-def refuse_aux(calibration: CalibrationResult, fmt: str) -> None:
+def refuse_aux(calibration: CalibrationResult, fmt: str) -> CalibrationResult:
     """InputError for a calibration with aux channels in a format that holds the correction of
     Eq. 4 alone (the autopilots' motor compensation takes one current or throttle channel):
     written without the stray fields it would correct every sample wrongly."""
@@ -174,6 +173,7 @@ def refuse_aux(calibration: CalibrationResult, fmt: str) -> None:
             f"for; apply it with 'nlpcal apply', which subtracts them, or export to ardupilot "
             f"or px4 (one current or throttle channel)"
         )
+    return calibration
 
 
 def dropped(calibration: CalibrationResult, correction: AffineCorrection, fmt: str) -> list:
