@@ -45,7 +45,7 @@ from .channel_errors import joint_covariance
 #: A channel whose variance a quadratic fit on the sample direction explains to this fraction
 #: varies only with the attitude: its stray field is a change of O_p S_p. [1]
 ATTITUDE_R2 = 0.99
-#: A channel whose standard deviation is below this fraction of its largest magnitude never
+#: A channel whose range (max - min) is below this fraction of its largest magnitude never
 #: varies. [1]
 CONSTANT_SPREAD = 1e-9
 #: Newton steps that finish the joint solve (each accepted only where f does not rise).
