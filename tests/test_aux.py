@@ -196,6 +196,15 @@ def test_a_channel_that_follows_the_attitude_is_named():
         )
     assert failure.value.status == "Not_Identifiable"
     assert "pump" in str(failure.value)
+    written = nlpcal.calibrate(
+        samples + follows[:, None] * PER_AMP,
+        reference_field=PAPER_FIELD,
+        method="joint",
+        aux_columns={"pump": follows},
+        require_identifiable=False,  # --allow-unidentifiable: written, and failed
+    )
+    assert written.identifiability["aux"]["not_identifiable"] == ["pump"]
+    assert written.verdict.status == "failed"
 
 
 @pytest.mark.parametrize(

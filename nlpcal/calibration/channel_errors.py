@@ -101,9 +101,9 @@ def joint_covariance(fit, samples, reference, kind: str, scale, q) -> dict:
     parameters' standard error with v estimated over the one with v fixed, [1]) from the
     covariance of the scores (the module docstring); returns how it was estimated.
 
-    q : (9 + 3K, p) orthonormal directions of the scaled parameters the fit moves along (the
-    last 3K the stray fields'). kind : "none", "constant" or "series". scale : (9 + 3K,) the
-    variable scales. [internal units]
+    q : (9 + 3K, p) orthonormal directions of the scaled parameters the fit moves along (those
+    of the stray fields held at zero left out). kind : "none", "constant" or "series".
+    scale : (9 + 3K,) the variable scales. [internal units]
     """
     k, n = fit.channels.count, samples.shape[0]
     extra = stacked(fit.channels.values, reference) if kind == "series" else fit.channels.values
@@ -128,7 +128,8 @@ def joint_covariance(fit, samples, reference, kind: str, scale, q) -> dict:
     meat = totals.reshape(width, width)
     dof = n - q.shape[1] - (kind == "none")
     marginal, how = _covariance(q, series, blocks, meat, dof)
-    conditional, _ = _covariance(q[:, : q.shape[1] - 3 * k], series, blocks, meat, dof)
+    nine = q[:, ~np.any(q[9:], axis=0)]  # the directions that leave v where it is
+    conditional, _ = _covariance(nine, series, blocks, meat, dof)
     if marginal is None or conditional is None:
         return {"method": "singular"}
     errors = np.sqrt(np.maximum(np.diag(marginal)[9:], 0.0)) * scale[9:]

@@ -263,14 +263,15 @@ class ChannelFit:
         return np.asarray(samples, dtype=float) - np.asarray(values) @ self.v
 
 
-def _start(samples, channels: Channels, moments: Moments, model: str) -> tuple:
+def _start(samples, channels: Channels, moments: Moments, model: str, held) -> tuple:
     """(theta, v, frame): v by least squares of the raw samples on the channels (attitudes
-    independent of the channels average out), the offsets at the centre of a sphere fitted to
-    the samples less that stray field, unit scales (with a reference, the common scale that
-    maps the sphere's radius on the field) and zero angles."""
+    independent of the channels average out; zero for the `held` ones), the offsets at the
+    centre of a sphere fitted to the samples less that stray field, unit scales (with a
+    reference, the common scale that maps the sphere's radius on the field) and zero angles."""
     raw, values = subsample(samples), subsample(channels.values)
     design = np.column_stack([np.ones(len(values)), values])
     v0 = np.linalg.lstsq(design, raw, rcond=None)[0][1:]  # (K, 3)
+    v0[held] = 0.0
     frame = sphere_frame(raw - values @ v0)
     theta = np.zeros(9)
     theta[0:3] = frame.centre
@@ -292,11 +293,13 @@ def fit_channels(
     sandwich covariance of its scores (`joint_covariance`). samples [field unit], channels
     [channel unit], reference None, F or (N,) F_i [field unit]; `moments` of the raw samples
     (their reference kind and scale). Channels that vary only with the attitude are judged
-    first, about the centre of the raw samples' sphere (`check_identifiable`)."""
+    first, about the centre of the raw samples' sphere (`check_identifiable`); without
+    `require_identifiable` their stray fields are held at zero (the data cannot tell them)."""
     kind, k = moments.reference, channels.count
     r2 = attitude_r2(samples, channels, moments.frame.centre)
     check_identifiable(r2, require_identifiable)
-    theta0, v0, frame = _start(samples, channels, moments, model)
+    held = np.array([name in blind_channels(r2) for name in channels.names])
+    theta0, v0, frame = _start(samples, channels, moments, model, held)
     length = frame.radius if kind == "none" else moments.length
     cm = accumulate_channels(samples, channels.values, reference, frame, length, kind)
     free = variables("joint", kind, model)
@@ -305,8 +308,12 @@ def fit_channels(
     f0 = float(derivatives(np.zeros(free.size + 3 * k), p)[0])
     p[-1] = f0 if f0 > 0 else 1.0
     bounds = {"lbg": 0.0, "ubg": 0.0} if free.gauge else {}
-    outcome = solve(channel_problem(kind, k, model, ipopt), x0=0.0, p=p, **bounds)
-    basis = _basis(free, k)
+    fixed = np.concatenate([np.zeros(free.size, dtype=bool), np.repeat(held, 3)])
+    limit = np.where(fixed, 0.0, np.inf)
+    outcome = solve(
+        channel_problem(kind, k, model, ipopt), x0=0.0, p=p, lbx=-limit, ubx=limit, **bounds
+    )
+    basis = _basis(free, k)[:, ~_held_columns(free, k, held)]
     x, steps = _newton(derivatives, outcome.x, p, basis)
     if not (outcome.success or steps):
         raise SolveError("IPOPT did not solve the joint problem with aux channels", outcome.status)
@@ -340,6 +347,12 @@ def _basis(free, channels: int) -> np.ndarray:
     q[: free.size, : inner.shape[1]] = inner
     q[free.size :, inner.shape[1] :] = np.eye(3 * channels)
     return q
+
+
+def _held_columns(free, channels: int, held) -> np.ndarray:
+    """Which columns of `_basis` move the stray field of a `held` channel."""
+    inner = free.gauge_basis.shape[1] if free.gauge else free.size
+    return np.concatenate([np.zeros(inner, dtype=bool), np.repeat(held, 3)])
 
 
 def _newton(derivatives, x, p, basis) -> tuple:
@@ -394,7 +407,9 @@ def attach(result, fit: ChannelFit, raw_moments: Moments) -> None:
             name,
             kind,
             fit.v[k].copy(),
-            None if fit.v_errors is None else fit.v_errors[k].copy(),
+            None
+            if fit.v_errors is None or name in fit.not_identifiable
+            else fit.v_errors[k].copy(),
         )
         for k, (name, kind) in enumerate(zip(fit.channels.names, fit.channels.kinds))
     ]
@@ -410,7 +425,8 @@ def attach(result, fit: ChannelFit, raw_moments: Moments) -> None:
     if fit.not_identifiable:
         result.warnings.append(
             f"aux channels {', '.join(fit.not_identifiable)} vary only with the attitude: "
-            f"their stray fields cannot be told apart from the scale errors and angles"
+            f"their stray fields cannot be told apart from the scale errors and angles, and "
+            f"are held at zero"
         )
     if fit.v_errors is None:
         result.warnings.append(

@@ -536,6 +536,9 @@ class CalibrationResult(Document):
             )
         if block.get("not_identifiable"):
             failures.append(f"the data do not determine {', '.join(block['not_identifiable'])}")
+        blind = (block.get("aux") or {}).get("not_identifiable")
+        if blind:
+            failures.append(f"aux channels {', '.join(blind)} vary only with the attitude")
         poor = block.get("poorly_determined") or []
         return judge(
             failures,
