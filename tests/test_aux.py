@@ -15,11 +15,11 @@ import pytest
 from test_formats import _parameters as parameter_values
 
 import nlpcal
+from nlpcal.calibration import CalibrationSettings, prepare
 from nlpcal.calibration.channels import fit_channels, prepare_channels
 from nlpcal.cli import main
 from nlpcal.errors import InputError, QualityError
 from nlpcal.models.zhou2010 import correction_matrix
-from nlpcal.moments import accumulate
 from nlpcal.nlp.blocks import OPTIONS
 from nlpcal.schemas import validate
 from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log, motor_current_log, smooth_motor_log
@@ -142,18 +142,13 @@ def test_a_log_read_with_low_memory_stays_mapped_and_fits_alike(motor, tmp_path)
                 log, method="joint", aux_columns=["current"], aux_kind="current"
             )
         )
+        settings = CalibrationSettings.of(reference_field=PAPER_FIELD, unit="nT")
+        data = prepare(log.samples, settings)
         values = {"current": log.values("current")}
-        _, channels = prepare_channels(log.samples, values)
-        fit = fit_channels(
-            log.samples,
-            channels,
-            PAPER_FIELD,
-            accumulate(log.samples, PAPER_FIELD),
-            "full",
-            OPTIONS,
-        )
+        _, channels = prepare_channels(log.samples, values, None, settings)
+        fit = fit_channels(data, channels, "full", OPTIONS)
         # the samples without the stray field: a memory map of their own for a mapped log
-        assert isinstance(fit.compensated(log.samples), np.memmap) == low_memory
+        assert isinstance(fit.compensated(data.samples), np.memmap) == low_memory
     mapped, whole = fits
     # the same sums in another order of additions: within 0.01 standard errors
     assert np.all(

@@ -37,6 +37,7 @@ LAYERS = {
     "moments": 1,
     "plots": 1,
     "geomagnetic": 1,
+    "timing": 1,
     "nlp": 1,
     "auxiliary": 1,
     "calibration": 2,

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import tempfile
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -35,7 +35,7 @@ from .. import passes, validation
 from ..auxiliary.model import DEFAULT_KIND, KINDS, AuxChannel
 from ..auxiliary.moments import accumulate_channels, dask_rows, subsample
 from ..errors import InputError, QualityError, SolveError
-from ..moments import Moments, sphere_frame
+from ..moments import Moments, accumulate, sphere_frame
 from ..nlp.blocks import variable_scale, variables
 from ..nlp.channels import channel_derivatives, channel_parameters, channel_problem, v_scale
 from ..nlp.solver import IpoptOptions, solve
@@ -70,7 +70,7 @@ class Channels:
         return len(self.names)
 
 
-def check_aux_options(loss: str, model: str) -> None:
+def _check_options(loss: str, model: str) -> None:
     """InputError for the options the joint solve with channels does not take."""
     if loss != "l2":
         raise InputError("aux columns are fitted by least squares; drop --loss (or use l2)")
@@ -113,10 +113,12 @@ def log_channels(log, names) -> dict:
     return {name: log.values(name) for name in _names(names)}
 
 
-def prepare_channels(samples, aux_columns, aux_kind=None) -> tuple:
+def prepare_channels(samples, aux_columns, aux_kind, settings) -> tuple:
     """(samples, Channels) from `calibrate`'s arguments: `aux_columns` names columns of a pandas
     or Dask DataFrame `samples`, or maps names to (N,) values; `aux_kind` is one kind for all,
-    or one per channel. Checks the names, the kinds and the values (finite, N rows, varying)."""
+    or one per channel. Checks the names, the kinds, the values (finite, N rows, varying) and
+    that the `settings` (`CalibrationSettings`) are ones the joint solve takes."""
+    _check_options(settings.loss.kind, settings.model)
     if isinstance(aux_columns, str) or not isinstance(aux_columns, (Mapping, list, tuple)):
         raise InputError("aux_columns must be a list of column names (or a name -> values map)")
     names = _names(aux_columns)
@@ -281,20 +283,15 @@ def _start(samples, channels: Channels, moments: Moments, model: str, held) -> t
 
 
 def fit_channels(
-    samples,
-    channels: Channels,
-    reference,
-    moments: Moments,
-    model: str,
-    ipopt: IpoptOptions,
-    require_identifiable: bool = True,
+    data, channels: Channels, model: str, ipopt: IpoptOptions, require_identifiable: bool = True
 ) -> ChannelFit:
     """The joint least-squares solve (IPOPT, then Newton steps with the exact Hessian) and the
-    sandwich covariance of its scores (`joint_covariance`). samples [field unit], channels
-    [channel unit], reference None, F or (N,) F_i [field unit]; `moments` of the raw samples
-    (their reference kind and scale). Channels that vary only with the attitude are judged
+    covariance of its scores (`joint_covariance`) on `data` (`nlpcal.calibration.steps.Prepared`:
+    the samples [field unit], the reference, the moments of the raw samples); channels [channel
+    unit]. Channels that vary only with the attitude are judged
     first, about the centre of the raw samples' sphere (`check_identifiable`); without
     `require_identifiable` their stray fields are held at zero (the data cannot tell them)."""
+    samples, reference, moments = data.samples, data.reference, data.moments
     kind, k = moments.reference, channels.count
     r2 = attitude_r2(samples, channels, moments.frame.centre)
     check_identifiable(r2, require_identifiable)
@@ -329,6 +326,13 @@ def fit_channels(
     }
     fit.errors = joint_covariance(fit, samples, reference, kind, scale, directions @ basis)
     return fit
+
+
+def compensated(data, fit: ChannelFit):
+    """`data` (`nlpcal.calibration.steps.Prepared`) without the fitted stray field: its samples
+    less sum_k v_k c_k and their moments, gathered again."""
+    samples = fit.compensated(data.samples)
+    return replace(data, samples=samples, moments=accumulate(samples, data.reference))
 
 
 def _directions(matrix: np.ndarray, channels: int) -> np.ndarray:

@@ -82,60 +82,103 @@ def uncertainty(
     s^2 A^-1. `centre` : without a reference, the mean |B1| the least-squares residuals are
     taken from. [field unit]
     """
-    moments = problem.moments
     n = problem.samples.shape[0]
-    basis = problem.free.basis
-    # the parameters fitted: the model's free directions, and without a reference the mean |B1|
-    fitted = basis.shape[1] + (1 if moments.reference == "none" else 0)
-    options: dict = {"basis": basis, "dof": n - fitted}
     robust = problem.loss.robust and theta is not None
     information = (
         weighted_information(problem, theta, problem.loss.slope)[1]
         if robust
         else inference.information_from_hessian(hs, n)
     )
-    dependence = None
-    if theta is None:
-        result = inference.estimate(
-            information, residual_variance=n * objective / max(n - fitted, 1), **options
-        )
-    else:
-        meat, independent, dependence, noise = score_meat(problem, theta, centre, basis, n - fitted)
-        if not robust:  # s^2 A: the meat of independent samples of least squares, s^2 A^-1
-            independent = n * objective / max(n - fitted, 1) * np.asarray(information)
-        # scores without clear dependence: the sandwich of independent samples; else never
-        # narrower than it in any direction: a jackknife on few groups can fall below it by
-        # chance, and dependence seldom makes a fit more precise (deliberately conservative)
-        if meat is None:  # Student's t on N - p degrees of freedom, as for a linear fit
-            meat = independent * dependence["t_widening"] ** 2
-        else:
-            meat = inference.loewner_max(meat, independent, basis)
-        result = inference.estimate(information, meat=meat, **options)
-        alone = inference.estimate(information, meat=independent, **options)
+    result, alone, dependence, noise = sandwich(problem, information, objective, theta, centre)
     estimated = problem.estimated
-    index = [PARAMETER_NAMES.index(name) for name in estimated]
-    errors = covariance = None
-    to_units = variable_scale(moments.frame.radius).copy()  # scaled -> parameter units
-    to_units[6:9] = np.degrees(to_units[6:9])
-    if result.covariance is not None and np.all(np.isfinite(result.covariance)):
-        full = to_units[:, None] * result.covariance * to_units[None, :]
-        covariance = full[np.ix_(index, index)]  # the estimated parameters only
-        errors = {name: float(np.sqrt(full[i, i])) for name, i in zip(estimated, index)}
+    to_units = scaled_to_units(problem.moments.frame.radius)
+    errors, covariance = in_units(result, to_units, estimated)
     # what the attitudes determine: the standard errors of independent samples (the same
     # without `theta`), by which a parameter is undetermined; the dependence of neighbouring
     # samples widens a standard error (poorly determined) but leaves no valley in the objective
     independent = errors
     if dependence is not None and errors is not None and alone.standard_errors is not None:
         alone_errors = alone.standard_errors * to_units
-        independent = {name: float(alone_errors[i]) for name, i in zip(estimated, index)}
+        independent = {n: float(alone_errors[PARAMETER_NAMES.index(n)]) for n in estimated}
         dependence["standard_errors_independent"] = independent
         dependence["standard_error_widening"] = {
             name: errors[name] / independent[name] if independent[name] > 0 else 1.0
             for name in estimated
         }
-    radius = moments.frame.radius
+    block = determination(problem, result, errors, independent)
+    block["covariance_form"] = "sandwich" if theta is not None else "gauss-newton"
+    block.update(limits_block(problem))
+    if dependence is not None:
+        block["score_dependence"] = dependence
+    if dependence is not None and errors is not None and not result.weak:
+        block["second_order_bias"] = second_order_bias(
+            problem, theta, robust, (information, noise), to_units, errors
+        )
+    return errors, block, covariance
+
+
+def sandwich(problem: Problem, information, objective: float, theta, centre) -> tuple:
+    """(estimate, estimate of independent samples, score dependence, noise terms) of
+    `uncertainty`: s^2 A^-1 without `theta`; with it the sandwich A^-1 Omega A^-1, Omega the
+    block jackknife's meat where the scores are dependent, never narrower than that of
+    independent samples, else the latter widened by Student's t (`score_meat`). The second and
+    the last two are None without `theta`."""
+    n = problem.samples.shape[0]
+    basis = problem.free.basis
+    # the parameters fitted: the model's free directions, and without a reference the mean |B1|
+    fitted = basis.shape[1] + (1 if problem.moments.reference == "none" else 0)
+    options: dict = {"basis": basis, "dof": n - fitted}
+    variance = n * objective / max(n - fitted, 1)
+    if theta is None:
+        return inference.estimate(information, residual_variance=variance, **options), *(None,) * 3
+    meat, independent, dependence, noise = score_meat(problem, theta, centre, basis, n - fitted)
+    if not problem.loss.robust:  # s^2 A: the meat of independent samples of least squares
+        independent = variance * np.asarray(information)
+    # scores without clear dependence: the sandwich of independent samples; else never
+    # narrower than it in any direction: a jackknife on few groups can fall below it by
+    # chance, and dependence seldom makes a fit more precise (deliberately conservative)
+    if meat is None:  # Student's t on N - p degrees of freedom, as for a linear fit
+        meat = independent * dependence["t_widening"] ** 2
+    else:
+        meat = inference.loewner_max(meat, independent, basis)
+    result = inference.estimate(information, meat=meat, **options)
+    return result, inference.estimate(information, meat=independent, **options), dependence, noise
+
+
+def scaled_to_units(radius: float) -> np.ndarray:
+    """The factors from the scaled variables to the parameters' units (angles in deg). (9,)"""
+    to_units = variable_scale(radius).copy()
+    to_units[6:9] = np.degrees(to_units[6:9])
+    return to_units
+
+
+def in_units(estimate, to_units: np.ndarray, estimated: list) -> tuple:
+    """(standard errors, covariance) of the `estimated` parameters of an `inference.estimate`
+    in their units, or (None, None) when its covariance is not finite."""
+    if estimate.covariance is None or not np.all(np.isfinite(estimate.covariance)):
+        return None, None
+    index = [PARAMETER_NAMES.index(name) for name in estimated]
+    full = to_units[:, None] * estimate.covariance * to_units[None, :]
+    errors = {name: float(np.sqrt(full[i, i])) for name, i in zip(estimated, index)}
+    return errors, full[np.ix_(index, index)]
+
+
+def determination_limits(radius: float) -> tuple:
+    """(poorly determined, undetermined) standard errors of the nine parameters: the fractions
+    POORLY_DETERMINED and UNDETERMINED of the field for offsets. [parameter units]"""
     limits = np.concatenate([POORLY_DETERMINED[:3] * radius, POORLY_DETERMINED[3:]])
     far = np.concatenate([UNDETERMINED[:3] * radius, UNDETERMINED[3:]])
+    return limits, far
+
+
+def determination(problem: Problem, estimate, errors, independent) -> dict:
+    """The first entries of the identifiability block: the parameters not identifiable (along
+    a direction the objective does not change, or undetermined: a standard error of
+    independent samples above its UNDETERMINED limit), poorly determined (above
+    POORLY_DETERMINED), the weakest combination and the scaled Hessian's eigenvalues."""
+    estimated = problem.estimated
+    n = problem.samples.shape[0]
+    limits, far = determination_limits(problem.moments.frame.radius)
     undetermined = [
         n for n in estimated if independent and independent[n] > far[PARAMETER_NAMES.index(n)]
     ]
@@ -144,36 +187,51 @@ def uncertainty(
         for n in estimated
         if errors and errors[n] > limits[PARAMETER_NAMES.index(n)] and n not in undetermined
     ]
-    weak = _names(result.weak)
-    block: dict = {
+    weak = _names(estimate.weak)
+    return {
         "not_identifiable": [n for n in PARAMETER_NAMES if n in weak or n in undetermined],
         "undetermined": undetermined,
         "poorly_determined": poorly,
-        "weakest_combination": _names(result.weakest),
-        "hessian_eigenvalues_scaled": [float(v) for v in result.eigenvalues * 2.0 / n],
-        "covariance_form": "sandwich" if theta is not None else "gauss-newton",
-        "poorly_determined_limits": {n: float(limits[i]) for n, i in zip(estimated, index)},
-        "undetermined_limits": {n: float(far[i]) for n, i in zip(estimated, index)},
+        "weakest_combination": _names(estimate.weakest),
+        "hessian_eigenvalues_scaled": [float(v) for v in estimate.eigenvalues * 2.0 / n],
     }
-    if dependence is not None:
-        block["score_dependence"] = dependence
-    if dependence is not None and errors is not None and not result.weak:
-        white = white_variance(problem.residuals(theta, problem.centre), robust)
-        series = problem.reference_series()
-        reference = 0.0 if series is None else white_variance(series, robust)
-        variance = max(white - reference, 0.0)  # the sensor's share of the white residuals
-        shift = noise_bias(information, basis, noise, variance) * to_units
-        block["second_order_bias"] = {
-            "form": "errors in variables, second order in the sensor noise",
-            "noise_std": float(np.sqrt(variance / noise["mean_square_g"])),
-            "reference_noise_std": float(np.sqrt(reference)),
-            "noise_separable": bool(reference <= REFERENCE_NOISE_SHARE * white),
-            "bias": {name: float(shift[i]) for name, i in zip(estimated, index)},
-            "bias_in_standard_errors": {
-                name: float(shift[i] / errors[name]) for name, i in zip(estimated, index)
-            },
-        }
-    return errors, block, covariance
+
+
+def limits_block(problem: Problem) -> dict:
+    """The limits of `determination` of the estimated parameters. [parameter units]"""
+    limits, far = determination_limits(problem.moments.frame.radius)
+    index = [PARAMETER_NAMES.index(name) for name in problem.estimated]
+    return {
+        "poorly_determined_limits": {n: float(limits[i]) for n, i in zip(problem.estimated, index)},
+        "undetermined_limits": {n: float(far[i]) for n, i in zip(problem.estimated, index)},
+    }
+
+
+def second_order_bias(
+    problem: Problem, theta, robust: bool, terms: tuple, to_units: np.ndarray, errors: dict
+) -> dict:
+    """The "second_order_bias" block: the bias of the estimate in the sensor's white noise
+    (`noise_bias` of `terms`, the information and the noise terms of `score_meat`), with the
+    sensor's noise the white part of the residuals' variance less a reference series'.
+    [parameter units]"""
+    white = white_variance(problem.residuals(theta, problem.centre), robust)
+    series = problem.reference_series()
+    reference = 0.0 if series is None else white_variance(series, robust)
+    variance = max(white - reference, 0.0)  # the sensor's share of the white residuals
+    estimated = problem.estimated
+    index = [PARAMETER_NAMES.index(name) for name in estimated]
+    information, noise = terms
+    shift = noise_bias(information, problem.free.basis, noise, variance) * to_units
+    return {
+        "form": "errors in variables, second order in the sensor noise",
+        "noise_std": float(np.sqrt(variance / noise["mean_square_g"])),
+        "reference_noise_std": float(np.sqrt(reference)),
+        "noise_separable": bool(reference <= REFERENCE_NOISE_SHARE * white),
+        "bias": {name: float(shift[i]) for name, i in zip(estimated, index)},
+        "bias_in_standard_errors": {
+            name: float(shift[i] / errors[name]) for name, i in zip(estimated, index)
+        },
+    }
 
 
 def white_variance(series, robust: bool) -> float:

@@ -129,7 +129,7 @@ def run_staged(problem, rule: StopRule, progress=None):
     # orthogonal stage; the offset model a scale stage only for its common scale)
     order = [s for s in STAGE_ORDER if variables(s, problem.moments.reference, problem.model).size]
     rows = [problem.measured_row()]
-    stages = []
+    stages: list = []
     previous = rows[0]["objective"]
     stop_reason = "max_cycles"
     predicting = (
@@ -142,36 +142,16 @@ def run_staged(problem, rule: StopRule, progress=None):
     robust_phase, changed = False, False  # least squares first, then reweighting every cycle
     for cycle in range(1, rule.max_cycles + 1):
         started = time.perf_counter()
-        iterations = 0
         changed = robust_phase and problem.reweight(theta)
-        for stage in order:
-            step = block_step(problem.moments, stage, theta, problem.ipopt, model=problem.model)
-            theta = step.theta
-            iterations += step.iterations
-            stages.append(BlockSolve.of(step, cycle, stage))
-        exact = (
-            rule.every_row_exact
-            or cycle == 1
-            or rule.target_range is not None
-            or rule.target_std is not None
-            or not problem.rows_from_moments
-        )
-        label, wall_s = f"cycle {cycle}", time.perf_counter() - started
-        row = (
-            None
-            if exact
-            else problem.moment_row(label, theta, iterations=iterations, wall_s=wall_s)
-        )
-        if row is None:
-            row = problem.row(label, theta, step.f_end, iterations=iterations, wall_s=wall_s)
+        step, iterations = run_cycle(problem, order, theta, cycle, stages)
+        theta = step.theta
+        row = cycle_row(problem, rule, cycle, step, iterations, time.perf_counter() - started)
         rows.append(row)
         if progress is not None:
             progress(cycle, row)
-        if rule.target_std is not None and row["std"] <= rule.target_std:
-            stop_reason = "target_std"
-            break
-        if rule.target_range is not None and row["range"] <= rule.target_range:
-            stop_reason = "target_range"
+        target = target_met(rule, row)
+        if target:
+            stop_reason = target
             break
         if robust_phase:  # the mean loss, from an exact row
             current = row["robust_objective"]
@@ -198,3 +178,48 @@ def run_staged(problem, rule: StopRule, progress=None):
             last["label"], theta, step.f_end, iterations=last["iterations"], wall_s=last["wall_s"]
         )
     return theta, rows, stages, stop_reason
+
+
+def run_cycle(problem, order: list, theta, cycle: int, stages: list):
+    """One cycle of Fig. 1 in [1]: each stage of `order` solved in turn from the latest
+    parameters, its `BlockSolve` appended to `stages`. Returns (the last stage's
+    `nlpcal.nlp.steps.Step`, IPOPT's iterations over the cycle)."""
+    iterations = 0
+    for stage in order:
+        step = block_step(problem.moments, stage, theta, problem.ipopt, model=problem.model)
+        theta = step.theta
+        iterations += step.iterations
+        stages.append(BlockSolve.of(step, cycle, stage))
+    return step, iterations
+
+
+def cycle_row(problem, rule: StopRule, cycle: int, step, iterations: int, wall_s: float) -> dict:
+    """The Table 1 row of a cycle: from the moments where `rule` and the problem let it
+    (`StopRule.every_row_exact`, `Problem.rows_from_moments`; never the first cycle, nor with a
+    target), else from a pass over the data."""
+    exact = (
+        rule.every_row_exact
+        or cycle == 1
+        or rule.target_range is not None
+        or rule.target_std is not None
+        or not problem.rows_from_moments
+    )
+    label = f"cycle {cycle}"
+    row = (
+        None
+        if exact
+        else problem.moment_row(label, step.theta, iterations=iterations, wall_s=wall_s)
+    )
+    if row is None:
+        row = problem.row(label, step.theta, step.f_end, iterations=iterations, wall_s=wall_s)
+    return row
+
+
+def target_met(rule: StopRule, row: dict) -> str | None:
+    """The stop reason of a target of step 7 of Fig. 1 in [1] that a cycle's row meets, or
+    None."""
+    if rule.target_std is not None and row["std"] <= rule.target_std:
+        return "target_std"
+    if rule.target_range is not None and row["range"] <= rule.target_range:
+        return "target_range"
+    return None

@@ -17,11 +17,13 @@ from __future__ import annotations
 from .common import (
     CALIBRATED_LOG_UNIT,
     LOG_HELP,
+    acknowledge,
     add_command,
     add_log_arguments,
     add_params_argument,
     add_plot_argument,
     add_precision_argument,
+    add_reference_log_arguments,
     add_reference_model_arguments,
     check_plot,
     emit_json,
@@ -148,6 +150,7 @@ def correction_for(args, columns, require_temperature: bool):
     params_path = getattr(args, "params", None)
     parameters = load_parameters(params_path) if params_path else None
     drift = DriftFit.load(args.drift) if args.drift else None
+    acknowledge(parameters)
     return Correction.plan(
         parameters,
         drift,
@@ -253,8 +256,10 @@ the reference (Eq. 10 of Liu et al. 2022).""",
         "--reference-column",
         metavar="COL",
         help="column of reference magnitudes (name or position; its unit from its name, "
-        "else the field columns'): add the RMSE of Eq. 10 (Liu et al. 2022) to every row",
+        "else the field columns'): add the RMSE of Eq. 10 (Liu et al. 2022) to every row; "
+        "with --reference-log, the column of that log",
     )
+    add_reference_log_arguments(parser)
     parser.add_argument("--json", action="store_true", help="print the rows as JSON on stdout")
     add_reference_model_arguments(parser)
     parser.set_defaults(func=run_stats)

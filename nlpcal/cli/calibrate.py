@@ -257,6 +257,7 @@ def _read_for_calibration(args, extra):
         # table for what needs it (a figure's time axis, a model's position and time columns)
         # and for logs read whole anyway (recorded formats; stdin, which may be one)
         whole = per_sample or args.plot or args.log == "-" or is_recorded(args.log)
+        whole = whole or "reference_log" in options  # interpolated onto the log's times
         lean = args.low_memory or not whole
         with show_progress(f"reading {args.log}") as bar:
             return read_log(args.log, **options, extra_columns=extra, low_memory=lean, progress=bar)

@@ -106,6 +106,7 @@ def add_verbosity(parser) -> None:
 
 def set_verbosity(args) -> None:
     global VERBOSITY
+    ACKNOWLEDGED.clear()
     VERBOSITY = -1 if getattr(args, "quiet", False) else int(bool(getattr(args, "verbose", False)))
 
 
@@ -176,12 +177,31 @@ def tell(notes) -> None:
 
 
 def report_log(log) -> None:
-    """How a log was read (-v), what the reader decided and what looks wrong (not with -q)."""
+    """How a log was read (-v), what the reader decided and what looks wrong (not with -q), and
+    the acknowledgement its data require (`acknowledge`)."""
     reading = log.reading() if hasattr(log, "reading") else log.layout.describe()
     detail(f"read {log.path}: {reading}")
     tell(log.notes)
     for message in log.warnings:
         warning(message)
+    acknowledge(getattr(log, "observatory", None))
+
+
+#: The terms of use printed by this run (each once).
+ACKNOWLEDGED: set = set()
+
+
+def acknowledge(source) -> None:
+    """The acknowledgement a data set requires (an observatory file's terms of use), on stderr
+    once per run wherever results from it are shown, -q or not: it is a condition of using the
+    data, not a message. `source`: an `nlpcal.io.observatory.Observatory`, a result whose input
+    came from one, or None."""
+    from ..io.observatory import terms_of_use
+
+    terms = terms_of_use(source)
+    if terms and terms not in ACKNOWLEDGED:
+        ACKNOWLEDGED.add(terms)
+        print(f"nlpcal: terms of use of the data: {terms}", file=sys.stderr)
 
 
 def solver_log():
@@ -306,9 +326,39 @@ def add_reference_arguments(parser) -> None:
         "--reference-column",
         metavar="COL",
         help="column of per-sample reference magnitudes (name or 0-based position), in the "
-        "unit its name carries (proton_nT) or the field columns' unit",
+        "unit its name carries (proton_nT) or the field columns' unit; with --reference-log, "
+        "the column of that log",
     )
+    add_reference_log_arguments(parser)
     add_reference_model_arguments(parser)
+
+
+def add_reference_log_arguments(parser) -> None:
+    """--reference-log FILE, --reference-time-column COL, --interpolation linear|cubic."""
+    group = parser.add_argument_group(
+        "reference with its own time base (the log's times from --time-column, or an "
+        "observatory file's)"
+    )
+    group.add_argument(
+        "--reference-log",
+        metavar="FILE",
+        help="read the reference column (--reference-column) from this log, with its own "
+        "times, and interpolate it onto the log's times; rows of the log outside its span, or "
+        "inside a gap longer than 3 of its steps, are dropped and counted",
+    )
+    group.add_argument(
+        "--reference-time-column",
+        metavar="COL",
+        help="the reference log's column of times: ISO 8601 or seconds, on the same clock as "
+        "the log's (default: 'time' in an observatory file, else the log's --time-column name)",
+    )
+    group.add_argument(
+        "--interpolation",
+        choices=("linear", "cubic"),
+        default="linear",
+        help="how the reference is interpolated: linear, or a cubic spline (needs scipy: "
+        "pip install 'nlpcal[spline]') (default: linear)",
+    )
 
 
 MODELS = ("igrf", "wmm")  # the library's nlpcal.geomagnetic.MODELS
@@ -359,7 +409,12 @@ def reference_model(args):
     given = {name: getattr(args, name, None) for name in names}
     model = getattr(args, "reference_model", None)
     if model is None:
-        used = [f"--{name.replace('_', '-')}" for name, value in given.items() if value is not None]
+        timed = getattr(args, "reference_log", None) is not None  # the log's times serve it too
+        used = [
+            f"--{name.replace('_', '-')}"
+            for name, value in given.items()
+            if value is not None and not (timed and name == "time_column")
+        ]
         if used:
             raise InputError(f"{', '.join(used)} need --reference-model igrf|wmm")
         return None
@@ -440,7 +495,34 @@ def log_options(args) -> dict:
     legacy = getattr(args, "reference_field_nt", None)
     if legacy is not None:
         options.update(reference_field=legacy, reference_field_unit="nT")
+    spec = reference_log(args)
+    if spec is not None:
+        options.update(reference_column=None, reference_log=spec)
     return options
+
+
+def reference_log(args):
+    """The `nlpcal.io.reference.ReferenceLog` that --reference-log and its options ask for, or
+    None; InputError for its options without it."""
+    from ..errors import InputError
+    from ..io.reference import ReferenceLog
+
+    path = getattr(args, "reference_log", None)
+    if path is None:
+        if getattr(args, "reference_time_column", None) is not None:
+            raise InputError("--reference-time-column needs --reference-log FILE")
+        if getattr(args, "interpolation", "linear") != "linear":
+            raise InputError("--interpolation needs --reference-log FILE")
+        return None
+    if getattr(args, "reference_column", None) is None:
+        raise InputError("--reference-log needs --reference-column COL, its column of values")
+    return ReferenceLog(
+        path=path,
+        column=args.reference_column,
+        time_column=args.reference_time_column,
+        log_time_column=getattr(args, "time_column", None),
+        interpolation=args.interpolation,
+    )
 
 
 def emit_json(document, output) -> None:

@@ -50,7 +50,9 @@ def stored_reference_column(parameters, options: dict, columns) -> str | None:
     """The reference column the calibration was fitted with, when no reference option is given
     and the log has that column (a constant reference is taken from the parameters by
     `nlpcal.report`)."""
-    if any(options.get(k) is not None for k in ("reference_field", "reference_model")):
+    if any(
+        options.get(k) is not None for k in ("reference_field", "reference_model", "reference_log")
+    ):
         return None
     if options.get("reference_column") is not None:
         return None

@@ -262,6 +262,7 @@ def read_lazy_log(
     block_bytes: int = BLOCK_BYTES,
     variable: str | None = None,
     instance: int | None = None,
+    reference_log=None,
 ) -> Log:
     """`nlpcal.io.read_log` for a Dask cluster: the same columns, units and checks, the samples
     (and a reference column) left in the files as `nlpcal.passes.LazySamples`.
@@ -272,6 +273,8 @@ def read_lazy_log(
     log in memory (`read_log`).
     """
     one_reference(reference_column, reference_field, reference_model)
+    if reference_log is not None:
+        raise InputError("--reference-log needs the log in memory; drop --scheduler")
     if extra_columns or (
         reference_model is not None
         and (reference_model.numeric_columns() or reference_model.time_column)

@@ -26,7 +26,9 @@ from ..geomagnetic import ReferenceModel, parse_times
 from ..moments import sphere_frame
 from .layout import Layout
 from .mapped import csv_to_memmap
+from .observatory import Observatory
 from .recorders import ENGINES, check_options, declared_unit, is_recorded
+from .reference import ReferenceLog, with_reference_log
 from .rows import RowScreen
 from .tables import (
     Table,
@@ -76,6 +78,12 @@ class Log:
         What looks wrong (a unit that does not fit the magnitudes), for the user to read.
     layout : Layout
         How the file is laid out, to write it back the same way.
+    observatory : Observatory or None
+        The header of an observatory file (station, sensor, units, terms of use), kept in the
+        result's provenance ("input.observatory").
+    reference_log : dict or None
+        Where a reference with its own time base came from and how it was interpolated
+        (`nlpcal.io.reference`), kept in the result's provenance ("input.reference_log").
 
     Examples
     --------
@@ -104,6 +112,8 @@ class Log:
     notes: list = field(default_factory=list)
     warnings: list = field(default_factory=list)
     layout: Layout = field(default_factory=Layout)
+    observatory: Observatory | None = None
+    reference_log: dict | None = None
 
     @property
     def base_unit(self) -> str:
@@ -138,6 +148,8 @@ class Log:
             "layout": self.layout.to_dict(),
             "csv_engine": self.engine,
             "rows_dropped": int(self.dropped),
+            **({"observatory": self.observatory.to_dict()} if self.observatory else {}),
+            **({"reference_log": dict(self.reference_log)} if self.reference_log else {}),
             **more,
         }
 
@@ -270,10 +282,12 @@ def screened(table: Table, wanted: list, drop_invalid: bool, notes: list, frame=
     return numeric.values[keep], kept, numeric.dropped + int((~keep).sum())
 
 
-def one_reference(column, field, model) -> None:
-    """InputError unless at most one of a reference column, field and model is given."""
-    if sum(value is not None for value in (column, field, model)) > 1:
-        raise InputError("give one reference: a column, a field or a geomagnetic model")
+def one_reference(column, field, model, log=None) -> None:
+    """InputError unless at most one of a reference column, field, model and log is given."""
+    if sum(value is not None for value in (column, field, model, log)) > 1:
+        raise InputError(
+            "give one reference: a column, a field, a geomagnetic model or a reference log"
+        )
 
 
 def constant_reference(field, field_unit: str | None, unit: str) -> float:
@@ -318,6 +332,7 @@ def read_log(
     variable: str | None = None,
     instance: int | None = None,
     progress=None,
+    reference_log: ReferenceLog | None = None,
 ) -> Log:
     """Read, validate and convert a field log.
 
@@ -352,6 +367,9 @@ def read_log(
         text and Parquet logs, a recorded format is read whole, with a note).
     progress : Progress, optional
         Told how far a `low_memory` read has come (`nlpcal.io.progress.Progress`).
+    reference_log : ReferenceLog, optional
+        Or a reference read from another log with its own time base, interpolated onto the
+        log's times (`--reference-log`, `nlpcal.io.reference`); rows outside its span dropped.
     fallback_unit : str
         The unit assumed when nothing names one.
     header : bool, optional
@@ -385,7 +403,9 @@ def read_log(
     >>> log.columns, log.unit, log.samples.shape  # the samples in nT
     (['bx', 'by', 'bz'], 'uT', (200, 3))
     """
-    one_reference(reference_column, reference_field, reference_model)
+    one_reference(reference_column, reference_field, reference_model, reference_log)
+    if reference_log is not None and low_memory:
+        raise InputError("--reference-log needs the log in memory; drop --low-memory")
     notes: list = []
     model_columns = reference_model.numeric_columns() if reference_model else []
     time_column = reference_model.time_column if reference_model else None
@@ -426,6 +446,7 @@ def read_log(
         values, frame, kept, dropped = mapped.values, None, None, mapped.dropped
         engine, layout, source = "c (chunked into a memory map)", mapped.layout, mapped.source
         samples = values[:, :3]
+        observatory = None
     else:
         table = (
             path
@@ -450,6 +471,7 @@ def read_log(
         values, kept, dropped = screened(
             table, chosen + extra + times_at, drop_invalid, notes, checked
         )
+        observatory = table.observatory
         declared = format_unit(chosen, notes, table)
         unit, how = sensor_unit(chosen, unit, fallback_unit, notes, declared=declared)
         frame, engine, layout, source = table.frame, table.engine, table.layout, table.source
@@ -477,7 +499,7 @@ def read_log(
         reference, source_of_reference = model_reference(reference_model, unit, notes, found, times)
     elif reference_field is not None:
         reference = constant_reference(reference_field, reference_field_unit, unit)
-    return Log(
+    read = Log(
         path=source,
         columns=list(chosen),
         samples=samples,
@@ -494,7 +516,9 @@ def read_log(
         notes=notes,
         warnings=warnings,
         layout=layout,
+        observatory=observatory,
     )
+    return read if reference_log is None else with_reference_log(read, reference_log)
 
 
 def _unix_seconds(column) -> np.ndarray:

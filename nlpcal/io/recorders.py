@@ -5,13 +5,15 @@
 - MATLAB .mat files, v5 and v7.3 (`nlpcal.io.matlab`), the variable named by `--variable` or
   detected;
 - ArduPilot DataFlash .bin logs (`nlpcal.io.dataflash`), the compass chosen by `--instance`;
+- geomagnetic observatory data, IAGA-2002 text (`nlpcal.io.iaga2002`) and INTERMAGNET ImagCDF
+  (`nlpcal.io.imagcdf`), with their header kept (`nlpcal.io.observatory.Observatory`);
 - ROS `sensor_msgs/MagneticField` exported to CSV (`rostopic echo -p`, rosbag-to-CSV tools):
   columns `field.magnetic_field.x` (ROS 1) or `magnetic_field.x` (ROS 2 tools), in tesla as the
   message definition fixes (`declared_unit`); read as any CSV, only the unit comes from here;
 - phyphox exports ("Magnetic field x (µT)", comma, tab or semicolon with a decimal comma) are
   plain delimited text whose names carry their unit (`nlpcal.units`).
 
-`read_recorded` reads the first three, with the field columns and unit the format fixes (which
+`read_recorded` reads the first four, with the field columns and unit the format fixes (which
 `nlpcal.io.tables.read_table` keeps in its `Table`); every other file is left to the delimited
 text reader.
 """
@@ -27,21 +29,28 @@ import pandas as pd
 from ..errors import InputError
 from . import dataflash, motioncal, sources
 from .dataflash import is_dataflash, read_dataflash
+from .iaga2002 import is_iaga2002, read_iaga2002
+from .imagcdf import is_imagcdf, read_imagcdf
 from .layout import head_bytes
 from .matlab import is_mat, read_mat
 from .motioncal import is_capture, read_capture
+from .observatory import Observatory
 
 #: What reads each recorded format (`Log.engine`), for messages and result documents.
 ENGINES = {
     "motioncal": "MotionCal line reader",
     "mat": "scipy/h5py MATLAB reader",
     "dataflash": "pymavlink DFReader",
+    "iaga2002": "IAGA-2002 reader",
+    "imagcdf": "cdflib ImagCDF reader",
 }
 #: What each recorded format is, for messages.
 NAMES = {
     "motioncal": "a MotionCal capture",
     "mat": "a MATLAB .mat file",
     "dataflash": "an ArduPilot DataFlash log",
+    "iaga2002": "an IAGA-2002 observatory file",
+    "imagcdf": "an INTERMAGNET ImagCDF file",
 }
 #: What the reading options apply to, for messages.
 OPTION_FORMATS = {
@@ -57,15 +66,24 @@ ROS_UNIT = "T"
 
 
 def kind(head: bytes) -> str | None:
-    """The recorded format the start of a file shows ("motioncal", "mat", "dataflash"), or
-    None for delimited text (and everything else)."""
+    """The recorded format the start of a file shows ("motioncal", "mat", "dataflash",
+    "iaga2002", "imagcdf"), or None for delimited text (and everything else)."""
     if is_mat(head):
         return "mat"
     if is_dataflash(head):
         return "dataflash"
     if is_capture(head):
         return "motioncal"
-    return None
+    return _observatory_kind(head)
+
+
+#: The observatory formats: their test and reader, (name, source) -> (frame, field columns,
+#: notes, Observatory).
+OBSERVATORY = {"iaga2002": (is_iaga2002, read_iaga2002), "imagcdf": (is_imagcdf, read_imagcdf)}
+
+
+def _observatory_kind(head: bytes) -> str | None:
+    return next((name for name, (test, _) in OBSERVATORY.items() if test(head)), None)
 
 
 @dataclass
@@ -74,7 +92,8 @@ class Recorded:
 
     frame : its columns. field_columns : the field columns the format fixes (None: recognised
     from the names). field_unit : the unit the format fixes, or None. engine : what read it.
-    notes : what the reader decided, for the user to read.
+    notes : what the reader decided, for the user to read. observatory : the header of an
+    observatory file (station, sensor, units, terms of use), else None.
     """
 
     frame: pd.DataFrame
@@ -82,6 +101,7 @@ class Recorded:
     field_unit: str | None
     engine: str
     notes: list = field(default_factory=list)
+    observatory: Observatory | None = None
 
 
 def is_recorded(path) -> bool:
@@ -117,6 +137,9 @@ def read_recorded(name: str, source, *, variable=None, instance=None) -> Recorde
         return None
     columns: list | None
     unit: str | None
+    if found in OBSERVATORY:
+        frame, columns, notes, record = OBSERVATORY[found][1](name, source)
+        return Recorded(frame, columns, "nT" if columns else None, ENGINES[found], notes, record)
     if found == "motioncal":
         frame, notes = read_capture(name, _bytes(source))
         columns, unit = motioncal.FIELD_COLUMNS, motioncal.FIELD_UNIT

@@ -22,6 +22,7 @@ from .. import units
 from ..errors import InputError
 from . import recorders, sources
 from .layout import Layout, detect_layout, open_source
+from .observatory import Observatory
 
 #: What each sensor's axis columns may be called, for `resolve_columns`:
 #: name -> (prefixes, unit suffixes, examples for messages, flag for messages).
@@ -67,6 +68,8 @@ class Table:
         CSV columns fix theirs by their names: `nlpcal.io.recorders.declared_unit`.)
     field_columns : the field columns the file format fixes (a MotionCal capture's mx, my, mz),
         else None: recognised from the names.
+    observatory : the header of an observatory file (`nlpcal.io.observatory.Observatory`),
+        else None.
     """
 
     source: str
@@ -77,6 +80,7 @@ class Table:
     notes: list = field(default_factory=list)
     field_unit: str | None = None
     field_columns: list | None = None
+    observatory: Observatory | None = None
 
     @property
     def columns(self) -> list:
@@ -184,6 +188,7 @@ def read_table(
             notes=recorded.notes,
             field_unit=recorded.field_unit,
             field_columns=recorded.field_columns,
+            observatory=recorded.observatory,
         )
     layout = detect_layout(name, source, header)
     frame, engine = _frame(name, source, layout, text=text)

@@ -223,22 +223,58 @@ def block_step(
     """
     theta = np.asarray(theta, dtype=float)
     free = variables(block, moments.reference, model)
-    zero = np.zeros(free.size)
-    start = _Newton.at(moments, free, theta, zero)
+    start = _Newton.at(moments, free, theta, np.zeros(free.size))
+    done = _finished_at_start(moments, free, theta, start, stationary)
+    if done is not None:
+        return done
     f_start = start.f
-    floor = PRECISION_FLOOR * moments.length**2
-    if abs(f_start) <= floor:
+    problem = block_problem(block, moments.reference, model, options)
+    f_ref = max(f_start, SCALE_FLOOR * moments.length**2)
+    p = parameter_values(moments).copy()
+    p[0:9] = theta  # theta_ref: the blocks held fixed, and where x = 0
+    p[-1] = f_ref
+    bounds = {"lbg": 0.0, "ubg": 0.0} if problem.has_gauge else {}
+    # IPOPT starts where the start's Newton step lands when that step is a finishing one (a
+    # warm start: IPOPT checks it, and iterates from it unless it meets IPOPT's tolerance).
+    outcome = solve(problem.solver, x0=start.taken().x, p=p, **bounds)
+    outcome, end = _checked(moments, free, theta, outcome, f_start)
+    # A stage never makes the objective worse, unless the difference is rounding: an answer the
+    # Newton steps place within the resolution of the block's optimum is better than a start
+    # that was not (else the start would not have been solved).
+    if end.f > f_start + 1e-12 * f_ref and not end.within():
+        outcome = replace(
+            outcome,
+            x=start.x,
+            f=f_start / f_ref,
+            finished_by="start",
+            nlpcal_status="Start_Kept",
+        )
+        return _step(
+            moments, free, theta, outcome, f_start, f_ref, start.hess / f_ref, problem=problem
+        )
+    outcome = replace(outcome, x=end.x, f=end.f / f_ref)
+    return _step(moments, free, theta, outcome, f_start, f_ref, end.hess / f_ref, problem=problem)
+
+
+def _finished_at_start(
+    moments: mom.Moments, free: Variables, theta, start: _Newton, stationary: float | None
+) -> Step | None:
+    """The Step of a block solve that needs no IPOPT (`block_step`): noise-free data at their
+    optimum (At_Precision_Floor, the objective below what float64 moments resolve), or a start
+    whose Newton step is within `stationary` (At_Stationary_Point, the step finishes it); else
+    None."""
+    if abs(start.f) <= PRECISION_FLOOR * moments.length**2:
         # Noise-free data at their optimum: nothing left that float64 moments can resolve.
         outcome = SolveOutcome(
-            x=zero,
-            f=f_start,
+            x=start.x,
+            f=start.f,
             status="",
             success=True,
             iterations=0,
             finished_by="start",
             nlpcal_status="At_Precision_Floor",
         )
-        return _step(moments, free, theta, outcome, f_start, 1.0, start.hess)
+        return _step(moments, free, theta, outcome, start.f, 1.0, start.hess)
     if start.within(stationary):
         landed = start.taken()
         outcome = SolveOutcome(
@@ -250,23 +286,22 @@ def block_step(
             finished_by="newton",
             nlpcal_status="At_Stationary_Point",
         )
-        return _step(moments, free, theta, outcome, f_start, 1.0, start.hess, start.decrease)
-    problem = block_problem(block, moments.reference, model, options)
-    f_ref = max(f_start, SCALE_FLOOR * moments.length**2)
-    p = parameter_values(moments).copy()
-    p[0:9] = theta  # theta_ref: the blocks held fixed, and where x = 0
-    p[-1] = f_ref
-    bounds = {"lbg": 0.0, "ubg": 0.0} if problem.has_gauge else {}
-    # IPOPT starts where the start's Newton step lands when that step is a finishing one (a
-    # warm start: IPOPT checks it, and iterates from it unless it meets IPOPT's tolerance).
-    outcome = solve(problem.solver, x0=start.taken().x, p=p, **bounds)
+        return _step(moments, free, theta, outcome, start.f, 1.0, start.hess, start.decrease)
+    return None
+
+
+def _checked(moments: mom.Moments, free: Variables, theta, outcome, f_start: float) -> tuple:
+    """(outcome, end): IPOPT's outcome of a block solve judged by nlpcal (`block_step`), and the
+    `_Newton` point where the solve ends, after the Newton steps that finish it. Raises
+    SolveError for a negative objective or a failure that Newton steps do not mend."""
+    floor = PRECISION_FLOOR * moments.length**2
     # A negative objective (a variance) means the series of `nlp.objective` does not hold where
     # the solve went, which happens when the data leave directions undetermined.
     end = _Newton.at(moments, free, theta, outcome.x)
     if end.f < -floor:
         raise SolveError(
-            f"the {block} problem's objective, a variance, went negative where the solve ended: "
-            "its moment series does not hold there",
+            f"the {free.block} problem's objective, a variance, went negative where the solve "
+            "ended: its moment series does not hold there",
             "Negative_Objective",
             result=theta,
         )
@@ -286,20 +321,9 @@ def block_step(
             )
     if not outcome.success:
         raise SolveError(
-            f"IPOPT did not solve the {block} problem", outcome.status, result=theta
+            f"IPOPT did not solve the {free.block} problem", outcome.status, result=theta
         )  # the start, where the data's null directions show
-    # A stage never makes the objective worse, unless the difference is rounding: an answer the
-    # Newton steps place within the resolution of the block's optimum is better than a start
-    # that was not (else the start would not have been solved).
-    if end.f > f_start + 1e-12 * f_ref and not end.within():
-        outcome = replace(
-            outcome, x=zero, f=f_start / f_ref, finished_by="start", nlpcal_status="Start_Kept"
-        )
-        return _step(
-            moments, free, theta, outcome, f_start, f_ref, start.hess / f_ref, problem=problem
-        )
-    outcome = replace(outcome, x=end.x, f=end.f / f_ref)
-    return _step(moments, free, theta, outcome, f_start, f_ref, end.hess / f_ref, problem=problem)
+    return outcome, end
 
 
 def _step(

@@ -11,6 +11,7 @@ from ..errors import InputError
 from ..io.files import sha256_file
 from ..io.layout import STDIN
 from ..io.logs import Log
+from ..io.observatory import terms_of_use
 from ..models.zhou2010 import correct
 from ..plots import calibration_png, require_matplotlib
 from ..version import __version__
@@ -87,7 +88,9 @@ def report(
     except InputError as exc:
         missing = str(exc)
         notes.append(f"the report has no figure: {missing}")
+    terms = terms_of_use(log.observatory) or terms_of_use(calibration)
     provenance = {
+        **({"acknowledgement": terms} if terms else {}),
         "nlpcal_version": __version__,
         "parameters": {
             "file": None if parameters_path is None else str(parameters_path),

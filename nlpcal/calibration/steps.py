@@ -1,0 +1,513 @@
+"""The steps of a calibration, in order: prepare, solve, diagnose, assemble, gate.
+
+    data = prepare(samples, settings)               # units, checks, the moments (one pass)
+    problem = data.problem(model, settings)
+    solution = solve(problem, method, rule, unit)   # the staged cycle or the joint solve
+    diagnosis = diagnose(problem, solution, method, rule, unit)   # what the data determine
+    result = assemble(problem, solution, diagnosis, method, unit) # parameters, rows, result
+    gate(result, problem, diagnosis, quality)       # QualityError unless the result is usable
+
+`nlpcal.calibrate` runs them (`estimate` the last four, once per model tried); each takes the
+settings it needs (`nlpcal.calibration.settings`).
+
+References
+----------
+[1] Zhou et al. (2010), see `nlpcal.models.zhou2010`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .. import passes, units, validation
+from ..errors import QualityError, SolveError
+from ..inference import Z_975
+from ..io.lazy import field_samples
+from ..io.logs import settle_unit
+from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
+from ..moments import Moments, accumulate
+from ..nlp.blocks import GAUGE
+from ..robust import TUNING
+from .coverage import coverage_centre, direction_coverage
+from .diagnostics import (
+    explain_failure,
+    joint_gap,
+    notes_for,
+    problem_flatness,
+    residual_spread,
+    scaled_hessian,
+    uncertainty,
+    undetermined_message,
+    warnings_for,
+)
+from .joint import reweighting_limit_warning, run_joint
+from .problem import Problem
+from .result import BlockSolve, CalibrationResult, SolverReport
+from .settings import CalibrationSettings, QualityGate
+from .staged import StopRule, run_staged
+
+#: A staged result further than this many standard errors from the joint optimum of the same
+#: objective is not reported as an optimum (a bias of 0.2 standard errors adds 4 % to the
+#: mean squared error). [1]
+STAGED_GAP_LIMIT = 0.2
+#: Why a staged cycle stopped without its rtol rule holding.
+UNCONVERGED = ("max_cycles", "predicted_unconverged")
+#: Least squares warns when the standard deviation of the residuals exceeds their robust one
+#: (1.4826 MAD) by this factor: Gaussian residuals give 1. [1]
+HEAVY_TAIL_RATIO = 1.5
+#: A second-order bias above this many standard errors (of some parameter) is corrected: below
+#: it the correction is within the noise of its own estimate; the Table 1 rows end with the
+#: corrected estimate's. [1]
+BIAS_APPLY = 0.1
+#: A second-order bias above this many standard errors is a warning. [1]
+BIAS_WARN = 0.5
+#: The bias is corrected only while no standard error is widened by more than this for the
+#: dependence of neighbouring samples: its formula takes the residuals for white sensor noise,
+#: and residuals alike in neighbours are mostly a misfit (a disturbed field, a sensor beyond
+#: the model), whose spread it would take for noise. [1]
+BIAS_WHITE_WIDENING = 2.0
+
+
+# --- prepare ---------------------------------------------------------------------------------
+
+
+@dataclass
+class Prepared:
+    """The samples of a calibration in their base unit, with their reference and moments.
+
+    samples : (N, 3) raw sensor output B_M. [unit]
+    reference : None, a number or (N,) values F_i. [unit]
+    moments : `nlpcal.moments.Moments` of the samples and the reference (one pass).
+    unit : the base unit of the samples and of the result: "nT" or "raw".
+    unit_source : where the unit came from: "option" or "assumed".
+    warnings : the warnings about the unit (magnitudes far from Earth's field).
+    """
+
+    samples: np.ndarray
+    reference: float | np.ndarray | None
+    moments: Moments
+    unit: str
+    unit_source: str
+    warnings: list = field(default_factory=list)
+
+    def problem(self, model: str, settings: CalibrationSettings) -> Problem:
+        """The calibration problem of the form `model` of Eq. 4 on these data: a new one each
+        call (a robust loss reweights its moments)."""
+        return Problem(
+            samples=self.samples,
+            reference=self.reference,
+            moments=self.moments,
+            loss=settings.loss,
+            ipopt=settings.ipopt,
+            model=model,
+        )
+
+
+def prepare(samples, settings: CalibrationSettings) -> Prepared:
+    """Check the samples and the reference, take them to their base unit and gather their
+    moments in one pass.
+
+    A Dask array or DataFrame stays on its cluster: one survey pass checks it
+    (`nlpcal.passes.surveyed`). An assumed unit (none given) under which the magnitudes are far
+    from Earth's field is taken as raw counts, with the warning (`nlpcal.io.logs.settle_unit`).
+    Raises InputError for unusable samples or a reference in a unit that does not mix with
+    theirs.
+    """
+    unit, source = settings.input.given_unit, settings.input.unit_source
+    reference_unit = settings.reference.unit
+    samples, reference = passes.surveyed(field_samples(samples), settings.reference.field)
+    samples = validation.samples(samples)
+    reference = validation.reference(reference, samples.shape[0])
+    samples = units.to_base(samples, unit)  # in base units a memory map stays mapped
+    warnings = []
+    if source == "assumed":
+        samples, unit, warning = settle_unit(samples, unit, source)
+        warnings = [warning] if warning else []
+        units.check_compatible(unit, reference_unit or unit)
+    reference = units.to_base(reference, reference_unit or unit)
+    validation.reference_scale(reference, validation.mean_magnitude(samples))
+    return Prepared(
+        samples=samples,
+        reference=reference,
+        moments=accumulate(samples, reference),
+        unit=units.base_unit(unit),
+        unit_source=source,
+        warnings=warnings,
+    )
+
+
+# --- solve -----------------------------------------------------------------------------------
+
+
+@dataclass
+class Solution:
+    """Where a solve ended: the parameters, the Table 1 rows, the solver report and the Hessian.
+
+    theta : the nine parameters (internal units: offsets [unit], scale errors [1], angles
+        [rad]).
+    rows : Table 1 rows, the measured |B_M| first.
+    report : what finished each block solve, and why the solve stopped.
+    hessian : the Hessian of the objective in the scaled variables (`scaled_hessian`).
+    """
+
+    theta: np.ndarray
+    rows: list
+    report: SolverReport
+    hessian: np.ndarray
+
+
+def solve(
+    problem: Problem, method: str, rule: StopRule, unit: str, progress: Callable | None = None
+) -> Solution:
+    """Solve a calibration problem by the staged cycle of Fig. 1 in [1] (`run_staged`, stopped
+    by `rule`, `progress` called after each cycle) or jointly (`run_joint`).
+
+    Raises SolveError, explained in words of the data (`explain_failure`), when a solve fails.
+    """
+    try:
+        if method == "staged":
+            theta, rows, stages, stop_reason = run_staged(problem, rule, progress)
+            report = SolverReport(
+                stages, stop_reason=stop_reason, ipopt_options=problem.ipopt.settings()
+            )
+            return Solution(theta, rows, report, scaled_hessian(problem.moments, theta))
+        step, rows, report = run_joint(problem)
+    except SolveError as failure:
+        raise explain_failure(problem, failure, method, unit) from None
+    return Solution(step.theta, rows, report, scaled_hessian(problem.moments, step.theta, step))
+
+
+# --- diagnose --------------------------------------------------------------------------------
+
+
+@dataclass
+class Diagnosis:
+    """What the data determine about a solution, and what is wrong with it.
+
+    errors, covariance : the standard errors and covariance the result states, or None when
+        they describe no optimum (a staged result away from it, samples in a plane).
+    point_errors : the standard errors at the solution, which the quality gate judges.
+    identifiability : the result's identifiability block.
+    warnings : what looks wrong, each a sentence.
+    robust : the result's robust block (the loss, its scale and the residuals' spread).
+    final : the Table 1 row of the solution (the last of the solve).
+    stop_reason : why the solve stopped ("above_joint_optimum" for a staged cycle that
+        converged by its rtol rule away from the joint optimum).
+    unconverged : why a staged result is not at the optimum, when that refuses it.
+    """
+
+    errors: dict | None
+    covariance: np.ndarray | None
+    point_errors: dict | None
+    identifiability: dict
+    warnings: list
+    robust: dict
+    final: dict
+    stop_reason: str
+    unconverged: str | None = None
+
+
+def diagnose(
+    problem: Problem, solution: Solution, method: str, rule: StopRule, unit: str
+) -> Diagnosis:
+    """The standard errors and identifiability of a solution, and its warnings: parameters the
+    data leave undetermined, samples in a plane, the attitudes covered, heavy tails or a robust
+    reweighting stopped at its limit, and a staged result away from the joint optimum."""
+    theta, final = solution.theta, solution.rows[-1]
+    errors, identifiability, covariance = uncertainty(
+        problem, final["objective"], solution.hessian, theta, final["mean"]
+    )
+    spread = residual_spread(problem, theta)
+    judge_attitudes(problem, theta, spread, identifiability)
+    warnings = warnings_for(problem, theta, solution.hessian, errors, identifiability, final, unit)
+    diagnosis = Diagnosis(
+        errors=errors,
+        covariance=covariance,
+        point_errors=errors,
+        identifiability=identifiability,
+        warnings=warnings,
+        robust=robust_block(problem, spread, final, solution.report, warnings),
+        final=final,
+        stop_reason=solution.report.stop_reason,
+    )
+    if method == "staged":
+        judge_staged(problem, theta, rule, solution, diagnosis)
+    if identifiability["flatness"]["planar"]:  # along the plane's normal no linearisation
+        diagnosis.errors = diagnosis.covariance = None  # describes the data
+    return diagnosis
+
+
+def judge_attitudes(problem: Problem, theta, spread: dict, identifiability: dict) -> None:
+    """Add to `identifiability` whether the samples lie in a plane ("flatness", whose blind
+    parameters join "not_identifiable") and the directions the field visits ("coverage")."""
+    samples = problem.samples
+    flat = problem_flatness(problem, theta, spread)
+    flat["parameters"] = [n for n in flat["parameters"] if n in problem.estimated]
+    identifiability["flatness"] = flat
+    if flat["planar"]:  # the Hessian at a degenerate optimum can look healthy
+        blind = set(flat["parameters"]) | set(identifiability["not_identifiable"])
+        identifiability["not_identifiable"] = [n for n in PARAMETER_NAMES if n in blind]
+    if identifiability["not_identifiable"]:  # theta is not to be trusted: judge the directions
+        centred = np.zeros(9)  # about the fitted sphere's centre, or the samples' mean when the
+        centred[0:3] = coverage_centre(samples, problem.moments.frame)  # sphere is degenerate
+        identifiability["coverage"] = direction_coverage(samples, centred)
+    else:
+        identifiability["coverage"] = direction_coverage(samples, theta)
+
+
+def robust_block(
+    problem: Problem, spread: dict, final: dict, report: SolverReport, warnings: list
+) -> dict:
+    """The result's robust block: the loss, its scale and the residuals' spread; with a robust
+    loss where its scale came from and what it down-weighted. Appends to `warnings` a robust
+    reweighting stopped at its limit, or least-squares residuals with heavy tails."""
+    robust = {**problem.loss.to_dict(), **spread}
+    if problem.loss.robust:
+        robust.update(
+            scale_source="given"
+            if problem.scale_given
+            else f"1.4826 MAD x {TUNING[problem.loss.kind]:g}",
+            reweightings=problem.reweights,
+            downweighted=final["downweighted"],
+            downweighted_fraction=final["downweighted"] / len(problem.samples),
+            centre=problem.centre,
+        )
+        limit = reweighting_limit_warning(report)
+        if limit:
+            warnings.append(limit)
+    elif spread["residual_std"] > HEAVY_TAIL_RATIO * spread["residual_robust_std"]:
+        warnings.append(
+            f"the residuals are heavy-tailed (std {spread['residual_std']:.3g}, robust std "
+            f"{spread['residual_robust_std']:.3g}): spikes or disturbances may pull the least-"
+            f"squares estimate; a robust loss (--loss huber) down-weights them"
+        )
+    return robust
+
+
+def judge_staged(
+    problem: Problem, theta, rule: StopRule, solution: Solution, diagnosis: Diagnosis
+) -> None:
+    """Check a staged result against the joint optimum of the same objective (`joint_gap`,
+    into identifiability "joint_gap"). Further than STAGED_GAP_LIMIT standard errors from it, or
+    not checkable, it states no standard errors and is warned about; a cycle that stopped on its
+    limit or its prediction, or converged by its rtol rule away from the optimum, is
+    unconverged (the gate refuses it unless allowed). Within the limit, a cycle stopped before
+    its rtol rule held is only said."""
+    stop_reason, rows = diagnosis.stop_reason, solution.rows
+    gap = joint_gap(problem, theta, diagnosis.errors)
+    diagnosis.identifiability["joint_gap"] = gap
+    distance = gap["max_gap_in_standard_errors"]
+    checked = "objective_joint" in gap and distance is not None
+    if not checked or distance > STAGED_GAP_LIMIT:
+        message = staged_message(stop_reason, rule.max_cycles, gap, solution.report.last)
+        diagnosis.warnings.append(message)
+        diagnosis.identifiability["standard_errors_at_joint_optimum"] = diagnosis.errors
+        diagnosis.errors = diagnosis.covariance = None  # they describe an optimum, not this point
+        # a target stop is the user's request; a cycle that converged by its rtol rule but
+        # cannot be checked (no standard errors, no joint optimum) keeps its warning
+        if stop_reason in UNCONVERGED or (stop_reason == "rtol" and checked):
+            diagnosis.stop_reason = (
+                stop_reason if stop_reason in UNCONVERGED else "above_joint_optimum"
+            )
+            diagnosis.unconverged = message
+    elif stop_reason in UNCONVERGED and len(rows) > 2:
+        when = (
+            f"at the maximum of {rule.max_cycles} cycles"
+            if stop_reason == "max_cycles"
+            else f"after {len(rows) - 1} cycles, predicting that it could not meet it "
+            f"within {rule.max_cycles}"
+        )
+        diagnosis.warnings.append(
+            f"the staged cycle stopped {when} before its rtol rule ({rule.rtol:g}) held; its "
+            f"parameters agree with the joint optimum of the same data within "
+            f"{STAGED_GAP_LIMIT:g} standard errors"
+        )
+
+
+def staged_message(stop_reason: str, cycles: int, gap: dict, last: BlockSolve | None = None) -> str:
+    """Why a staged result is not at the optimum, with both objectives and what to do.
+
+    last : the record of the last stage (its predicted cycles when the cycle stopped early).
+    """
+    if stop_reason == "predicted_unconverged" and last is not None:
+        why = (
+            f"the staged cycle stopped after {last.cycle} cycles, predicting from its rate of "
+            f"convergence (each cycle's improvement {last.convergence_rate:.4g} times the one "
+            f"before) that its rtol rule would need about {last.predicted_cycles} cycles, "
+            f"more than its limit of {cycles}"
+        )
+        advice = "use --method joint, or --allow-unconverged to run to the limit"
+    else:
+        why = (
+            f"the staged cycle stopped at its limit of {cycles} cycles"
+            if stop_reason == "max_cycles"
+            else f"the staged cycle stopped on its {stop_reason} rule"
+        )
+        advice = "use --method joint, or more --cycles"
+    distance = gap.get("max_gap_in_standard_errors")
+    if "objective_joint" not in gap:
+        return (
+            f"{why}, and the joint optimum of the same data, to check it against, could not "
+            f"be found ({gap['status']}); rotate the sensor through more attitudes"
+        )
+    if distance is None:
+        return (
+            f"{why}; without standard errors its distance from the joint optimum "
+            f"({gap['objective_joint']:.6g} against {gap['objective_staged']:.6g}) cannot be "
+            f"judged"
+        )
+    return (
+        f"{why}; its objective {gap['objective_staged']:.6g} lies above the joint optimum "
+        f"{gap['objective_joint']:.6g} of the same data; its parameters lie up to "
+        f"{distance:.3g} standard errors from that optimum; {advice}"
+    )
+
+
+# --- assemble --------------------------------------------------------------------------------
+
+
+def assemble(
+    problem: Problem, solution: Solution, diagnosis: Diagnosis, method: str, unit: str
+) -> CalibrationResult:
+    """The result of a solve: its parameters (corrected for their second-order bias where
+    `correct_bias` applies it, with a "bias corrected" Table 1 row; or the standard errors
+    widened by it), the rows, the solver report, the diagnosis and how the problem was posed."""
+    identifiability, warnings = diagnosis.identifiability, diagnosis.warnings
+    errors, covariance = diagnosis.errors, diagnosis.covariance
+    rows = solution.rows
+    parameters = Zhou2010Parameters.from_theta(solution.theta).to_dict()
+    bias = identifiability.get("second_order_bias")
+    if bias is not None:
+        parameters = correct_bias(parameters, bias, identifiability, warnings, errors is not None)
+        if bias["applied"]:
+            corrected = Zhou2010Parameters.from_dict(parameters).theta
+            rows.append(problem.row("bias corrected", corrected, iterations=0, wall_s=0.0))
+        elif bias.get("widened") and errors is not None:  # widened only when stated
+            errors, covariance = widened_for_bias(errors, covariance, bias["bias"])
+    report = replace(
+        solution.report,
+        stop_reason=diagnosis.stop_reason,
+        converged=diagnosis.unconverged is None,
+    )
+    return CalibrationResult(
+        parameters=parameters,
+        statistics=rows,
+        method=method,
+        reference=problem.reference_document(),
+        gauge=dict(GAUGE) if problem.moments.reference == "none" else None,
+        solver=report,
+        unit=unit,
+        standard_errors=errors,
+        covariance=covariance,
+        identifiability=identifiability,
+        warnings=warnings,
+        notes=notes_for(problem),
+        n_samples=int(problem.samples.shape[0]),
+        input={"log_unit": unit},
+        robust=diagnosis.robust,
+        model_name=problem.model,
+    )
+
+
+def correct_bias(
+    parameters: dict, block: dict, identifiability: dict, warnings: list, stated: bool = True
+) -> dict:
+    """The parameters with their second-order bias (`diagnostics.noise_bias`) removed when it
+    exceeds BIAS_APPLY standard errors, the residuals pass for white noise (no standard error
+    widened beyond BIAS_WHITE_WIDENING) and the sensor's noise is told apart from a reference
+    series' (`noise_separable`); `block` records whether it was applied, the estimate before
+    the correction ("parameters_uncorrected") or why not ("not_applied"), and whether the
+    standard errors are to be widened by it instead ("widened": the noise cannot be told
+    apart). `stated` : False when the result states no standard errors (then nothing is
+    corrected). A bias above BIAS_WARN standard errors is a warning either way."""
+    in_errors = block["bias_in_standard_errors"]
+    widening = identifiability.get("score_dependence", {}).get("standard_error_widening", {})
+    white = max(widening.values(), default=1.0) <= BIAS_WHITE_WIDENING
+    separable = block.get("noise_separable", True)
+    large_enough = max(abs(v) for v in in_errors.values()) > BIAS_APPLY
+    block["applied"] = stated and white and separable and large_enough
+    block["widened"] = stated and white and not separable and large_enough
+    if not stated:
+        block["not_applied"] = "the result states no standard errors"
+        why = "not corrected, for the result states no standard errors at this point"
+    elif not white:
+        block["not_applied"] = (
+            "neighbouring samples are alike: the residuals are not white sensor noise"
+        )
+        why = (
+            "not corrected, for the residuals are not white sensor noise (their neighbours "
+            "are alike), which its estimate assumes"
+        )
+    elif not separable:
+        block["not_applied"] = (
+            "the reference's own noise cannot be told apart from the sensor's: the standard "
+            "errors are widened by the bias instead"
+        )
+        why = (
+            "not corrected, for the reference series' own noise cannot be told apart from the "
+            "sensor's, which its estimate assumes; the standard errors are widened by it"
+        )
+    else:
+        why = (
+            "the parameters are corrected for it (identifiability.second_order_bias keeps the "
+            "uncorrected ones)"
+        )
+    large = {n: v for n, v in in_errors.items() if abs(v) > BIAS_WARN}
+    if large:
+        worst = max(large, key=lambda n: abs(large[n]))
+        warnings.append(
+            f"the estimate's second-order bias from the sensor noise reaches "
+            f"{large[worst]:+.2f} standard errors ({worst}) along a direction the attitudes "
+            f"barely determine; {why}"
+        )
+    if not block["applied"]:
+        return parameters
+    block["parameters_uncorrected"] = dict(parameters)
+    bias = block["bias"]
+    return {name: value - bias.get(name, 0.0) for name, value in parameters.items()}
+
+
+def widened_for_bias(errors: dict, covariance, bias: dict) -> tuple:
+    """(errors, covariance) with each standard error widened by |bias| / Z_975, so that its
+    +/-1.96 SE interval is wider by |bias| on either side; the covariance scaled alike
+    (correlations kept)."""
+    widened = {name: se + abs(bias.get(name, 0.0)) / Z_975 for name, se in errors.items()}
+    factor = np.array([widened[name] / se if se > 0 else 1.0 for name, se in errors.items()])
+    return widened, np.asarray(covariance) * np.outer(factor, factor)
+
+
+# --- gate ------------------------------------------------------------------------------------
+
+
+def gate(
+    result: CalibrationResult, problem: Problem, diagnosis: Diagnosis, quality: QualityGate
+) -> CalibrationResult:
+    """The result, unless `quality` refuses it: QualityError (holding the result, and the
+    settings that would accept it) when the data leave parameters undetermined
+    ("Not_Identifiable", unless not required) or a staged cycle did not converge
+    ("Staged_Unconverged", unless allowed)."""
+    unconverged = None if quality.allow_unconverged else diagnosis.unconverged
+    overrides = {"allow_unconverged": True} if unconverged else {}
+    identifiability = diagnosis.identifiability
+    if quality.require_identifiable and identifiability["not_identifiable"]:
+        also = f" Besides, {unconverged[0].lower()}{unconverged[1:]}." if unconverged else ""
+        message = undetermined_message(
+            diagnosis.point_errors,
+            identifiability,
+            diagnosis.final,
+            problem.moments.reference,
+            result.unit,
+            problem.model,
+        )
+        raise QualityError(
+            message + also,
+            "Not_Identifiable",
+            result=result,
+            overrides={"require_identifiable": False, **overrides},
+        )
+    if unconverged:
+        raise QualityError(unconverged, "Staged_Unconverged", result=result, overrides=overrides)
+    return result

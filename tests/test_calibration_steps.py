@@ -1,0 +1,87 @@
+"""`calibrate` as named steps: its keywords are packed into settings objects at once, and the
+steps run by hand give the result `calibrate` gives."""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+
+import numpy as np
+import pytest
+
+import nlpcal
+from nlpcal.calibration import estimate, prepare
+from nlpcal.calibration.settings import NO_GATE, CalibrationSettings, QualityGate
+from nlpcal.calibration.steps import assemble, diagnose, gate, solve
+from nlpcal.errors import InputError, QualityError
+from synthetic import PAPER_FIELD, band_directions, make_log
+
+
+def test_every_keyword_of_calibrate_is_packed_into_the_settings():
+    # the keywords of calibrate, besides the samples and the progress callback, are those of
+    # CalibrationSettings.of with the same defaults: a keyword added to one and not the other
+    # fails here
+    calibrate = inspect.signature(nlpcal.calibrate).parameters
+    packed = inspect.signature(CalibrationSettings.of).parameters
+    mine = {n: p.default for n, p in calibrate.items() if n not in ("samples", "progress")}
+    assert mine == {n: p.default for n, p in packed.items()}
+
+
+def test_the_settings_are_frozen_and_in_the_base_unit():
+    settings = CalibrationSettings.of(
+        method="joint", unit="uT", target_std=0.05, loss="huber", loss_scale=0.2, cycles=7
+    )
+    assert settings.loss.scale == pytest.approx(200.0)  # [nT]
+    assert settings.stop.target_std == pytest.approx(50.0)  # [nT]
+    assert settings.stop.max_cycles == 7
+    assert settings.input.unit_source == "option"
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        settings.method = "staged"  # type: ignore[misc]
+
+
+@pytest.mark.parametrize(
+    "options",
+    [{"method": "newton"}, {"model": "quadric"}, {"cycles": 0}, {"threads": 1.5}, {"loss": "x"}],
+)
+def test_options_are_checked_before_the_samples_are_read(options):
+    # the samples are not even an array: the option's error comes first
+    with pytest.raises(InputError, match=next(iter(options))):
+        nlpcal.calibrate(object(), **options)
+
+
+def test_the_steps_by_hand_give_calibrates_result():
+    samples, _ = make_log(n=1500, noise=1.0, seed=4)
+    settings = CalibrationSettings.of(method="joint", reference_field=PAPER_FIELD)
+    data = prepare(samples, settings)
+    problem = data.problem(settings.model, settings)
+    solution = solve(problem, settings.method, settings.stop, data.unit)
+    diagnosis = diagnose(problem, solution, settings.method, settings.stop, data.unit)
+    result = gate(
+        assemble(problem, solution, diagnosis, settings.method, data.unit),
+        problem,
+        diagnosis,
+        settings.gate,
+    )
+    direct = nlpcal.calibrate(samples, method="joint", reference_field=PAPER_FIELD)
+    assert result.parameters == direct.parameters
+    assert result.standard_errors == direct.standard_errors
+    assert result.solver.summary() == direct.solver.summary()
+
+
+def test_the_gate_alone_refuses_what_the_data_do_not_determine():
+    # turns about z with a degree of tilt: the samples lie nearly in one plane
+    rng = np.random.default_rng(8)
+    samples, _ = make_log(n=3000, noise=2.5, seed=9, directions=band_directions(3000, rng, 1.0))
+    settings = CalibrationSettings.of(method="joint")
+    data = prepare(samples, settings)
+    problem = data.problem("full", settings)
+    result = estimate(problem, "joint", settings.stop, data.unit)  # NO_GATE: returned
+    assert result.identifiability["not_identifiable"]
+    with pytest.raises(QualityError) as refused:
+        estimate(
+            data.problem("full", settings), "joint", settings.stop, data.unit, quality=QualityGate()
+        )
+    assert refused.value.status == "Not_Identifiable"
+    assert refused.value.overrides == {"require_identifiable": False}
+    assert np.isfinite(list(refused.value.result.parameters.values())).all()
+    assert NO_GATE.allow_unconverged and not NO_GATE.require_identifiable
