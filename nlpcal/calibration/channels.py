@@ -4,17 +4,18 @@ what the data cannot tell apart.
 
 `calibrate` hands the channels here (`prepare_channels`), solves the joint problem
 (`fit_channels`: `nlpcal.nlp.channels` on the moments of `nlpcal.auxiliary.moments`), then runs
-its own nine-parameter estimate on the samples with the fitted stray field removed, whose
-optimum is the joint one (the joint optimum is stationary in theta at v fixed); its Table 1
-rows, warnings and identifiability describe that compensated log. `attach` then widens its
-standard errors by what the uncertainty of v adds (the ratio of the marginal to the
-conditional standard error, both from the sandwich of the joint scores), and records v with
-its standard errors.
+its own nine-parameter estimate on the samples with the fitted stray field removed
+(`compensated`), whose optimum is the joint one (the joint optimum is stationary in theta at v
+fixed); its Table 1 rows, warnings and identifiability describe that compensated log. `attach`
+then widens its standard errors by what the uncertainty of v adds (the ratio of the marginal
+to the conditional standard error, both from the covariance of the joint scores,
+`nlpcal.calibration.channel_errors`), and records v with its standard errors.
 
 Identifiability: a channel that never varies is an offset (refused, InputError); one that
 varies only with the attitude (a linear fit on the sample direction and its squares explains
-at least ATTITUDE_R2 of its variance) is a change of the correction matrix, named under
-`identifiability.aux.not_identifiable`.
+at least ATTITUDE_R2 of its variance) is a change of the correction matrix: QualityError
+(Not_Identifiable) naming it, or, when allowed, its stray field held at zero and the channel
+named under `identifiability.aux.not_identifiable`.
 
 References
 ----------
@@ -288,9 +289,9 @@ def fit_channels(
     """The joint least-squares solve (IPOPT, then Newton steps with the exact Hessian) and the
     covariance of its scores (`joint_covariance`) on `data` (`nlpcal.calibration.steps.Prepared`:
     the samples [field unit], the reference, the moments of the raw samples); channels [channel
-    unit]. Channels that vary only with the attitude are judged
-    first, about the centre of the raw samples' sphere (`check_identifiable`); without
-    `require_identifiable` their stray fields are held at zero (the data cannot tell them)."""
+    unit]. Channels that vary only with the attitude are judged first, about the centre of the
+    raw samples' sphere (`check_identifiable`); without `require_identifiable` their stray
+    fields are held at zero (the data cannot tell them)."""
     samples, reference, moments = data.samples, data.reference, data.moments
     kind, k = moments.reference, channels.count
     r2 = attitude_r2(samples, channels, moments.frame.centre)
