@@ -19,7 +19,7 @@ from nlpcal.calibration import CalibrationSettings, prepare
 from nlpcal.calibration.channels import fit_channels, prepare_channels
 from nlpcal.cli import main
 from nlpcal.errors import InputError, QualityError
-from nlpcal.models.zhou2010 import correction_matrix
+from nlpcal.models.zhou2010 import Zhou2010Parameters, correction_matrix
 from nlpcal.nlp.blocks import OPTIONS
 from nlpcal.schemas import validate
 from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log, motor_current_log, smooth_motor_log
@@ -484,3 +484,27 @@ def test_fuzzed_aux_flags_never_crash(logs, capsys, columns, kinds):
     mapping = ["--aux-columns", *columns] if columns else []
     _contract(["apply", params, folder / "renamed.csv", *mapping, "-o", out], capsys, out)
     out.unlink(missing_ok=True)
+
+
+@pytest.mark.parametrize("reference", ["none", "constant", "series"])
+def test_the_moment_objective_matches_the_per_sample_one(reference):
+    from nlpcal.auxiliary.moments import accumulate_channels
+    from nlpcal.moments import sphere_frame
+    from nlpcal.nlp.channels import channel_derivatives, channel_parameters
+    from nlpcal.statistics import correction
+
+    samples, current = motor_current_log(n=3000, seed=4)
+    theta = Zhou2010Parameters.from_dict(PAPER_TRUTH).theta + 1e-4  # near, not at, the truth
+    v = PER_AMP + 0.5  # [nT/A]
+    field = {"none": None, "constant": PAPER_FIELD, "series": np.full(3000, PAPER_FIELD)}
+    ref = field[reference]
+    frame = sphere_frame(samples)
+    length = frame.radius if reference == "none" else PAPER_FIELD
+    moments = accumulate_channels(samples, current[:, None], ref, frame, length, reference)
+    p = channel_parameters(moments, theta, v, 1.0)
+    f = channel_derivatives(reference, 1)(np.zeros(9 + 3), p)[0]
+    offset, matrix = correction(theta)
+    magnitude = np.linalg.norm((samples - np.outer(current, v) - offset) @ matrix.T, axis=1)
+    direct = np.var(magnitude) if reference == "none" else np.mean((magnitude - PAPER_FIELD) ** 2)
+    # the series in u is cut after u^4: a relative error of the order of max|u|^3 (~1e-9 here)
+    assert f == pytest.approx(direct, rel=1e-6)
