@@ -142,10 +142,11 @@ def test_a_log_read_with_low_memory_stays_mapped_and_fits_alike(motor, tmp_path)
                 log, method="joint", aux_columns=["current"], aux_kind="current"
             )
         )
-        settings = CalibrationSettings.of(reference_field=PAPER_FIELD, unit="nT")
+        settings = CalibrationSettings.of(
+            reference_field=PAPER_FIELD, unit="nT", aux_columns={"current": log.values("current")}
+        )
         data = prepare(log.samples, settings)
-        values = {"current": log.values("current")}
-        _, channels = prepare_channels(log.samples, values, None, settings)
+        _, channels = prepare_channels(log.samples, settings)
         fit = fit_channels(data, channels, "full", OPTIONS)
         # the samples without the stray field: a memory map of their own for a mapped log
         assert isinstance(fit.compensated(data.samples), np.memmap) == low_memory

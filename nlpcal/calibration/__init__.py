@@ -182,11 +182,13 @@ def calibrate(
         verbose=verbose,
         threads=threads,
         ipopt_options=ipopt_options,
+        aux_columns=aux_columns,
+        aux_kind=aux_kind,
     )
     with chunks.call_threads(settings.input.threads):
-        if aux_columns is None:
+        if settings.aux.columns is None:
             return calibrate_prepared(prepare(samples, settings), settings, progress)
-        samples, channels = prepare_channels(samples, aux_columns, aux_kind, settings)
+        samples, channels = prepare_channels(samples, settings)
         return calibrate_channels(prepare(samples, settings), channels, settings, progress)
 
 

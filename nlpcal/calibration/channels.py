@@ -114,12 +114,14 @@ def log_channels(log, names) -> dict:
     return {name: log.values(name) for name in _names(names)}
 
 
-def prepare_channels(samples, aux_columns, aux_kind, settings) -> tuple:
-    """(samples, Channels) from `calibrate`'s arguments: `aux_columns` names columns of a pandas
-    or Dask DataFrame `samples`, or maps names to (N,) values; `aux_kind` is one kind for all,
-    or one per channel. Checks the names, the kinds, the values (finite, N rows, varying) and
-    that the `settings` (`CalibrationSettings`) are ones the joint solve takes."""
+def prepare_channels(samples, settings) -> tuple:
+    """(samples, Channels) from `calibrate`'s settings (`CalibrationSettings`): their
+    `aux.columns` name columns of a pandas or Dask DataFrame `samples`, or map names to (N,)
+    values; `aux.kind` is one kind for all, or one per channel. Checks the names, the kinds,
+    the values (finite, N rows, varying) and that the other settings are ones the joint solve
+    takes."""
     _check_options(settings.loss.kind, settings.model)
+    aux_columns, aux_kind = settings.aux.columns, settings.aux.kind
     if isinstance(aux_columns, str) or not isinstance(aux_columns, (Mapping, list, tuple)):
         raise InputError("aux_columns must be a list of column names (or a name -> values map)")
     names = _names(aux_columns)

@@ -98,6 +98,24 @@ class QualityGate:
     allow_unconverged: bool = False
 
 
+@dataclass(frozen=True)
+class AuxSettings:
+    """The auxiliary channels whose stray fields are estimated with the nine parameters
+    (`nlpcal.calibration.channels`).
+
+    Attributes
+    ----------
+    columns : None, list of str or mapping
+        None (no channels), columns of a DataFrame of samples, or names -> (N,) values
+        (`--aux-columns`). [channel unit]
+    kind : None, str or list of str
+        "current", "throttle" or "other", one for all or one per channel (`--aux-kind`).
+    """
+
+    columns: Any = field(default=None, compare=False)
+    kind: Any = None
+
+
 #: The gate of a trial calibration (model "auto", the full model a restriction is judged
 #: against): every result that solved is returned.
 NO_GATE = QualityGate(require_identifiable=False, allow_unconverged=True)
@@ -126,6 +144,8 @@ class CalibrationSettings:
         When the result is refused.
     ipopt : nlpcal.nlp.solver.IpoptOptions
         IPOPT's settings for every solve.
+    aux : AuxSettings
+        Auxiliary channels, or none.
 
     References
     ----------
@@ -147,6 +167,7 @@ class CalibrationSettings:
     loss: Loss = field(default_factory=Loss)
     gate: QualityGate = field(default_factory=QualityGate)
     ipopt: IpoptOptions = OPTIONS
+    aux: AuxSettings = field(default_factory=AuxSettings)
 
     @classmethod
     def of(
@@ -168,6 +189,8 @@ class CalibrationSettings:
         verbose: bool = False,
         threads: int | None = None,
         ipopt_options: dict | None = None,
+        aux_columns=None,
+        aux_kind=None,
     ) -> CalibrationSettings:
         """The settings of `nlpcal.calibrate`'s keywords (see there), each checked: InputError
         names the first that is unusable. Quantities are in `unit` (default nT) and are stored
@@ -206,4 +229,5 @@ class CalibrationSettings:
                 require_identifiable=require_identifiable, allow_unconverged=allow_unconverged
             ),
             ipopt=ipopt,
+            aux=AuxSettings(columns=aux_columns, kind=aux_kind),
         )
