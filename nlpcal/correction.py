@@ -130,6 +130,12 @@ class Correction:
         """
         notes: list = []
         model = parameters if isinstance(parameters, TemperatureCalibrationResult) else None
+        if model is not None and model.drifts_in_time:
+            raise InputError(
+                "the parameters file has a drift of the scale factors in time (time_drift), "
+                "which apply and stats do not apply yet; correct in Python with "
+                "TemperatureCalibrationResult.apply(samples, temperature, times=...)"
+            )
         if drift is not None and model is not None:
             raise InputError(
                 "the parameters file already carries a temperature model; --drift "

@@ -24,6 +24,11 @@ then gamma = 1), 58 for a reference series. Their weighted Gram matrix
 carries everything the objectives need. It is additive over chunks: memory is O(chunk) and the
 symbolic problem has the same size for every N.
 
+Optional groups of moments sit beside G and share its features and frame: the lag of a
+reference series adds one vector and one number, (1/N) sum_i w_i x_i f_i and
+(1/N) sum_i w_i x_i^2 with x_i = D_i / F_i the reference's time derivative over its value
+(`nlpcal.lag`), gathered by a pass of its own.
+
 Floating-point cancellation is kept away by the frame: centred on a sphere fitted to the samples
 and scaled by the field, a_i and e are small near the solution, so the small objective is never
 the difference of large sums.

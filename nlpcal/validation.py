@@ -268,30 +268,34 @@ def reference_scale(reference, magnitude: float, what: str = "the reference fiel
         )
 
 
-def temperature(values, n: int) -> np.ndarray:
-    """N finite temperatures. [degC]"""
+def _per_sample(values, n: int | None, what: str, unit: str) -> np.ndarray:
+    """N finite numbers, one per sample (any number without `n`), called `what` in messages,
+    in `unit`."""
     try:
         array = np.asarray(values, dtype=float).ravel()
     except (TypeError, ValueError):
-        raise InputError("the temperatures must be numbers [degC]") from None
-    if array.size != n:
-        raise InputError(f"got {array.size} temperatures for {n} samples")
+        raise InputError(f"the {what} must be numbers [{unit}]") from None
+    if n is not None and array.size != n:
+        raise InputError(f"got {array.size} {what} for {n} samples")
     if not np.isfinite(array).all():
-        raise InputError("the temperatures contain NaN or infinite values; drop or fix those rows")
+        raise InputError(f"the {what} contain NaN or infinite values; drop or fix those rows")
     return array
 
 
 def channel(values, n: int | None, what: str) -> np.ndarray:
-    """N finite numbers of a channel logged with the samples (an aux channel, say). [its unit]"""
-    try:
-        array = np.asarray(values, dtype=float).ravel()
-    except (TypeError, ValueError):
-        raise InputError(f"{what} must be numbers") from None
-    if n is not None and array.size != n:
-        raise InputError(f"{what} has {array.size} values for {n} samples")
-    if not np.isfinite(array).all():
-        raise InputError(f"{what} holds NaN or infinite values; drop or fix those rows")
-    return array
+    """N finite numbers of a channel logged with the samples (an aux channel, say), any number
+    of them without `n`. [the channel's unit]"""
+    return _per_sample(values, n, f"values of {what}", "its unit")
+
+
+def times(values, n: int) -> np.ndarray:
+    """N finite times: Unix seconds, or seconds since any origin. [s]"""
+    return _per_sample(values, n, "times", "s")
+
+
+def temperature(values, n: int) -> np.ndarray:
+    """N finite temperatures. [degC]"""
+    return _per_sample(values, n, "temperatures", "degC")
 
 
 def angles(

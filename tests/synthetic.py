@@ -171,3 +171,71 @@ def smooth_motor_log(n=20_000, noise=5.0, seed=0, per_amp=(120.0, -80.0, 300.0))
     samples = sensor_output(PAPER_FIELD * directions, PAPER_TRUTH)
     samples += np.outer(current, per_amp) + np.outer(drift - drift.mean(), (1.0, 1.0, 1.0))
     return samples + noise * rng.standard_normal(samples.shape), current
+
+
+def drifting_sensor_output(field_ideal, truth, dt, days, sigma, zeta, eta_deg, drift_per_day):
+    """B_M of a sensor whose parameters drift, for true field vectors in the ideal frame [nT]:
+    per axis j the gain (1 + s_j)(1 + sigma_j dt)(1 + d_j days) [1] and the offset
+    z_j + zeta_j dt [nT], each angle alpha + eta_alpha dt [deg] (each sample its own axes).
+
+    dt : temperature minus the base temperature [degC]; days : time from the reference time [d];
+    sigma [1/degC], zeta [nT/degC], eta_deg [deg/degC], drift_per_day [1/d]: three values each.
+    """
+    dt = np.asarray(dt, dtype=float)
+    a, b, g = (
+        np.radians(truth[f"{name}_deg"] + slope * dt)
+        for name, slope in zip(("alpha", "beta", "gamma"), eta_deg)
+    )
+    x_axis = np.column_stack([np.cos(a) * np.cos(g), np.cos(a) * np.sin(g), -np.sin(a)])
+    y_axis = np.column_stack([np.zeros_like(b), np.cos(b), np.sin(b)])
+    projections = np.column_stack(
+        [
+            np.sum(field_ideal * x_axis, axis=1),
+            np.sum(field_ideal * y_axis, axis=1),
+            field_ideal[:, 2],
+        ]
+    )
+    out = np.empty_like(projections)
+    for k, name in enumerate("xyz"):
+        gain = (1 + truth[f"s_{name}"]) * (1 + sigma[k] * dt) * (1 + drift_per_day[k] * days)
+        out[:, k] = gain * projections[:, k] + truth[f"z_{name}"] + zeta[k] * dt
+    return out
+
+
+def varying_magnitude(rng, rms_rate=1.0, periods=(20.0, 300.0), terms=12, base=PAPER_FIELD):
+    """A field magnitude F(t) = base + sum_k a_k sin(w_k t + phi_k), periods drawn uniformly in
+    `periods` [s], each term the same share of dF/dt, scaled to an rms dF/dt of `rms_rate`.
+    Returns the function t [s] -> F [nT]."""
+    omega = 2 * np.pi / rng.uniform(periods[0], periods[1], terms)
+    phase = rng.uniform(0, 2 * np.pi, terms)
+    amplitude = (
+        np.full(terms, rms_rate / np.sqrt(terms / 2)) / omega
+    )  # rms of a_k w_k cos: a w/sqrt2
+
+    def magnitude(t):
+        t = np.asarray(t, dtype=float)
+        return base + np.sin(np.multiply.outer(t, omega) + phase) @ amplitude
+
+    return magnitude
+
+
+def lagged_log(
+    seed=0,
+    rate_hz=10.0,
+    seconds=3600.0,
+    tau=0.037,
+    noise=0.05,
+    reference_noise=0.05,
+    rms_rate=1.0,
+    truth=PAPER_TRUTH,
+):
+    """(B_M, R, t, F): a log of uniform attitudes in a field whose magnitude F(t) varies
+    (`varying_magnitude`), and a scalar reference late by `tau` [s]: R(t) = F(t - tau) + noise.
+    White noise of `noise` nT on each sensor axis and `reference_noise` nT on R."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(int(rate_hz * seconds)) / rate_hz
+    magnitude = varying_magnitude(rng, rms_rate)
+    field_ideal = magnitude(t)[:, None] * uniform_directions(t.size, rng)
+    samples = sensor_output(field_ideal, truth) + noise * rng.standard_normal(field_ideal.shape)
+    reference = magnitude(t - tau) + reference_noise * rng.standard_normal(t.size)
+    return samples, reference, t, magnitude

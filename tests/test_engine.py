@@ -40,6 +40,8 @@ LAYERS = {
     "timing": 1,
     "nlp": 1,
     "auxiliary": 1,
+    "lag": 1,
+    "delta_f": 1,
     "calibration": 2,
     "comparison": 2,
     "compass": 2,

@@ -10,10 +10,11 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from .. import chunks, units
-from ..errors import QualityError, SolveError
+from ..errors import InputError, QualityError, SolveError
 from ..io.logs import Log
 from ..robust import Loss
 from .channels import Channels, attach, compensated, fit_channels, log_channels, prepare_channels
+from .lagged import LAG_ARGUMENTS, calibrate_lagged
 from .problem import Problem
 from .result import CalibrationResult
 from .selection import MODEL_CHOICES, choose_model, restriction_warning, selection_warning
@@ -51,6 +52,8 @@ def calibrate(
     ipopt_options: dict | None = None,
     aux_columns=None,
     aux_kind=None,
+    lag=None,
+    times=None,
 ) -> CalibrationResult:
     """Estimate the nine parameters of Eq. 4 in [1] from a log of many attitudes.
 
@@ -125,6 +128,13 @@ def calibrate(
     aux_kind : str or list of str, optional
         What each channel is (`--aux-kind`): "current" [A], "throttle" [fraction] or "other"
         (the default), one for all or one per channel.
+    lag : None, "auto" or float
+        The lag of a reference series (`--lag`): "auto" estimates it with the nine parameters,
+        a number [s] takes it out of the reference; the result records it under `lag`
+        (`nlpcal.lag`). tau > 0 when the reference is late. An undetermined lag raises
+        QualityError.
+    times : array_like of shape (N,), optional
+        The times of the samples, seconds from any origin, for `lag` (`--time-column`). [s]
 
     Returns
     -------
@@ -165,6 +175,11 @@ def calibrate(
     >>> corrected.shape
     (2000, 3)
     """
+    if lag is not None and aux_columns is not None:
+        raise InputError("a lag and aux channels are not estimated together; drop one of them")
+    if lag is not None:  # the lag of a reference series, given or estimated (nlpcal.lag)
+        options = {k: v for k, v in locals().items() if k not in LAG_ARGUMENTS}
+        return calibrate_lagged(calibrate, samples, reference_field, times, lag, options)
     settings = CalibrationSettings.of(
         method=method,
         model=model,
@@ -329,6 +344,7 @@ def calibrate_log(
             target_std=units.to_base(target_std, log.unit),
             target_range=units.to_base(target_range, log.unit),
             loss_scale=units.to_base(loss_scale, log.unit),
+            times=log.times,
             **options,
         )
     except QualityError as failure:

@@ -14,6 +14,7 @@ import numpy as np
 from .. import inference, units, validation
 from ..auxiliary.model import read_aux, stray_field
 from ..errors import InputError
+from ..lag import read_lag
 from ..models.zhou2010 import (
     MODELS,
     PARAMETER_NAMES,
@@ -393,6 +394,9 @@ class CalibrationResult(Document):
         The stray fields v_k c_k of auxiliary channels (`nlpcal.auxiliary.model`), estimated
         with the nine parameters ("aux" in the document, written when any). [unit per channel
         unit]
+    lag : dict or None
+        The lag of a reference series (`nlpcal.lag`): {"status": "estimated", "given" or
+        "undetermined", "seconds" [s], "standard_error_s" [s], ...}; None without one.
 
     References
     ----------
@@ -443,6 +447,7 @@ class CalibrationResult(Document):
     sensor_id: int | str | None = None
     orientation: dict | None = None
     aux: list = field(default_factory=list)
+    lag: dict | None = None
 
     @property
     def estimated_parameters(self) -> list:
@@ -591,6 +596,8 @@ class CalibrationResult(Document):
             document["orientation"] = dict(self.orientation)
         if self.aux:
             document["aux"] = {c.name: c.to_dict(self.unit) for c in self.aux}
+        if self.lag is not None:
+            document["lag"] = dict(self.lag)
         return document
 
     @classmethod
@@ -639,6 +646,7 @@ class CalibrationResult(Document):
             else validation.sensor_id(reader.raw("sensor_id"), f"{reader.source}: sensor_id"),
             "orientation": read_orientation(reader),
             "aux": read_aux(reader, unit),
+            "lag": read_lag(reader),
         }
 
     @classmethod

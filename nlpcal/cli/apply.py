@@ -19,6 +19,7 @@ from .common import (
     LOG_HELP,
     acknowledge,
     add_command,
+    add_lag_argument,
     add_log_arguments,
     add_params_argument,
     add_plot_argument,
@@ -236,11 +237,16 @@ Print max, min, mean, std (ddof = 0) and range of the total field |B|: the measu
 corrected row with --params (the rows of Table 1 of Zhou et al. 2010). The spread of |B| over a
 log of many orientations in a steady field is what a calibration removes: a good one leaves
 little more than the sensor noise. With --reference-column every row also gets the RMSE against
-the reference (Eq. 10 of Liu et al. 2022).""",
+the reference (Eq. 10 of Liu et al. 2022), and delta F = |B| - F (mean and std, by UTC day
+when --time-column spans days) is printed before and after; --lag auto estimates the lag of the
+reference per period (exit 1 when a period leaves it undetermined), --lag SECONDS or the lag in
+PARAMS.json takes it out. A fixed sensor's log (no attitude change) is recognised: delta F and
+the lag are computed, the nine parameters cannot be.""",
         examples=(
             "nlpcal stats log.csv",
             "nlpcal stats log.csv --params params.json",
             "nlpcal stats log.csv --params params.json --reference-column proton_nT --json",
+            "nlpcal stats obs.csv --reference-column F --time-column time --lag auto",
         ),
     )
     parser.add_argument("log", metavar="LOG", help=LOG_HELP)
@@ -261,12 +267,22 @@ the reference (Eq. 10 of Liu et al. 2022).""",
     )
     add_reference_log_arguments(parser)
     parser.add_argument("--json", action="store_true", help="print the rows as JSON on stdout")
+    add_lag_argument(parser)
     add_reference_model_arguments(parser)
     parser.set_defaults(func=run_stats)
 
 
 def run_stats(args) -> int:
+    import numpy as np
+
     from ..correction import read_log_for, statistics_rows
+    from ..delta_f import (
+        aligned_log,
+        check_lags,
+        fixed_sensor_message,
+        format_report,
+        log_delta_f,
+    )
     from ..io import read_log, read_table
     from ..statistics import format_table
 
@@ -278,11 +294,24 @@ def run_stats(args) -> int:
         correction = None
         log = read_log(table, **log_options(args))
     report_log(log)
-    rows, extra = statistics_rows(log, correction)
+    parameters = correction.parameters if correction is not None else None
+    lag_block = getattr(parameters, "lag", None)
+    rows, extra = statistics_rows(aligned_log(log, args.lag, lag_block), correction)
     if correction is not None:
         tell(correction.notes)
+    document = {"unit": log.base_unit, "std_ddof": 0, "rows": rows}
+    report = None
+    if args.lag is not None or isinstance(log.reference, np.ndarray):
+        report = log_delta_f(log, parameters, args.lag, lag_block)
+        if report["fixed_sensor"]:
+            tell([fixed_sensor_message(report["attitude_spread_deg"])])
+        document["delta_f"] = report
     if args.json:
-        emit_json({"unit": log.base_unit, "std_ddof": 0, "rows": rows}, None)
+        emit_json(document, None)
     else:
         print(format_table(rows, log.base_unit, extra=extra))
+        if report is not None:
+            print(format_report(report, log.base_unit))
+    if report is not None:
+        check_lags(report)
     return 0

@@ -25,6 +25,7 @@ from ..defaults import CYCLES_DEFAULT, RTOL_DEFAULT
 from .common import (
     LOG_HELP,
     add_command,
+    add_lag_argument,
     add_log_arguments,
     add_loss_arguments,
     add_plot_argument,
@@ -49,7 +50,8 @@ if TYPE_CHECKING:
     from ..calibration import CalibrationResult
     from ..drift.temperature import TemperatureCalibrationResult
 
-TEMPERATURE_MODELS = ("common", "per-axis")
+TEMPERATURE_MODELS = ("common", "per-axis", "full")
+TIME_DRIFTS = ("none", "common", "per-axis")  # the library's nlpcal.models.time_drift.TIME_DRIFTS
 #: The flags of the library's overrides of a quality check.
 OVERRIDE_FLAGS = {
     "require_identifiable": "--allow-unidentifiable",
@@ -139,6 +141,7 @@ them (say, the sensor was never turned over); --allow-unidentifiable writes them
         f"fraction (default {RTOL_DEFAULT:g})",
     )
     add_reference_arguments(parser)
+    add_lag_argument(parser)
     parser.add_argument(
         "--temperature-column",
         metavar="COL",
@@ -151,7 +154,16 @@ them (say, the sensor was never turned over); --allow-unidentifiable writes them
         choices=TEMPERATURE_MODELS,
         help="common: one factor k(t) on scale and offset of all axes (Liu et "
         "al. 2022, Eq. 9; the default); per-axis: linear scale and "
-        "offset drift per axis. Angles stay temperature-free",
+        "offset drift per axis, angles temperature-free; full: per-axis, and a linear drift "
+        "of each angle (non-orthogonality)",
+    )
+    parser.add_argument(
+        "--time-drift",
+        choices=TIME_DRIFTS,
+        default="none",
+        help="with --temperature-column: scale factors linear in time, one slope for all axes "
+        "(common) or one per axis (per-axis), per day from the middle of the log; needs "
+        "--time-column (default: none)",
     )
     parser.add_argument(
         "--base-temperature",
@@ -252,17 +264,20 @@ def _read_for_calibration(args, extra):
     if not args.scheduler:
         options = log_options(args)
         model = options["reference_model"]
-        per_sample = model is not None and (model.numeric_columns() or model.time_column)
+        per_sample = "time_column" in options or (
+            model is not None and (model.numeric_columns() or model.time_column)
+        )
         # the lean chunked reading by default: as fast, a fraction of the memory; the whole
         # table for what needs it (a figure's time axis, a model's position and time columns)
         # and for logs read whole anyway (recorded formats; stdin, which may be one)
         whole = per_sample or args.plot or args.log == "-" or is_recorded(args.log)
         whole = whole or "reference_log" in options  # interpolated onto the log's times
+        whole = whole or args.time_drift != "none"  # the times of a time drift
         lean = args.low_memory or not whole
         with show_progress(f"reading {args.log}") as bar:
             return read_log(args.log, **options, extra_columns=extra, low_memory=lean, progress=bar)
-    if args.low_memory or args.plot:
-        flag = "--low-memory" if args.low_memory else "--plot"
+    if args.low_memory or args.plot or args.lag is not None:
+        flag = "--low-memory" if args.low_memory else "--plot" if args.plot else "--lag"
         raise InputError(
             f"{flag} and --scheduler exclude each other: with --scheduler the log stays in its "
             f"files and is read block by block in every pass"
@@ -270,6 +285,17 @@ def _read_for_calibration(args, extra):
     log = read_lazy_log(args.log, **log_options(args), extra_columns=extra)
     log.notes.append(f"running on {describe(args.scheduler)}")
     return log
+
+
+def _times(args, log) -> dict:
+    """The time drift's options of `calibrate_temperature_log`: the drift, the log's times and
+    their column (none without a time drift)."""
+    from ..io.reference import log_times
+
+    if args.time_drift == "none":
+        return {}
+    column, times = log_times(log, args.time_column, f"--time-drift {args.time_drift}")
+    return {"time_drift": args.time_drift, "times": times, "time_column": column}
 
 
 def _run_calibrate(args) -> int:
@@ -285,6 +311,11 @@ def _run_calibrate(args) -> int:
     temperature = args.temperature_column or args.temperature_model
     if args.temperature_model and not args.temperature_column:
         raise InputError("--temperature-model needs --temperature-column COL")
+    if args.time_drift != "none" and not args.temperature_column:
+        raise InputError(
+            "--time-drift is estimated with the temperature model: it needs "
+            "--temperature-column COL (and --time-column COL)"
+        )
     if temperature and args.model != "full":
         raise InputError(
             "--model applies to the nine-parameter calibration; the temperature calibration "
@@ -294,6 +325,10 @@ def _run_calibrate(args) -> int:
         raise InputError(
             "--ipopt-option applies to the nine-parameter calibration; the temperature "
             "calibration takes IPOPT's settings of its own"
+        )
+    if temperature and args.lag is not None:
+        raise InputError(
+            "--lag applies to the nine-parameter calibration, not to the temperature one"
         )
     if temperature and not args.reference_column:
         raise InputError(
@@ -318,6 +353,7 @@ def _run_calibrate(args) -> int:
                     args.temperature_column,
                     model=args.temperature_model or "common",
                     base_temperature=args.base_temperature,
+                    **_times(args, log),
                 )
             else:
                 result = calibrate_log(
@@ -450,6 +486,7 @@ def calibration_options(args) -> dict:
             if getattr(args, "aux_columns", None)
             else {}
         ),
+        **({"lag": args.lag} if getattr(args, "lag", None) is not None else {}),
     }
 
 

@@ -410,6 +410,8 @@ def reference_model(args):
     model = getattr(args, "reference_model", None)
     if model is None:
         timed = getattr(args, "reference_log", None) is not None  # the log's times serve it too
+        timed = timed or getattr(args, "time_drift", "none") != "none"
+        timed = timed or hasattr(args, "lag")  # a command with --lag reads --time-column itself
         used = [
             f"--{name.replace('_', '-')}"
             for name, value in given.items()
@@ -498,6 +500,8 @@ def log_options(args) -> dict:
     spec = reference_log(args)
     if spec is not None:
         options.update(reference_column=None, reference_log=spec)
+    if options["reference_model"] is None and own_time_column(args):
+        options["time_column"] = args.time_column
     return options
 
 
@@ -522,6 +526,28 @@ def reference_log(args):
         time_column=args.reference_time_column,
         log_time_column=getattr(args, "time_column", None),
         interpolation=args.interpolation,
+    )
+
+
+def own_time_column(args) -> str | None:
+    """--time-column of a command with --lag, read without a geomagnetic model or a reference
+    log (which read it themselves)."""
+    if not hasattr(args, "lag") or getattr(args, "reference_model", None) is not None:
+        return None
+    if getattr(args, "reference_log", None) is not None:
+        return None
+    return getattr(args, "time_column", None)
+
+
+def add_lag_argument(parser) -> None:
+    """--lag auto|SECONDS: the lag of a reference series (`nlpcal.lag`)."""
+    parser.add_argument(
+        "--lag",
+        metavar="auto|SECONDS",
+        help="lag of the reference series against the field columns [s], positive when the "
+        "reference is late: 'auto' estimates it (with the nine parameters in calibrate) and "
+        "reports its standard error, a number takes it out; needs --reference-column and "
+        "--time-column (ISO 8601 text, or seconds from any origin)",
     )
 
 

@@ -1,8 +1,10 @@
 """Beyond Liu et al. (2022): the nine parameters and the temperature coefficients from one log.
 
 "common" is the paper's assumption (Eq. 2 and 9 of [1]: one factor k(t) = 1 + c (t - t0) on
-scale and offset of all axes); "per-axis" gives each axis its own linear scale and offset drift.
-The angles stay temperature-free, as the paper argues. The objective is the mean square of the
+scale and offset of all axes); "per-axis" gives each axis its own linear scale and offset drift,
+the angles temperature-free as the paper argues; "full" adds a linear drift of each angle. For
+long records the scale factors can also drift in time (`time_drift`: "common" or "per-axis",
+`nlpcal.models.time_drift`). The objective is the mean square of the
 residuals whose RMSE is Eq. 10 in [1]; it is minimised by Levenberg-Marquardt steps, each an IPOPT
 problem of fixed size built once (`nlpcal.nlp.temperature`).
 
@@ -24,6 +26,7 @@ from ..calibration.result import BlockSolve, CalibrationResult, Reference, Solve
 from ..errors import InputError
 from ..models import liu2022
 from ..models.liu2022 import TEMPERATURE_MODELS, TemperatureModel
+from ..models.time_drift import DAY_S, TIME_DRIFTS, TimeDrift
 from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
 from ..models.zhou2010 import correct as zhou_correct
 from ..moments import sphere_frame
@@ -41,43 +44,75 @@ MIN_SPAN_DEGC = 0.5
 POOR_TEMPERATURE_SE = 0.5
 
 
-def coefficient_names(kind: str) -> tuple:
-    """Names of the temperature coefficients of a model kind."""
+def coefficient_names(kind: str, time_drift: str = "none") -> tuple:
+    """Names of the coefficients of a temperature model and a time drift."""
     if kind == "common":
-        return ("k_slope_per_degC",)
-    return tuple(f"scale_slope_{a}_per_degC" for a in "xyz") + tuple(
-        f"offset_slope_{a}_per_degC" for a in "xyz"
-    )
+        names: tuple = ("k_slope_per_degC",)
+    else:
+        names = tuple(f"scale_slope_{a}_per_degC" for a in "xyz") + tuple(
+            f"offset_slope_{a}_per_degC" for a in "xyz"
+        )
+    if kind == "full":
+        names += tuple(f"{angle}_slope_deg_per_degC" for angle in ("alpha", "beta", "gamma"))
+    if time_drift == "common":
+        names += ("scale_slope_per_day",)
+    elif time_drift == "per-axis":
+        names += tuple(f"scale_slope_{a}_per_day" for a in "xyz")
+    return names
 
 
-def coefficient_scale(kind: str, radius: float, max_dt: float) -> np.ndarray:
-    """Typical sizes of the temperature coefficients: a change of the field by 1e-3 over the
-    log's largest |t - t0| (scale [1/degC]; offsets [field/degC])."""
+def coefficient_scale(
+    kind: str, radius: float, max_dt: float, time_drift: str = "none", max_days: float = 1.0
+) -> np.ndarray:
+    """Typical sizes of the coefficients: a change of the field by 1e-3 over the log's largest
+    |t - t0| (scale [1/degC]; offsets [field/degC]; angles [rad/degC]) and over its largest
+    |tau| from its middle (time drift [1/d])."""
     span = max(max_dt, 1.0)
-    if kind == "common":
-        return np.array([1e-3 / span])
-    return np.array([1e-3 / span] * 3 + [1e-3 * radius / span] * 3)
+    sizes = [1e-3 / span] if kind == "common" else [1e-3 / span] * 3 + [1e-3 * radius / span] * 3
+    if kind == "full":
+        sizes += [1e-3 / span] * 3
+    sizes += [1e-3 / max(max_days, 1e-6)] * {"none": 0, "common": 1, "per-axis": 3}[time_drift]
+    return np.array(sizes)
 
 
-def theta_of(params: Zhou2010Parameters, model: TemperatureModel) -> np.ndarray:
+def theta_of(
+    params: Zhou2010Parameters, model: TemperatureModel, drift: TimeDrift | None = None
+) -> np.ndarray:
     """The internal vector: the nine parameters (`Zhou2010Parameters.theta`), then the model's
-    coefficients."""
+    coefficients (angles' in rad/degC), then the time drift's."""
     if model.kind == "common":
-        return np.concatenate([params.theta, [model.k_slope_per_degC]])
-    return np.concatenate([params.theta, model.scale_slope_per_degC, model.offset_slope_per_degC])
+        parts = [params.theta, [model.k_slope_per_degC]]
+    else:
+        parts = [params.theta, model.scale_slope_per_degC, model.offset_slope_per_degC]
+    if model.kind == "full":
+        parts.append(np.radians(model.angle_slope_deg_per_degC))
+    if drift is not None and drift.kind != "none":
+        slopes = drift.scale_slope_per_day
+        parts.append(slopes[:1] if drift.kind == "common" else slopes)
+    return np.concatenate([np.asarray(p, dtype=float) for p in parts])
 
 
-def model_of(theta, kind: str, t0: float):
-    """(Zhou2010Parameters, TemperatureModel) of an internal vector."""
+def model_of(theta, kind: str, t0: float, time_drift: str = "none", t_ref: float = 0.0):
+    """(Zhou2010Parameters, TemperatureModel, TimeDrift) of an internal vector."""
     params = Zhou2010Parameters.from_theta(theta[:9])
     if kind == "common":
-        return params, TemperatureModel("common", t0, k_slope_per_degC=float(theta[9]))
-    return params, TemperatureModel(
-        "per-axis",
-        t0,
-        scale_slope_per_degC=tuple(map(float, theta[9:12])),
-        offset_slope_per_degC=tuple(map(float, theta[12:15])),
+        model = TemperatureModel("common", t0, k_slope_per_degC=float(theta[9]))
+    else:
+        model = TemperatureModel(
+            kind,
+            t0,
+            scale_slope_per_degC=tuple(map(float, theta[9:12])),
+            offset_slope_per_degC=tuple(map(float, theta[12:15])),
+            angle_slope_deg_per_degC=tuple(map(float, np.degrees(theta[15:18])))
+            if kind == "full"
+            else (0.0, 0.0, 0.0),
+        )
+    first = 9 + n_coefficients(kind)
+    slopes = [float(v) for v in theta[first:]]
+    drift = TimeDrift(
+        time_drift, t_ref, tuple(slopes * 3 if len(slopes) == 1 else slopes or [0.0] * 3)
     )
+    return params, model, drift
 
 
 def read_temperature_model(reader: DocumentReader) -> TemperatureModel:
@@ -93,6 +128,18 @@ def read_temperature_model(reader: DocumentReader) -> TemperatureModel:
         t0,
         scale_slope_per_degC=tuple(reader.array("scale_slope_per_degC", (3,))),
         offset_slope_per_degC=tuple(reader.array("offset_slope_per_degC", (3,))),
+        angle_slope_deg_per_degC=tuple(reader.array("angle_slope_deg_per_degC", (3,)))
+        if kind == "full"
+        else (0.0, 0.0, 0.0),
+    )
+
+
+def read_time_drift(reader: DocumentReader) -> TimeDrift:
+    """A TimeDrift from its document block ("time_drift"), every field checked."""
+    return TimeDrift(
+        reader.string("kind", options=TIME_DRIFTS),
+        reader.number("reference_time_s"),
+        tuple(reader.array("scale_slope_per_day", (3,))),
     )
 
 
@@ -113,6 +160,12 @@ class TemperatureCalibrationResult(Document):
         (min, max) of the calibration log. [degC]
     temperature_standard_errors : dict or None
         Standard errors of the temperature coefficients, in their units.
+    time_drift : TimeDrift or None
+        A drift of the scale factors in time, or None ("time_drift" in the document).
+    time_column : str or None
+        The log column of times the time drift was fitted with.
+    time_drift_standard_errors : dict or None
+        Standard errors of the time drift's coefficients. [1/d]
 
     Examples
     --------
@@ -137,6 +190,9 @@ class TemperatureCalibrationResult(Document):
     temperature_column: str | None = None
     temperature_range: tuple = (float("nan"), float("nan"))
     temperature_standard_errors: dict | None = None
+    time_drift: TimeDrift | None = None
+    time_column: str | None = None
+    time_drift_standard_errors: dict | None = None
 
     @property
     def model(self) -> Zhou2010Parameters:
@@ -178,16 +234,33 @@ class TemperatureCalibrationResult(Document):
     def robust(self) -> dict:
         return self.calibration.robust
 
-    def apply(self, samples, temperature, unit: str | None = None) -> np.ndarray:
+    @property
+    def drifts_in_time(self) -> bool:
+        """Whether the scale factors drift in time (the log's times are then needed)."""
+        return self.time_drift is not None and self.time_drift.kind != "none"
+
+    def apply(self, samples, temperature, unit: str | None = None, times=None) -> np.ndarray:
         """Corrected field at the temperatures t (Eq. 9 in [1], Eq. 4 in [2]).
 
-        samples : (N, 3) raw output [unit, default the calibration's]; temperature [degC].
+        samples : (N, 3) raw output [unit, default the calibration's]; temperature [degC];
+        times : the samples' times, for a time drift (Unix seconds, or seconds on the clock of
+        the calibration log) [s].
         Returns the corrected field in the unit of `samples`.
         """
         samples = validation.vectors(samples)
         unit = unit or self.unit
         units.check_compatible(self.unit, unit, "the samples")
         temperature = validation.temperature(temperature, samples.shape[0])
+        time_gains = None
+        if self.drifts_in_time:
+            if times is None:
+                raise InputError(
+                    "this calibration's scale factors drift in time; give the log's times "
+                    f"(--time-column, as {self.time_column or 'the calibration log'}'s)"
+                )
+            drift = self.time_drift
+            assert drift is not None
+            time_gains = drift.gains(validation.times(times, samples.shape[0]))
         gains, _ = self.temperature_model.gains_offsets(self.model, temperature)
         if not (gains > 0).all():
             raise InputError(
@@ -196,13 +269,17 @@ class TemperatureCalibrationResult(Document):
                 f"temperature column and its unit (degC)"
             )
         corrected = liu2022.correct(
-            units.to_base(samples, unit), temperature, self.model, self.temperature_model
+            units.to_base(samples, unit),
+            temperature,
+            self.model,
+            self.temperature_model,
+            time_gains,
         )
         return units.from_base(corrected, unit)
 
-    def correct(self, samples, temperature, params=None) -> np.ndarray:
+    def correct(self, samples, temperature, params=None, times=None) -> np.ndarray:
         """`apply` (the nine parameters are this result's own; `params` is ignored)."""
-        return self.apply(samples, temperature)
+        return self.apply(samples, temperature, times=times)
 
     def table(self, most: int | None = None) -> str:
         return format_table(self.statistics, self.unit, extra=("rmse",), most=most)
@@ -215,6 +292,13 @@ class TemperatureCalibrationResult(Document):
             "temperature_range_degC": [float(v) for v in self.temperature_range],
             "standard_errors": self.temperature_standard_errors,
         }
+        if self.drifts_in_time:
+            assert self.time_drift is not None
+            document["time_drift"] = {
+                **self.time_drift.to_dict(),
+                "time_column": self.time_column,
+                "standard_errors": self.time_drift_standard_errors,
+            }
         return document
 
     @classmethod
@@ -227,9 +311,22 @@ class TemperatureCalibrationResult(Document):
             calibration=calibration,
             temperature_model=read_temperature_model(block),
             temperature_column=block.string("temperature_column", None),
+            **_time_drift_fields(reader),
             temperature_range=(float(span[0]), float(span[1])),
             temperature_standard_errors=errors,
         )
+
+
+def _time_drift_fields(reader: DocumentReader) -> dict:
+    """The constructor arguments of a document's "time_drift" block (none without it)."""
+    block = reader.reader("time_drift", None)
+    if block is None:
+        return {}
+    return {
+        "time_drift": read_time_drift(block),
+        "time_column": block.string("time_column", None),
+        "time_drift_standard_errors": block.mapping("standard_errors", None),
+    }
 
 
 def calibrate_temperature(
@@ -243,6 +340,9 @@ def calibrate_temperature(
     reference_unit: str | None = None,
     temperature_column: str | None = None,
     model: str | None = None,
+    times=None,
+    time_drift: str = "none",
+    time_column: str | None = None,
 ) -> TemperatureCalibrationResult:
     """The nine parameters and temperature coefficients from one log, estimated together.
 
@@ -257,9 +357,9 @@ def calibrate_temperature(
         Temperatures t_i (`--temperature-column`). [degC]
     reference : float or array_like of shape (N,)
         Reference magnitudes F_i (a proton magnetometer), or one number. [reference_unit]
-    temperature_model : {"common", "per-axis"}
-        "common" (Eq. 2 and 9 of [1], the default) or "per-axis" (linear scale and offset drift
-        per axis) (`--temperature-model`).
+    temperature_model : {"common", "per-axis", "full"}
+        "common" (Eq. 2 and 9 of [1], the default), "per-axis" (linear scale and offset drift
+        per axis) or "full" (per-axis, and a linear drift of each angle) (`--temperature-model`).
     base_temperature : float, optional
         t0 of the returned nine parameters; default the log's mean temperature. [degC]
     unit : str
@@ -270,6 +370,12 @@ def calibrate_temperature(
         The log column the temperatures came from, recorded for `nlpcal apply`.
     model : str, optional
         The former name of `temperature_model`, still accepted.
+    times : array_like, shape (N,), optional
+        The samples' times, for a time drift: Unix seconds, or seconds since any origin. [s]
+    time_drift : {"none", "common", "per-axis"}
+        Scale factors linear in time, one slope for all axes or one per axis (`--time-drift`).
+    time_column : str, optional
+        The log column the times came from, recorded for `nlpcal apply`.
 
     Returns
     -------
@@ -300,6 +406,7 @@ def calibrate_temperature(
     """
     model = validation.renamed(temperature_model, model, "temperature_model", "model") or "common"
     validation.choice(model, "temperature model", TEMPERATURE_MODELS)
+    validation.choice(time_drift, "time drift", TIME_DRIFTS)
     samples = validation.samples(samples)
     n = samples.shape[0]
     temperature = validation.temperature(temperature, n)
@@ -313,7 +420,7 @@ def calibrate_temperature(
     samples = units.to_base(samples, unit)
     reference = np.broadcast_to(units.to_base(reference, reference_unit or unit), (n,)).copy()
     validation.reference_scale(reference, validation.mean_magnitude(samples))
-    nx = 9 + n_coefficients(model)
+    nx = 9 + n_coefficients(model, time_drift)
     if n <= nx:
         raise InputError(f"got {n} samples, need more than {nx} for the {model} model")
     base_temperature = (
@@ -328,6 +435,7 @@ def calibrate_temperature(
             f"coefficients need a log over a range of temperatures (calibrate "
             f"without --temperature-column for a log at one temperature)"
         )
+    t_ref, days = _days(times, time_drift, temperature)
     dt = temperature - base_temperature
     frame = sphere_frame(samples)
     start = np.zeros(nx)
@@ -336,15 +444,23 @@ def calibrate_temperature(
     scale = np.concatenate(
         [
             variable_scale(frame.radius),
-            coefficient_scale(model, frame.radius, float(np.max(np.abs(dt)))),
+            coefficient_scale(
+                model,
+                frame.radius,
+                float(np.max(np.abs(dt))),
+                time_drift,
+                float(np.max(np.abs(days))),
+            ),
         ]
     )
     started = time.perf_counter()
-    theta, sums, steps, iterations, status = minimise(model, start, scale, (samples, dt, reference))
+    theta, sums, steps, iterations, status = minimise(
+        model, start, scale, (samples, dt, reference, days), time_drift
+    )
     wall = time.perf_counter() - started
-    params, fitted = model_of(theta, model, float(base_temperature))
+    params, fitted, drift = model_of(theta, model, float(base_temperature), time_drift, t_ref)
 
-    names = PARAMETER_NAMES + coefficient_names(model)
+    names = PARAMETER_NAMES + coefficient_names(model, time_drift)
     uncertainty = inference.estimate(
         sums.a * n,
         residual_variance=sums.c * n / (n - nx),
@@ -352,19 +468,25 @@ def calibrate_temperature(
         dof=n - nx,
     )
     not_identifiable = [names[i] for i in uncertainty.weak]
-    errors = temperature_errors = None
+    errors = coefficient_errors = None
     poor: list = []
     if uncertainty.standard_errors is not None:
         sd = uncertainty.standard_errors * scale
         sd[6:9] = np.degrees(sd[6:9])
+        if model == "full":
+            sd[15:18] = np.degrees(sd[15:18])  # angle slopes [deg/degC]
         errors = {name: float(v) for name, v in zip(PARAMETER_NAMES, sd[:9])}
-        temperature_errors = {name: float(v) for name, v in zip(names[9:], sd[9:])}
+        coefficient_errors = {name: float(v) for name, v in zip(names[9:], sd[9:])}
         poor = [
             name
             for name, v, size in zip(names[9:], sd[9:], scale[9:])
-            if v > POOR_TEMPERATURE_SE * size
+            if v > POOR_TEMPERATURE_SE * (np.degrees(size) if "_deg_" in name else size)
         ]
     warnings = _warnings(t_high - t_low, not_identifiable, poor)
+    time_gains = drift.gains(times) if time_drift != "none" else None
+    label = f"system + temperature ({model})" + (
+        f" + time drift ({time_drift})" if time_drift != "none" else ""
+    )
     rows = [
         {**evaluation_row("measured", samples, reference), "iterations": 0, "wall_s": 0.0},
         {
@@ -374,14 +496,15 @@ def calibrate_temperature(
         },
         {
             **evaluation_row(
-                f"system + temperature ({model})",
-                liu2022.correct(samples, temperature, params, fitted),
+                label,
+                liu2022.correct(samples, temperature, params, fitted, time_gains),
                 reference,
             ),
             "iterations": iterations,
             "wall_s": wall,
         },
     ]
+    stage = f"joint-temperature-{model}" + (f"-time-{time_drift}" if time_drift != "none" else "")
     calibration = CalibrationResult(
         parameters=params.to_dict(),
         statistics=rows,
@@ -392,7 +515,7 @@ def calibrate_temperature(
             stages=[
                 BlockSolve(
                     cycle=1,
-                    stage=f"joint-temperature-{model}",
+                    stage=stage,
                     finished_by="ipopt",
                     iterations=iterations,
                     ipopt_status=status,
@@ -413,13 +536,55 @@ def calibrate_temperature(
         n_samples=n,
         input={"log_unit": unit},
     )
+    drift_names = [name for name in names[9:] if name.endswith("_per_day")]
     return TemperatureCalibrationResult(
         calibration=calibration,
         temperature_model=fitted,
         temperature_column=temperature_column,
         temperature_range=(t_low, t_high),
-        temperature_standard_errors=temperature_errors,
+        temperature_standard_errors=None
+        if coefficient_errors is None
+        else {k: v for k, v in coefficient_errors.items() if k not in drift_names},
+        time_drift=drift if time_drift != "none" else None,
+        time_column=time_column if time_drift != "none" else None,
+        time_drift_standard_errors=None
+        if coefficient_errors is None or time_drift == "none"
+        else {k: coefficient_errors[k] for k in drift_names},
     )
+
+
+#: Above this correlation of the times with the temperatures, a scale drift in time and a
+#: temperature coefficient of the scales cannot be told apart. [1]
+COLLINEAR = 0.999
+
+
+def _days(times, time_drift: str, temperature: np.ndarray) -> tuple:
+    """(t_ref [s], the samples' times from it [d]) for a time drift; (0, zeros) without one.
+    InputError for what the data cannot determine: times that do not change, or change in
+    step with the temperature."""
+    n = temperature.size
+    if time_drift == "none":
+        return 0.0, np.zeros(n)
+    if times is None:
+        raise InputError(
+            f"--time-drift {time_drift} needs the samples' times: pass --time-column COL"
+        )
+    times = validation.times(times, n)
+    if times.max() == times.min():
+        raise InputError(
+            f"all {n} samples have the same time; a drift of the scale factors in time needs "
+            f"a log over a span of time"
+        )
+    correlation = float(np.corrcoef(times, temperature)[0, 1])
+    if abs(correlation) > COLLINEAR:
+        raise InputError(
+            f"the temperature changes in step with time (correlation {correlation:.4f}), so a "
+            f"scalar reference cannot tell a drift of the scale factors in time from their "
+            f"temperature coefficients; drop --time-drift, or calibrate over a log whose "
+            f"temperature goes up and down"
+        )
+    t_ref = 0.5 * float(times.min() + times.max())
+    return t_ref, (times - t_ref) / DAY_S
 
 
 def _warnings(span: float, not_identifiable: list, poor: list) -> list:
@@ -459,10 +624,18 @@ def objective_value(
 
 
 def calibrate_temperature_log(
-    log, temperature_column: str, *, model: str = "common", base_temperature: float | None = None
+    log,
+    temperature_column: str,
+    *,
+    model: str = "common",
+    base_temperature: float | None = None,
+    time_drift: str = "none",
+    times=None,
+    time_column: str | None = None,
 ) -> TemperatureCalibrationResult:
     """`calibrate_temperature` on a log read by `nlpcal.io.read_log` with its reference column
-    and `temperature_column` [degC]; the result records the log under `input`."""
+    and `temperature_column` [degC] (and the samples' `times` [s] from `time_column` for a
+    `time_drift`); the result records the log under `input`."""
     temperature_column = log.column(temperature_column)
     if log.reference is None:
         raise InputError(
@@ -482,6 +655,9 @@ def calibrate_temperature_log(
         base_temperature=base_temperature,
         unit=log.base_unit,
         temperature_column=temperature_column,
+        times=times,
+        time_drift=time_drift,
+        time_column=time_column,
     )
     result.calibration.input = log.metadata(temperature_column=temperature_column)
     result.calibration.unit_source = log.unit_source

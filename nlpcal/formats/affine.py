@@ -92,6 +92,12 @@ class TemperatureDrift:
     def from_result(cls, result, unit: str) -> TemperatureDrift:
         """The drift of a temperature calibration, with zeta in `unit` per degC."""
         model = result.temperature_model
+        if any(model.angle_slope_deg_per_degC) or result.drifts_in_time:
+            raise InputError(
+                "the exports carry offsets and scales that drift with temperature, not angles "
+                "that drift (--temperature-model full) nor a drift in time (--time-drift); "
+                "export a calibration without them"
+            )
         if model.kind == "common":
             c = model.k_slope_per_degC
             sigma = np.full(3, c)

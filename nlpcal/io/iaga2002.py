@@ -142,7 +142,8 @@ def read_iaga2002(name: str, source) -> tuple:
             data = handle.read()
     lines = data.decode("latin-1").splitlines()
     header, comments, at = _header(name, lines)
-    code = (header.get("IAGA CODE") or header.get("IAGA Code") or "").upper() or None
+    entry = {key.lower(): value for key, value in header.items()}  # keys in any case
+    code = (entry.get("iaga code") or "").upper() or None
     names = lines[at].rstrip().rstrip("|").split()
     if [n.upper() for n in names[:3]] != ["DATE", "TIME", "DOY"] or len(names) < 4:
         raise InputError(
@@ -160,9 +161,9 @@ def read_iaga2002(name: str, source) -> tuple:
     record = Observatory(
         format="IAGA-2002",
         iaga_code=code,
-        station=header.get("Station Name") or None,
+        station=entry.get("station name") or None,
         elements="".join(elements),
-        sensor_orientation=header.get("Sensor Orientation") or None,
+        sensor_orientation=entry.get("sensor orientation") or None,
         units=units,
         sampling_interval_s=observatory.sampling_interval(frame[TIME_COLUMN].to_numpy()),
         terms_of_use=_terms(comments),

@@ -84,6 +84,9 @@ class Log:
     reference_log : dict or None
         Where a reference with its own time base came from and how it was interpolated
         (`nlpcal.io.reference`), kept in the result's provenance ("input.reference_log").
+    times : numpy.ndarray or None
+        The rows' times from `time_column` (`--time-column`), Unix seconds (numbers in the
+        column are taken as they are: seconds from any origin). [s]
 
     Examples
     --------
@@ -114,6 +117,7 @@ class Log:
     layout: Layout = field(default_factory=Layout)
     observatory: Observatory | None = None
     reference_log: dict | None = None
+    times: np.ndarray | None = None
 
     @property
     def base_unit(self) -> str:
@@ -333,6 +337,7 @@ def read_log(
     instance: int | None = None,
     progress=None,
     reference_log: ReferenceLog | None = None,
+    time_column: str | None = None,
 ) -> Log:
     """Read, validate and convert a field log.
 
@@ -370,6 +375,9 @@ def read_log(
     reference_log : ReferenceLog, optional
         Or a reference read from another log with its own time base, interpolated onto the
         log's times (`--reference-log`, `nlpcal.io.reference`); rows outside its span dropped.
+    time_column : str, optional
+        A column of times (ISO 8601 text, or seconds) read into `Log.times` for the lag of a
+        reference (`--time-column` without a geomagnetic model).
     fallback_unit : str
         The unit assumed when nothing names one.
     header : bool, optional
@@ -408,13 +416,16 @@ def read_log(
         raise InputError("--reference-log needs the log in memory; drop --low-memory")
     notes: list = []
     model_columns = reference_model.numeric_columns() if reference_model else []
-    time_column = reference_model.time_column if reference_model else None
+    own_time = None if reference_model and reference_model.time_column else time_column
+    time_column = reference_model.time_column if reference_model else time_column
     roles = column_roles(reference_column, reference_model, extra_columns)
+    roles += [(TIME_ROLE, own_time)] if own_time else []
     extra = list(dict.fromkeys(column for role, column in roles if role != TIME_ROLE))
     requested = list(extra)
     if low_memory and (model_columns or time_column):
         raise InputError(
-            "a reference from position or time columns needs the log in memory; drop --low-memory"
+            "a reference from position or time columns, or a time column, needs the log in "
+            "memory; drop --low-memory"
         )
     if low_memory and not isinstance(path, Table) and is_recorded(path):
         notes.append(f"{path} is read whole: --low-memory streams text and Parquet logs only")
@@ -517,6 +528,7 @@ def read_log(
         warnings=warnings,
         layout=layout,
         observatory=observatory,
+        times=np.asarray(values[:, -1], dtype=float) if time_column else None,
     )
     return read if reference_log is None else with_reference_log(read, reference_log)
 

@@ -41,15 +41,17 @@ class ReferenceLog:
         check_kind(self.interpolation)
 
 
-def _log_times(log, spec: ReferenceLog) -> tuple:
-    """(the log's time column, its times on the rows of the samples [s])."""
+def log_times(log, column: str | None, why: str = "--reference-log") -> tuple:
+    """(the log's time column, its times on the rows of the samples [s]): `column`, else an
+    observatory file's `time`; InputError naming `why` (the option that needs them) when the
+    log has none or was streamed."""
     if log.frame is None:
-        raise InputError("--reference-log needs the log in memory; drop --low-memory")
-    wanted = spec.log_time_column or (TIME_COLUMN if log.observatory else None)
+        raise InputError(f"{why} needs the log in memory; drop --low-memory")
+    wanted = column or (TIME_COLUMN if log.observatory else None)
     if wanted is None:
         raise InputError(
-            "--reference-log interpolates the reference onto the log's times: pass "
-            "--time-column COL, the log's column of times (ISO 8601 or seconds)"
+            f"{why} needs the log's times: pass --time-column COL, the log's column of times "
+            f"(ISO 8601 or seconds)"
         )
     column = column_name(log.frame, wanted, "time column")
     times = seconds(log.frame[column])[log.kept]
@@ -94,7 +96,7 @@ def with_reference_log(log, spec: ReferenceLog):
     """`log` (an `nlpcal.io.Log` read whole) with the reference of `spec` on its rows: rows
     outside the reference's span or in its gaps dropped and counted, the reference log's
     record in `log.reference_log`."""
-    column, times = _log_times(log, spec)
+    column, times = log_times(log, spec.log_time_column)
     notes: list = []
     times_ref, values_ref, record = _reference(spec, log.unit, column, notes)
     interpolated = interpolate_reference(times_ref, values_ref, times, spec.interpolation)
@@ -121,4 +123,5 @@ def with_reference_log(log, spec: ReferenceLog):
         reference_column=record["column"],
         notes=[*log.notes, *notes],
         reference_log={**record, "log_time_column": column, **interpolated.to_dict()},
+        times=times[keep],
     )

@@ -130,6 +130,11 @@ class LogStream:
         )
         return self
 
+    @property
+    def observatory(self):
+        """The header of an observatory file (read whole), else None (`nlpcal.io.observatory`)."""
+        return self.table.observatory if self.table is not None else None
+
     def __exit__(self, *exc) -> None:
         if self._spool is not None:
             self._spool.close()

@@ -28,13 +28,19 @@ corrected modulus against the proton values,
 Beyond the paper, `TemperatureModel` also holds a per-axis generalisation: each axis has its own
 linear scale and offset drift, gain_j(t) = (1 + s_j)(1 + sigma_j (t - t0)) and
 z_j(t) = z_j + zeta_j (t - t0), while the angles stay temperature-free. The paper's model is the
-special case sigma_j = c and zeta_j = c z_j with c = a / (a t0 + b).
+special case sigma_j = c and zeta_j = c z_j with c = a / (a t0 + b). The "full" model adds a
+linear temperature coefficient to each angle, alpha(t) = alpha + eta_alpha (t - t0) (beta and
+gamma alike): the temperature dependence of scales, offsets and non-orthogonalities that
+satellite vector magnetometers are calibrated with in flight (Swarm VFM [2]).
 
 References
 ----------
 [1] Liu H., Li Y., Ding X., Feng C. (2022). Temperature drift error analysis of triaxial fluxgate
     sensors and its correction method (in Chinese). Ocean University of China. The source text
     names neither the journal nor a DOI (seed 002, ../shared/seeds/002_b5124ef138e20f0b.txt).
+[2] Toffner-Clausen L., Lesur V., Olsen N., Finlay C. C. (2016). In-flight scalar calibration
+    and characterisation of the Swarm magnetometry package. Earth, Planets and Space 68, 129.
+    https://doi.org/10.1186/s40623-016-0501-6
 """
 
 from __future__ import annotations
@@ -43,7 +49,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .zhou2010 import Zhou2010Parameters, axis_matrix
+from .zhou2010 import (
+    Zhou2010Parameters,
+    axis_matrix,
+    axis_matrix_entries,
+    correction_matrix_entries,
+    triangular,
+)
 from .zhou2010 import correct as zhou_correct
 from .zhou2010 import forward as zhou_forward
 
@@ -62,7 +74,7 @@ PAPER_FIELD_TEMPERATURE_DEGC = 12.8
 PAPER_DRIFT_RMSE_NT = (891.43, 15.50, 2.76)
 PAPER_FIELD_RMSE_NT = (1064.70, 41.25, 9.40)
 
-TEMPERATURE_MODELS = ("common", "per-axis")
+TEMPERATURE_MODELS = ("common", "per-axis", "full")
 
 
 def modulus_line(temperature, a: float, b: float) -> np.ndarray:
@@ -119,7 +131,8 @@ class TemperatureModel:
     ----------
     kind : str
         "common" (the paper's Eq. 9: one factor k(t) = 1 + c (t - t0) on scale and offset of all
-        axes) or "per-axis" (each axis its own linear scale and offset drift).
+        axes), "per-axis" (each axis its own linear scale and offset drift) or "full" (per-axis,
+        and each angle its own linear drift).
     base_temperature_degC : float
         t0, where the nine parameters hold. [degC]
     k_slope_per_degC : float
@@ -127,7 +140,9 @@ class TemperatureModel:
     scale_slope_per_degC : tuple
         sigma, gain_j(t) = (1 + s_j)(1 + sigma_j (t - t0)), per-axis. [1/degC]
     offset_slope_per_degC : tuple
-        zeta, z_j(t) = z_j + zeta_j (t - t0), per-axis. [field unit/degC]
+        zeta, z_j(t) = z_j + zeta_j (t - t0), per-axis and full. [field unit/degC]
+    angle_slope_deg_per_degC : tuple
+        eta of alpha, beta, gamma: alpha(t) = alpha + eta_alpha (t - t0), full only. [deg/degC]
 
     Examples
     --------
@@ -142,6 +157,7 @@ class TemperatureModel:
     k_slope_per_degC: float = 0.0
     scale_slope_per_degC: tuple = (0.0, 0.0, 0.0)
     offset_slope_per_degC: tuple = (0.0, 0.0, 0.0)
+    angle_slope_deg_per_degC: tuple = (0.0, 0.0, 0.0)
 
     def __post_init__(self):
         if self.kind not in TEMPERATURE_MODELS:
@@ -177,6 +193,15 @@ class TemperatureModel:
         zeta = np.asarray(self.offset_slope_per_degC, dtype=float)
         return (1.0 + params.scales) * (1.0 + sigma * dt), params.offsets + zeta * dt
 
+    def angles_rad(self, params: Zhou2010Parameters, temperature) -> tuple:
+        """alpha, beta, gamma at the temperatures t [degC]: (N,) arrays for the full model,
+        the constant angles otherwise. [rad]"""
+        if self.kind != "full":
+            return tuple(params.angles_rad)
+        dt = np.asarray(temperature, dtype=float) - self.base_temperature_degC
+        eta = np.radians(np.asarray(self.angle_slope_deg_per_degC, dtype=float))
+        return tuple(angle + slope * dt for angle, slope in zip(params.angles_rad, eta))
+
     def to_dict(self) -> dict:
         document = {"kind": self.kind, "base_temperature_degC": self.base_temperature_degC}
         if self.kind == "common":
@@ -184,6 +209,8 @@ class TemperatureModel:
         else:
             document["scale_slope_per_degC"] = [float(v) for v in self.scale_slope_per_degC]
             document["offset_slope_per_degC"] = [float(v) for v in self.offset_slope_per_degC]
+        if self.kind == "full":
+            document["angle_slope_deg_per_degC"] = [float(v) for v in self.angle_slope_deg_per_degC]
         return document
 
     as_dict = to_dict  # the name of nlpcal 0.1; kept for one release
@@ -199,7 +226,13 @@ class TemperatureModel:
         zeta = tuple(float(v) for v in document["offset_slope_per_degC"])
         if len(sigma) != 3 or len(zeta) != 3:
             raise ValueError("scale_slope_per_degC and offset_slope_per_degC need three values")
-        return cls(kind, t0, scale_slope_per_degC=sigma, offset_slope_per_degC=zeta)
+        eta = tuple(float(v) for v in document.get("angle_slope_deg_per_degC", (0.0,) * 3))
+        if len(eta) != 3:
+            raise ValueError("angle_slope_deg_per_degC needs three values")
+        return cls(
+            kind, t0, scale_slope_per_degC=sigma, offset_slope_per_degC=zeta,
+            angle_slope_deg_per_degC=eta,
+        )  # fmt: skip
 
 
 def forward(
@@ -208,7 +241,7 @@ def forward(
     """Sensor output B_m at temperature t for the true field A B in the ideal sensor frame.
 
     Eq. 2 in [1] written with the nine parameters: B_m = k (diag(1 + s) T (A B) + Z_p) for the
-    common model, B_m = diag(gain(t)) T (A B) + z(t) per axis.
+    common model, B_m = diag(gain(t)) T (A B) + z(t) per axis, with T(t) for the full model.
 
     field_sensor_ideal : (N, 3) true field in the ideal orthogonal sensor frame. [nT]
     temperature : (N,) temperatures. [degC]
@@ -218,23 +251,34 @@ def forward(
     if model.kind == "common":
         return model.k(temperature)[:, None] * zhou_forward(field, params)  # Eq. 2
     gains, offsets = model.gains_offsets(params, temperature)
-    return (field @ axis_matrix(params).T) * gains + offsets
+    if model.kind == "per-axis":
+        return (field @ axis_matrix(params).T) * gains + offsets
+    alpha, beta, gamma = model.angles_rad(params, temperature)
+    rows = axis_matrix_entries(alpha, beta, gamma)
+    along = np.column_stack([sum(e * field[:, k] for k, e in enumerate(row)) for row in rows])
+    return along * gains + offsets
 
 
 def correct(
-    samples, temperature, params: Zhou2010Parameters, model: TemperatureModel
+    samples, temperature, params: Zhou2010Parameters, model: TemperatureModel, time_gains=None
 ) -> np.ndarray:
     """Corrected field at temperature t: Eq. 9 in [1], then Eq. 4 of Zhou et al. (2010).
 
-    Common model: B1 = O_p S_p (B_m / k(t) - Z_p). Per-axis model:
-    B1 = T^-1 diag(gain(t))^-1 (B_m - z(t)).
+    Common model: B1 = O_p S_p (B_m / k(t) - Z_p). Per-axis and full models:
+    B1 = T(t)^-1 diag(gain(t))^-1 (B_m - z(t)), T constant per axis.
 
     samples : (N, 3) sensor output B_m. [nT]
     temperature : (N,) temperatures. [degC]
+    time_gains : (N, 3) factors of a scale drift in time that multiply the gains, or None
+        (`nlpcal.models.time_drift.TimeDrift.gains`). [1]
     Returns (N, 3) corrected field. [nT]
     """
     samples = np.asarray(samples, dtype=float)
-    if model.kind == "common":
+    if model.kind == "common" and time_gains is None:
         return zhou_correct(samples / model.k(temperature)[:, None], params)  # Eq. 9, then Eq. 4
     gains, offsets = model.gains_offsets(params, temperature)
-    return np.linalg.solve(axis_matrix(params), ((samples - offsets) / gains).T).T
+    gains = gains if time_gains is None else gains * time_gains
+    along = (samples - offsets) / gains
+    alpha, beta, gamma = model.angles_rad(params, temperature)
+    inverse = correction_matrix_entries(alpha, beta, gamma, 0.0, 0.0, 0.0)
+    return np.column_stack(triangular(inverse, along[:, 0], along[:, 1], along[:, 2]))

@@ -167,6 +167,17 @@ def correction_matrix_entries(alpha, beta, gamma, s_x, s_y, s_z, cos=np.cos, sin
     ]
 
 
+def triangular(entries, v_x, v_y, v_z) -> list:
+    """The rows of M v for an upper-triangular M given by its `entries` (as
+    `correction_matrix_entries` writes them) and the components of v: numbers, arrays of
+    samples (numpy) or rows of samples (CasADi), entries per sample or shared."""
+    return [
+        entries[0][0] * v_x + entries[0][1] * v_y + entries[0][2] * v_z,
+        entries[1][1] * v_y + entries[1][2] * v_z,
+        entries[2][2] * v_z,
+    ]
+
+
 def axis_matrix(params: Zhou2010Parameters) -> np.ndarray:
     """T = O_p^-1 of Eq. 4 in [1]. [1]"""
     return np.array(axis_matrix_entries(*params.angles_rad), dtype=float)

@@ -1,0 +1,680 @@
+"""The lag of a scalar reference series, estimated with the nine parameters of Eq. 4 in [1].
+
+A scalar magnetometer recorded by another instrument carries its own clock. Its value on the row
+of time t is the field at t - tau (tau > 0: the reference is late), R(t) = F(t - tau), so the
+field at the row's time is, to first order,
+
+    F(t) = R(t + tau) = R(t) + tau R'(t)                                          (L1)
+
+and the residual of sample i becomes r_i = |B1_i| - R_i - tau D_i, D_i an estimate of R'(t_i).
+Its mean square is a quadratic in tau,
+
+    f(theta, tau) = f_0(theta) - 2 tau mean D_i (|B1_i| - R_i) + tau^2 mean D_i^2     (L2)
+
+f_0 the reference objective of `nlpcal.nlp.objective`. With the notation of `nlpcal.moments`
+(u_i, the weights w_i = R_i^2 / L^2 and the features f_i), |B1_i| - R_i = R_i (sqrt(1 + u_i) - 1)
+= R_i (u_i / 2 - u_i^2 / 8 + ...), so with x_i = D_i / R_i [1/s]
+
+    mean D_i (|B1_i| - R_i) = L^2 (U . g / 2 - P . g / 8),   g = (1/N) sum_i w_i x_i f_i
+    mean D_i^2 = L^2 c,                                      c = (1/N) sum_i w_i x_i^2     (L3)
+
+(U and P give u and u^2 on the features, `nlpcal.nlp.objective.feature_coefficients`; the term
+u^3 / 16 dropped is of relative size u^2, below 1e-6 near any solution). g and c are the lag's
+own group of moments, one more vector and one number beside the Gram matrix, gathered by one
+pass block by block (`LagBlock`): f keeps its size for every N.
+
+The derivative is the central difference D_i = (R_{i+1} - R_{i-1}) / (t_{i+1} - t_{i-1}); a block
+reads one row beyond each of its ends (two ahead for the noise estimate below), so the pass runs
+in threads, on a memory map (`--low-memory`) and on Dask (`dask.array.map_overlap`) alike.
+
+Errors in variables. Reference noise of variance sigma^2 puts noise of variance
+v_i = sigma^2 q_i, q_i = 2 / (t_{i+1} - t_{i-1})^2, into D_i; mean D_i^2 then overstates the
+signal's and shrinks tau by the factor mean D^2 / (mean D^2 + mean v) [F87, Sec. 1.1]. The
+estimate corrects the moment, c -> c - sigma^2 mean q / L^2 (the method-of-moments estimator
+[F87, Eq. 1.2.3]); the central difference leaves R_i itself out, so its noise is independent of
+the residual's. sigma^2 is estimated from the third differences of R, whose variance is
+20 sigma^2 for white noise and nearly free of a field smooth over four samples. The covariance
+is the sandwich A_c^-1 A A_c^-1 (A the Gauss-Newton information with the observed derivative,
+A_c the corrected one), widened, when the scores of neighbouring samples are alike, by the
+grouped jackknife of `nlpcal.inference.block_jackknife`.
+
+When |tau| exceeds half a sample, (L1) is no longer a small correction: the reference is
+re-interpolated linearly at t + tau and the lag about it estimated again.
+
+The lag is undetermined when its standard error exceeds MAX_ERROR_SAMPLES of the sample
+interval: dF/dt too small against the noise (a quiet day at an observatory).
+
+References
+----------
+[1] Zhou et al. (2010), see `nlpcal.models.zhou2010`.
+[F87] Fuller, W. A. (1987). Measurement Error Models. Wiley. doi:10.1002/9780470316665
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import inference, passes, validation
+from .errors import InputError, SolveError
+from .models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters, correct, model_directions
+from .moments import CHUNK_ROWS, Layout, Moments, accumulate, fill_features
+from .nlp.blocks import variable_scale
+from .nlp.objective import coefficient_derivative_functions, objective_derivatives
+from .timing import reference_at
+
+#: The statuses of a lag in a parameters file.
+STATUSES = ("estimated", "given", "undetermined")
+#: Rows a block reads beyond each of its ends: one behind, two ahead (central and third
+#: differences).
+HALO = 2
+#: The lag is undetermined when its standard error exceeds this fraction of the sample interval.
+#: [1]
+MAX_ERROR_SAMPLES = 0.02
+#: Re-interpolations of the reference before the lag is given up as not converging.
+MAX_REINTERPOLATIONS = 6
+#: Newton iterations of one joint solve; it stops when no step exceeds STEP_TOLERANCE standard
+#: errors (the resolution of the estimate). [1]
+MAX_NEWTON = 30
+STEP_TOLERANCE = 0.01
+#: Rows per block of the scores, the unit of the jackknife's groups.
+SCORE_ROWS = 512
+#: Blocks of scores below which the variance of tau is the Hessian's sandwich alone.
+MIN_SCORE_BLOCKS = 20
+
+
+def lag_option(value) -> str | float | None:
+    """None, "auto" or a number of seconds, from `lag=` or `--lag`. [s]"""
+    if value is None or (isinstance(value, str) and value == "auto"):
+        return value
+    return validation.number(value, "--lag ('auto', or a lag in seconds)")
+
+
+def check_times(times, n: int) -> np.ndarray:
+    """Times of the rows as seconds from any origin, increasing strictly. [s]"""
+    if times is None:
+        raise InputError("a lag needs the time of every sample: give --time-column")
+    times = np.asarray(times, dtype=float)
+    if times.shape != (n,):
+        raise InputError(f"got {times.size} times for {n} samples; expected one time per sample")
+    if not np.isfinite(times).all():
+        raise InputError("the time column has missing or non-numeric values")
+    if n > 1 and not (np.diff(times) > 0).all():
+        raise InputError("the times must increase from row to row for a lag")
+    return times
+
+
+def sample_interval(times: np.ndarray) -> float:
+    """The median interval between rows. [s]"""
+    return float(np.median(np.diff(times))) if times.size > 1 else float("nan")
+
+
+def shifted(reference, times: np.ndarray, tau: float) -> np.ndarray:
+    """R(t + tau) on the rows, by linear interpolation (`nlpcal.timing.reference_at`): the
+    reference moved so that a lag tau is taken out (L1). The rows it leaves without a value
+    (within |tau| of the ends, or in a gap of the reference) keep the nearest values' line
+    (`numpy.interp`, the ends held), so that every row keeps its reference. [reference unit]"""
+    reference = np.asarray(reference, dtype=float)
+    if tau == 0.0:
+        return reference
+    moved = reference_at(times, reference, times + tau)
+    missing = ~np.isfinite(moved)
+    moved[missing] = np.interp(times[missing] + tau, times, reference)
+    return moved
+
+
+def derivative_columns(reference, times, lead: int, rows: int) -> tuple:
+    """(D, q, third) for `rows` rows from index `lead` of arrays extended by up to HALO rows:
+    the central difference D [unit/s] (0 where a neighbour is missing), its noise factor q
+    [1/s^2] (D's noise variance over the reference's; 0 where D is missing), and the squared
+    third difference R_{i+2} - 3 R_{i+1} + 3 R_i - R_{i-1} [unit^2] (NaN where it cannot be
+    formed)."""
+    r = np.asarray(reference, dtype=float)
+    t = np.asarray(times, dtype=float)
+    index = np.arange(lead, lead + rows)
+    D, q = np.zeros(rows), np.zeros(rows)
+    inside = (index >= 1) & (index + 1 < r.size)
+    i = index[inside]
+    span = t[i + 1] - t[i - 1]
+    slope = (r[i + 1] - r[i - 1]) / span
+    good = np.isfinite(slope) & (span > 0)
+    D[inside] = np.where(good, slope, 0.0)
+    q[inside] = np.where(good, 2.0 / np.where(span > 0, span, 1.0) ** 2, 0.0)
+    third = np.full(rows, np.nan)
+    far = (index >= 1) & (index + 2 < r.size)
+    j = index[far]
+    third[far] = (r[j + 2] - 3 * r[j + 1] + 3 * r[j] - r[j - 1]) ** 2
+    return D, q, third
+
+
+@dataclass(frozen=True)
+class Series:
+    """A reference series and the times of its rows, in memory or mapped: a block reads its
+    HALO rows beyond its ends from them."""
+
+    reference: np.ndarray
+    times: np.ndarray
+
+    def columns(self, start: int, rows: int) -> tuple:
+        """(R, D, q, third) of the rows start:start + rows (`derivative_columns`)."""
+        low, high = max(0, start - HALO), min(self.reference.size, start + rows + HALO)
+        around = derivative_columns(
+            self.reference[low:high], self.times[low:high], start - low, rows
+        )
+        return (np.asarray(self.reference[start : start + rows], dtype=float), *around)
+
+
+def _overlapped_columns(reference, times, block_info=None):
+    """(rows, 4) columns R, D, q, third of a Dask block extended by the HALO rows of its
+    neighbours (none beyond the ends of the log): the block's own rows only."""
+    where = block_info[0]
+    index, count = where["chunk-location"][0], where["num-chunks"][0]
+    lead = HALO if index > 0 else 0
+    rows = reference.size - lead - (HALO if index < count - 1 else 0)
+    own = reference[lead : lead + rows]
+    return np.column_stack([own, *derivative_columns(reference, times, lead, rows)])
+
+
+def lazy_columns(reference, times) -> passes.LazySamples:
+    """The columns R, D, q, third of a Dask reference, each block computed with the HALO rows
+    of its neighbours (`dask.array.map_overlap`)."""
+    import dask.array as da
+
+    array = reference.array if isinstance(reference, passes.LazySamples) else reference
+    if min(array.chunks[0]) < HALO:
+        array = array.rechunk({0: max(HALO, max(array.chunks[0]))})
+    stamps = da.from_array(np.asarray(times, dtype=float), chunks=array.chunks)
+    stacked = da.map_overlap(
+        _overlapped_columns,
+        array,
+        stamps,
+        depth={0: HALO},
+        boundary="none",
+        trim=False,
+        new_axis=1,
+        chunks=(array.chunks[0], (4,)),
+        dtype=float,
+        meta=np.empty((0, 4)),
+    )
+    return passes.LazySamples(stacked)
+
+
+@dataclass
+class LagSums:
+    """The lag's group of moments of one block (sums, not yet means).
+
+    g : sum_i w_i x_i f_i over the features of the layout. c : sum_i w_i x_i^2. [1/s^2]
+    q : sum_i q_i over the rows with a derivative [1/s^2]; counted : those rows.
+    third, thirds : the sum of the squared third differences [unit^2] and their number.
+    """
+
+    g: np.ndarray
+    c: float
+    q: float
+    counted: int
+    third: float
+    thirds: int
+
+    def __add__(self, other: LagSums) -> LagSums:
+        return LagSums(
+            self.g + other.g,
+            self.c + other.c,
+            self.q + other.q,
+            self.counted + other.counted,
+            self.third + other.third,
+            self.thirds + other.thirds,
+        )
+
+
+def _block_columns(series, reference, start: int) -> tuple:
+    """(R, D, q, third) of a block: from its (rows, 4) columns on Dask, else from `series`."""
+    if np.ndim(reference) == 2:
+        block = np.asarray(reference, dtype=float)
+        return block[:, 0], block[:, 1], block[:, 2], block[:, 3]
+    return series.columns(start, len(reference))
+
+
+@dataclass(frozen=True)
+class LagBlock:
+    """The work of the lag's pass on one block of rows (`nlpcal.passes.reduce`, indexed).
+
+    series : the reference and its times in memory (None on Dask, whose blocks carry their
+        columns). centre, length : the frame of the moments [unit]. lay : their layout.
+    """
+
+    series: Series | None
+    centre: np.ndarray
+    length: float
+    lay: Layout
+    chunk_rows: int = CHUNK_ROWS
+
+    def __call__(self, samples, reference, start: int) -> LagSums:
+        samples = np.asarray(samples, dtype=float)
+        R, D, q, third = _block_columns(self.series, reference, start)
+        sums = LagSums(np.zeros(self.lay.size), 0.0, 0.0, 0, 0.0, 0)
+        found = np.isfinite(third)
+        sums.third, sums.thirds = float(third[found].sum()), int(found.sum())
+        sums.q, sums.counted = float(q.sum()), int(np.count_nonzero(q))
+        buffer = np.empty((self.lay.size, max(1, min(self.chunk_rows, samples.shape[0]))))
+        for begin in range(0, samples.shape[0], self.chunk_rows):
+            end = min(begin + self.chunk_rows, samples.shape[0])
+            ref = R[begin:end]
+            d = (samples[begin:end] - self.centre).T / self.length
+            gamma = (self.length / ref) ** 2
+            a = gamma * (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) - 1.0
+            chunk = buffer[:, : end - begin]
+            fill_features(d, a, gamma, self.lay, chunk)
+            wx = (ref / self.length) ** 2 * (D[begin:end] / ref)  # w_i x_i
+            sums.g += chunk @ wx
+            sums.c += float(np.sum(wx * D[begin:end] / ref))
+        return sums
+
+
+def _add(first, second):
+    return first + second
+
+
+def _pass_inputs(samples, reference, times) -> tuple:
+    """(samples, reference, series) for an indexed pass that needs the derivative."""
+    samples = passes.as_rows(samples)
+    reference = passes.as_rows(reference)
+    if isinstance(samples, passes.LazySamples) or isinstance(reference, passes.LazySamples):
+        if not isinstance(reference, passes.LazySamples):
+            import dask.array as da
+
+            reference = da.from_array(reference, chunks=(samples.array.chunks[0],))
+        return samples, lazy_columns(reference, times), None
+    return samples, reference, Series(reference, times)
+
+
+@dataclass(frozen=True)
+class LagMoments:
+    """The lag's group of moments beside the Gram matrix (L3), as means.
+
+    g : (size,) mean w_i x_i f_i. c_observed : mean w_i x_i^2 with the observed derivative;
+    c : the same corrected for the reference's noise. [1/s^2]
+    noise : the reference's noise variance estimated from its third differences. [unit^2]
+    rms_derivative : the rms of dF/dt, corrected for that noise. [unit/s]
+    """
+
+    g: np.ndarray
+    c_observed: float
+    c: float
+    noise: float
+    rms_derivative: float
+
+
+def lag_moments(samples, reference, times, moments: Moments) -> LagMoments:
+    """One pass over a log for the lag's moments (`LagBlock`), in the frame of `moments`."""
+    samples, ref, series = _pass_inputs(samples, reference, times)
+    work = LagBlock(series, moments.frame.centre, moments.length, moments.layout)
+    sums = passes.reduce(samples, ref, work, _add, CHUNK_ROWS, indexed=True)
+    n = moments.n
+    noise = sums.third / (20.0 * sums.thirds) if sums.thirds else 0.0
+    c_observed = sums.c / n
+    c = c_observed - noise * (sums.q / n) / moments.length**2
+    rms = moments.length * float(np.sqrt(max(c, 0.0)))
+    return LagMoments(sums.g / n, c_observed, c, noise, rms)
+
+
+def joint_derivatives(theta, tau: float, moments: Moments, lag: LagMoments, corrected=True):
+    """(f, gradient, Hessian) of (L2) in (theta [internal units], tau [s]), from the moments.
+
+    The theta part is `objective_derivatives`; the lag adds -2 tau L^2 b(theta) + tau^2 L^2 c
+    with b = U . g / 2 - P . g / 8 (L3), its derivatives from the coefficients' Jacobians and
+    curvature. `corrected` : c corrected for the reference's noise (False: the observed c, for
+    the sandwich's meat). [unit^2]
+    """
+    length, centre = moments.length, moments.frame.centre
+    f0, g0, h0 = (np.asarray(v, dtype=float) for v in _theta_part(theta, moments))
+    jacobians, curvature = coefficient_derivative_functions(True)
+    U, P, JU, JP = (np.asarray(v, dtype=float) for v in jacobians(theta, centre, length))
+    g = lag.g
+    b = float(U.ravel() @ g) / 2 - float(P.ravel() @ g) / 8
+    grad_b = JU.T @ g / 2 - JP.T @ g / 8
+    hess_b = np.asarray(curvature(theta, centre, length, g / 2, -g / 8), dtype=float)
+    c = lag.c if corrected else lag.c_observed
+    scale = length**2
+    f = float(f0.item()) - 2 * tau * scale * b + tau**2 * scale * c
+    gradient = np.append(
+        g0.ravel() - 2 * tau * scale * grad_b, -2 * scale * b + 2 * tau * scale * c
+    )
+    hessian = np.zeros((10, 10))
+    hessian[:9, :9] = h0 - 2 * tau * scale * hess_b
+    hessian[:9, 9] = hessian[9, :9] = -2 * scale * grad_b
+    hessian[9, 9] = 2 * scale * c
+    return f, gradient, hessian
+
+
+def _theta_part(theta, moments: Moments) -> tuple:
+    return objective_derivatives(
+        np.asarray(theta, dtype=float), moments.gram, moments.frame.centre, moments.length, "series"
+    )
+
+
+@dataclass
+class JointSolve:
+    """The optimum of (L2) over the free directions of theta and tau.
+
+    theta : internal units. tau : about the reference as given to the solve. [s]
+    hessian, observed : (10, 10) Hessians in (theta, tau) with the corrected and the observed c.
+    objective : f at the optimum. [unit^2] iterations : Newton steps taken.
+    """
+
+    theta: np.ndarray
+    tau: float
+    objective: float
+    hessian: np.ndarray
+    observed: np.ndarray
+    iterations: int
+
+
+def solve_joint(theta_start, moments: Moments, lag: LagMoments, directions) -> JointSolve:
+    """Newton's method with a halving line search on (L2), in the scaled free variables: the
+    columns of `directions` (9, k) scaled by `nlpcal.nlp.blocks.variable_scale`, and tau scaled
+    by its own resolution. (L2) is quadratic in tau and smooth in theta, so a few steps reach the
+    optimum from the no-lag one; SolveError when they do not."""
+    if not lag.c > 0:
+        raise SolveError("the reference's time derivative is below its noise: no lag to fit")
+    theta = np.asarray(theta_start, dtype=float).copy()
+    tau = 0.0
+    f, grad, hess = joint_derivatives(theta, tau, moments, lag)
+    noise = max(f, 1e-30)
+    basis = np.zeros((10, directions.shape[1] + 1))
+    basis[:9, :-1] = variable_scale(moments.frame.radius)[:, None] * directions
+    basis[9, -1] = np.sqrt(noise / (moments.length**2 * lag.c))
+    for iteration in range(1, MAX_NEWTON + 1):
+        g, h = basis.T @ grad, basis.T @ hess @ basis
+        try:
+            step = -np.linalg.solve(h, g)
+        except np.linalg.LinAlgError:
+            raise SolveError("the joint problem of the lag is singular") from None
+        size = 1.0
+        while True:
+            trial = basis @ (size * step)
+            f_new, grad_new, hess_new = joint_derivatives(
+                theta + trial[:9], tau + trial[9], moments, lag
+            )
+            if f_new <= f + 1e-12 * abs(f) or size < 1e-6:
+                break
+            size /= 2
+        theta, tau = theta + trial[:9], tau + float(trial[9])
+        f, grad, hess = f_new, grad_new, hess_new
+        resolution = np.sqrt(np.clip(np.diag(np.linalg.pinv(h)), 0, None) * 2 * noise / moments.n)
+        if np.all(np.abs(size * step) <= STEP_TOLERANCE * np.maximum(resolution, 1e-300) + 1e-12):
+            observed = joint_derivatives(theta, tau, moments, lag, corrected=False)[2]
+            return JointSolve(theta, tau, f, hess, observed, iteration)
+    raise SolveError(f"the joint solve of the lag did not converge in {MAX_NEWTON} Newton steps")
+
+
+@dataclass(frozen=True)
+class LagScores:
+    """The work of the scores pass on one block: per SCORE_ROWS rows, the sum of the tau scores
+    r_i D_i + tau sigma^2 q_i (zero-mean: the residual's -tau e_i meets the e_i of D_i)
+    [unit^2/s] and of their information D_i^2 - sigma^2 q_i [unit^2/s^2], at the estimate
+    (`lag_uncertainty`)."""
+
+    series: Series | None
+    parameters: Zhou2010Parameters
+    tau: float
+    noise: float
+
+    def __call__(self, samples, reference, start: int) -> tuple:
+        R, D, q, _ = _block_columns(self.series, reference, start)
+        magnitude = np.linalg.norm(
+            correct(np.asarray(samples, dtype=float), self.parameters), axis=1
+        )
+        residual = magnitude - R - self.tau * D
+        starts = np.arange(0, R.size, SCORE_ROWS)
+        if not starts.size:
+            return np.zeros(0), np.zeros(0)
+        return (
+            np.add.reduceat(residual * D + self.tau * self.noise * q, starts),
+            np.add.reduceat(D * D - self.noise * q, starts),
+        )
+
+
+def _concatenate(first, second):
+    return np.concatenate([first[0], second[0]]), np.concatenate([first[1], second[1]])
+
+
+def tau_dependence(samples, reference, times, theta, tau: float, noise: float) -> dict:
+    """The variance of tau from the scores of its blocks [s^2]: the sandwich of the block sums,
+    sum_b S_b^2 / (sum_b A_b)^2, which holds when the residuals' spread follows the field's
+    activity or neighbouring samples are alike within a block; the grouped jackknife
+    (`nlpcal.inference.block_jackknife`) when the blocks' scores are alike too, if larger.
+    None (and the Hessian's sandwich is kept) below MIN_SCORE_BLOCKS blocks."""
+    samples, ref, series = _pass_inputs(samples, reference, times)
+    work = LagScores(series, Zhou2010Parameters.from_theta(theta), tau, noise)
+    scores, shares = passes.reduce(samples, ref, work, _concatenate, CHUNK_ROWS, indexed=True)
+    if scores.size < MIN_SCORE_BLOCKS or not shares.sum() > 0:
+        return {"dependent": False, "variance": None}
+    variance = float(scores @ scores) / float(shares.sum()) ** 2
+    column = scores[:, None]
+    if not inference.scores_dependent(column):
+        return {"dependent": False, "variance": variance}
+    length = inference.group_length(inference.bartlett_bandwidth(column), len(scores))
+    jackknife, groups = inference.block_jackknife(column, shares[:, None, None], length)
+    widened = float(jackknife[0, 0]) * inference.t_widening(groups - 1) ** 2
+    return {"dependent": True, "variance": max(variance, widened)}
+
+
+def _direction_names(directions) -> list:
+    """A name per free direction of theta: the parameter, or the tied ones joined by '='."""
+    return [
+        "=".join(n for n, v in zip(PARAMETER_NAMES, column) if v != 0.0)
+        for column in np.asarray(directions).T
+    ]
+
+
+@dataclass
+class LagEstimate:
+    """A lag estimated with the parameters (L2), and what the data say of it.
+
+    status : "estimated" or "undetermined". seconds : tau [s] (the estimate, also when
+    undetermined; None when dF/dt is lost in the derivative's noise). standard_error_s : [s]
+    or None. correlations : tau's correlation with each free
+    parameter [1]. theta : the parameters of the joint optimum [internal units].
+    sample_interval_s : [s]. rms_derivative : rms dF/dt with the noise taken out [unit/s].
+    reference_noise : the reference's noise std from its third differences [unit].
+    reinterpolations : times the reference was re-interpolated. dependent : whether the
+    standard error follows dependent scores (the jackknife). [s]
+    """
+
+    status: str
+    seconds: float | None
+    standard_error_s: float | None
+    correlations: dict
+    theta: np.ndarray
+    sample_interval_s: float
+    rms_derivative: float
+    reference_noise: float
+    reinterpolations: int
+    dependent: bool
+    objective: float = float("nan")
+    notes: list = field(default_factory=list)
+
+    @property
+    def determined(self) -> bool:
+        return self.status == "estimated"
+
+    def to_dict(self) -> dict:
+        """The "lag" block of a parameters file (the undetermined estimate kept apart)."""
+        document = {
+            "status": self.status,
+            "seconds": self.seconds if self.determined else None,
+            "standard_error_s": self.standard_error_s,
+            "sample_interval_s": self.sample_interval_s,
+            "rms_derivative_per_s": self.rms_derivative,
+            "reference_noise": self.reference_noise,
+            "reinterpolations": self.reinterpolations,
+            "correlations": dict(self.correlations),
+        }
+        if not self.determined:
+            document["estimate_s"] = self.seconds
+        return document
+
+    def message(self) -> str:
+        """One sentence for the report."""
+        if self.seconds is None or self.standard_error_s is None:
+            return (
+                f"lag undetermined: the field's rate of change does not rise above the noise of "
+                f"the reference's derivative (reference noise {self.reference_noise:.3g})"
+            )
+        if self.determined:
+            return (
+                f"lag of the reference {self.seconds * 1e3:+.2f} ms +/- "
+                f"{self.standard_error_s * 1e3:.2f} ms (positive: the reference is late)"
+            )
+        return (
+            f"lag undetermined: its standard error {self.standard_error_s * 1e3:.3g} ms exceeds "
+            f"{MAX_ERROR_SAMPLES:g} of the sample interval ({self.sample_interval_s:g} s); the "
+            f"field changes too slowly (rms dF/dt {self.rms_derivative:.3g} per s) against the "
+            f"noise"
+        )
+
+
+def given_lag(seconds: float) -> dict:
+    """The "lag" block of a lag given, not estimated. [s]"""
+    return {"status": "given", "seconds": float(seconds), "standard_error_s": None}
+
+
+def read_lag(reader) -> dict | None:
+    """The "lag" block of a parameters file, checked (`nlpcal.results.DocumentReader`), or None."""
+    block = reader.reader("lag", None)
+    if block is None:
+        return None
+    status = block.string("status", options=list(STATUSES))
+    seconds = block.number("seconds", None)
+    if status != "undetermined" and seconds is None:
+        raise InputError(f"{reader.source}: lag.seconds is missing for a lag {status}")
+    block.number("standard_error_s", None, minimum=0.0)
+    return dict(block.document)
+
+
+def seconds_of(lag_block: dict | None) -> float:
+    """The lag a parameters file's "lag" block tells apply and stats to take out: its seconds
+    when estimated or given, 0 when undetermined or absent. [s]"""
+    if not lag_block or lag_block.get("status") == "undetermined":
+        return 0.0
+    return float(lag_block["seconds"])
+
+
+#: The scores' variance left to the Hessian's sandwich (`lag_uncertainty`).
+WHITE = {"dependent": False, "variance": None}
+
+
+def lag_uncertainty(joint: JointSolve, directions, n: int, dependence: dict) -> tuple:
+    """(standard error of tau [s], correlations of tau with the free directions [1], whether it
+    follows dependent scores): the sandwich s^2 A_c^-1 A A_c^-1 of the module's notes, its tau
+    variance replaced by the one of the block scores (`tau_dependence`) when there is one."""
+    basis = np.zeros((10, directions.shape[1] + 1))
+    basis[:9, :-1] = directions
+    basis[9, -1] = 1.0
+    p = basis.shape[1]
+    corrected = inference.information_from_hessian(basis.T @ joint.hessian @ basis, n)
+    observed = inference.information_from_hessian(basis.T @ joint.observed @ basis, n)
+    s2 = joint.objective * n / max(n - p, 1)
+    inverse = np.linalg.pinv(corrected)
+    covariance = s2 * inverse @ observed @ inverse
+    variance = float(covariance[-1, -1])
+    if dependence["variance"] is not None and variance > 0:
+        factor = np.ones(p)
+        factor[-1] = np.sqrt(dependence["variance"] / variance)
+        covariance = covariance * np.outer(factor, factor)
+    correlation = np.asarray(inference.correlation(covariance))
+    names = _direction_names(directions)
+    return (
+        float(np.sqrt(covariance[-1, -1])),
+        {name: float(correlation[-1, k]) for k, name in enumerate(names)},
+        bool(dependence["dependent"]),
+    )
+
+
+def estimate_lag(samples, reference, times, theta_start, directions) -> LagEstimate:
+    """tau with the free directions of theta (L2), re-interpolating the reference while |tau|
+    exceeds half a sample.
+
+    samples : (N, 3) raw B_M [unit]; reference : (N,) R [unit]; times : (N,) [s];
+    theta_start : the no-lag optimum [internal units]; directions : (9, k) the model's free
+    directions (`fixed_directions` for a fixed sensor).
+    """
+    times = check_times(times, len(reference))
+    interval = sample_interval(times)
+    limit = MAX_ERROR_SAMPLES * interval
+    theta, tau, moved = np.asarray(theta_start, dtype=float), 0.0, 0
+    while True:
+        ref = reference if tau == 0.0 else shifted(np.asarray(reference), times, tau)
+        moments = accumulate(samples, ref)
+        group = lag_moments(samples, ref, times, moments)
+        if not group.c > 0:  # dF/dt lost in the reference's noise
+            return silent_field(theta, interval, group, moved)
+        joint = solve_joint(theta, moments, group, directions)
+        theta = joint.theta
+        white = lag_uncertainty(joint, directions, moments.n, WHITE)[0]
+        vague = not white <= limit  # a wandering estimate: nothing to re-interpolate for
+        if abs(joint.tau) <= interval / 2 or vague:
+            break
+        if (
+            moved == MAX_REINTERPOLATIONS
+            or passes.is_dask(reference)
+            or isinstance(reference, passes.LazySamples)
+        ):
+            raise SolveError(
+                f"the lag did not settle within {MAX_REINTERPOLATIONS} re-interpolations of "
+                f"the reference (last step {joint.tau:+.4g} s)"
+                if moved == MAX_REINTERPOLATIONS
+                else "a lag beyond half a sample needs the reference in memory to re-interpolate"
+            )
+        tau, moved = tau + joint.tau, moved + 1
+    dependence = tau_dependence(samples, ref, times, theta, joint.tau, group.noise)
+    error, correlations, dependent = lag_uncertainty(joint, directions, moments.n, dependence)
+    determined = not vague and error <= limit
+    return LagEstimate(
+        status="estimated" if determined else "undetermined",
+        seconds=tau + joint.tau,
+        standard_error_s=error,
+        correlations=correlations,
+        theta=theta,
+        sample_interval_s=interval,
+        rms_derivative=group.rms_derivative,
+        reference_noise=float(np.sqrt(group.noise)),
+        reinterpolations=moved,
+        dependent=dependent,
+        objective=joint.objective,
+    )
+
+
+def silent_field(theta, interval: float, group: LagMoments, moved: int) -> LagEstimate:
+    """The undetermined lag of a log whose dF/dt does not rise above the derivative's noise:
+    no estimate, no standard error."""
+    return LagEstimate(
+        status="undetermined",
+        seconds=None,
+        standard_error_s=None,
+        correlations={},
+        theta=np.asarray(theta, dtype=float),
+        sample_interval_s=interval,
+        rms_derivative=0.0,
+        reference_noise=float(np.sqrt(group.noise)),
+        reinterpolations=moved,
+        dependent=False,
+    )
+
+
+def fixed_directions() -> np.ndarray:
+    """The lag with one common scale (s_x = s_y = s_z), the other parameters held: for a fixed
+    sensor, whose attitudes determine none of the nine, the common scale takes up the baseline
+    of delta F (a constant |B| - F of 0.02 % is a scale of 2e-4 at a steady |B|)."""
+    return model_directions("offset", True)[:, 3:]
+
+
+__all__ = [
+    "LagEstimate",
+    "estimate_lag",
+    "given_lag",
+    "lag_option",
+    "model_directions",
+    "shifted",
+]
