@@ -216,6 +216,12 @@ def test_a_channel_that_follows_the_attitude_is_named():
         {"aux_columns": {"c": np.r_[np.nan, np.linspace(0, 1, 1999)]}},
         {"aux_columns": {"c": np.linspace(0, 1, 2000)}, "loss": "huber"},
         {"aux_columns": {"c": np.linspace(0, 1, 2000)}, "model": "auto"},
+        {
+            "aux_columns": {"c": np.linspace(0, 1, 2000)},
+            "lag": "auto",
+            "reference_field": np.full(2000, PAPER_FIELD),
+            "times": np.arange(2000.0),
+        },
     ],
 )
 def test_bad_channels_are_input_errors(options):
