@@ -11,6 +11,7 @@ Every verb and result type of the four papers is importable from here:
     calibrate_turns, calibrate_free, attitude, evaluate ...  Qiu et al. (2017)
     simulate, read_log, load                                 synthetic logs, reading files
     calibrate_many, apply_many                               fleets of logs, on Dask or not
+    fit_tolles_lawson, TollesLawsonFit                       a platform's field (Tolles-Lawson)
     export, import_file, ReferenceModel                      other formats, IGRF/WMM references
 
 The names are resolved on first use, so `import nlpcal` (and the command line's --help) stays
@@ -58,6 +59,7 @@ if TYPE_CHECKING:  # what the lazy __getattr__ below returns, for type checkers
         synthetic_rotation,
     )
     from .orthogonality.worst_case import worst_case  # the function, not its module
+    from .platform import TollesLawsonFit, fit_tolles_lawson
     from .simulation import simulate
 
 #: Public name -> the module that defines it.
@@ -98,6 +100,8 @@ _EXPORTS = {
     "calibrate_many": "batch",
     "apply_many": "batch",
     "BatchReport": "batch",
+    "fit_tolles_lawson": "platform",
+    "TollesLawsonFit": "platform",
     "read_log": "io",
     "Log": "io",
     "Zhou2010Parameters": "models.zhou2010",
@@ -124,6 +128,7 @@ _SUBMODULES = (
     "nlp",
     "orthogonality",
     "passes",
+    "platform",
     "plots",
     "report",
     "results",
@@ -189,6 +194,8 @@ __all__ = [  # noqa: RUF022 (grouped by paper, as in the API reference)
     "calibrate_many",
     "apply_many",
     "BatchReport",
+    "fit_tolles_lawson",
+    "TollesLawsonFit",
     "read_log",
     "Log",
     "Zhou2010Parameters",

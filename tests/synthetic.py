@@ -173,6 +173,86 @@ def smooth_motor_log(n=20_000, noise=5.0, seed=0, per_amp=(120.0, -80.0, 300.0))
     return samples + noise * rng.standard_normal(samples.shape), current
 
 
+# --- a platform's own field: the Tolles-Lawson figure-of-merit box ------------------------------
+
+#: True Tolles-Lawson coefficients of a platform: permanent [nT], induced [1] (x x, x y, x z, y y,
+#: y z, z z), eddy [s] (x dx, x dy, x dz, y dx, ..., z dz), the scale of a small aircraft's.
+TL_TRUTH = {
+    "permanent": np.array([12.0, -25.0, 18.0]),
+    "induced": np.array([2.0e-4, -1.5e-4, 0.8e-4, -1.0e-4, 2.5e-4, 0.6e-4]),
+    "eddy": np.array([3e-3, -2e-3, 1e-3, 2.5e-3, -1.5e-3, 2e-3, -1e-3, 3e-3, 1.5e-3]),
+}
+
+
+def box_attitudes(t):
+    """(roll, pitch, heading) [rad] of a figure-of-merit box flown at times t [s]: four legs
+    (north, east, south, west) of equal length joined by 30 s turns, each leg with pitch, roll
+    and yaw manoeuvres of +/-5, +/-10 and +/-5 deg at periods of 5 to 8 s, one after the other."""
+    leg = t[-1].real / 4
+    k = np.clip(np.floor(t.real / leg), 0, 3)
+    into = t - k * leg  # time into the leg [s]
+    turn = _ramp(into / 30.0)
+    heading = np.radians(90.0) * (k - 1 + 0.5 * (1 - np.cos(np.pi * turn)))
+    third = (leg - 30.0) / 3
+    window = [_bump((into - 30.0 - j * third) / third) for j in range(3)]
+    pitch = np.radians(5.0) * window[0] * np.sin(2 * np.pi * into / 6.0)
+    roll = np.radians(10.0) * window[1] * np.sin(2 * np.pi * into / 8.0)
+    yaw = np.radians(5.0) * window[2] * np.sin(2 * np.pi * into / 5.0)
+    return roll, pitch, heading + yaw
+
+
+def _ramp(x):
+    """min(max(x, 0), 1), for complex x by its real part (the complex step passes through)."""
+    return np.where(x.real < 0, 0 * x, np.where(x.real > 1, 0 * x + 1, x))
+
+
+def _bump(x):
+    """sin^2(pi x) on 0 <= x <= 1, zero elsewhere: a smooth window."""
+    inside = (x.real >= 0) & (x.real <= 1)
+    return np.where(inside, np.sin(np.pi * x) ** 2, 0 * x)
+
+
+def body_directions(t, inclination_deg=65.0, declination_deg=3.0):
+    """The unit vector of the Earth's field in the platform's axes (x forward, y right, z down)
+    at times t [s] of the box: R(roll, pitch, heading)' times the field's north-east-down
+    direction, R = Rz(heading) Ry(pitch) Rx(roll)."""
+    roll, pitch, heading = box_attitudes(t)
+    inc, dec = np.radians(inclination_deg), np.radians(declination_deg)
+    ned = np.array([np.cos(inc) * np.cos(dec), np.cos(inc) * np.sin(dec), np.sin(inc)])
+    # R' n for R = Rz Ry Rx: undo the heading, then the pitch, then the roll
+    n1 = np.cos(heading) * ned[0] + np.sin(heading) * ned[1]
+    e1 = -np.sin(heading) * ned[0] + np.cos(heading) * ned[1]
+    d1 = ned[2] + 0 * heading
+    x = np.cos(pitch) * n1 - np.sin(pitch) * d1
+    d2 = np.sin(pitch) * n1 + np.cos(pitch) * d1
+    y = np.cos(roll) * e1 + np.sin(roll) * d2
+    z = -np.sin(roll) * e1 + np.cos(roll) * d2
+    return np.stack([x, y, z], axis=-1)
+
+
+def platform_record(n=12_000, rate_hz=10.0, noise=0.01, seed=5, truth=TL_TRUTH, field=50_000.0):
+    """(vector [nT], scalar [nT], platform field [nT], Earth's field magnitude [nT]) of a box
+    flown at `rate_hz`: the vector magnetometer reads the Earth's field in the platform's axes,
+    the scalar its magnitude (with a slow variation below the band) plus the Tolles-Lawson field
+    of `truth` (Eq. 1 of Leliak 1961, typed in here with the exact derivative of the direction
+    cosines, by a complex step) plus white noise of `noise` nT."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / rate_hz
+    cosines = body_directions(t)
+    step = 1e-20  # complex-step derivative: exact to rounding
+    rates = body_directions(t + 1j * step).imag / step
+    magnitude = field + 20.0 * np.sin(2 * np.pi * t / 3000.0)  # geology, diurnal: below the band
+    induced_pairs = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
+    platform = cosines @ truth["permanent"]
+    for b, (i, j) in zip(truth["induced"], induced_pairs):
+        platform += b * magnitude * cosines[:, i] * cosines[:, j]
+    for c, (i, j) in zip(truth["eddy"], [(i, j) for i in range(3) for j in range(3)]):
+        platform += c * magnitude * cosines[:, i] * rates[:, j]
+    vector = magnitude[:, None] * cosines
+    scalar = magnitude + platform + noise * rng.standard_normal(n)
+    return vector, scalar, platform, magnitude
+
+
 def drifting_sensor_output(field_ideal, truth, dt, days, sigma, zeta, eta_deg, drift_per_day):
     """B_M of a sensor whose parameters drift, for true field vectors in the ideal frame [nT]:
     per axis j the gain (1 + s_j)(1 + sigma_j dt)(1 + d_j days) [1] and the offset

@@ -53,6 +53,7 @@ LAYERS = {
     "report": 2,
     "batch": 2,
     "reproduce": 2,
+    "platform": 2,
     "cli": 3,
     "__main__": 3,
     "__init__": 3,

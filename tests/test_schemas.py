@@ -16,6 +16,7 @@ import nlpcal
 from nlpcal.calibration.result import CalibrationResult
 from nlpcal.cli import main
 from nlpcal.schemas import BATCH_SUMMARY_ROW, SCHEMAS, schema, validate
+from synthetic import platform_record
 
 REPO = Path(__file__).resolve().parents[1]
 BUNDLED = REPO / "data" / "example_zhou2010.csv"
@@ -64,6 +65,14 @@ def written(tmp_path, capsys, name, *argv) -> dict:
     return json.loads(out.read_text())
 
 
+def platform_log(path: Path) -> Path:
+    """A short figure-of-merit box (tests/synthetic.py) as a CSV."""
+    vector, scalar, _, _ = platform_record(n=3000)
+    columns = {"flux_x": vector[:, 0], "flux_y": vector[:, 1], "flux_z": vector[:, 2]}
+    pd.DataFrame({**columns, "mag_1_nT": scalar}).to_csv(path, index=False)
+    return path
+
+
 def test_every_other_kind_validates(replicas, tmp_path, capsys):
     liu, qiu, logs = replicas / "liu", replicas / "qiu", [replicas / "s1.csv", replicas / "s2.csv"]
     made = {}
@@ -100,6 +109,10 @@ def test_every_other_kind_validates(replicas, tmp_path, capsys):
     made["reproduction"] = json.loads((tmp_path / "reproduced" / "wang2015.json").read_text())
     assert run("batch", "calibrate", *logs, "--out-dir", tmp_path / "batch", "-q") == 0
     made["batch record"] = json.loads((tmp_path / "batch" / "batch.json").read_text())
+    made["platform"] = written(
+        tmp_path, capsys, "tl.json", "platform", "fit", platform_log(tmp_path / "box.csv"),
+        "--scalar-column", "mag_1_nT", "--columns", "flux_x", "flux_y", "flux_z", "--rate", "10",
+    )  # fmt: skip
     kinds = {document["format"] for document in made.values()}
     assert kinds == set(SCHEMAS)  # every kind nlpcal writes was made here
     for what, document in made.items():

@@ -32,10 +32,11 @@ from . import (
     reproduce,
     simulate,
 )
+from . import platform as platform_command  # nlpcal platform fit|apply (Tolles-Lawson)
 from .common import HelpFormatter, Parser, UsageError, add_verbosity, set_verbosity
 
 #: The subcommand modules, in the order of the help (calibrate, apply and stats first).
-COMMANDS = (
+COMMANDS: tuple = (
     calibrate,
     apply,
     batch,
@@ -49,6 +50,8 @@ COMMANDS = (
     simulate,
     reproduce,
 )
+#: nlpcal platform fit|apply: Tolles-Lawson compensation of a scalar magnetometer for its platform.
+COMMANDS += (platform_command,)
 
 DESCRIPTION = """\
 nlpcal calibrates three-axis magnetometers (fluxgates, MEMS compasses). From a log of readings

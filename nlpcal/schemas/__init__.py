@@ -29,6 +29,7 @@ SCHEMAS = {
     "nlpcal-affine-correction": "affine-correction.json",
     "nlpcal-batch": "batch.json",
     "nlpcal-reproduction": "reproduction.json",
+    "nlpcal-platform": "platform.json",
 }
 #: The schema of a row of a batch summary (DIR/summary.csv, empty cells read as "").
 BATCH_SUMMARY_ROW = "batch-summary-row.json"
