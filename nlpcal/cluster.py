@@ -100,10 +100,13 @@ def scheduler(spec=None, workers: int | None = None):
                     dashboard_address=None,
                 )
             )
-            client = stack.enter_context(distributed.Client(cluster))
+            client = stack.enter_context(distributed.Client(cluster, set_as_default=False))
         else:
             client = stack.enter_context(_connect(distributed, str(spec)))
-        yield client
+        # the default for the work inside (Dask's scheduler, the Client of its futures),
+        # undone however that work ends
+        with client.as_current():
+            yield client
 
 
 def worker_environment(dask):
@@ -123,13 +126,17 @@ def blas_one_thread() -> None:
 
 
 def _connect(distributed, address: str):
-    """A Client of a running scheduler, or InputError saying why there is none."""
+    """A Client of a running scheduler, or InputError saying why there is none.
+
+    The Client does not make itself Dask's default (`scheduler` sets it for the work inside):
+    one that fails to connect would leave the default set to a cluster that is not there, and
+    undo later whatever default was set when it is collected."""
     is_file = address.endswith(".json") or Path(address).is_file()
     if is_file and not Path(address).is_file():  # Dask would wait for it to appear
         raise InputError(f"{address}: no such scheduler file")
     target = scheduler_file_address(address) if is_file else address
     try:
-        return distributed.Client(target, timeout=CONNECT_TIMEOUT_S)
+        return distributed.Client(target, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
     except Exception as exc:  # refused, timed out, or an answer that is not Dask's protocol
         choices = ", ".join(SCHEDULERS)
         reason = " ".join(str(exc).split()) or type(exc).__name__

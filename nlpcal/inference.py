@@ -15,8 +15,9 @@ with p the number of parameters. `estimate` does this once for everyone:
   the largest marks a direction the data do not determine; the parameters that take part in it
   (|component| > INVOLVED) are reported, and no standard errors are given;
 * optionally from the scores of the samples (a residual times its sensitivity to each
-  parameter): when they show dependence (`scores_dependent`), by a grouped jackknife
-  (`block_jackknife`), its groups as long as the scores' dependence (`bartlett_bandwidth`): a
+  parameter): when they show dependence (`scores_dependent`), by a moving-block jackknife
+  (`moving_block_jackknife`), its blocks as long as the scores' dependence
+  (`bartlett_bandwidth`), widened by Student's t on its degrees of freedom (`t_widening`): a
   log is a time series, and when the scores of neighbouring samples are alike the samples carry
   less information than their number says. Independent samples keep s^2 A^-1.
 
@@ -25,11 +26,14 @@ The widening by the residuals' lag-1 autocorrelation that other estimators still
 
 References
 ----------
-[CJ] Carlstein, E. (1986). The use of subseries values for estimating the variance of a general
-    statistic from a stationary sequence. Annals of Statistics 14(3), 1171-1179; the
-    delete-a-group jackknife of non-overlapping batches.
 [K89] Kunsch, H. R. (1989). The jackknife and the bootstrap for general stationary
     observations. Annals of Statistics 17(3), 1217-1241.
+[MS84] Meketon, M. S., Schmeiser, B. (1984). Overlapping batch means: something for nothing?
+    Proceedings of the 1984 Winter Simulation Conference, 226-230.
+[S46] Satterthwaite, F. E. (1946). An approximate distribution of estimates of variance
+    components. Biometrics Bulletin 2(6), 110-114.
+[BM02] Bell, R. M., McCaffrey, D. F. (2002). Bias reduction in standard errors for linear
+    regression with multi-stage samples. Survey Methodology 28(2), 169-181.
 [A91] Andrews, D. W. K. (1991). Heteroskedasticity and autocorrelation consistent covariance
     matrix estimation. Econometrica 59(3), 817-858.
 """
@@ -67,10 +71,12 @@ def standard_error_inflation(rho: float) -> float:
 
 #: The 97.5 % quantile of the standard normal distribution. [1]
 Z_975 = 1.959963984540054
-#: Groups of the block jackknife are this many times the automatic Bartlett bandwidth long. [1]
+#: The deleted blocks of the jackknife are this many times the automatic Bartlett bandwidth
+#: long. [1]
 GROUP_BANDWIDTHS = 3.0
-#: Fewest groups of the block jackknife: with fewer, its variance rests on too few degrees of
-#: freedom (Student's t on MIN_GROUPS - 1 = 5 widens a standard error by 1.31). [1]
+#: The deleted blocks of the jackknife are at most a MIN_GROUPS-th of the log, and its variances
+#: count at least MIN_GROUPS - 1 degrees of freedom (Student's t on 5 widens a standard error by
+#: 1.31 at most): with fewer, a variance would rest on one or two stretches of the log. [1]
 MIN_GROUPS = 6
 #: Largest AR(1) coefficient of a score series the bandwidth rule takes (`bartlett_bandwidth`). [1]
 MAX_SCORE_RHO = 0.97
@@ -127,41 +133,164 @@ def scores_dependent(series) -> bool:
 
 
 def group_length(bandwidth: float, blocks: int) -> int:
-    """Blocks per group of the jackknife: GROUP_BANDWIDTHS automatic bandwidths, but no longer
-    than leaves MIN_GROUPS groups (a short log, or scores alike across most of it: the variance
-    is then estimated on few degrees of freedom, which `t_widening` states). [blocks]"""
+    """Blocks per deleted block of the jackknife: GROUP_BANDWIDTHS automatic bandwidths, but no
+    longer than a MIN_GROUPS-th of the log (a short log, or scores alike across most of it: the
+    variance is then estimated on few degrees of freedom, which `t_widening` states). [blocks]"""
     length = int(np.ceil(GROUP_BANDWIDTHS * bandwidth))
     return max(1, min(length, blocks // MIN_GROUPS))
 
 
-def block_jackknife(series, informations, length: int) -> tuple:
-    """(V, G): the covariance of an estimate by the delete-a-group jackknife over G = K // length
-    non-overlapping groups of consecutive blocks, as near equal in length as K allows (the
-    grouped, batch-means jackknife [CJ]; [K89] is its moving-block relative).
+def moving_block_jackknife(series, informations, length: int, directions) -> tuple:
+    """(V, dof): the covariance of an estimate by Kunsch's delete-a-block jackknife over the
+    M = K - L + 1 overlapping blocks of L = `length` consecutive blocks [K89], normalised as
+    overlapping batch means [MS84], and the degrees of freedom of each of its variances along
+    `directions`.
 
     series : (K, q) block sums of the scores psi(r_i) J_i at the estimate. informations :
-    (K, q, q) the blocks' shares A_k of the information A = sum A_k. length : blocks per group.
+    (K, q, q) the blocks' shares A_k of the information A = sum A_k. directions : (p, q) the
+    parameters in the q coordinates of the series (the gauge's basis).
 
-    Without group g the gradient at the estimate is -S_g, so one Newton step gives the estimate
-    without it, delta_g = (A - A_g)^-1 S_g, and V = (G - 1) / G sum_g (delta_g - mean)(...)^T.
-    Groups longer than the scores' dependence are nearly independent, so V follows the
-    dependence of the scores; and since each delta_g is the estimate refitted without its group,
-    V keeps what the fit absorbs of slow errors (a smooth trajectory in a slowly changing field:
-    the parameters take up part of the slow errors, and sandwich estimates from the residuals
-    fall short of the spread). For independent samples on few groups it is biased upwards (a
-    leverage correction), which is why they are left to the sandwich (`scores_dependent`).
+    Without block j the gradient at the estimate is -S_j, so one Newton step gives the estimate
+    without it, delta_j = (A - A_j)^-1 S_j, and
+
+        V = (K - L) / (L M) sum_j (delta_j - mean)(delta_j - mean)^T.
+
+    Kunsch's (K - L)^2 / (K L M) [K89, Eq. 2.5] is this times 1 - L / K, the share of a block's
+    variance its centring removes: with blocks a sixth of the log, it states independent
+    samples' variance 0.77 times too small; the batch means' (K - L) / (L M) is unbiased there.
+
+    Blocks longer than the scores' dependence see it whole, so V follows it; each delta_j is the
+    estimate refitted without the block, so V keeps what the fit absorbs of slow errors (a smooth
+    trajectory in a slowly changing field). Overlapping blocks use every start: V changes
+    little when K or L does by one (non-overlapping groups jumped with their count), and it
+    rests on about 3/2 as many degrees of freedom as K / L separate groups [MS84].
+
+    The degrees of freedom: the blocks are not alike (along a smooth trajectory each covers its
+    own patch of directions), and a few with much leverage carry the variance. Under independent
+    samples a block's share of the variance of parameter k is lambda_jk = (D C_j A_j C_j^T D^T)_kk,
+    C_j = (A - A_j)^-1, and Satterthwaite's effective number of blocks is h_k K / L with
+    h_k = mean(lambda_k)^2 / mean(lambda_k^2) <= 1 [S46; the design-based degrees of freedom of
+    BM02]: dof_k = 3/2 h_k K / L - 1, no fewer than MIN_GROUPS - 1.
     """
     series = np.asarray(series, dtype=float)
     blocks = np.asarray(informations, dtype=float)
+    directions = np.asarray(directions, dtype=float)
     count = series.shape[0]
-    groups = max(1, count // max(1, int(length)))  # near-equal groups: no short leftover one
-    starts = np.array([part[0] for part in np.array_split(np.arange(count), groups)])
-    sums = np.add.reduceat(series, starts, axis=0)
-    shares = np.add.reduceat(blocks, starts, axis=0)
-    total = blocks.sum(axis=0)
-    deltas = np.array([np.linalg.lstsq(total - a, s, rcond=None)[0] for a, s in zip(shares, sums)])
+    length = max(1, min(int(length), count - 1))
+    running = np.concatenate([np.zeros((1, series.shape[1])), np.cumsum(series, axis=0)])
+    shared = np.concatenate([np.zeros((1,) + blocks.shape[1:]), np.cumsum(blocks, axis=0)])
+    sums = running[length:] - running[:-length]  # (M, q): S_j
+    shares = shared[length:] - shared[:-length]  # (M, q, q): A_j
+    remaining = blocks.sum(axis=0)[None] - shares  # A - A_j
+    try:
+        inverses = np.linalg.inv(remaining)  # C_j
+    except np.linalg.LinAlgError:  # a block that holds all the information along a direction
+        inverses = np.linalg.pinv(remaining, hermitian=True)
+    deltas = np.einsum("mij,mj->mi", inverses, sums)
     centred = deltas - deltas.mean(axis=0)
-    return (groups - 1) / groups * centred.T @ centred, groups
+    starts = count - length + 1
+    covariance = (count - length) / (length * starts) * centred.T @ centred
+    mapped = np.einsum("pi,mij->mpj", directions, inverses)  # D C_j
+    shares_of_variance = np.einsum("mpj,mjl,mpl->mp", mapped, shares, mapped)  # lambda_jk
+    mean_square = np.mean(shares_of_variance**2, axis=0)
+    alike = np.divide(
+        np.mean(shares_of_variance, axis=0) ** 2,
+        mean_square,
+        out=np.ones_like(mean_square),
+        where=mean_square > 0,
+    )
+    dof = np.maximum(1.5 * alike * count / length - 1.0, MIN_GROUPS - 1.0)
+    return covariance, dof
+
+
+#: Largest number of blocks of a score series: a longer log sums neighbours into blocks of
+#: several samples (the series stays small whatever the log's length, and a jackknife over
+#: blocks of consecutive blocks estimates the same long-run covariance as over samples).
+MAX_BLOCKS = 4096
+
+
+def block_rows(n: int) -> int:
+    """Samples per block of the score series of `n` samples (at most MAX_BLOCKS blocks)."""
+    return max(1, -(-int(n) // MAX_BLOCKS))
+
+
+def block_sums(scores, informations) -> tuple:
+    """(S, A, rows): per-sample scores (N, p) and information shares (N, p, p) summed over
+    blocks of `block_rows(N)` consecutive samples (counted from the first)."""
+    scores = np.asarray(scores, dtype=float)
+    rows = block_rows(scores.shape[0])
+    starts = np.arange(0, scores.shape[0], rows)
+    shares = np.add.reduceat(np.asarray(informations, dtype=float), starts, axis=0)
+    return np.add.reduceat(scores, starts, axis=0), shares, rows
+
+
+def dependence_meat(series, informations, independent, dof: int, basis=None) -> tuple:
+    """(Omega, description, dof): the meat of the sandwich covariance A^-1 Omega A^-1 of an
+    estimate from the (K, p) block sums of its scores psi(r_i) J_i at the estimate (`series`)
+    and the blocks' (K, p, p) shares of the information A (`informations`), on the directions
+    of `basis` (p, q orthonormal columns; None: all).
+
+    independent : (p, p) the meat of independent samples (s^2 A for least squares, sum psi^2
+        J J^T for an M-estimate). dof : the degrees of freedom of the fit (N - p).
+
+    Scores without clear dependence (`scores_dependent`): Omega = independent, widened by
+    Student's t on `dof`. Otherwise A V A, V the moving-block jackknife's covariance
+    (`moving_block_jackknife`, blocks of GROUP_BANDWIDTHS automatic Bartlett bandwidths
+    `bartlett_bandwidth`), each parameter's variance widened by `t_widening` for its own degrees
+    of freedom, and never narrower than `independent` along any direction (`loewner_max`: a
+    jackknife on few blocks can fall below it by chance, and dependence seldom makes a fit more
+    precise). The description is what a result records of it (`score_dependence`); the last
+    item the degrees of freedom of each of the p variances.
+    """
+    series = np.asarray(series, dtype=float)
+    p = series.shape[1]
+    basis = np.eye(p) if basis is None else np.asarray(basis, dtype=float)
+    projected = series @ basis
+    shares = np.einsum("ji,kjl,lm->kim", basis, np.asarray(informations, dtype=float), basis)
+    bandwidth = bartlett_bandwidth(projected)
+    student = t_widening(dof)
+    description: dict = {
+        "method": "independent",
+        "bandwidth_blocks": bandwidth,
+        "group_blocks": 1,
+        "groups": len(projected),
+        "t_widening": student,
+    }
+    if not scores_dependent(projected):
+        freedom = np.full(p, float(max(dof, 1)))
+        return np.asarray(independent) * student**2, description, freedom
+    length = group_length(bandwidth, len(projected))
+    covariance, freedom = moving_block_jackknife(projected, shares, length, basis)
+    widening = np.array([t_widening(v) for v in freedom])
+    # each parameter's standard error widened by its own t: V -> P W V W P, P = basis basis^T
+    across = basis.T @ (widening[:, None] * basis)
+    total = shares.sum(axis=0)
+    meat = basis @ (total @ across @ covariance @ across @ total) @ basis.T
+    description.update(
+        method="moving-block-jackknife",
+        group_blocks=length,
+        groups=len(projected) - length + 1,
+        t_widening=float(widening.max()),
+    )
+    return loewner_max(meat, independent, basis), description, freedom
+
+
+def least_squares_uncertainty(jacobian, residuals, dof: int) -> tuple:
+    """(Uncertainty, score_dependence): standard errors of a least-squares fit from its
+    per-sample residuals r_i (N,) and their Jacobian J (N, p) in the parameters' units: the
+    sandwich A^-1 Omega A^-1, A = J^T J, Omega from the scores r_i J_i (`dependence_meat`: s^2 A
+    when they show no dependence on their neighbours, s^2 = sum r^2 / dof)."""
+    jacobian = np.asarray(jacobian, dtype=float)
+    residuals = np.asarray(residuals, dtype=float)
+    information = jacobian.T @ jacobian
+    series, shares, rows = block_sums(
+        jacobian * residuals[:, None], np.einsum("ni,nj->nij", jacobian, jacobian)
+    )
+    independent = float(residuals @ residuals) / max(dof, 1) * information
+    meat, description, freedom = dependence_meat(series, shares, independent, dof)
+    description["block_samples"] = rows
+    description["degrees_of_freedom"] = [float(v) for v in freedom]
+    return estimate(information, meat=meat, dof=dof), description
 
 
 def loewner_max(meat, floor, basis) -> np.ndarray:

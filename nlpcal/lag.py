@@ -36,7 +36,7 @@ the residual's. sigma^2 is estimated from the third differences of R, whose vari
 20 sigma^2 for white noise and nearly free of a field smooth over four samples. The covariance
 is the sandwich A_c^-1 A A_c^-1 (A the Gauss-Newton information with the observed derivative,
 A_c the corrected one), widened, when the scores of neighbouring samples are alike, by the
-grouped jackknife of `nlpcal.inference.block_jackknife`.
+moving-block jackknife of `nlpcal.inference.moving_block_jackknife`.
 
 When |tau| exceeds half a sample, (L1) is no longer a small correction: the reference is
 re-interpolated linearly at t + tau and the lag about it estimated again.
@@ -442,8 +442,8 @@ def _concatenate(first, second):
 def tau_dependence(samples, reference, times, theta, tau: float, noise: float) -> dict:
     """The variance of tau from the scores of its blocks [s^2]: the sandwich of the block sums,
     sum_b S_b^2 / (sum_b A_b)^2, which holds when the residuals' spread follows the field's
-    activity or neighbouring samples are alike within a block; the grouped jackknife
-    (`nlpcal.inference.block_jackknife`) when the blocks' scores are alike too, if larger.
+    activity or neighbouring samples are alike within a block; the moving-block jackknife
+    (`nlpcal.inference.moving_block_jackknife`) when the blocks' scores are alike too, if larger.
     None (and the Hessian's sandwich is kept) below MIN_SCORE_BLOCKS blocks."""
     samples, ref, series = _pass_inputs(samples, reference, times)
     work = LagScores(series, Zhou2010Parameters.from_theta(theta), tau, noise)
@@ -455,8 +455,10 @@ def tau_dependence(samples, reference, times, theta, tau: float, noise: float) -
     if not inference.scores_dependent(column):
         return {"dependent": False, "variance": variance}
     length = inference.group_length(inference.bartlett_bandwidth(column), len(scores))
-    jackknife, groups = inference.block_jackknife(column, shares[:, None, None], length)
-    widened = float(jackknife[0, 0]) * inference.t_widening(groups - 1) ** 2
+    jackknife, freedom = inference.moving_block_jackknife(
+        column, shares[:, None, None], length, np.eye(1)
+    )
+    widened = float(jackknife[0, 0]) * inference.t_widening(freedom[0]) ** 2
     return {"dependent": True, "variance": max(variance, widened)}
 
 

@@ -48,7 +48,7 @@ from itertools import combinations_with_replacement
 import numpy as np
 
 from .errors import InputError
-from .passes import LazySamples, as_rows, reduce, reference_chunk
+from .passes import as_rows, mean_square, reduce, reference_chunk
 from .statistics import MagnitudeStats
 
 #: Rows per chunk of the data pass: large enough for BLAS, small enough for the cache.
@@ -329,7 +329,7 @@ def accumulate(
     else:
         kind = "series"
         reference = as_rows(reference)
-        length = float(np.sqrt(_mean_square(reference)))
+        length = float(np.sqrt(mean_square(reference)))
     first = samples[: min(1024, n)]
     shift = float(np.sqrt(np.einsum("ij,ij->i", first, first)).mean())
     work = GramBlock(frame.centre, length, layout(kind == "series"), shift, chunk_rows, weight)
@@ -350,10 +350,3 @@ def accumulate(
         measured=measured.result(),
         weight_sum=total,
     )
-
-
-def _mean_square(values) -> float:
-    """The mean of the squares of a reference series (of a Dask one: from its survey). [unit^2]"""
-    if isinstance(values, LazySamples):
-        return float(values.survey().squares[0]) / values.n
-    return float(np.mean(np.asarray(values) ** 2))

@@ -293,6 +293,48 @@ def as_rows(values):
     return np.asarray(values, dtype=float)
 
 
+def is_lazy(values) -> bool:
+    """Whether `values` stay where they are (a Dask array or `LazySamples`) rather than in
+    memory."""
+    return is_dask(values) or isinstance(values, LazySamples)
+
+
+def scaled(values, factor: float):
+    """An array times a positive `factor`: in memory as float64 (the same array when the
+    factor is 1), `LazySamples` scaled block by block in each pass."""
+    if not isinstance(values, LazySamples):
+        values = np.asarray(values, dtype=float)
+    return values if factor == 1.0 else values * factor  # base units pass through uncopied
+
+
+def axis_ranges(array, chunk_rows: int) -> tuple:
+    """Per-column minimum and maximum of (N, 3) rows, NaN where a column has a NaN: in chunks
+    of `chunk_rows` (a memory map stays mapped), or those of a Dask log's survey."""
+    if isinstance(array, LazySamples):
+        survey = array.survey()
+        return survey.low, survey.high
+    low, high = np.full(3, np.inf), np.full(3, -np.inf)
+    for start in range(0, array.shape[0], chunk_rows):
+        chunk_low, chunk_high = column_ranges(array[start : start + chunk_rows])
+        low, high = np.minimum(low, chunk_low), np.maximum(high, chunk_high)
+    return low, high
+
+
+def in_memory(values, most: int) -> np.ndarray:
+    """Values as a float numpy array: in memory as they are, `LazySamples` an even stride of at
+    most about `most` rows (from the survey when it has them)."""
+    if isinstance(values, LazySamples):
+        return values[:: max(1, values.n // most)]
+    return np.asarray(values, dtype=float)
+
+
+def mean_square(values) -> float:
+    """The mean of the squares of a series (of a Dask one: from its survey). [unit^2]"""
+    if isinstance(values, LazySamples):
+        return float(values.survey().squares[0]) / values.n
+    return float(np.mean(np.asarray(values) ** 2))
+
+
 def reference_chunk(reference, start: int, stop: int):
     """The part of a reference (None, a float or an (N,) array) for rows start:stop."""
     if reference is None or np.ndim(reference) == 0:

@@ -103,73 +103,87 @@ def comparison_png(comparison, *, dpi: int = COMPARISON_DPI, title: str | None =
         ax_c = figure.add_subplot(grid[:, 2])
         stack = [figure.add_subplot(grid[k, 1]) for k in range(len(curves))]
 
-        shown = list(range(min(PLOT_CYCLES, len(cycles))))
-        if cycles and len(cycles) - 1 not in shown:
-            shown.append(len(cycles) - 1)
-        from matplotlib import colormaps
-
-        palette = colormaps["viridis"]
-        for rank, k in enumerate(shown):  # first cycle dark, last cycle light, drawn on top
-            ax_a.plot(
-                index,
-                magnitude(cycles[k]),
-                lw=0.6,
-                color=palette(0.9 * rank / max(len(shown) - 1, 1)),
-                label=f"{cycles[k]['label']} (std {cycles[k]['std']:.3g})",
-            )
-        ax_a.set_title("(a) |B1| after each staged cycle")
-        ax_a.set_xlabel("sample")
-        ax_a.set_ylabel(f"|B1| [{unit}]")
-        ax_a.legend(loc="upper right")
-
-        for k, (ax, (name, row, colour)) in enumerate(zip(stack, curves)):
-            ax.plot(index, magnitude(row), lw=0.6, color=colour)
-            ax.text(
-                0.01,
-                0.96,
-                f"{name}: std {row['std']:.3g} {unit}",
-                transform=ax.transAxes,
-                va="top",
-                ha="left",
-                fontsize=9,
-                bbox={"facecolor": "white", "edgecolor": "none", "alpha": 0.8, "pad": 1.5},
-            )
-            ax.set_ylabel(unit)
-            ax.margins(x=0.0, y=0.25)
-            if k < len(curves) - 1:
-                ax.tick_params(labelbottom=False)
-            if k > 0:
-                ax.sharex(stack[0])
-        stack[0].set_title("(b) |B| before and after, each on its own scale")
-        stack[-1].set_xlabel("sample")
-
-        styles = {
-            "staged": ("staged cycle, IPOPT stages", "C0", ".-"),
-            "joint": ("joint IPOPT", "C3", "s-"),
-            "cg_joint": ("CG joint, paper units", "C1", "-"),
-            "cg_joint_scaled": ("CG joint, scaled", "C4", "-"),
-            "cg_staged": ("CG staged cycle", "C2", "-"),
-        }
-        for name, (label, colour, style) in styles.items():
-            path = comparison.trajectories.get(name)
-            if not path:
-                continue
-            its = np.asarray(path["iterations"], dtype=float)
-            values = np.asarray(path["objective"], dtype=float)
-            positive = values > 0  # a log axis; an exact zero objective is not drawn
-            ax_c.plot(
-                its[positive], values[positive], style, color=colour, lw=1.2, ms=4, label=label
-            )
-        ax_c.set_xscale("symlog", linthresh=10)
-        ax_c.set_yscale("log")
-        ax_c.set_xlim(left=0)
-        ax_c.set_title("(c) objective vs cumulative iterations")
-        ax_c.set_xlabel("cumulative solver iterations")
-        ax_c.set_ylabel(f"objective [{unit}²]")
-        ax_c.legend(loc="upper right")
+        _draw_staged_cycles(ax_a, cycles, index, magnitude, unit)
+        _draw_before_after(stack, curves, index, magnitude, unit)
+        _draw_convergence(ax_c, comparison.trajectories, unit)
         if title:
             figure.suptitle(title, fontsize=12)
         return _png(figure, dpi)
+
+
+def _draw_staged_cycles(ax, cycles: list, index, magnitude, unit: str) -> None:
+    """Panel (a): |B1| after the first `PLOT_CYCLES` staged cycles and the last, first dark,
+    last light. [unit]"""
+    from matplotlib import colormaps
+
+    shown = list(range(min(PLOT_CYCLES, len(cycles))))
+    if cycles and len(cycles) - 1 not in shown:
+        shown.append(len(cycles) - 1)
+    palette = colormaps["viridis"]
+    for rank, k in enumerate(shown):  # first cycle dark, last cycle light, drawn on top
+        ax.plot(
+            index,
+            magnitude(cycles[k]),
+            lw=0.6,
+            color=palette(0.9 * rank / max(len(shown) - 1, 1)),
+            label=f"{cycles[k]['label']} (std {cycles[k]['std']:.3g})",
+        )
+    ax.set_title("(a) |B1| after each staged cycle")
+    ax.set_xlabel("sample")
+    ax.set_ylabel(f"|B1| [{unit}]")
+    ax.legend(loc="upper right")
+
+
+def _draw_before_after(stack: list, curves: list, index, magnitude, unit: str) -> None:
+    """Panel (b): one axis per (name, row, colour) of `curves`, each |B| on its own scale and
+    labelled with its std, the axes sharing the sample axis. [unit]"""
+    for k, (ax, (name, row, colour)) in enumerate(zip(stack, curves)):
+        ax.plot(index, magnitude(row), lw=0.6, color=colour)
+        ax.text(
+            0.01,
+            0.96,
+            f"{name}: std {row['std']:.3g} {unit}",
+            transform=ax.transAxes,
+            va="top",
+            ha="left",
+            fontsize=9,
+            bbox={"facecolor": "white", "edgecolor": "none", "alpha": 0.8, "pad": 1.5},
+        )
+        ax.set_ylabel(unit)
+        ax.margins(x=0.0, y=0.25)
+        if k < len(curves) - 1:
+            ax.tick_params(labelbottom=False)
+        if k > 0:
+            ax.sharex(stack[0])
+    stack[0].set_title("(b) |B| before and after, each on its own scale")
+    stack[-1].set_xlabel("sample")
+
+
+def _draw_convergence(ax, trajectories: dict, unit: str) -> None:
+    """Panel (c): the objective [unit^2] against cumulative solver iterations of every method,
+    log scales (an exact zero objective is not drawn)."""
+    styles = {
+        "staged": ("staged cycle, IPOPT stages", "C0", ".-"),
+        "joint": ("joint IPOPT", "C3", "s-"),
+        "cg_joint": ("CG joint, paper units", "C1", "-"),
+        "cg_joint_scaled": ("CG joint, scaled", "C4", "-"),
+        "cg_staged": ("CG staged cycle", "C2", "-"),
+    }
+    for name, (label, colour, style) in styles.items():
+        path = trajectories.get(name)
+        if not path:
+            continue
+        its = np.asarray(path["iterations"], dtype=float)
+        values = np.asarray(path["objective"], dtype=float)
+        positive = values > 0  # a log axis; an exact zero objective is not drawn
+        ax.plot(its[positive], values[positive], style, color=colour, lw=1.2, ms=4, label=label)
+    ax.set_xscale("symlog", linthresh=10)
+    ax.set_yscale("log")
+    ax.set_xlim(left=0)
+    ax.set_title("(c) objective vs cumulative iterations")
+    ax.set_xlabel("cumulative solver iterations")
+    ax.set_ylabel(f"objective [{unit}²]")
+    ax.legend(loc="upper right")
 
 
 # --- the total-field error of non-orthogonal axes (Fig. 3 and 4 of Wang et al. 2015) -------
@@ -204,13 +218,21 @@ def orthogonality_map_png(
     sphere = figure.add_subplot(1, 2, 1, projection="3d")
     plane = figure.add_subplot(1, 2, 2)
 
-    # Fig. 3: the sphere coloured by dB
-    s_theta = np.arange(0.0, 360.0 + sphere_step_deg / 2, sphere_step_deg)
-    s_phi = np.linspace(-90.0, 90.0, int(round(180.0 / sphere_step_deg)) + 1)
+    _draw_error_sphere(sphere, angles_deg, field_nT, cmap, norm, sphere_step_deg)
+    mesh = _draw_error_map(plane, angles_deg, field_nT, theta, phi, error, cmap, norm, worst)
+    figure.colorbar(mesh, ax=plane, label=r"$\Delta B = |B'| - |B|$ [nT]")
+    return _png(figure, dpi, palette=False)
+
+
+def _draw_error_sphere(ax, angles_deg, field_nT, cmap, norm, step_deg: float) -> None:
+    """Fig. 3 of Wang et al. (2015): the sphere of directions coloured by the total-field error
+    dB [nT] of the angles [deg] at field_nT [nT], every `step_deg` [deg]."""
+    s_theta = np.arange(0.0, 360.0 + step_deg / 2, step_deg)
+    s_phi = np.linspace(-90.0, 90.0, int(round(180.0 / step_deg)) + 1)
     g_theta, g_phi = np.meshgrid(s_theta, s_phi)
     u = wang2015.direction(g_theta, g_phi)
     s_error = wang2015.total_field_error(angles_deg, field_nT, g_theta, g_phi)
-    sphere.plot_surface(
+    ax.plot_surface(
         u[..., 0],
         u[..., 1],
         u[..., 2],
@@ -221,28 +243,31 @@ def orthogonality_map_png(
         antialiased=False,
         shade=False,
     )
-    sphere.set_box_aspect((1, 1, 1))
-    sphere.set_xlabel("X")
-    sphere.set_ylabel("Y")
-    sphere.set_zlabel("Z")
-    sphere.set_title("total-field error on the sphere of directions")
+    ax.set_box_aspect((1, 1, 1))
+    ax.set_xlabel("X")
+    ax.set_ylabel("Y")
+    ax.set_zlabel("Z")
+    ax.set_title("total-field error on the sphere of directions")
 
-    # Fig. 4: the theta-phi map
-    mesh = plane.pcolormesh(
+
+def _draw_error_map(ax, angles_deg, field_nT, theta, phi, error, cmap, norm, worst):
+    """Fig. 4 of Wang et al. (2015): dB [nT] on the theta-phi plane [deg], the extremes of
+    `worst` marked; the mesh, for the colour bar."""
+    mesh = ax.pcolormesh(
         theta, phi, error, cmap=cmap, norm=norm, shading="nearest", rasterized=True
     )
-    plane.set_xlim(0, 360)
-    plane.set_ylim(-90, 90)
-    plane.set_xticks(np.arange(0, 361, 60))
-    plane.set_yticks(np.arange(-90, 91, 30))
-    plane.set_xlabel(r"$\theta$ [deg]")
-    plane.set_ylabel(r"$\varphi$ [deg]")
+    ax.set_xlim(0, 360)
+    ax.set_ylim(-90, 90)
+    ax.set_xticks(np.arange(0, 361, 60))
+    ax.set_yticks(np.arange(-90, 91, 30))
+    ax.set_xlabel(r"$\theta$ [deg]")
+    ax.set_ylabel(r"$\varphi$ [deg]")
     if worst is not None:
         for extreme, marker, label in (
             (worst.largest_positive, "^", "max"),
             (worst.most_negative, "v", "min"),
         ):
-            plane.plot(
+            ax.plot(
                 extreme.theta_deg,
                 extreme.phi_deg,
                 marker,
@@ -250,14 +275,13 @@ def orthogonality_map_png(
                 ms=8,
                 label=f"{label} {extreme.delta_B_nT:+.2f} nT",
             )
-        plane.legend(loc="lower right", fontsize=8)
+        ax.legend(loc="lower right", fontsize=8)
     a, b, g = (float(v) for v in angles_deg)
-    plane.set_title(
+    ax.set_title(
         rf"$\Delta B(\theta, \varphi)$, angles ({a:g}, {b:g}, {g:g}) deg, "
         rf"$|B|$ = {field_nT:g} nT"
     )
-    figure.colorbar(mesh, ax=plane, label=r"$\Delta B = |B'| - |B|$ [nT]")
-    return _png(figure, dpi, palette=False)
+    return mesh
 
 
 # --- the reproductions of Liu et al. (2022) and Qiu et al. (2017) ------------------------------
@@ -385,86 +409,102 @@ def calibration_figure(view, *, dpi: int = 150):
     are thinned until none overlap (`legible_ticks`). Uses the Agg canvas, never pyplot.
     """
     require_matplotlib()
-    from matplotlib import colormaps, rc_context
+    from matplotlib import rc_context
     from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.colors import Normalize
     from matplotlib.figure import Figure
 
-    unit, target = view.unit, view.target
     with rc_context(STYLE):
         figure = Figure(figsize=(15.0, 9.4), dpi=dpi, layout="constrained")
         FigureCanvasAgg(figure)
         grid = figure.add_gridspec(2, 3)
-        stride = max(1, -(-view.n // PLOT_SAMPLES))
-        if view.time is not None:
-            x, x_label = view.time[::stride], "time since the first sample [s]"
-        else:
-            x, x_label = np.arange(0, view.n, stride), "sample index"
-        top = (grid[0, :2] if view.cycles else grid[0, :]).subgridspec(2, 1, hspace=0.0)
-        series = figure.add_subplot(top[0])
-        zoom = figure.add_subplot(top[1], sharex=series)
-        for axes, values, colour, label in (
-            (series, view.before, "0.45", "measured |B_M|"),
-            (zoom, view.after, "C0", "corrected |B1|"),
-        ):
-            axes.plot(x, values[::stride], lw=0.7, color=colour, label=label)
-            if target is not None:
-                axes.plot(x, target[::stride], "--", lw=1.0, color="k", label=view.target_label)
-            axes.set_ylabel(f"{label.split()[-1]} [{unit}]")
-            axes.legend(loc="upper right", fontsize=8, ncol=2)
-            axes.grid(alpha=0.3)
-            axes.ticklabel_format(axis="y", useOffset=False, style="plain")
-        series.tick_params(labelbottom=False)
-        zoom.set_xlabel(x_label)
-        series.set_title("(a) total field before (top) and after (bottom) the correction")
-
+        _draw_total_field(figure, grid, view)
         if view.cycles:
-            _cycles_panel(figure.add_subplot(grid[0, 2]), view.cycles, unit)
-
-        against = "F" if target is not None else "its mean"
-        for column, (label, magnitude, colour) in enumerate(
-            (("(c) before: |B_M|", view.before, "0.45"), ("(d) after: |B1|", view.after, "C0"))
-        ):
-            residual = view.residuals(magnitude)
-            axes = figure.add_subplot(grid[1, column])
-            axes.hist(residual, bins=60, color=colour, alpha=0.85)
-            axes.set_xlabel(f"|B| − {view.target_label} [{unit}]")
-            axes.set_ylabel("samples")
-            mean = f", mean {np.mean(residual):+.3g}" if target is not None else ""
-            axes.set_title(
-                f"{label} − {against}: std {np.std(residual):.3g}{mean} {unit}", fontsize=10
-            )
-            axes.grid(alpha=0.3)
-
-        sky = figure.add_subplot(grid[1, 2], projection="hammer")
-        residual_after = view.residuals(view.after)
-        step = max(1, -(-view.n // MAP_SAMPLES))
-        d = view.directions[::step]
-        limit = float(np.percentile(np.abs(residual_after), 99)) or 1.0
-        azimuth, elevation = _hammer(d)
-        points = sky.scatter(
-            azimuth,
-            elevation,
-            c=residual_after[::step],
-            s=4,
-            cmap=colormaps["RdBu_r"],
-            norm=Normalize(-limit, limit),
-            rasterized=True,
-        )
-        _bins_on(sky, view.bins)
-        sky.grid(alpha=0.4)
-        sky.set_xticks(np.radians([-120, -60, 0, 60, 120]))
-        sky.set_yticks(np.radians([-60, -30, 0, 30, 60]))
-        sky.tick_params(labelsize=7)
-        where = f", {view.covered} of 26 bins visited" if view.bins else ""
-        sky.set_title(f"(e) direction of B1 in the sensor frame{where}", fontsize=10)
-        sky.set_xlabel("azimuth atan2(y, x), elevation asin(z / |B1|) [deg]", fontsize=8)
-        figure.colorbar(
-            points, ax=sky, shrink=0.7, pad=0.02, label=f"|B1| − {view.target_label} [{unit}]"
-        )
+            _cycles_panel(figure.add_subplot(grid[0, 2]), view.cycles, view.unit)
+        _draw_residual_histograms(figure, grid, view)
+        _draw_directions(figure, grid, view)
         _title(figure, view)
         legible_ticks(figure)
     return figure
+
+
+def _draw_total_field(figure, grid, view) -> None:
+    """(a): |B_M| above |B1| against time or the sample index, with the reference F when there
+    is one. [unit]"""
+    unit, target = view.unit, view.target
+    stride = max(1, -(-view.n // PLOT_SAMPLES))
+    if view.time is not None:
+        x, x_label = view.time[::stride], "time since the first sample [s]"
+    else:
+        x, x_label = np.arange(0, view.n, stride), "sample index"
+    top = (grid[0, :2] if view.cycles else grid[0, :]).subgridspec(2, 1, hspace=0.0)
+    series = figure.add_subplot(top[0])
+    zoom = figure.add_subplot(top[1], sharex=series)
+    for axes, values, colour, label in (
+        (series, view.before, "0.45", "measured |B_M|"),
+        (zoom, view.after, "C0", "corrected |B1|"),
+    ):
+        axes.plot(x, values[::stride], lw=0.7, color=colour, label=label)
+        if target is not None:
+            axes.plot(x, target[::stride], "--", lw=1.0, color="k", label=view.target_label)
+        axes.set_ylabel(f"{label.split()[-1]} [{unit}]")
+        axes.legend(loc="upper right", fontsize=8, ncol=2)
+        axes.grid(alpha=0.3)
+        axes.ticklabel_format(axis="y", useOffset=False, style="plain")
+    series.tick_params(labelbottom=False)
+    zoom.set_xlabel(x_label)
+    series.set_title("(a) total field before (top) and after (bottom) the correction")
+
+
+def _draw_residual_histograms(figure, grid, view) -> None:
+    """(c) and (d): histograms of |B| - F (or |B| - its mean) before and after. [unit]"""
+    unit, target = view.unit, view.target
+    against = "F" if target is not None else "its mean"
+    for column, (label, magnitude, colour) in enumerate(
+        (("(c) before: |B_M|", view.before, "0.45"), ("(d) after: |B1|", view.after, "C0"))
+    ):
+        residual = view.residuals(magnitude)
+        axes = figure.add_subplot(grid[1, column])
+        axes.hist(residual, bins=60, color=colour, alpha=0.85)
+        axes.set_xlabel(f"|B| − {view.target_label} [{unit}]")
+        axes.set_ylabel("samples")
+        mean = f", mean {np.mean(residual):+.3g}" if target is not None else ""
+        axes.set_title(f"{label} − {against}: std {np.std(residual):.3g}{mean} {unit}", fontsize=10)
+        axes.grid(alpha=0.3)
+
+
+def _draw_directions(figure, grid, view) -> None:
+    """(e): the direction of B1 in the sensor frame on a Hammer map, coloured by its residual
+    [unit], with the 26 direction bins marked visited or missing."""
+    from matplotlib import colormaps
+    from matplotlib.colors import Normalize
+
+    unit = view.unit
+    sky = figure.add_subplot(grid[1, 2], projection="hammer")
+    residual_after = view.residuals(view.after)
+    step = max(1, -(-view.n // MAP_SAMPLES))
+    d = view.directions[::step]
+    limit = float(np.percentile(np.abs(residual_after), 99)) or 1.0
+    azimuth, elevation = _hammer(d)
+    points = sky.scatter(
+        azimuth,
+        elevation,
+        c=residual_after[::step],
+        s=4,
+        cmap=colormaps["RdBu_r"],
+        norm=Normalize(-limit, limit),
+        rasterized=True,
+    )
+    _bins_on(sky, view.bins)
+    sky.grid(alpha=0.4)
+    sky.set_xticks(np.radians([-120, -60, 0, 60, 120]))
+    sky.set_yticks(np.radians([-60, -30, 0, 30, 60]))
+    sky.tick_params(labelsize=7)
+    where = f", {view.covered} of 26 bins visited" if view.bins else ""
+    sky.set_title(f"(e) direction of B1 in the sensor frame{where}", fontsize=10)
+    sky.set_xlabel("azimuth atan2(y, x), elevation asin(z / |B1|) [deg]", fontsize=8)
+    figure.colorbar(
+        points, ax=sky, shrink=0.7, pad=0.02, label=f"|B1| − {view.target_label} [{unit}]"
+    )
 
 
 def _hammer(directions) -> tuple:

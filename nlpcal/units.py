@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import passes
 from .errors import InputError
-from .passes import LazySamples
 
 #: Field units and their size in nT. "raw" keeps the log's own unit (counts, arbitrary units).
 FIELD_UNITS_NT = {"nT": 1.0, "uT": 1e3, "mT": 1e6, "mG": 1e2, "G": 1e5, "T": 1e9, "raw": 1.0}
@@ -76,10 +76,7 @@ def to_base(values, unit: str):
     factor = field_factor(unit)
     if np.ndim(values) == 0:
         return float(values) * factor
-    if isinstance(values, LazySamples):  # a Dask log: scaled block by block in each pass
-        return values if factor == 1.0 else values * factor
-    values = np.asarray(values, dtype=float)
-    return values if factor == 1.0 else values * factor  # base units pass through uncopied
+    return passes.scaled(values, factor)
 
 
 def from_base(values, unit: str):

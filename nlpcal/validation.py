@@ -196,21 +196,14 @@ def not_too_large(largest: float) -> None:
 def axis_ranges(array) -> tuple:
     """Per-column minimum and maximum of an (N, 3) array, NaN where a column has a NaN, in
     chunks (a memory map stays mapped; a Dask log gives those of its survey)."""
-    if isinstance(array, passes.LazySamples):
-        survey = array.survey()
-        return survey.low, survey.high
-    low, high = np.full(3, np.inf), np.full(3, -np.inf)
-    for start in range(0, array.shape[0], CHECK_CHUNK_ROWS):
-        chunk_low, chunk_high = passes.column_ranges(array[start : start + CHECK_CHUNK_ROWS])
-        low, high = np.minimum(low, chunk_low), np.maximum(high, chunk_high)
-    return low, high
+    return passes.axis_ranges(array, CHECK_CHUNK_ROWS)
 
 
 def reference(value, n: int, what: str = "the reference field"):
     """None, a positive number, or N positive values (a series sampled with the log)."""
     if value is None:
         return None
-    if passes.is_dask(value) or isinstance(value, passes.LazySamples):
+    if passes.is_lazy(value):
         return _lazy_reference(passes.as_rows(value), n, what)
     try:
         array = np.asarray(value, dtype=float)
@@ -256,9 +249,7 @@ def reference_scale(reference, magnitude: float, what: str = "the reference fiel
     """A reference field within REFERENCE_RATIO of the samples' mean magnitude `magnitude`."""
     if reference is None or not magnitude > 0:
         return
-    if isinstance(reference, passes.LazySamples):  # the median of an even stride of 100 000
-        reference = reference[:: max(1, reference.n // 100_000)]
-    values = np.atleast_1d(np.asarray(reference, dtype=float))
+    values = np.atleast_1d(passes.in_memory(reference, 100_000))
     ratio = float(np.median(values)) / magnitude
     if not 1.0 / REFERENCE_RATIO < ratio < REFERENCE_RATIO:
         raise InputError(

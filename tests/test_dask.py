@@ -151,13 +151,11 @@ def test_a_bad_value_in_a_dask_log_is_refused_like_in_memory(spiky_log):
     samples[12_345, 1] = np.nan
     reference = np.full(len(samples), PAPER_FIELD)
     reference[99] = -1.0
-    # on Dask's threads whatever default scheduler an earlier test's Client left behind
-    with dask.config.set(scheduler="threads"):
-        for values in (samples, da.from_array(samples, chunks=(7_000, 3))):
-            with pytest.raises(nlpcal.InputError, match="NaN or infinite"):
-                nlpcal.calibrate(values)
-        with pytest.raises(nlpcal.InputError, match="1 non-positive"):
-            nlpcal.calibrate(spiky_log, reference_field=da.from_array(reference, chunks=5_000))
+    for values in (samples, da.from_array(samples, chunks=(7_000, 3))):
+        with pytest.raises(nlpcal.InputError, match="NaN or infinite"):
+            nlpcal.calibrate(values)
+    with pytest.raises(nlpcal.InputError, match="1 non-positive"):
+        nlpcal.calibrate(spiky_log, reference_field=da.from_array(reference, chunks=5_000))
 
 
 @pytest.fixture(scope="module")

@@ -202,7 +202,7 @@ def test_imports_of_files_written_elsewhere(tmp_path):
         "% from MATLAB\nA = [1.02, 0.01, 0 ; 0.01 0.98 0; ...\n 0 0 1.0];\nb = [12.5, -3, 4];\n"
         "expmfs = 48.2;\n"
     )
-    result, notes = import_file(magcal, "matlab", unit="uT", field=48.7947)
+    result, notes = import_file(magcal, "matlab", unit="uT", reference_field=48.7947)
     scale = 48.7947 / 48.2
     corrected = result.apply(np.array([[40.0, 10.0, -20.0]]), unit="uT")
     expected = (np.array([[40.0, 10.0, -20.0]]) - [12.5, -3, 4]) @ (
@@ -289,3 +289,37 @@ def test_an_export_in_a_field_unit_needs_a_unit_that_fixes_the_scale(calibrated,
         export(nlpcal.CalibrationResult.load(path), "px4")
     given = nlpcal.calibrate(log.samples, unit="nT", method="joint")
     assert given.unit_source == "option" and export(given, "px4").notes[:1] != written.notes[:1]
+
+
+@pytest.mark.parametrize("command, function", [("export", export), ("import", import_file)])
+def test_the_python_keywords_mirror_the_command_line_flags(command, function):
+    import argparse
+    import inspect
+
+    from nlpcal.cli import build_parser
+
+    commands = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    keywords = inspect.signature(function).parameters
+    for action in commands.choices[command]._actions:
+        flags = [f for f in action.option_strings if f.startswith("--")]
+        shared = ("--help", "--output", "--verbose", "--quiet")  # every command's, not the data's
+        if not flags or action.help == argparse.SUPPRESS or flags[0] in shared:
+            continue
+        assert flags[0][2:].replace("-", "_") in keywords, flags[0]
+
+
+def test_the_former_keywords_are_still_accepted(calibrated, tmp_path):
+    calibrated, _ = calibrated
+    path = tmp_path / "calibration.m"
+    path.write_text(export(calibrated, "matlab").text)
+    assert export(calibrated, fmt="matlab").text == export(calibrated, format="matlab").text
+    new, _ = import_file(path, format="matlab", reference_field=50000.0)
+    old, _ = import_file(path, fmt="matlab", field=50000.0)
+    assert new.to_dict() == old.to_dict()
+    assert new.reference.to_dict()["field"] == pytest.approx(50000.0)
+    with pytest.raises(InputError, match="reference_field"):
+        import_file(path, "matlab", reference_field=50000.0, field=40000.0)
+    with pytest.raises(InputError, match="format"):
+        export(calibrated, "matlab", fmt="px4")
+    with pytest.raises(InputError, match="format"):
+        import_file(path)

@@ -633,8 +633,6 @@ def test_a_scheduler_file_of_junk_is_bad_input(documents, tmp_path, text):
     ],
 )
 def test_a_server_that_is_not_dask_is_bad_input(documents, monkeypatch, junk):
-    import socket
-    import threading
     import time
 
     pytest.importorskip("distributed")
@@ -642,6 +640,35 @@ def test_a_server_that_is_not_dask_is_bad_input(documents, monkeypatch, junk):
 
     log, _ = documents
     monkeypatch.setattr(cluster, "CONNECT_TIMEOUT_S", 5)
+    started = time.monotonic()
+    with junk_server(junk) as port:
+        status, _, err = run(["calibrate", log, "--scheduler", f"tcp://127.0.0.1:{port}"])
+    assert status == 2 and "no Dask scheduler answers" in err
+    assert time.monotonic() - started < 60
+
+
+def test_a_failed_connection_leaves_dasks_default_scheduler_as_it_was(documents, monkeypatch):
+    # a Client makes itself the default before connecting: left behind, later Dask work in
+    # the same process would be sent to a cluster that is not there
+    pytest.importorskip("distributed")
+    import dask
+
+    from nlpcal import cluster
+
+    log, _ = documents
+    monkeypatch.setattr(cluster, "CONNECT_TIMEOUT_S", 5)
+    with dask.config.set(scheduler="sync"), junk_server(b"\xff" * 64) as port:
+        status, _, _ = run(["calibrate", log, "--scheduler", f"tcp://127.0.0.1:{port}"])
+        assert status == 2 and dask.config.get("scheduler") == "sync"
+    assert dask.config.get("scheduler", None) is None
+
+
+@contextlib.contextmanager
+def junk_server(junk: bytes):
+    """A local TCP server that answers every connection with `junk`; yields its port."""
+    import socket
+    import threading
+
     server = socket.create_server(("127.0.0.1", 0))
     server.settimeout(20)  # the thread ends by itself if nothing connects
 
@@ -654,14 +681,10 @@ def test_a_server_that_is_not_dask_is_bad_input(documents, monkeypatch, junk):
 
     thread = threading.Thread(target=answer, daemon=True)
     thread.start()
-    started = time.monotonic()
     try:
-        port = server.getsockname()[1]
-        status, _, err = run(["calibrate", log, "--scheduler", f"tcp://127.0.0.1:{port}"])
+        yield server.getsockname()[1]
     finally:
         server.close()
-    assert status == 2 and "no Dask scheduler answers" in err
-    assert time.monotonic() - started < 60
 
 
 @pytest.fixture(scope="module")

@@ -12,6 +12,7 @@ import nlpcal
 import nlpcal.calibration.joint as joint_module
 from nlpcal.calibration.result import BlockSolve, SolverReport
 from nlpcal.cli import main
+from nlpcal.comparison.conjugate_gradient import CGOptions
 from nlpcal.errors import InputError
 from nlpcal.nlp.solver import FINISHERS, NLPCAL_STATUSES, SUCCESS_STATUSES, ipopt_value
 from synthetic import make_log
@@ -194,3 +195,31 @@ def test_ipopts_own_log_never_mixes_with_the_document_on_stdout(log_csv, capsys)
     assert code == 0
     assert json.loads(out)["solver"]["ipopt_options"]["print_level"] == 5
     assert "Ipopt" in err  # IPOPT's log went to stderr
+
+
+def test_compare_takes_ipopt_options_and_records_them_as_calibrate_does(
+    samples, log_csv, tmp_path, capsys
+):
+    settings = nlpcal.CompareSettings(cycles=2, cg=CGOptions(max_iter=20))
+    limited = nlpcal.compare(samples, settings=settings, ipopt_options={"max_iter": 1})
+    assert limited.ipopt_options["max_iter"] == 1
+    assert (
+        limited.ipopt_options
+        == nlpcal.calibrate(samples, ipopt_options={"max_iter": 1}).solver.ipopt_options
+    )
+    # the joint solve needs more than one iteration: IPOPT stopped at the limit
+    assert limited.joint["ipopt_status"] == "Maximum_Iterations_Exceeded"
+    default = nlpcal.compare(samples, settings=settings)
+    assert default.ipopt_options["max_iter"] == 200 and default.joint["iterations"] > 1
+    document = limited.to_dict()
+    assert document["settings"]["ipopt_options"] == limited.ipopt_options
+    assert nlpcal.Comparison.from_dict(document).ipopt_options == limited.ipopt_options
+    with pytest.raises(InputError, match="no_such_option"):
+        nlpcal.compare(samples, settings=settings, ipopt_options={"no_such_option": 1})
+    out = tmp_path / "compare.json"
+    argv = ["compare", log_csv, "--cycles", "2", "--cg-max-iter", "20", "-q", "-o", out]
+    assert run(capsys, *argv, "--ipopt-option", "max_iter=1")[0] == 0
+    assert json.loads(out.read_text())["settings"]["ipopt_options"]["max_iter"] == 1
+    bad = tmp_path / "bad.json"
+    code, stdout, err = run(capsys, "compare", log_csv, "--ipopt-option", "no_such=1", "-o", bad)
+    assert code == 2 and not bad.exists() and "Traceback" not in err

@@ -35,6 +35,9 @@ DISTURBED_SPREAD = 5e-3
 #: Above this widening of a standard error for the dependence of neighbouring samples' scores,
 #: more independent samples are advice worth giving. [1]
 CORRELATED_INFLATION = 2.0
+#: Above this widening of a standard error for the dependence of neighbouring samples' scores,
+#: a warning says why and what would help (`dependence_warning`). [1]
+DEPENDENCE_WARN = 3.0
 #: Above this relative gap between the moment objective and the exact one at the solution, the
 #: distance to the exact optimum is estimated (`exact_optimum_shift`).
 SERIES_CHECK = 1e-8
@@ -73,10 +76,9 @@ def uncertainty(
     here in the scaled variables of the problems, on the directions the model estimates (without
     a reference, within the gauge's null space: `nlpcal.nlp.blocks.Variables.basis`); with a
     robust loss A = sum psi'(r) J J^T (`weighted_information`). With `theta` the covariance is
-    the sandwich A^-1 Omega A^-1 with Omega = A V A, V the block jackknife of the scores
-    psi(r_i) J_i
-    (`score_meat`): it follows the dependence of the scores of neighbouring samples (a smooth
-    trajectory in a slowly changing field); scores without clear dependence
+    the sandwich A^-1 Omega A^-1 with Omega = A V A, V the moving-block jackknife of the scores
+    psi(r_i) J_i (`sandwich`): it follows the dependence of the scores of neighbouring samples
+    (a smooth trajectory in a slowly changing field); scores without clear dependence
     (`inference.scores_dependent`) keep s^2 A^-1 (A^-1 B A^-1, B = sum psi^2 J J^T, for a robust
     loss), widened by Student's t on N - p. Without `theta` (identifiability alone) it is
     s^2 A^-1. `centre` : without a reference, the mean |B1| the least-squares residuals are
@@ -119,10 +121,10 @@ def uncertainty(
 
 def sandwich(problem: Problem, information, objective: float, theta, centre) -> tuple:
     """(estimate, estimate of independent samples, score dependence, noise terms) of
-    `uncertainty`: s^2 A^-1 without `theta`; with it the sandwich A^-1 Omega A^-1, Omega the
-    block jackknife's meat where the scores are dependent, never narrower than that of
-    independent samples, else the latter widened by Student's t (`score_meat`). The second and
-    the last two are None without `theta`."""
+    `uncertainty`: s^2 A^-1 without `theta`; with it the sandwich A^-1 Omega A^-1 of the scores
+    (`score_meat`, `inference.dependence_meat`): the moving-block jackknife's meat where they
+    are dependent, never narrower than that of independent samples, else the latter widened by
+    Student's t. The second and the last two are None without `theta`."""
     n = problem.samples.shape[0]
     basis = problem.free.basis
     # the parameters fitted: the model's free directions, and without a reference the mean |B1|
@@ -131,16 +133,19 @@ def sandwich(problem: Problem, information, objective: float, theta, centre) -> 
     variance = n * objective / max(n - fitted, 1)
     if theta is None:
         return inference.estimate(information, residual_variance=variance, **options), *(None,) * 3
-    meat, independent, dependence, noise = score_meat(problem, theta, centre, basis, n - fitted)
+    series, shares, independent, dependence, noise = score_meat(
+        problem, theta, centre, basis, n - fitted
+    )
     if not problem.loss.robust:  # s^2 A: the meat of independent samples of least squares
         independent = variance * np.asarray(information)
-    # scores without clear dependence: the sandwich of independent samples; else never
-    # narrower than it in any direction: a jackknife on few groups can fall below it by
-    # chance, and dependence seldom makes a fit more precise (deliberately conservative)
-    if meat is None:  # Student's t on N - p degrees of freedom, as for a linear fit
-        meat = independent * dependence["t_widening"] ** 2
-    else:
-        meat = inference.loewner_max(meat, independent, basis)
+    meat, described, freedom = inference.dependence_meat(
+        series, shares, independent, n - fitted, basis
+    )
+    dependence.update(described)
+    if dependence["method"] != "independent":
+        dependence["degrees_of_freedom"] = {
+            name: float(freedom[PARAMETER_NAMES.index(name)]) for name in problem.estimated
+        }
     result = inference.estimate(information, meat=meat, **options)
     return result, inference.estimate(information, meat=independent, **options), dependence, noise
 
@@ -268,14 +273,11 @@ def noise_bias(information, basis, noise: dict, variance: float) -> np.ndarray:
 
 
 def score_meat(problem: Problem, theta, centre: float | None, basis, dof: int) -> tuple:
-    """(Omega, G_0, description, noise): the meat of the sandwich covariance in the scaled
-    variables, A V A with V the block jackknife's covariance of the estimated directions (`basis`;
-    `inference.block_jackknife`, groups of GROUP_BANDWIDTHS automatic Bartlett bandwidths,
-    widened by `inference.t_widening` for its number of groups), or None when the scores show
-    no clear dependence (`inference.scores_dependent`: the sandwich of independent samples is
-    then the meat); sum psi(r_i)^2 J_i J_i^T times N / dof (the meat for independent samples);
-    what the result says of it (`score_dependence`); and the noise terms of the bias
-    (`noise_bias`)."""
+    """(scores, informations, G_0, description, noise): the block sums of the scores and of the
+    information (`score_block_sums`) on the estimated directions (`basis`), for
+    `inference.dependence_meat`; sum psi(r_i)^2 J_i J_i^T times N / dof (the meat of
+    independent samples of an M-estimate); what the result says of the blocks
+    (`score_dependence`); and the noise terms of the bias (`noise_bias`)."""
     n = problem.samples.shape[0]
     series, informations, block_rows, noise, squares = score_block_sums(
         problem.samples,
@@ -285,29 +287,8 @@ def score_meat(problem: Problem, theta, centre: float | None, basis, dof: int) -
         problem.centre if problem.loss.robust else centre,
         problem.moments.frame.radius,
     )
-    projected = series @ basis
-    shares = np.einsum("ji,kjl,lm->kim", basis, informations, basis)
-    bandwidth = inference.bartlett_bandwidth(projected)
     independent = basis @ (basis.T @ squares @ basis) @ basis.T * n / max(dof, 1)
-    description = {
-        "method": "independent",
-        "bandwidth_blocks": bandwidth,
-        "block_samples": block_rows,
-        "group_blocks": 1,
-        "groups": len(projected),
-        "t_widening": inference.t_widening(dof),
-    }
-    if not inference.scores_dependent(projected):
-        return None, independent, description, noise
-    length = inference.group_length(bandwidth, len(projected))
-    covariance, groups = inference.block_jackknife(projected, shares, length)
-    widening = inference.t_widening(groups - 1)
-    total = shares.sum(axis=0)
-    meat = basis @ (total @ covariance @ total) @ basis.T * widening**2
-    description.update(
-        method="block-jackknife", group_blocks=length, groups=int(groups), t_widening=widening
-    )
-    return meat, independent, description, noise
+    return series, informations, independent, {"block_samples": block_rows}, noise
 
 
 def weighted_information(problem: Problem, theta, weight) -> tuple:
@@ -514,7 +495,7 @@ def what_would_help(identifiability: dict, final: dict, reference: str, model: s
         )
     widening = identifiability.get("score_dependence", {}).get("standard_error_widening", {})
     inflation = max(widening.values(), default=1.0)
-    if inflation > CORRELATED_INFLATION:
+    if CORRELATED_INFLATION < inflation <= DEPENDENCE_WARN:  # above: `dependence_warning`
         advice.append(
             f"more independent samples: the scores of neighbouring samples are alike (standard "
             f"errors up to x{inflation:.1f} for it)"
@@ -644,4 +625,24 @@ def warnings_for(
                 else "check the reference field and the data for disturbances"
             )
             warnings.append(f"{why}{optimum} {where}; {advice}")
-    return warnings
+    dependence = dependence_warning(identifiability.get("score_dependence", {}))
+    return warnings + ([dependence] if dependence else [])
+
+
+def dependence_warning(dependence: dict) -> str | None:
+    """The warning of standard errors widened more than DEPENDENCE_WARN times for the dependence
+    of neighbouring samples' scores (`score_dependence`), naming the cause and what would help;
+    None below."""
+    widening = dependence.get("standard_error_widening") or {}
+    if not widening or max(widening.values()) <= DEPENDENCE_WARN:
+        return None
+    name = max(widening, key=lambda key: widening[key])
+    span = dependence["bandwidth_blocks"] * dependence["block_samples"]
+    return (
+        f"standard errors widened up to x{widening[name]:.3g} ({name}) over those of independent "
+        f"samples for autocorrelated scores: the attitude changes slowly relative to the "
+        f"sampling, so neighbouring samples repeat nearly the same information (their scores "
+        f"stay alike over about {span:.0f} samples). What would help: turn the sensor through "
+        f"its attitudes more times in the log (faster, or a longer log), not a higher sample "
+        f"rate; where the field drifts, its magnitude logged alongside (--reference-column)"
+    )

@@ -14,7 +14,7 @@ mean of J (the mean for least squares), so each block sum is sum psi J - Jbar su
 
 The block sums (blocks of `block_rows` consecutive samples, counted from the log's first row, so
 that the sums do not depend on how a pass splits the rows: threads, `--low-memory` or Dask) are
-the series `nlpcal.inference.block_jackknife` turns into the meat of the sandwich covariance;
+the series `nlpcal.inference.dependence_meat` turns into the meat of the sandwich covariance;
 the same pass sums psi(r_i)^2 J_i J_i^T over every sample, the meat of independent samples.
 
 References
@@ -29,15 +29,12 @@ from typing import Any
 
 import numpy as np
 
+from ..inference import MAX_BLOCKS
 from ..models.zhou2010 import correction_matrix_entries
 from ..nlp.blocks import variable_scale
 from ..passes import as_rows, reduce, reference_chunk
 from ..statistics import correction
 
-#: Largest number of blocks of the score series: a log of more samples sums neighbours (the
-#: series stays small whatever the log's length, and a jackknife over groups of consecutive
-#: blocks estimates the same long-run covariance as over groups of samples).
-MAX_BLOCKS = 4096
 #: Complex step for the derivatives of M's entries. [rad or 1]
 COMPLEX_STEP = 1e-30
 #: Rows of the chunks of a block of the scores pass (512 rows of WIDTH sums are 0.3 MB).

@@ -16,6 +16,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..defaults import CYCLES_DEFAULT, RTOL_DEFAULT
+from .calibrate import ipopt_option
 from .common import (
     add_command,
     add_log_arguments,
@@ -94,6 +95,14 @@ as a warning (exit 0).""",
     add_loss_arguments(parser)
     add_threads_argument(parser)
     parser.add_argument(
+        "--ipopt-option",
+        action="append",
+        type=ipopt_option,
+        metavar="KEY=VALUE",
+        help="an IPOPT option for the staged and joint solves, as for calibrate (repeatable); "
+        "the comparison records every IPOPT option under settings.ipopt_options",
+    )
+    parser.add_argument(
         "-o", "--output", metavar="COMPARE.json", help="write the JSON here (stdout when absent)"
     )
     parser.add_argument(
@@ -109,7 +118,9 @@ def run(args) -> int:
     from ..comparison import CompareSettings, compare_log
     from ..comparison.conjugate_gradient import CGOptions
     from ..io import Outputs, check_output_path, read_log
+    from ..nlp.solver import check_ipopt_options
     from ..plots import comparison_png, require_matplotlib
+    from ..results import distinct
 
     settings = CompareSettings(
         cycles=args.cycles,
@@ -118,6 +129,9 @@ def run(args) -> int:
             step_factor=args.cg_step_factor, rel_eps=args.cg_rel_eps, max_iter=args.cg_max_iter
         ),
     )
+    ipopt_options = distinct(args.ipopt_option or (), "--ipopt-option", "option") or None
+    if ipopt_options:  # checked before the log is read
+        check_ipopt_options(ipopt_options)
     check_output_path(args.output, args.log)
     check_output_path(args.plot, args.log)
     if args.plot:
@@ -126,7 +140,12 @@ def run(args) -> int:
     report_log(log)
     with solver_log():
         result = compare_log(
-            log, settings=settings, loss=args.loss, loss_scale=args.loss_scale, threads=args.threads
+            log,
+            settings=settings,
+            loss=args.loss,
+            loss_scale=args.loss_scale,
+            threads=args.threads,
+            ipopt_options=ipopt_options,
         )
     png = comparison_png(result, title=Path(log.path).name) if args.plot else None
     say(result.table())

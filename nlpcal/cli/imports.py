@@ -58,7 +58,7 @@ def run(args) -> int:
     check_output_path(args.output, args.file)
     fmt = args.fmt or format_for(args.file, "FILE")
     result, notes = import_file(
-        args.file, fmt, unit=args.unit, field=args.reference_field, instance=args.instance
+        args.file, fmt, unit=args.unit, reference_field=args.reference_field, instance=args.instance
     )
     tell(notes)
     emit_json(result.to_dict(), args.output)

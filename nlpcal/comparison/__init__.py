@@ -44,6 +44,7 @@ from ..errors import QualityError, SolveError
 from ..io.logs import Log
 from ..models.zhou2010 import Zhou2010Parameters, correct
 from ..moments import accumulate
+from ..nlp.blocks import OPTIONS
 from ..results import Document, DocumentReader
 from ..robust import Loss
 from ..statistics import STD_DDOF, format_table
@@ -135,6 +136,9 @@ class Comparison(Document):
         Samples compared.
     input : dict
         Where the samples came from.
+    ipopt_options : dict
+        The options IPOPT was given (`nlpcal.nlp.solver.IpoptOptions.settings`), as `calibrate`
+        records them under `solver.ipopt_options`; written under `settings.ipopt_options`.
 
     Examples
     --------
@@ -161,6 +165,7 @@ class Comparison(Document):
     warnings: list = field(default_factory=list)
     n_samples: int = 0
     input: dict = field(default_factory=dict)
+    ipopt_options: dict = field(default_factory=dict)
 
     def body(self) -> dict:
         document = {
@@ -177,6 +182,7 @@ class Comparison(Document):
                 "cycles": int(self.settings.cycles),
                 "rtol": self.settings.rtol,
                 "cg": asdict(self.settings.cg),
+                "ipopt_options": dict(self.ipopt_options),
             },
             "trajectories": {name: thin(t) for name, t in self.trajectories.items()},
             "warnings": list(self.warnings),
@@ -208,6 +214,7 @@ class Comparison(Document):
             warnings=reader.strings("warnings", []),
             n_samples=reader.integer("n_samples", 0),
             input=reader.mapping("input", {}),
+            ipopt_options=settings.mapping("ipopt_options", {}),
         )
 
     def table(self) -> str:
@@ -246,6 +253,7 @@ def compare(
     loss_scale: float | None = None,
     require_identifiable: bool = True,
     threads: int | None = None,
+    ipopt_options: dict | None = None,
 ) -> Comparison:
     """Run the staged cycle, the joint solve and the paper's CG (joint and staged) on one log.
 
@@ -270,6 +278,12 @@ def compare(
         Raise QualityError when the attitudes leave parameters undetermined.
     threads : int, optional
         Threads of the passes over the data (default: the cores available).
+    ipopt_options : dict, optional
+        Further IPOPT options for the staged and joint solves, as in `calibrate`
+        (`--ipopt-option KEY=VALUE`): name -> int, float or str over nlpcal's own
+        (`nlpcal.nlp.blocks.OPTIONS`), checked by IPOPT first (InputError for an option it does
+        not know or a value it refuses). The comparison records every option IPOPT was given
+        (`Comparison.ipopt_options`).
 
     Returns
     -------
@@ -295,19 +309,9 @@ def compare(
     6
     """
     with chunks.call_threads(validation.optional_whole(threads, "threads")):
-        units.check_compatible(unit, reference_unit or unit)
-        samples = validation.samples(samples)
-        reference = validation.reference(reference_field, samples.shape[0])
-        samples = units.to_base(samples, unit)
-        reference = units.to_base(reference, reference_unit or unit)
-        chosen = Loss(loss, units.to_base(loss_scale, unit))
-        validation.reference_scale(reference, validation.mean_magnitude(samples))
-        moments = accumulate(samples, reference)
-        problem = Problem(samples=samples, reference=reference, moments=moments, loss=chosen)
-        if chosen.robust:  # the weights of the robust optimum, then the same objective for all
-            run_joint(problem)
-            problem.frozen = True
-        moments = problem.moments
+        ipopt = OPTIONS.with_options(ipopt_options)
+        problem = _problem(samples, reference_field, unit, reference_unit, loss, loss_scale, ipopt)
+        samples, moments = problem.samples, problem.moments
 
         rule = StopRule(max_cycles=int(settings.cycles), rtol=settings.rtol, predict=False)
         try:
@@ -319,31 +323,10 @@ def compare(
         joint_theta = joint_step.theta
         joint = {**joint_rows[-1], **joint_report.summary()}  # as `calibrate` reports it
         joint_path = joint_trajectory(joint_step, joint["iterations"], joint["objective"])
-        hs = scaled_hessian(moments, joint_theta, joint_step)
-        weak = uncertainty(problem, joint["objective"], hs)[1]["not_identifiable"]
-        flat = problem_flatness(problem, joint_theta)
-        if flat["planar"] and require_identifiable:
-            raise QualityError(
-                f"{planar_message(flat, units.base_unit(unit))}; no method has an optimum to reach",
-                "Not_Identifiable",
-                overrides={"require_identifiable": False},
-            )
-        if weak and require_identifiable:
-            raise QualityError(
-                f"the data do not determine {', '.join(weak)}, so no method has an optimum to "
-                f"reach; rotate the sensor through more attitudes",
-                "Not_Identifiable",
-                overrides={"require_identifiable": False},
-            )
+        if require_identifiable:
+            _require_optimum(problem, joint_step, joint["objective"], unit)
 
-        cg_joint, cg_joint_paths = [], {}
-        for scaled in (False, True):
-            options = CGOptions(**{**asdict(settings.cg), "scaled": scaled})
-            label = "cg joint scaled" if scaled else "cg joint"
-            _, row, outcome = run_cg_joint(problem, start, options, label=label)
-            cg_joint.append(row)
-            cg_joint_paths[label] = cg_trajectory([outcome.history])
-
+        cg_joint, cg_joint_paths = _run_cg_joint(problem, start, settings.cg)
         _, cg_staged, cg_stages = run_cg_staged(
             problem, settings.cycles, settings.cg, settings.rtol
         )
@@ -358,24 +341,6 @@ def compare(
 
         summary = run_summary(staged, stop_reason, joint, cg_joint, cg_staged)
         summary["block_coupling"] = block_coupling(moments, joint_theta)
-        warnings = []
-        if stop_reason == "max_cycles":
-            warnings.append(
-                f"the staged cycle was still improving after {settings.cycles} cycles "
-                f"(std {staged[-1]['std']:.4g} vs joint {joint['std']:.4g}); pass a "
-                f"larger --cycles to see where it ends"
-            )
-        for row in cg_joint:
-            if row["status"] != "converged":
-                warnings.append(
-                    f"{row['label']}: the conjugate gradient did not converge "
-                    f"({row['status']} after {row['iterations']} iterations; std "
-                    f"{row['std']:.4g} vs joint {joint['std']:.4g})"
-                )
-        bad = [r["label"] for r in cg_staged[1:] if not r.get("converged", True)]
-        if bad:
-            warnings.append(f"conjugate gradient stages that did not converge in: {', '.join(bad)}")
-
         summary["loss"] = problem.loss.to_dict()
         return Comparison(
             samples=samples,
@@ -388,9 +353,87 @@ def compare(
             reference=problem.reference_document().to_dict(),
             settings=settings,
             unit=units.base_unit(unit),
-            warnings=warnings,
+            warnings=_warnings(settings, stop_reason, staged, joint, cg_joint, cg_staged),
             n_samples=int(samples.shape[0]),
+            ipopt_options=ipopt.settings(),
         )
+
+
+def _problem(samples, reference_field, unit, reference_unit, loss, loss_scale, ipopt) -> Problem:
+    """The problem every method solves: the samples and reference in the base unit, their
+    moments, and a robust loss's weights fixed at the reweighted joint solution."""
+    units.check_compatible(unit, reference_unit or unit)
+    samples = validation.samples(samples)
+    reference = validation.reference(reference_field, samples.shape[0])
+    samples = units.to_base(samples, unit)
+    reference = units.to_base(reference, reference_unit or unit)
+    chosen = Loss(loss, units.to_base(loss_scale, unit))
+    validation.reference_scale(reference, validation.mean_magnitude(samples))
+    moments = accumulate(samples, reference)
+    problem = Problem(
+        samples=samples, reference=reference, moments=moments, loss=chosen, ipopt=ipopt
+    )
+    if chosen.robust:  # the weights of the robust optimum, then the same objective for all
+        run_joint(problem)
+        problem.frozen = True
+    return problem
+
+
+def _require_optimum(problem: Problem, joint_step, objective: float, unit: str) -> None:
+    """QualityError when the attitudes leave parameters undetermined at the joint solution
+    (planar data, or parameters the Hessian does not determine): no method has an optimum."""
+    hs = scaled_hessian(problem.moments, joint_step.theta, joint_step)
+    weak = uncertainty(problem, objective, hs)[1]["not_identifiable"]
+    flat = problem_flatness(problem, joint_step.theta)
+    if flat["planar"]:
+        raise QualityError(
+            f"{planar_message(flat, units.base_unit(unit))}; no method has an optimum to reach",
+            "Not_Identifiable",
+            overrides={"require_identifiable": False},
+        )
+    if weak:
+        raise QualityError(
+            f"the data do not determine {', '.join(weak)}, so no method has an optimum to "
+            f"reach; rotate the sensor through more attitudes",
+            "Not_Identifiable",
+            overrides={"require_identifiable": False},
+        )
+
+
+def _run_cg_joint(problem: Problem, start, cg: CGOptions) -> tuple:
+    """The conjugate gradient on all nine parameters from `start`, unscaled (the paper's
+    setting) then scaled: the two Table 1 rows and label -> objective trajectory."""
+    rows, paths = [], {}
+    for scaled in (False, True):
+        options = CGOptions(**{**asdict(cg), "scaled": scaled})
+        label = "cg joint scaled" if scaled else "cg joint"
+        _, row, outcome = run_cg_joint(problem, start, options, label=label)
+        rows.append(row)
+        paths[label] = cg_trajectory([outcome.history])
+    return rows, paths
+
+
+def _warnings(settings, stop_reason, staged, joint, cg_joint, cg_staged) -> list:
+    """What the comparison should say: a staged cycle still improving at its limit, and
+    conjugate gradients that did not converge."""
+    warnings = []
+    if stop_reason == "max_cycles":
+        warnings.append(
+            f"the staged cycle was still improving after {settings.cycles} cycles "
+            f"(std {staged[-1]['std']:.4g} vs joint {joint['std']:.4g}); pass a "
+            f"larger --cycles to see where it ends"
+        )
+    for row in cg_joint:
+        if row["status"] != "converged":
+            warnings.append(
+                f"{row['label']}: the conjugate gradient did not converge "
+                f"({row['status']} after {row['iterations']} iterations; std "
+                f"{row['std']:.4g} vs joint {joint['std']:.4g})"
+            )
+    bad = [r["label"] for r in cg_staged[1:] if not r.get("converged", True)]
+    if bad:
+        warnings.append(f"conjugate gradient stages that did not converge in: {', '.join(bad)}")
+    return warnings
 
 
 def compare_log(
@@ -400,6 +443,7 @@ def compare_log(
     loss: str = "l2",
     loss_scale: float | None = None,
     threads: int | None = None,
+    ipopt_options: dict | None = None,
 ) -> Comparison:
     """`compare` on a log read by `nlpcal.io.read_log` (its reference included); the comparison
     records the log under `input`. loss_scale : in the unit of the log's field columns."""
@@ -411,6 +455,7 @@ def compare_log(
         loss=loss,
         loss_scale=units.to_base(loss_scale, log.unit),
         threads=threads,
+        ipopt_options=ipopt_options,
     )
     result.input = log.metadata(unit_factor_nT=units.field_factor(log.unit))
     if log.reference_column:

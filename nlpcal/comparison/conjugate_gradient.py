@@ -220,13 +220,8 @@ def conjugate_gradient(
 
     f, g_full, g = evaluate(theta)
     f_start = f
-    hess = objective.hessian(theta)[np.ix_(free, free)]
-    hess = projector @ (D[:, None] * hess * D[None, :]) @ projector
-    lam_max = float(np.linalg.eigvalsh(0.5 * (hess + hess.T))[-1])
+    a = options.step_factor / _largest_curvature(objective, theta, free, D, projector)
     g_norm = float(np.linalg.norm(g))
-    if not (lam_max > 0 and np.isfinite(lam_max)):
-        lam_max = 1.0  # flat or concave start: no curvature to set a by; unit step constant
-    a = options.step_factor / lam_max
     eps = options.rel_eps * g_norm if eps is None else float(eps)
     history = [f]
     status = MAX_ITERATIONS
@@ -275,6 +270,17 @@ def conjugate_gradient(
         history=history,
         wall_s=time.perf_counter() - started,
     )
+
+
+def _largest_curvature(objective, theta, free: list, D, projector) -> float:
+    """The largest eigenvalue of the Hessian of f in the iteration variables of the free block
+    at theta (the step constant a is step_factor over it); 1 at a flat or concave start."""
+    hess = objective.hessian(theta)[np.ix_(free, free)]
+    hess = projector @ (D[:, None] * hess * D[None, :]) @ projector
+    lam_max = float(np.linalg.eigvalsh(0.5 * (hess + hess.T))[-1])
+    if not (lam_max > 0 and np.isfinite(lam_max)):
+        lam_max = 1.0  # flat or concave start: no curvature to set a by; unit step constant
+    return lam_max
 
 
 def run_cg_joint(problem, start, options: CGOptions = CGOptions(), label: str = "cg joint"):

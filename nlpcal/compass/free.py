@@ -73,14 +73,8 @@ def dip_alignment(down, field_dir) -> dict:
     # Gauss-Newton information of (small rotation delta applied after R, c):
     # d/d delta of d^T exp([delta]x) R b = (R b x d)
     J = np.column_stack([np.cross(rb, down), -np.ones(n)])
-    # A free-rotation log is a time series: neighbouring residuals alike carry less information.
-    rho = inference.lag1_autocorrelation(residual)
-    uncertainty = inference.estimate(
-        J.T @ J,
-        residual_variance=float(residual @ residual) / max(n - 4, 1),
-        autocorrelation=rho,
-        dof=n - 4,
-    )
+    # A free-rotation log is a time series: neighbouring scores alike carry less information.
+    uncertainty, dependence = inference.least_squares_uncertainty(J, residual, n - 4)
     std = (
         uncertainty.standard_errors
         if uncertainty.standard_errors is not None
@@ -98,7 +92,7 @@ def dip_alignment(down, field_dir) -> dict:
         "dip_std": float(std[3] / slope),
         "dip_residual_rms_before": float(np.std(before) / slope),
         "dip_residual_rms": float(np.sqrt(np.mean(residual**2)) / slope),
-        "residual_lag1_autocorrelation": rho,
+        "score_dependence": dependence,
         "ipopt": out.record(),
     }
 
@@ -182,26 +176,7 @@ def calibrate_free(
         raise InputError(f"the rest tolerance must be a positive number of g, got {rest_tolerance}")
     warnings = []
     mag_fit = fit_general_ellipsoid(mag, magnitude=1.0, seed=ellipsoid_seed, sensor="magnetometer")
-    rest = np.ones(len(acc), dtype=bool)
-    iterations = 0
-    while True:
-        acc_fit = fit_general_ellipsoid(
-            acc[rest], magnitude=1.0, seed=ellipsoid_seed, sensor="accelerometer (samples at rest)"
-        )
-        a = (acc - acc_fit["offset"]) @ acc_fit["L"].T
-        if rest_tolerance is None or iterations == REST_ITERATIONS:
-            break
-        iterations += 1
-        new_rest = np.abs(np.linalg.norm(a, axis=1) - 1.0) <= rest_tolerance
-        if new_rest.sum() < MIN_FREE_SAMPLES:
-            raise InputError(
-                f"only {int(new_rest.sum())} samples look at rest (calibrated |acc| within "
-                f"{rest_tolerance:g} g of 1 g); record more slow or still attitudes or pass a "
-                f"larger rest tolerance"
-            )
-        if np.array_equal(new_rest, rest):
-            break
-        rest = new_rest
+    acc_fit, a, rest, iterations = _fit_at_rest(acc, rest_tolerance, ellipsoid_seed)
     if rest.sum() < 0.5 * len(acc):
         warnings.append(
             f"only {int(rest.sum())} of {len(acc)} samples look at rest (calibrated "
@@ -228,42 +203,51 @@ def calibrate_free(
             f"x, y, z); "
             f"the log needs more varied attitudes"
         )
-    mag_norm = np.linalg.norm((mag - mag_fit["offset"]) @ K_mag.T, axis=1)
-    acc_norm = np.linalg.norm(a[rest], axis=1)
-    mag_cal = SensorCalibration(
-        sensor="magnetometer",
-        unit="nT",
-        correction=K_mag,
-        bias=mag_fit["offset"],
-        magnitude=float(magnitude),
-        magnitude_source=source,
-        frame="accelerometer (rotated into it by the dip-angle constancy)",
-        quality={
-            "magnitude_residual_rms": float(np.sqrt(np.mean((mag_norm - magnitude) ** 2))),
-            "ellipsoid_condition": mag_fit["condition"],
-            "ellipsoid_seed": mag_fit["seed"],
-            "ipopt": {"ellipsoid": mag_fit["ipopt"], "alignment": align["ipopt"]},
-        },
+    mag_cal = _magnetometer_calibration(mag, mag_fit, align, K_mag, magnitude, source)
+    acc_cal = _accelerometer_calibration(acc_fit, a[rest], rest_tolerance, iterations)
+    return CompassCalibration(
+        mode="free-rotation",
+        magnetometer=mag_cal,
+        accelerometer=acc_cal,
+        identifiability=FREE_IDENTIFIABILITY,
+        alignment=_alignment_document(align, rotation_std_deg),
+        warnings=warnings,
+        input={"samples": len(mag)},
     )
-    acc_cal = SensorCalibration(
-        sensor="accelerometer",
-        unit="g",
-        correction=acc_fit["L"],
-        bias=acc_fit["offset"],
-        magnitude=1.0,
-        magnitude_source=GRAVITY_SCALE,
-        frame="accelerometer, symmetric correction (orientation relative to the housing unknown)",
-        quality={
-            "magnitude_residual_rms": float(np.sqrt(np.mean((acc_norm - 1.0) ** 2))),
-            "rest_samples": int(rest.sum()),
-            "rest_tolerance_g": rest_tolerance,
-            "rest_refits": iterations,
-            "ellipsoid_condition": acc_fit["condition"],
-            "ellipsoid_seed": acc_fit["seed"],
-            "ipopt": {"ellipsoid": acc_fit["ipopt"]},
-        },
-    )
-    alignment = {
+
+
+def _fit_at_rest(acc, rest_tolerance: float | None, seed) -> tuple:
+    """The accelerometer's ellipsoid fit on the samples at rest: fitted on all, then (with a
+    rest tolerance [g]) refitted on the samples whose calibrated |acc| lies within it of 1 g
+    until that set stops changing, at most REST_ITERATIONS times. Returns the fit, the
+    calibrated readings of every sample [g], the rest mask and the refits made."""
+    rest = np.ones(len(acc), dtype=bool)
+    iterations = 0
+    while True:
+        acc_fit = fit_general_ellipsoid(
+            acc[rest], magnitude=1.0, seed=seed, sensor="accelerometer (samples at rest)"
+        )
+        a = (acc - acc_fit["offset"]) @ acc_fit["L"].T
+        if rest_tolerance is None or iterations == REST_ITERATIONS:
+            break
+        iterations += 1
+        new_rest = np.abs(np.linalg.norm(a, axis=1) - 1.0) <= rest_tolerance
+        if new_rest.sum() < MIN_FREE_SAMPLES:
+            raise InputError(
+                f"only {int(new_rest.sum())} samples look at rest (calibrated |acc| within "
+                f"{rest_tolerance:g} g of 1 g); record more slow or still attitudes or pass a "
+                f"larger rest tolerance"
+            )
+        if np.array_equal(new_rest, rest):
+            break
+        rest = new_rest
+    return acc_fit, a, rest, iterations
+
+
+def _alignment_document(align: dict, rotation_std_deg) -> dict:
+    """The "alignment" block: the rotation of the magnetometer's frame into the
+    accelerometer's and the dip angle, with their standard deviations. [deg]"""
+    return {
         "rotation_deg": [float(v) for v in np.degrees(align["rotation"])],
         "rotation_std_deg": [float(v) for v in rotation_std_deg],
         "rotation_matrix": [[float(v) for v in row] for row in align["R"]],
@@ -271,17 +255,54 @@ def calibrate_free(
         "dip_std_deg": float(np.degrees(align["dip_std"])),
         "dip_residual_rms_deg_before": float(np.degrees(align["dip_residual_rms_before"])),
         "dip_residual_rms_deg": float(np.degrees(align["dip_residual_rms"])),
-        "residual_lag1_autocorrelation": align["residual_lag1_autocorrelation"],
-        "note": "standard deviations widened for the autocorrelation of the dip residuals; "
+        "score_dependence": align["score_dependence"],
+        "note": "standard deviations from the scores of the dip residuals, widened for their "
+        "dependence on their neighbours (docs/uncertainty.md); "
         "rotation vector (axis times angle) taking the magnetometer's calibrated frame "
         "into the accelerometer's, body x, y, z components",
     }
-    return CompassCalibration(
-        mode="free-rotation",
-        magnetometer=mag_cal,
-        accelerometer=acc_cal,
-        identifiability=FREE_IDENTIFIABILITY,
-        alignment=alignment,
-        warnings=warnings,
-        input={"samples": len(mag)},
+
+
+def _magnetometer_calibration(mag, fit: dict, align: dict, K_mag, magnitude, source: str):
+    """The magnetometer's `SensorCalibration`: its ellipsoid fit rotated into the
+    accelerometer's frame and scaled to `magnitude` [nT], with its residual."""
+    mag_norm = np.linalg.norm((mag - fit["offset"]) @ K_mag.T, axis=1)
+    return SensorCalibration(
+        sensor="magnetometer",
+        unit="nT",
+        correction=K_mag,
+        bias=fit["offset"],
+        magnitude=float(magnitude),
+        magnitude_source=source,
+        frame="accelerometer (rotated into it by the dip-angle constancy)",
+        quality={
+            "magnitude_residual_rms": float(np.sqrt(np.mean((mag_norm - magnitude) ** 2))),
+            "ellipsoid_condition": fit["condition"],
+            "ellipsoid_seed": fit["seed"],
+            "ipopt": {"ellipsoid": fit["ipopt"], "alignment": align["ipopt"]},
+        },
+    )
+
+
+def _accelerometer_calibration(fit: dict, a_rest, rest_tolerance, refits: int):
+    """The accelerometer's `SensorCalibration` from its fit on the samples at rest, whose
+    calibrated readings are `a_rest` [g]."""
+    acc_norm = np.linalg.norm(a_rest, axis=1)
+    return SensorCalibration(
+        sensor="accelerometer",
+        unit="g",
+        correction=fit["L"],
+        bias=fit["offset"],
+        magnitude=1.0,
+        magnitude_source=GRAVITY_SCALE,
+        frame="accelerometer, symmetric correction (orientation relative to the housing unknown)",
+        quality={
+            "magnitude_residual_rms": float(np.sqrt(np.mean((acc_norm - 1.0) ** 2))),
+            "rest_samples": len(a_rest),
+            "rest_tolerance_g": rest_tolerance,
+            "rest_refits": refits,
+            "ellipsoid_condition": fit["condition"],
+            "ellipsoid_seed": fit["seed"],
+            "ipopt": {"ellipsoid": fit["ipopt"]},
+        },
     )

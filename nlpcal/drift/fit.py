@@ -319,18 +319,7 @@ def fit_drift(
             f"all {n} temperatures equal {t_low:g} degC; the slope of Eq. 1 needs a "
             f"log over a range of temperatures"
         )
-    warnings = []
-    source = "argument"
-    if base_temperature is None:
-        base_temperature = float(np.mean(temperature))
-        source = "log mean"
-        warnings.append(
-            f"no base temperature given: k = 1 at the log's mean temperature "
-            f"{base_temperature:.3f} degC; pass the temperature of the system "
-            f"calibration (--base-temperature)"
-        )
-    elif not np.isfinite(base_temperature):
-        raise InputError(f"the base temperature must be a finite number, got {base_temperature}")
+    base_temperature, source, warnings = _base_temperature(base_temperature, temperature)
 
     modulus = np.linalg.norm(samples, axis=1)
     validation.reference_scale(reference, float(modulus.mean()), "the reference (proton) field")
@@ -385,6 +374,25 @@ def fit_drift(
     )
 
 
+def _base_temperature(base_temperature, temperature) -> tuple:
+    """The temperature t0 where k = 1 [degC], where it came from ("argument", or "log mean"
+    when none was given: the log's mean temperature, with a warning) and that warning in a
+    list."""
+    warnings = []
+    source = "argument"
+    if base_temperature is None:
+        base_temperature = float(np.mean(temperature))
+        source = "log mean"
+        warnings.append(
+            f"no base temperature given: k = 1 at the log's mean temperature "
+            f"{base_temperature:.3f} degC; pass the temperature of the system "
+            f"calibration (--base-temperature)"
+        )
+    elif not np.isfinite(base_temperature):
+        raise InputError(f"the base temperature must be a finite number, got {base_temperature}")
+    return base_temperature, source, warnings
+
+
 @dataclass(frozen=True)
 class DiurnalLine:
     """The line of Eq. 1 through a static log with its diurnal variation removed: a [nT/degC],
@@ -408,9 +416,10 @@ def diurnal_line(modulus, temperature, reference, diurnal: str = "fitted") -> Di
     "paper" (section 1 of [1]): |B_m,i| - (F_i - F_1) = a t_i + b. "fitted": |B_m,i| =
     a t_i + b + g (F_i - F_1), g estimated with a and b: the modulus of a sensor whose raw
     output is too large by a factor follows the field by that factor, which the paper's g = 1
-    leaves in the slope wherever the field drifts with the temperature. The standard errors come
-    from the residual variance with n - p degrees of freedom, widened for the lag-1
-    autocorrelation of the residuals (`nlpcal.inference`).
+    leaves in the slope wherever the field drifts with the temperature. The standard errors are
+    the sandwich of the scores r_i x_i, following their dependence on their neighbours
+    (`nlpcal.inference.least_squares_uncertainty`; s^2 (X^T X)^-1 with n - p degrees of
+    freedom when they show none).
     modulus : |B_m,i| [nT]; temperature : t_i [degC]; reference : F_i [nT].
     """
     modulus = np.asarray(modulus, dtype=float)
@@ -432,13 +441,9 @@ def diurnal_line(modulus, temperature, reference, diurnal: str = "fitted") -> Di
     b = float(coefficients[1] - a * t_mean)
     rss = float(residual @ residual)
     n, p = design.shape
-    # the line's Jacobian is the design (Gauss-Newton is exact here)
-    line = inference.estimate(
-        design.T @ design,
-        residual_variance=rss / max(n - p, 1),
-        dof=n - p,
-        autocorrelation=inference.lag1_autocorrelation(residual),
-    )
+    # the line's Jacobian is the design (Gauss-Newton is exact here); the scores follow the
+    # dependence of neighbouring samples (a drift log is a slow time series)
+    line = inference.least_squares_uncertainty(design, residual, n - p)[0]
     errors = line.standard_errors if line.standard_errors is not None else np.full(p, np.nan)
     gain = float(coefficients[2]) if fitted else (1.0 if diurnal == "paper" else None)
     gain_se = float(errors[2]) if fitted and np.isfinite(errors[2]) else None

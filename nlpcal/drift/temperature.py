@@ -407,19 +407,10 @@ def calibrate_temperature(
     model = validation.renamed(temperature_model, model, "temperature_model", "model") or "common"
     validation.choice(model, "temperature model", TEMPERATURE_MODELS)
     validation.choice(time_drift, "time drift", TIME_DRIFTS)
-    samples = validation.samples(samples)
+    samples, temperature, reference = _checked_series(
+        samples, temperature, reference, unit, reference_unit
+    )
     n = samples.shape[0]
-    temperature = validation.temperature(temperature, n)
-    if reference is None:
-        raise InputError(
-            "the temperature calibration needs a reference field per sample (a "
-            "proton magnetometer column)"
-        )
-    reference = validation.reference(reference, n)
-    units.check_compatible(unit, reference_unit or unit)
-    samples = units.to_base(samples, unit)
-    reference = np.broadcast_to(units.to_base(reference, reference_unit or unit), (n,)).copy()
-    validation.reference_scale(reference, validation.mean_magnitude(samples))
     nx = 9 + n_coefficients(model, time_drift)
     if n <= nx:
         raise InputError(f"got {n} samples, need more than {nx} for the {model} model")
@@ -428,31 +419,10 @@ def calibrate_temperature(
         if base_temperature is None
         else validation.number(base_temperature, "the base temperature")
     )
-    t_low, t_high = float(temperature.min()), float(temperature.max())
-    if t_high == t_low:
-        raise InputError(
-            f"all {n} temperatures equal {t_low:g} degC; the temperature "
-            f"coefficients need a log over a range of temperatures (calibrate "
-            f"without --temperature-column for a log at one temperature)"
-        )
+    t_low, t_high = _temperature_range(temperature)
     t_ref, days = _days(times, time_drift, temperature)
     dt = temperature - base_temperature
-    frame = sphere_frame(samples)
-    start = np.zeros(nx)
-    start[0:3] = frame.centre
-    start[3:6] = frame.radius / float(np.sqrt(np.mean(reference**2))) - 1.0
-    scale = np.concatenate(
-        [
-            variable_scale(frame.radius),
-            coefficient_scale(
-                model,
-                frame.radius,
-                float(np.max(np.abs(dt))),
-                time_drift,
-                float(np.max(np.abs(days))),
-            ),
-        ]
-    )
+    start, scale = _start_and_scale(model, time_drift, nx, samples, reference, dt, days)
     started = time.perf_counter()
     theta, sums, steps, iterations, status = minimise(
         model, start, scale, (samples, dt, reference, days), time_drift
@@ -461,49 +431,23 @@ def calibrate_temperature(
     params, fitted, drift = model_of(theta, model, float(base_temperature), time_drift, t_ref)
 
     names = PARAMETER_NAMES + coefficient_names(model, time_drift)
-    uncertainty = inference.estimate(
-        sums.a * n,
-        residual_variance=sums.c * n / (n - nx),
-        autocorrelation=inference.lag1_autocorrelation(sums.residuals),
-        dof=n - nx,
-    )
+    # the sandwich of the scores, following their dependence on their neighbours: one more
+    # pass sums them over blocks of consecutive samples (`nlpcal.inference.dependence_meat`)
+    count = -(-n // inference.block_rows(n))
+    blocks = (np.zeros((count, nx)), np.zeros((count, nx, nx)))
+    gauss_newton_pass(model, theta, scale, samples, dt, reference, days, time_drift, blocks)
+    independent = sums.c * n / (n - nx) * (sums.a * n)  # s^2 A
+    meat = inference.dependence_meat(*blocks, independent, n - nx)[0]
+    uncertainty = inference.estimate(sums.a * n, meat=meat, dof=n - nx)
     not_identifiable = [names[i] for i in uncertainty.weak]
-    errors = coefficient_errors = None
-    poor: list = []
-    if uncertainty.standard_errors is not None:
-        sd = uncertainty.standard_errors * scale
-        sd[6:9] = np.degrees(sd[6:9])
-        if model == "full":
-            sd[15:18] = np.degrees(sd[15:18])  # angle slopes [deg/degC]
-        errors = {name: float(v) for name, v in zip(PARAMETER_NAMES, sd[:9])}
-        coefficient_errors = {name: float(v) for name, v in zip(names[9:], sd[9:])}
-        poor = [
-            name
-            for name, v, size in zip(names[9:], sd[9:], scale[9:])
-            if v > POOR_TEMPERATURE_SE * (np.degrees(size) if "_deg_" in name else size)
-        ]
+    errors, coefficient_errors, poor = _standard_errors(uncertainty, scale, names, model)
     warnings = _warnings(t_high - t_low, not_identifiable, poor)
     time_gains = drift.gains(times) if time_drift != "none" else None
     label = f"system + temperature ({model})" + (
         f" + time drift ({time_drift})" if time_drift != "none" else ""
     )
-    rows = [
-        {**evaluation_row("measured", samples, reference), "iterations": 0, "wall_s": 0.0},
-        {
-            **evaluation_row("system (t0 only)", zhou_correct(samples, params), reference),
-            "iterations": 0,
-            "wall_s": 0.0,
-        },
-        {
-            **evaluation_row(
-                label,
-                liu2022.correct(samples, temperature, params, fitted, time_gains),
-                reference,
-            ),
-            "iterations": iterations,
-            "wall_s": wall,
-        },
-    ]
+    rows = _statistics_rows(label, samples, temperature, reference, params, fitted, time_gains)
+    rows[-1].update(iterations=iterations, wall_s=wall)  # the temperature solve's
     stage = f"joint-temperature-{model}" + (f"-time-{time_drift}" if time_drift != "none" else "")
     calibration = CalibrationResult(
         parameters=params.to_dict(),
@@ -511,19 +455,7 @@ def calibrate_temperature(
         method=f"joint-temperature-{model}",
         reference=Reference("series", field_mean=float(np.mean(reference))),
         gauge=None,
-        solver=SolverReport(
-            stages=[
-                BlockSolve(
-                    cycle=1,
-                    stage=stage,
-                    finished_by="ipopt",
-                    iterations=iterations,
-                    ipopt_status=status,
-                )
-            ],
-            ipopt_options=STEP_OPTIONS.settings(),
-            gauss_newton_steps=steps,
-        ),
+        solver=_solver_report(stage, iterations, status, steps),
         unit=units.base_unit(unit),
         unit_source="option",  # the caller's unit (nT by default); the reference fixes the scale
         standard_errors=errors,
@@ -585,6 +517,126 @@ def _days(times, time_drift: str, temperature: np.ndarray) -> tuple:
         )
     t_ref = 0.5 * float(times.min() + times.max())
     return t_ref, (times - t_ref) / DAY_S
+
+
+def _checked_series(samples, temperature, reference, unit: str, reference_unit) -> tuple:
+    """The samples and the reference series in the base unit and the temperatures [degC],
+    checked: one of each per sample, a reference given and of the samples' field."""
+    samples = validation.samples(samples)
+    n = samples.shape[0]
+    temperature = validation.temperature(temperature, n)
+    if reference is None:
+        raise InputError(
+            "the temperature calibration needs a reference field per sample (a "
+            "proton magnetometer column)"
+        )
+    reference = validation.reference(reference, n)
+    units.check_compatible(unit, reference_unit or unit)
+    samples = units.to_base(samples, unit)
+    reference = np.broadcast_to(units.to_base(reference, reference_unit or unit), (n,)).copy()
+    validation.reference_scale(reference, validation.mean_magnitude(samples))
+    return samples, temperature, reference
+
+
+def _standard_errors(uncertainty, scale, names, model: str) -> tuple:
+    """The standard errors of the nine parameters [nT, 1, deg] and of the coefficients (by
+    name, in their units) from the scaled `uncertainty`, and the coefficients poorly
+    determined (a standard error above POOR_TEMPERATURE_SE of their scale); None, None and []
+    without standard errors."""
+    errors = coefficient_errors = None
+    poor: list = []
+    if uncertainty.standard_errors is not None:
+        sd = uncertainty.standard_errors * scale
+        sd[6:9] = np.degrees(sd[6:9])
+        if model == "full":
+            sd[15:18] = np.degrees(sd[15:18])  # angle slopes [deg/degC]
+        errors = {name: float(v) for name, v in zip(PARAMETER_NAMES, sd[:9])}
+        coefficient_errors = {name: float(v) for name, v in zip(names[9:], sd[9:])}
+        poor = [
+            name
+            for name, v, size in zip(names[9:], sd[9:], scale[9:])
+            if v > POOR_TEMPERATURE_SE * (np.degrees(size) if "_deg_" in name else size)
+        ]
+    return errors, coefficient_errors, poor
+
+
+def _temperature_range(temperature) -> tuple:
+    """The lowest and highest temperature of the log [degC]; InputError when they are equal
+    (no temperature coefficient can be estimated)."""
+    n = len(temperature)
+    t_low, t_high = float(temperature.min()), float(temperature.max())
+    if t_high == t_low:
+        raise InputError(
+            f"all {n} temperatures equal {t_low:g} degC; the temperature "
+            f"coefficients need a log over a range of temperatures (calibrate "
+            f"without --temperature-column for a log at one temperature)"
+        )
+    return t_low, t_high
+
+
+def _start_and_scale(model: str, time_drift: str, nx: int, samples, reference, dt, days) -> tuple:
+    """IPOPT's start for the `nx` variables (offsets at the centre of the samples, the scale
+    errors from their radius and the reference, everything else zero) and the scale of every
+    variable (nine parameters, then the coefficients of `model` and `time_drift` from the
+    largest |t - t0| [degC] and |time - t_ref| [d])."""
+    frame = sphere_frame(samples)
+    start = np.zeros(nx)
+    start[0:3] = frame.centre
+    start[3:6] = frame.radius / float(np.sqrt(np.mean(reference**2))) - 1.0
+    scale = np.concatenate(
+        [
+            variable_scale(frame.radius),
+            coefficient_scale(
+                model,
+                frame.radius,
+                float(np.max(np.abs(dt))),
+                time_drift,
+                float(np.max(np.abs(days))),
+            ),
+        ]
+    )
+    return start, scale
+
+
+def _statistics_rows(label: str, samples, temperature, reference, params, fitted, gains) -> list:
+    """The Table 1 rows of the measured |B_M|, the nine parameters alone and the nine with the
+    temperature model (and the time drift's `gains`), that row named `label` (its iterations
+    and wall time for the caller to fill in). [base unit]"""
+    return [
+        {**evaluation_row("measured", samples, reference), "iterations": 0, "wall_s": 0.0},
+        {
+            **evaluation_row("system (t0 only)", zhou_correct(samples, params), reference),
+            "iterations": 0,
+            "wall_s": 0.0,
+        },
+        {
+            **evaluation_row(
+                label,
+                liu2022.correct(samples, temperature, params, fitted, gains),
+                reference,
+            ),
+            "iterations": 0,
+            "wall_s": 0.0,
+        },
+    ]
+
+
+def _solver_report(stage: str, iterations: int, status: str, steps: int) -> SolverReport:
+    """The joint temperature solve as one IPOPT block solve, with the Levenberg-Marquardt steps
+    that finished it."""
+    return SolverReport(
+        stages=[
+            BlockSolve(
+                cycle=1,
+                stage=stage,
+                finished_by="ipopt",
+                iterations=iterations,
+                ipopt_status=status,
+            )
+        ],
+        ipopt_options=STEP_OPTIONS.settings(),
+        gauss_newton_steps=steps,
+    )
 
 
 def _warnings(span: float, not_identifiable: list, poor: list) -> list:

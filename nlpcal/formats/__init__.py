@@ -81,12 +81,13 @@ def _check(fmt: str, unit, instance) -> None:
 
 def export(
     result,
-    fmt: str,
+    format: str | None = None,
     *,
     unit: str | None = None,
     instance: int | None = None,
     max_rotation_deg: float | None = None,
     drop_temperature: bool = False,
+    fmt: str | None = None,
 ) -> Export:
     """A calibration in one of `FORMATS` (matlab, matrix, ardupilot, px4, c-header), as text.
 
@@ -96,7 +97,7 @@ def export(
         The calibration. A temperature model goes where the format has a place for it (px4's
         TC_M* when they represent it exactly, the C header's function); elsewhere the parameters
         at t0 are written and a note says so.
-    fmt : str
+    format : str
         The format (`--format`).
     unit : str, optional
         The unit of the offsets and field in matlab, matrix and c-header (default: the unit of the
@@ -110,6 +111,8 @@ def export(
     drop_temperature : bool
         Write a temperature calibration to px4 without its temperature model when TC_M* cannot
         represent it (`--drop-temperature`; otherwise InputError).
+    fmt : str, optional
+        The former name of `format`, still accepted.
 
     Returns
     -------
@@ -133,6 +136,7 @@ def export(
     >>> '"model": "B1 = A (B_M - b)"' in exported.text
     True
     """
+    fmt = _chosen_format(format, fmt)
     _check(fmt, unit, instance)
     if max_rotation_deg is not None:
         max_rotation_deg = validation.number(
@@ -240,11 +244,13 @@ def scale_notes(result: CalibrationResult, target: str) -> list:
 
 def import_file(
     path,
-    fmt: str,
+    format: str | None = None,
     *,
     unit: str | None = None,
-    field: float | None = None,
+    reference_field: float | None = None,
     instance: int | None = None,
+    fmt: str | None = None,
+    field: float | None = None,
 ) -> tuple[CalibrationResult, list]:
     """A calibration from a file of one of `FORMATS`, and notes for the user.
 
@@ -252,17 +258,21 @@ def import_file(
     ----------
     path : str or os.PathLike
         The file to read.
-    fmt : str
+    format : str
         Its format (`--format`).
     unit : str, optional
         The unit of the file's offsets and field, for matlab, matrix and c-header when the file
         does not say (default nT).
-    field : float, optional
+    reference_field : float, optional
         The total field the correction should map to (`--reference-field`). A file that carries
-        its expected field (magcal's expmfs, the matrix "field") has A rescaled by field /
-        expected; otherwise it is recorded as the reference field. [the file's unit]
+        its expected field (magcal's expmfs, the matrix "field") has A rescaled by
+        reference_field / expected; otherwise it is recorded as the reference field. [the
+        file's unit]
     instance : int, optional
-        The compass instance (ardupilot 1-3, default 1) or slot (px4 0-3, default 0).
+        The compass instance (ardupilot 1-3, default 1) or slot (px4 0-3, default 0)
+        (`--instance`).
+    fmt, field : optional
+        The former names of `format` and `reference_field`, still accepted.
 
     Returns
     -------
@@ -287,6 +297,8 @@ def import_file(
     >>> abs(again.parameters["z_x"] - result.parameters["z_x"]) < 1e-9  # [nT]
     True
     """
+    fmt = _chosen_format(format, fmt)
+    field = validation.renamed(reference_field, field, "reference_field", "field")
     _check(fmt, unit, instance)
     if field is not None:
         field = validation.number(field, "--reference-field", positive=True)
@@ -302,34 +314,10 @@ def import_file(
     else:
         correction = module.read(text, str(path), unit=unit)
     correction.checked(str(path))
-    notes = []
-    if correction.unused:
-        notes.append(f"not used from {path}: {', '.join(correction.unused)}")
-    carried = [f"sensor_id {correction.sensor_id!r}"] if correction.sensor_id is not None else []
-    if correction.orientation is not None:
-        mounting = correction.orientation
-        label = f" ({mounting['name']})" if "name" in mounting else ""
-        carried.append(
-            f"orientation {mounting['parameter']} = {mounting['value']}{label} (recorded, not "
-            f"applied: the correction stays in the sensor's axes)"
-        )
-    if carried:
-        notes.append(f"carried into the result: {'; '.join(carried)}")
+    notes = _carried_notes(correction, path)
     scaled = None
     if field is not None:
-        validation.number(
-            units.to_base(field, correction.unit),
-            f"--reference-field in {units.base_unit(correction.unit)}",
-            maximum=FIELD_LIMIT,
-        )
-        if correction.field is not None:
-            correction, scaled = correction.rescaled(field)
-            notes.append(
-                f"A scaled by {scaled:.9g} so that the correction maps to {field:g} "
-                f"{correction.unit} instead of the file's expected field"
-            )
-        else:
-            correction.field = field
+        correction, scaled = _to_field(correction, field, notes)
     result = correction.to_result(
         log_unit=None if fmt in AUTOPILOTS else correction.unit,
         unit_source="format" if fmt in AUTOPILOTS else correction.source["unit_source"],
@@ -347,6 +335,54 @@ def import_file(
             f"rotation of {angle:.4g} deg (same magnitude |B1|)"
         )
     return result, notes
+
+
+def _chosen_format(format: str | None, former: str | None) -> str:
+    """The format given as `format=` or by its former name `fmt=`; InputError without one."""
+    chosen = validation.renamed(format, former, "format", "fmt")
+    if chosen is None:
+        raise InputError(f"no format given; pass format= one of {', '.join(FORMATS)}")
+    return chosen
+
+
+def _carried_notes(correction: AffineCorrection, path) -> list:
+    """The notes on what an imported file held beyond A and b: what was not used, and the
+    sensor_id and orientation carried into the result."""
+    notes = []
+    if correction.unused:
+        notes.append(f"not used from {path}: {', '.join(correction.unused)}")
+    carried = [f"sensor_id {correction.sensor_id!r}"] if correction.sensor_id is not None else []
+    if correction.orientation is not None:
+        mounting = correction.orientation
+        label = f" ({mounting['name']})" if "name" in mounting else ""
+        carried.append(
+            f"orientation {mounting['parameter']} = {mounting['value']}{label} (recorded, not "
+            f"applied: the correction stays in the sensor's axes)"
+        )
+    if carried:
+        notes.append(f"carried into the result: {'; '.join(carried)}")
+    return notes
+
+
+def _to_field(correction: AffineCorrection, field: float, notes: list) -> tuple:
+    """The correction mapping to the total `field` [the file's unit]: A rescaled when the file
+    carries its own expected field (with a note), else the field recorded as its reference.
+    Returns the correction and the factor A was scaled by (None when not)."""
+    validation.number(
+        units.to_base(field, correction.unit),
+        f"--reference-field in {units.base_unit(correction.unit)}",
+        maximum=FIELD_LIMIT,
+    )
+    scaled = None
+    if correction.field is not None:
+        correction, scaled = correction.rescaled(field)
+        notes.append(
+            f"A scaled by {scaled:.9g} so that the correction maps to {field:g} "
+            f"{correction.unit} instead of the file's expected field"
+        )
+    else:
+        correction.field = field
+    return correction, scaled
 
 
 __all__ = [

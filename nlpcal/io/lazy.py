@@ -275,18 +275,7 @@ def read_lazy_log(
     one_reference(reference_column, reference_field, reference_model)
     if reference_log is not None:
         raise InputError("--reference-log needs the log in memory; drop --scheduler")
-    if extra_columns or (
-        reference_model is not None
-        and (reference_model.numeric_columns() or reference_model.time_column)
-    ):
-        raise InputError(
-            "temperature columns and a reference from position or time columns need the log "
-            "in memory; drop --scheduler"
-        )
-    try:
-        import dask  # noqa: F401
-    except ImportError:
-        raise InputError("a log on a Dask cluster needs dask: pip install 'nlpcal[dask]'") from None
+    _require_lazy(extra_columns, reference_model)
     check_options(str(source), None, variable=variable, instance=instance)
     notes: list = []
     files = log_files(source, header, notes=notes)
@@ -295,16 +284,8 @@ def read_lazy_log(
     declared = declared_unit(chosen, notes)
     unit, how = sensor_unit(chosen, unit, fallback_unit, notes, declared=declared)
     wanted, factors = list(chosen), [units.field_factor(unit)] * 3
-    name = None
-    if reference_column is not None:
-        name = column_name(first.preview, reference_column)
-        if name in chosen:
-            raise InputError(
-                f"column {name!r} is one of the field columns ({', '.join(chosen)}); pass the "
-                f"reference column, or --columns X Y Z"
-            )
-        ref_unit = reference_unit(name, unit, notes)
-        units.check_compatible(unit, ref_unit, f"reference column {name!r}")
+    name, ref_unit = _reference_column(first, reference_column, chosen, unit, notes)
+    if name is not None:
         wanted.append(name)
         factors.append(units.field_factor(ref_unit))
     started = time.perf_counter()
@@ -352,3 +333,37 @@ def read_lazy_log(
         warnings=[check] if check else [],
         layout=first.layout,
     )
+
+
+def _require_lazy(extra_columns, reference_model) -> None:
+    """InputError unless a log can stay in its files: no temperature columns, no reference from
+    position or time columns, and dask installed."""
+    if extra_columns or (
+        reference_model is not None
+        and (reference_model.numeric_columns() or reference_model.time_column)
+    ):
+        raise InputError(
+            "temperature columns and a reference from position or time columns need the log "
+            "in memory; drop --scheduler"
+        )
+    try:
+        import dask  # noqa: F401
+    except ImportError:
+        raise InputError("a log on a Dask cluster needs dask: pip install 'nlpcal[dask]'") from None
+
+
+def _reference_column(first, reference_column, chosen: list, unit: str, notes: list) -> tuple:
+    """The name of the reference column in the log's first file and its unit (None, None
+    without one): InputError when it is a field column or its unit does not suit the
+    field's."""
+    if reference_column is None:
+        return None, None
+    name = column_name(first.preview, reference_column)
+    if name in chosen:
+        raise InputError(
+            f"column {name!r} is one of the field columns ({', '.join(chosen)}); pass the "
+            f"reference column, or --columns X Y Z"
+        )
+    ref_unit = reference_unit(name, unit, notes)
+    units.check_compatible(unit, ref_unit, f"reference column {name!r}")
+    return name, ref_unit

@@ -422,69 +422,31 @@ def read_log(
     roles += [(TIME_ROLE, own_time)] if own_time else []
     extra = list(dict.fromkeys(column for role, column in roles if role != TIME_ROLE))
     requested = list(extra)
-    if low_memory and (model_columns or time_column):
-        raise InputError(
-            "a reference from position or time columns, or a time column, needs the log in "
-            "memory; drop --low-memory"
-        )
-    if low_memory and not isinstance(path, Table) and is_recorded(path):
-        notes.append(f"{path} is read whole: --low-memory streams text and Parquet logs only")
-        low_memory = False
+    low_memory = _streamed(path, low_memory, bool(model_columns or time_column), notes)
+    reading = _Reading(
+        unit=unit,
+        fallback_unit=fallback_unit,
+        header=header,
+        text=text,
+        variable=variable,
+        instance=instance,
+        drop_invalid=drop_invalid,
+        progress=progress,
+    )
     if low_memory:
-        check_options(str(path), None, variable=variable, instance=instance)
-        decided: dict = {}
-
-        def scale(chosen) -> float:  # the unit, once the columns are known
-            decided["unit"], decided["how"] = sensor_unit(
-                chosen, unit, fallback_unit, notes, declared=format_unit(chosen, notes)
-            )
-            return units.field_factor(decided["unit"])
-
-        mapped = csv_to_memmap(
-            path,
-            columns,
-            extra,
-            header=header,
-            drop_invalid=drop_invalid,
-            scale=scale,
-            progress=progress,
-        )
+        mapped, unit, how = _read_mapped(path, columns, extra, reading, notes)
         chosen, extra = mapped.columns[:3], mapped.columns[3:]
         named = dict(zip(requested, extra))
         distinct_roles(chosen, [(role, named[column]) for role, column in roles])
-        unit, how = decided["unit"], decided["how"]
-        notes.extend(mapped.notes)
         values, frame, kept, dropped = mapped.values, None, None, mapped.dropped
         engine, layout, source = "c (chunked into a memory map)", mapped.layout, mapped.source
         samples = values[:, :3]
         observatory = None
     else:
-        table = (
-            path
-            if isinstance(path, Table)
-            else read_table(path, header=header, text=text, variable=variable, instance=instance)
-        )
-        notes.extend(table.notes)
-        chosen = resolve_columns(
-            table.frame,
-            columns or table.field_columns,
-            header=table.layout.header,
-            decimal=table.layout.decimal,
-            notes=notes,
-        )
-        distinct_roles(chosen, [(role, column_name(table.frame, c)) for role, c in roles])
-        extra = [column_name(table.frame, c) for c in extra]
-        checked, times_at = None, []
-        if time_column:  # times enter the row checks as Unix seconds
-            time_name = column_name(table.frame, time_column)
-            checked = table.frame.assign(**{time_name: _unix_seconds(table.frame[time_name])})
-            times_at = [time_name]
-        values, kept, dropped = screened(
-            table, chosen + extra + times_at, drop_invalid, notes, checked
+        table, chosen, extra, values, kept, dropped, unit, how = _read_whole(
+            path, columns, extra, roles, time_column, reading, notes
         )
         observatory = table.observatory
-        declared = format_unit(chosen, notes, table)
-        unit, how = sensor_unit(chosen, unit, fallback_unit, notes, declared=declared)
         frame, engine, layout, source = table.frame, table.engine, table.layout, table.source
         samples = values[:, :3] * units.field_factor(unit)
     if samples.shape[0]:
@@ -496,12 +458,7 @@ def read_log(
     reference, name, source_of_reference = None, None, None
     if reference_column is not None:
         name = extra[0]
-        ref_unit = reference_unit(name, unit, notes)
-        units.check_compatible(unit, ref_unit, f"reference column {name!r}")
-        reference = units.to_base(
-            validation.reference(extras[name], len(extras[name]), f"the reference column {name!r}"),
-            ref_unit,
-        )
+        reference = _column_reference(name, extras[name], unit, notes)
     elif reference_model is not None:
         found = {c: extras[resolved[c]] for c in model_columns}
         times = None
@@ -531,6 +488,112 @@ def read_log(
         times=np.asarray(values[:, -1], dtype=float) if time_column else None,
     )
     return read if reference_log is None else with_reference_log(read, reference_log)
+
+
+@dataclass(frozen=True)
+class _Reading:
+    """How `read_log` reads a log's columns (its arguments of the same names)."""
+
+    unit: str | None
+    fallback_unit: str
+    header: bool | None
+    text: bool
+    variable: str | None
+    instance: int | None
+    drop_invalid: bool
+    progress: object = None
+
+
+def _streamed(path, low_memory: bool, needs_whole: bool, notes: list) -> bool:
+    """Whether the log is streamed into a memory map (`low_memory`): InputError when a
+    reference from position or time columns, or a time column, needs it whole (`needs_whole`);
+    a recorded format is read whole, with a note."""
+    if low_memory and needs_whole:
+        raise InputError(
+            "a reference from position or time columns, or a time column, needs the log in "
+            "memory; drop --low-memory"
+        )
+    if low_memory and not isinstance(path, Table) and is_recorded(path):
+        notes.append(f"{path} is read whole: --low-memory streams text and Parquet logs only")
+        low_memory = False
+    return low_memory
+
+
+def _read_whole(path, columns, extra, roles, time_column, reading: _Reading, notes: list) -> tuple:
+    """A log read into memory (`read_table`, or the `Table` given as `path`): the table, the
+    field columns chosen, the `extra` columns' own names, the screened values of both (times
+    as Unix seconds last), the rows kept and dropped, and the unit of the field columns with
+    how it was decided."""
+    table = (
+        path
+        if isinstance(path, Table)
+        else read_table(
+            path,
+            header=reading.header,
+            text=reading.text,
+            variable=reading.variable,
+            instance=reading.instance,
+        )
+    )
+    notes.extend(table.notes)
+    chosen = resolve_columns(
+        table.frame,
+        columns or table.field_columns,
+        header=table.layout.header,
+        decimal=table.layout.decimal,
+        notes=notes,
+    )
+    distinct_roles(chosen, [(role, column_name(table.frame, c)) for role, c in roles])
+    extra = [column_name(table.frame, c) for c in extra]
+    checked, times_at = None, []
+    if time_column:  # times enter the row checks as Unix seconds
+        time_name = column_name(table.frame, time_column)
+        checked = table.frame.assign(**{time_name: _unix_seconds(table.frame[time_name])})
+        times_at = [time_name]
+    values, kept, dropped = screened(
+        table, chosen + extra + times_at, reading.drop_invalid, notes, checked
+    )
+    declared = format_unit(chosen, notes, table)
+    unit, how = sensor_unit(chosen, reading.unit, reading.fallback_unit, notes, declared=declared)
+    return table, chosen, extra, values, kept, dropped, unit, how
+
+
+def _read_mapped(path, columns, extra, reading: _Reading, notes: list) -> tuple:
+    """The field and `extra` columns of a text or Parquet log streamed into a memory map
+    (`csv_to_memmap`), the field in the base unit: the unit is decided (`sensor_unit`) once the
+    columns are known. Returns the `MappedColumns`, the unit and how it was decided; their
+    notes are added to `notes`."""
+    check_options(str(path), None, variable=reading.variable, instance=reading.instance)
+    decided: dict = {}
+
+    def scale(chosen) -> float:  # the unit, once the columns are known
+        decided["unit"], decided["how"] = sensor_unit(
+            chosen, reading.unit, reading.fallback_unit, notes, declared=format_unit(chosen, notes)
+        )
+        return units.field_factor(decided["unit"])
+
+    mapped = csv_to_memmap(
+        path,
+        columns,
+        extra,
+        header=reading.header,
+        drop_invalid=reading.drop_invalid,
+        scale=scale,
+        progress=reading.progress,
+    )
+    notes.extend(mapped.notes)
+    return mapped, decided["unit"], decided["how"]
+
+
+def _column_reference(name: str, values, unit: str, notes: list):
+    """The reference magnitudes of column `name` in the base unit of a log in `unit`: its own
+    unit from its name (`reference_unit`), which must be compatible. [nT or raw]"""
+    ref_unit = reference_unit(name, unit, notes)
+    units.check_compatible(unit, ref_unit, f"reference column {name!r}")
+    return units.to_base(
+        validation.reference(values, len(values), f"the reference column {name!r}"),
+        ref_unit,
+    )
 
 
 def _unix_seconds(column) -> np.ndarray:

@@ -92,19 +92,7 @@ def read_sensor_log(
     """
     table = path if isinstance(path, Table) else read_table(path, header=header, text=text)
     frame = table.frame
-    if not table.layout.header and not (mag_columns and acc_columns):
-        raise InputError(
-            f"{table.source} has no header row; pass --mag-columns and --acc-columns with "
-            f"0-based positions, for example --mag-columns 3 4 5 --acc-columns 0 1 2"
-        )
-    mag_cols = resolve_columns(frame, mag_columns or table.field_columns, what="magnetometer")
-    acc_cols = resolve_columns(frame, acc_columns, what="accelerometer")
-    if set(mag_cols) & set(acc_cols):
-        raise InputError(
-            f"the magnetometer columns ({', '.join(mag_cols)}) and accelerometer "
-            f"columns ({', '.join(acc_cols)}) overlap; pass --mag-columns and "
-            f"--acc-columns"
-        )
+    mag_cols, acc_cols = _sensor_columns(table, mag_columns, acc_columns)
     notes: list = list(table.notes)
     fixed = table.field_unit if table.field_columns in (None, mag_cols) else None
     mag_unit, mag_how = sensor_unit(
@@ -152,3 +140,23 @@ def read_sensor_log(
         layout=table.layout,
         reference_field=reference,
     )
+
+
+def _sensor_columns(table: Table, mag_columns, acc_columns) -> tuple:
+    """The magnetometer's and the accelerometer's three columns (names) of `table`: given, or
+    the table's field columns for the magnetometer; InputError without a header row unless
+    both are given by position, or when they overlap."""
+    if not table.layout.header and not (mag_columns and acc_columns):
+        raise InputError(
+            f"{table.source} has no header row; pass --mag-columns and --acc-columns with "
+            f"0-based positions, for example --mag-columns 3 4 5 --acc-columns 0 1 2"
+        )
+    mag_cols = resolve_columns(table.frame, mag_columns or table.field_columns, what="magnetometer")
+    acc_cols = resolve_columns(table.frame, acc_columns, what="accelerometer")
+    if set(mag_cols) & set(acc_cols):
+        raise InputError(
+            f"the magnetometer columns ({', '.join(mag_cols)}) and accelerometer "
+            f"columns ({', '.join(acc_cols)}) overlap; pass --mag-columns and "
+            f"--acc-columns"
+        )
+    return mag_cols, acc_cols

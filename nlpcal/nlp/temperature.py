@@ -36,6 +36,7 @@ import casadi as ca
 import numpy as np
 
 from ..errors import SolveError
+from ..inference import block_rows
 from ..models.liu2022 import TEMPERATURE_MODELS
 from ..models.time_drift import TIME_DRIFTS
 from ..models.zhou2010 import correction_matrix_entries, triangular
@@ -156,17 +157,21 @@ def _padded(values: np.ndarray, start: int, stop: int) -> np.ndarray:
 
 
 def gauss_newton_pass(
-    kind: str, theta, scale, samples, dt, reference, days=None, time_drift="none"
+    kind: str, theta, scale, samples, dt, reference, days=None, time_drift="none", blocks=None
 ) -> Sums:
     """One chunked pass over the data with the built residual function (fixed chunk width).
 
     days : the samples' times from the log's middle [d] (a time drift; None: zero).
+    blocks : None, or a pair of zero arrays (K, nx) and (K, nx, nx) into which the pass adds
+    the scores r_i Js_i and the information shares Js_i Js_i^T of blocks of
+    `inference.block_rows(N)` consecutive samples (for `inference.dependence_meat`).
     """
     function = residual_function(kind, time_drift)
     n, nx = samples.shape[0], theta.size
     days = np.zeros(n) if days is None else days
     a, b = np.zeros((nx, nx)), np.zeros(nx)
     residuals = np.empty(n)
+    rows_per_block = block_rows(n)
     for start in range(0, n, CHUNK):
         stop = min(start + CHUNK, n)
         rows = stop - start
@@ -185,6 +190,10 @@ def gauss_newton_pass(
         residuals[start:stop] = r
         a += js.T @ js
         b += js.T @ r
+        if blocks is not None:
+            index = np.arange(start, stop) // rows_per_block
+            np.add.at(blocks[0], index, js * r[:, None])
+            np.add.at(blocks[1], index, js[:, :, None] * js[:, None, :])
     return Sums(a / n, b / n, float(residuals @ residuals) / n, residuals)
 
 

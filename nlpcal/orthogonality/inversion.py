@@ -258,44 +258,16 @@ def invert(
     >>> [bool(abs(a - t) < 0.01) for a, t in zip(inversion.angles_deg, (0.07, 0.04, 0.1))]
     [True, True, True]
     """
-    samples = validation.samples(
-        samples, minimum=MIN_INVERSION_SAMPLES, purpose="attitudes to invert three angles"
-    )
-    bounds = validation.bounds(bound_deg)
-    start = validation.angles(start_deg, what="start angles")
-    if (np.abs(start) > bounds).any():
-        raise InputError(
-            f"the start {validation.fmt_list(start)} deg lies outside the bounds "
-            f"+-{validation.fmt_list(bounds)} deg"
-        )
+    samples, bounds, start = _checked_samples(samples, bound_deg, start_deg)
     field_nT = validation.renamed(reference_field, field_nT, "reference_field", "field_nT")
     reference = None if field_nT is None else validation.field(field_nT, what="reference field")
-    magnitude = np.linalg.norm(samples, axis=1)
-    nominal = float(np.mean(magnitude))
-    if (magnitude <= 1e-9 * nominal).any():
-        bad = int((magnitude <= 1e-9 * nominal).sum())
-        raise InputError(f"{bad} sample(s) have zero magnitude; drop those rows")
+    nominal = _nominal_magnitude(samples)
     n = samples.shape[0]
     validation.reference_scale(reference, nominal, "the reference field")
     moments = accumulate(samples, reference)
-    kind = moments.reference
     before = field_statistics(samples, None, reference)
-    scale = moments.length**2 / max(before["objective"], 1e-16 * moments.length**2)
-    p = np.concatenate([moment_parameters(moments), [scale]])
-    outcome = solve(inversion_solver(kind, bool(verbose)), x0=start, p=p, lbx=-bounds, ubx=bounds)
     where = f"{source}: " if source else ""
-    if not outcome.success:  # say so when the attitudes are the cause
-        weak = _uncertainty(moments, start, before, spread=reference is None).weak
-        if weak:
-            raise QualityError(
-                f"{where}the attitudes do not determine "
-                f"{', '.join(ANGLE_NAMES[i] for i in weak)}; rotate the probe through "
-                f"directions spread over the whole sphere",
-                "Not_Identifiable",
-            )
-        raise SolveError(
-            f"{where}IPOPT did not converge on the angles", status=outcome.status, result=outcome
-        )
+    outcome = _solve_angles(moments, before, start, bounds, bool(verbose), where)
     angles = np.clip(outcome.x, -bounds, bounds)
     theta = np.concatenate([np.zeros(6), np.radians(angles)])
     after = field_statistics(samples, theta, reference)
@@ -311,10 +283,7 @@ def invert(
     uncertainty = _uncertainty(moments, angles, after, spread=reference is None)
     weak = [ANGLE_NAMES[i] for i in uncertainty.weak]
     if weak:
-        warnings.append(
-            f"{where}the attitudes do not determine {', '.join(weak)}; rotate the "
-            f"probe through directions spread over the whole sphere"
-        )
+        warnings.append(f"{where}{_undetermined(weak)}")
     unexplained = None  # with an angle on its bound the bound is the first cause, said above
     if not any(active):
         unexplained = _unexplained(samples, moments, reference, math.sqrt(after["objective"]))
@@ -340,12 +309,7 @@ def invert(
         not_identifiable=weak,
     )
     if weak and require_identifiable:
-        raise QualityError(
-            f"{where}the attitudes do not determine {', '.join(weak)}; rotate the "
-            f"probe through directions spread over the whole sphere",
-            "Not_Identifiable",
-            result=result,
-        )
+        raise QualityError(f"{where}{_undetermined(weak)}", "Not_Identifiable", result=result)
     if unexplained and require_explained:
         raise QualityError(
             f"{where}{unexplained}",
@@ -354,6 +318,59 @@ def invert(
             overrides={"require_explained": False},
         )
     return result
+
+
+def _checked_samples(samples, bound_deg, start_deg) -> tuple:
+    """The samples [nT], bounds [deg] and start [deg] of an inversion, checked: enough samples,
+    the start within the bounds (InputError otherwise)."""
+    samples = validation.samples(
+        samples, minimum=MIN_INVERSION_SAMPLES, purpose="attitudes to invert three angles"
+    )
+    bounds = validation.bounds(bound_deg)
+    start = validation.angles(start_deg, what="start angles")
+    if (np.abs(start) > bounds).any():
+        raise InputError(
+            f"the start {validation.fmt_list(start)} deg lies outside the bounds "
+            f"+-{validation.fmt_list(bounds)} deg"
+        )
+    return samples, bounds, start
+
+
+def _nominal_magnitude(samples) -> float:
+    """The mean |B'| of the samples [nT]; InputError when any has zero magnitude."""
+    magnitude = np.linalg.norm(samples, axis=1)
+    nominal = float(np.mean(magnitude))
+    if (magnitude <= 1e-9 * nominal).any():
+        bad = int((magnitude <= 1e-9 * nominal).sum())
+        raise InputError(f"{bad} sample(s) have zero magnitude; drop those rows")
+    return nominal
+
+
+def _solve_angles(moments, before: dict, start, bounds, verbose: bool, where: str):
+    """IPOPT's solution for the three angles [deg] within the bounds, the objective scaled by
+    its value before; a failed solve is QualityError when the attitudes are the cause, else
+    SolveError."""
+    scale = moments.length**2 / max(before["objective"], 1e-16 * moments.length**2)
+    p = np.concatenate([moment_parameters(moments), [scale]])
+    solver = inversion_solver(moments.reference, verbose)
+    outcome = solve(solver, x0=start, p=p, lbx=-bounds, ubx=bounds)
+    if not outcome.success:  # say so when the attitudes are the cause
+        weak = _uncertainty(moments, start, before, spread=moments.reference == "none").weak
+        if weak:
+            names = [ANGLE_NAMES[i] for i in weak]
+            raise QualityError(f"{where}{_undetermined(names)}", "Not_Identifiable")
+        raise SolveError(
+            f"{where}IPOPT did not converge on the angles", status=outcome.status, result=outcome
+        )
+    return outcome
+
+
+def _undetermined(names: list) -> str:
+    """The sentence for angles the attitudes leave undetermined."""
+    return (
+        f"the attitudes do not determine {', '.join(names)}; rotate the probe through "
+        f"directions spread over the whole sphere"
+    )
 
 
 def _unexplained(samples, moments, reference, rms_angles: float) -> str | None:

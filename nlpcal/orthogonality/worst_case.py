@@ -230,40 +230,7 @@ def worst_case(
         (1.0, sigma_max - 1.0, eigenvectors[:, -1]),
         (-1.0, sigma_min - 1.0, eigenvectors[:, 0]),
     ):
-        starts = _start_directions(vector)
-        best: SolveOutcome | None = None
-        statuses = set()
-        for theta0, phi0 in starts:
-            outcome = solve(
-                solver,
-                x0=[theta0, phi0],
-                p=[*np.radians(angles), sign, kappa],
-                lbx=[-np.inf, -math.pi / 2],
-                ubx=[np.inf, math.pi / 2],
-            )
-            statuses.add(outcome.status)
-            if outcome.success and (best is None or outcome.f < best.f):
-                best = outcome
-        what = "largest positive" if sign > 0 else "most negative"
-        if best is None:
-            raise SolveError(
-                f"no IPOPT start converged for the {what} total-field error",
-                status=", ".join(sorted(statuses)),
-            )
-        relative = -sign * best.f * kappa  # back to dB / B
-        if abs(relative - exact) > 1e-9 * kappa + 1e-13:
-            raise SolveError(
-                f"the {what} total-field error found by IPOPT ({b * relative:.6g} nT) misses the "
-                f"analytic value ({b * exact:.6g} nT)",
-                status=best.status,
-            )
-        theta_deg = math.degrees(best.x[0]) % 360.0
-        phi_deg = float(np.clip(math.degrees(best.x[1]), -90.0, 90.0))
-        if phi_deg < 0.0:  # dB is even in B: of the two antipodes, report the one with phi >= 0
-            theta_deg, phi_deg = (theta_deg + 180.0) % 360.0, -phi_deg
-        if theta_deg >= 360.0:
-            theta_deg = 0.0
-        extremes[sign] = Extremum(b * relative, theta_deg, phi_deg, best.status, best.iterations)
+        extremes[sign] = _extremum(solver, angles, b, sign, exact, vector, kappa)
     return WorstCase(
         angles_deg=tuple(float(a) for a in angles),
         field_nT=b,
@@ -272,8 +239,48 @@ def worst_case(
         exact_min_nT=b * (sigma_min - 1.0),
         exact_max_nT=b * (sigma_max - 1.0),
         small_angle_nT=small_angle_worst_case(angles, b),
-        starts=len(starts),
+        starts=len(_FIXED_STARTS_DEG) + 2,  # per extremum: the fixed ones, +-its eigenvector
     )
+
+
+def _extremum(solver, angles, b: float, sign: float, exact: float, vector, kappa: float):
+    """The extremum of dB of one sign (+1 largest positive, -1 most negative) [nT], the best of
+    IPOPT's starts about the singular vector `vector`, checked against its analytic value
+    `exact` (dB / B); its direction in degrees with phi >= 0 (dB is even in B)."""
+    starts = _start_directions(vector)
+    best: SolveOutcome | None = None
+    statuses = set()
+    for theta0, phi0 in starts:
+        outcome = solve(
+            solver,
+            x0=[theta0, phi0],
+            p=[*np.radians(angles), sign, kappa],
+            lbx=[-np.inf, -math.pi / 2],
+            ubx=[np.inf, math.pi / 2],
+        )
+        statuses.add(outcome.status)
+        if outcome.success and (best is None or outcome.f < best.f):
+            best = outcome
+    what = "largest positive" if sign > 0 else "most negative"
+    if best is None:
+        raise SolveError(
+            f"no IPOPT start converged for the {what} total-field error",
+            status=", ".join(sorted(statuses)),
+        )
+    relative = -sign * best.f * kappa  # back to dB / B
+    if abs(relative - exact) > 1e-9 * kappa + 1e-13:
+        raise SolveError(
+            f"the {what} total-field error found by IPOPT ({b * relative:.6g} nT) misses the "
+            f"analytic value ({b * exact:.6g} nT)",
+            status=best.status,
+        )
+    theta_deg = math.degrees(best.x[0]) % 360.0
+    phi_deg = float(np.clip(math.degrees(best.x[1]), -90.0, 90.0))
+    if phi_deg < 0.0:  # dB is even in B: of the two antipodes, report the one with phi >= 0
+        theta_deg, phi_deg = (theta_deg + 180.0) % 360.0, -phi_deg
+    if theta_deg >= 360.0:
+        theta_deg = 0.0
+    return Extremum(b * relative, theta_deg, phi_deg, best.status, best.iterations)
 
 
 def implied_worst_case(deviation_deg, field_nT) -> float:

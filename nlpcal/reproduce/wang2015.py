@@ -50,7 +50,33 @@ SPREAD_CAUSE = (
 
 def reproduce() -> Reproduction:
     worst = ortho.worst_case(model.PAPER_WORST_ANGLES_DEG, FIELD)
-    values = [
+    values = _worst_case_values(worst) + _synthetic_values() + _probe_values()
+
+    def figure() -> bytes:
+        angles = model.PAPER_WORST_ANGLES_DEG
+        theta, phi, error = ortho.error_map(angles, FIELD, step_deg=1.0)
+        return orthogonality_map_png(angles, FIELD, theta, phi, error, worst, dpi=80)
+
+    return Reproduction(
+        paper="wang2015",
+        reference=REFERENCE,
+        replica=f"synthetic rotations at {FIELD:g} nT: {SYNTHETIC_N} noiseless directions "
+        f"(seed {SYNTHETIC_SEED}); {RUNS} runs of {RUN_N} directions with {RUN_NOISE_NT:g} nT "
+        f"noise for the probe (seeds {RUN_SEED}-{RUN_SEED + RUNS - 1})",
+        values=values,
+        figure=figure,
+        notes=[
+            "angles in the convention of Zhou et al. (2010); the paper's gamma is 90 deg minus "
+            "an angle between probe axes, the same small angle",
+            "probe means: standard error from the spread of the runs",
+        ],
+    )
+
+
+def _worst_case_values(worst) -> list:
+    """The worst-case |dB|: at the paper's angles, and implied by its 0.004 deg
+    repeatability. [nT]"""
+    return [
         Value(
             "worst-case |dB| for angles (0.1, 0.1, 0.1) deg at 55 000 nT",
             "nT",
@@ -67,9 +93,14 @@ def reproduce() -> Reproduction:
             ortho.implied_worst_case(model.PAPER_DEVIATION_DEG, FIELD),
         ),
     ]
+
+
+def _synthetic_values() -> list:
+    """The three angles inverted from noiseless synthetic rotations. [deg]"""
     truth = model.PAPER_SYNTHETIC_ANGLES_DEG
     data = ortho.synthetic_rotation(truth, FIELD, n=SYNTHETIC_N, seed=SYNTHETIC_SEED)
     inversion = ortho.invert(data, bound_deg=0.5, start_deg=(0.0, 0.0, 0.0))
+    values = []
     for k, (name, paper) in enumerate(zip(ortho.ANGLE_NAMES, truth)):
         values.append(
             Value(
@@ -81,6 +112,12 @@ def reproduce() -> Reproduction:
                 standard_error=_std(inversion.angles_std_deg, k),
             )
         )
+    return values
+
+
+def _probe_values() -> list:
+    """The probe's angles, the mean of repeated noisy runs, and their largest deviation from
+    that mean. [deg]"""
     probe = [model.PAPER_PROBE_ANGLES_DEG.get(name, 0.0) for name in ortho.ANGLE_NAMES]
     runs = [
         ortho.invert(
@@ -89,6 +126,7 @@ def reproduce() -> Reproduction:
         for seed in range(RUN_SEED, RUN_SEED + RUNS)
     ]
     report = ortho.repeatability(runs, field_nT=FIELD)
+    values = []
     for name, paper in model.PAPER_PROBE_ANGLES_DEG.items():
         k = ortho.ANGLE_NAMES.index(name)
         spread = np.std([run.angles_deg[k] for run in runs], ddof=1)
@@ -114,25 +152,7 @@ def reproduce() -> Reproduction:
         )
     )
 
-    def figure() -> bytes:
-        angles = model.PAPER_WORST_ANGLES_DEG
-        theta, phi, error = ortho.error_map(angles, FIELD, step_deg=1.0)
-        return orthogonality_map_png(angles, FIELD, theta, phi, error, worst, dpi=80)
-
-    return Reproduction(
-        paper="wang2015",
-        reference=REFERENCE,
-        replica=f"synthetic rotations at {FIELD:g} nT: {SYNTHETIC_N} noiseless directions "
-        f"(seed {SYNTHETIC_SEED}); {RUNS} runs of {RUN_N} directions with {RUN_NOISE_NT:g} nT "
-        f"noise for the probe (seeds {RUN_SEED}-{RUN_SEED + RUNS - 1})",
-        values=values,
-        figure=figure,
-        notes=[
-            "angles in the convention of Zhou et al. (2010); the paper's gamma is 90 deg minus "
-            "an angle between probe axes, the same small angle",
-            "probe means: standard error from the spread of the runs",
-        ],
-    )
+    return values
 
 
 def _std(std_deg, k: int) -> float | None:

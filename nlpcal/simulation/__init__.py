@@ -155,23 +155,30 @@ def simulate(
     validation.choice(attitudes, "attitude set", [*ATTITUDES, *ATTITUDE_ALIASES])
     attitudes = ATTITUDE_ALIASES.get(attitudes, attitudes)
     rng = np.random.default_rng(seed)
-    options = {}
-    if max_tilt_deg is not None:
-        if attitudes != TILTED:
-            raise InputError(
-                f"the largest tilt (--max-tilt-deg) applies to --attitudes tilt, not {attitudes}"
-            )
-        options["max_tilt_deg"] = validation.number(
+    rotations = ATTITUDES[attitudes](n, rng, **_attitude_options(attitudes, max_tilt_deg))
+    true_field = rotations @ world_field(field, inclination_deg)  # A B, ideal sensor frame
+    output = forward(true_field, parameters) + noise * rng.normal(size=(n, 3))
+    return pd.DataFrame(output, columns=["bx", "by", "bz"])
+
+
+def _attitude_options(attitudes: str, max_tilt_deg) -> dict:
+    """The keyword arguments of the attitude set: the largest tilt [deg] of the tilt set when
+    given (InputError for another set)."""
+    if max_tilt_deg is None:
+        return {}
+    if attitudes != TILTED:
+        raise InputError(
+            f"the largest tilt (--max-tilt-deg) applies to --attitudes tilt, not {attitudes}"
+        )
+    return {
+        "max_tilt_deg": validation.number(
             max_tilt_deg,
             "the largest tilt (--max-tilt-deg)",
             positive=True,
             maximum=MAX_TILT_LIMIT_DEG,
             unit="deg",
         )
-    rotations = ATTITUDES[attitudes](n, rng, **options)
-    true_field = rotations @ world_field(field, inclination_deg)  # A B, ideal sensor frame
-    output = forward(true_field, parameters) + noise * rng.normal(size=(n, 3))
-    return pd.DataFrame(output, columns=["bx", "by", "bz"])
+    }
 
 
 def write_directory_preset(name: str, out_dir, *, seed: int = 0, noise=None, n=None) -> list:

@@ -7,6 +7,7 @@ References
 
 from __future__ import annotations
 
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -109,66 +110,21 @@ def replica(*, seed: int = 0, noise: float | None = None, n: int | None = None) 
     rng = np.random.default_rng(seed)
     a, b = liu2022.PAPER_A_NT_PER_DEGC, liu2022.PAPER_B_NT
     t0 = liu2022.PAPER_BASE_TEMPERATURE_DEGC
-    params = REPLICA_PARAMETERS
     model = TemperatureModel.from_drift(a, b, t0)
-    f0, u_static = replica_field(params, a, b, t0)
+    f0, u_static = replica_field(REPLICA_PARAMETERS, a, b, t0)
     inc = np.radians(REPLICA_INCLINATION_DEG)
     world = np.array([np.cos(inc), 0.0, np.sin(inc)])  # north-east-down unit vector
-
-    def log(directions, temperature, proton_true, period_s):
-        count = directions.shape[0]
-        field = directions * proton_true[:, None]  # the fluxgate sees the same field
-        raw = liu2022.forward(field, temperature, params, model)  # Eq. 2
-        raw = raw + noise * rng.normal(size=raw.shape)
-        proton = proton_true + REPLICA_PROTON_NOISE_NT * rng.normal(size=count)
-        return pd.DataFrame(
-            {
-                "time_s": np.arange(count) * period_s,
-                "bx": raw[:, 0],
-                "by": raw[:, 1],
-                "bz": raw[:, 2],
-                "temp_c": np.round(temperature, 3),
-                "proton_nT": proton,
-            }
-        )
-
-    # base calibration log at t0
-    rot = random_rotations(attitudes, rng)
-    t_base = t0 + 0.02 * rng.normal(size=attitudes)
-    f_base = f0 + _smooth_noise(attitudes, rng, 50, 3.0)
-    base = log(rot @ world, t_base, f_base, 2.0)
-
-    # static drift log: temperature ramp 6.8 -> 5.1 degC, diurnal trend and disturbances
-    count = REPLICA_DRIFT_SAMPLES
-    hi, lo = liu2022.PAPER_DRIFT_RANGE_DEGC[1], liu2022.PAPER_DRIFT_RANGE_DEGC[0]
-    t_drift = np.linspace(hi, lo, count) + 0.01 * rng.normal(size=count)
-    trend = 4.0 * np.sin(np.linspace(0.0, 0.5 * np.pi, count))
-    f_drift = f0 + trend + _smooth_noise(count, rng, 15, 10.0)
-    drift = log(np.tile(u_static, (count, 1)), t_drift, f_drift, 2.0)
-
-    # field log at 12.8 degC: 80 attitudes, 200 points, the reference varying by about 100 nT
-    count = REPLICA_FIELD_SAMPLES
-    which = np.sort(np.arange(count) * REPLICA_FIELD_ATTITUDES // count)
-    rot = random_rotations(REPLICA_FIELD_ATTITUDES, rng)[which]
-    t_field = liu2022.PAPER_FIELD_TEMPERATURE_DEGC + 0.02 * rng.normal(size=count)
-    f_field = (
-        f0
-        + 40.0 * np.sin(np.linspace(0.0, 2.5 * np.pi, count))
-        + _smooth_noise(count, rng, 5, 10.0)
-    )
-    field_log = log(rot @ world, t_field, f_field, 2.0)
-
-    # temperature sweep with many attitudes (beyond the paper)
-    rot = random_rotations(attitudes, rng)
-    t_sweep = np.linspace(*REPLICA_SWEEP_RANGE_DEGC, attitudes) + 0.02 * rng.normal(size=attitudes)
-    f_sweep = f0 + _smooth_noise(attitudes, rng, 50, 8.0)
-    sweep = log(rot @ world, t_sweep, f_sweep, 2.0)
-
-    logs = {"base.csv": base, "drift.csv": drift, "field.csv": field_log, "sweep.csv": sweep}
+    log = partial(_log, model=model, noise=noise, rng=rng)
+    logs = {  # in this order: each draws from rng in turn
+        "base.csv": _base_log(log, rng, world, attitudes, t0, f0),
+        "drift.csv": _drift_log(log, rng, u_static, f0),
+        "field.csv": _field_log(log, rng, world, f0),
+        "sweep.csv": _sweep_log(log, rng, world, attitudes, f0),
+    }
     truth = {
         "description": "replica of Liu et al. (2022): nine parameters at t0 (Eq. 4 of Zhou et al."
         " 2010) and the temperature factor k(t) of Eq. 9",
-        "parameters": params.to_dict(),
+        "parameters": REPLICA_PARAMETERS.to_dict(),
         "a_nT_per_degC": a,
         "b_nT": b,
         "base_temperature_degC": t0,
@@ -188,6 +144,70 @@ def replica(*, seed: int = 0, noise: float | None = None, n: int | None = None) 
         },
     }
     return logs, truth
+
+
+def _log(directions, temperature, proton_true, period_s, *, model, noise, rng) -> pd.DataFrame:
+    """One replica log: the fluxgate's reading of the field `proton_true` [nT] along the unit
+    `directions` at `temperature` [degC] (Eq. 2 of [1]) with `noise` [nT], and the proton
+    magnetometer's reading of the same field, a sample every `period_s` [s]."""
+    count = directions.shape[0]
+    field = directions * proton_true[:, None]  # the fluxgate sees the same field
+    raw = liu2022.forward(field, temperature, REPLICA_PARAMETERS, model)  # Eq. 2
+    raw = raw + noise * rng.normal(size=raw.shape)
+    proton = proton_true + REPLICA_PROTON_NOISE_NT * rng.normal(size=count)
+    return pd.DataFrame(
+        {
+            "time_s": np.arange(count) * period_s,
+            "bx": raw[:, 0],
+            "by": raw[:, 1],
+            "bz": raw[:, 2],
+            "temp_c": np.round(temperature, 3),
+            "proton_nT": proton,
+        }
+    )
+
+
+def _base_log(log, rng, world, attitudes: int, t0: float, f0: float) -> pd.DataFrame:
+    """The calibration log at t0 [degC]: `attitudes` random attitudes in the field f0 [nT]."""
+    rot = random_rotations(attitudes, rng)
+    t_base = t0 + 0.02 * rng.normal(size=attitudes)
+    f_base = f0 + _smooth_noise(attitudes, rng, 50, 3.0)
+    return log(rot @ world, t_base, f_base, 2.0)
+
+
+def _drift_log(log, rng, u_static, f0: float) -> pd.DataFrame:
+    """The static drift log: a temperature ramp 6.8 -> 5.1 degC, a diurnal trend and
+    disturbances in the field f0 [nT]."""
+    count = REPLICA_DRIFT_SAMPLES
+    hi, lo = liu2022.PAPER_DRIFT_RANGE_DEGC[1], liu2022.PAPER_DRIFT_RANGE_DEGC[0]
+    t_drift = np.linspace(hi, lo, count) + 0.01 * rng.normal(size=count)
+    trend = 4.0 * np.sin(np.linspace(0.0, 0.5 * np.pi, count))
+    f_drift = f0 + trend + _smooth_noise(count, rng, 15, 10.0)
+    return log(np.tile(u_static, (count, 1)), t_drift, f_drift, 2.0)
+
+
+def _field_log(log, rng, world, f0: float) -> pd.DataFrame:
+    """The field log at 12.8 degC: 80 attitudes, 200 points, the reference varying by about
+    100 nT about f0 [nT]."""
+    count = REPLICA_FIELD_SAMPLES
+    which = np.sort(np.arange(count) * REPLICA_FIELD_ATTITUDES // count)
+    rot = random_rotations(REPLICA_FIELD_ATTITUDES, rng)[which]
+    t_field = liu2022.PAPER_FIELD_TEMPERATURE_DEGC + 0.02 * rng.normal(size=count)
+    f_field = (
+        f0
+        + 40.0 * np.sin(np.linspace(0.0, 2.5 * np.pi, count))
+        + _smooth_noise(count, rng, 5, 10.0)
+    )
+    return log(rot @ world, t_field, f_field, 2.0)
+
+
+def _sweep_log(log, rng, world, attitudes: int, f0: float) -> pd.DataFrame:
+    """The temperature sweep (beyond the paper): `attitudes` random attitudes while the
+    temperature sweeps `REPLICA_SWEEP_RANGE_DEGC`, in the field f0 [nT]."""
+    rot = random_rotations(attitudes, rng)
+    t_sweep = np.linspace(*REPLICA_SWEEP_RANGE_DEGC, attitudes) + 0.02 * rng.normal(size=attitudes)
+    f_sweep = f0 + _smooth_noise(attitudes, rng, 50, 8.0)
+    return log(rot @ world, t_sweep, f_sweep, 2.0)
 
 
 def write_replica(

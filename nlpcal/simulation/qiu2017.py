@@ -50,32 +50,9 @@ def replica(*, seed: int = 0, noise: float | None = None, n: int | None = None) 
     if n < 1:
         raise InputError(f"n must be a positive number of test attitudes, got {n}")
     field_total, dip_deg = 54000.0, 58.5
-    truth = {
-        "magnetometer": {
-            "mounting_deg": rng.uniform(-1.5, 1.5, 6),
-            "sensitivity": rng.uniform(-0.03, 0.03, 3),
-            "bias": rng.uniform(-2000, 2000, 3),
-        },
-        "accelerometer": {
-            "mounting_deg": rng.uniform(-1.5, 1.5, 6),
-            "sensitivity": rng.uniform(-0.03, 0.03, 3),
-            "bias": rng.uniform(-0.03, 0.03, 3),
-        },
-    }
+    truth = _random_errors(rng)
     B = model.field_ned(field_total, np.radians(dip_deg))
-
-    def readings(C, noise_rng):
-        f_body, b_body = model.body_vectors(C, B)
-        out = {}
-        for name, v, sd in (
-            ("magnetometer", b_body, mag_noise),
-            ("accelerometer", f_body, acc_noise),
-        ):
-            t = truth[name]
-            out[name] = model.sensor_reading(
-                v, np.radians(t["mounting_deg"]), t["sensitivity"], t["bias"]
-            ) + noise_rng.normal(0, sd, v.shape)
-        return out
+    noises = {"magnetometer": mag_noise, "accelerometer": acc_noise}
 
     steps = np.radians(np.arange(0, 360, 30))
     C0 = model.attitude_matrix(0.0, 0.0, np.radians(30.0))
@@ -91,20 +68,10 @@ def replica(*, seed: int = 0, noise: float | None = None, n: int | None = None) 
     pitch = rng.uniform(-85, 85, n)
     heading = rng.uniform(0, 360, n)
     C_test = model.attitude_matrix(np.radians(roll), np.radians(pitch), np.radians(heading))
-    r_turn = readings(C_turns, rng)
-    r_test = readings(C_test, rng)
-
-    def frame(r, C, extra):
-        ro, pi_, he = (np.degrees(v) + 0.0 for v in model.euler_from_matrix(C))  # no "-0"
-        data = dict(extra)
-        for name, prefix, unit in (("magnetometer", "m", "nT"), ("accelerometer", "a", "g")):
-            for i, axis in enumerate(model.AXES):
-                data[f"{prefix}{axis}_{unit}"] = r[name][:, i]
-        data.update(true_roll_deg=ro, true_pitch_deg=pi_, true_heading_deg=he)
-        return pd.DataFrame(data)
-
-    turns = frame(r_turn, C_turns, {"turn": labels, "step_deg": np.tile(np.degrees(steps), 4)})
-    test = frame(r_test, C_test, {})
+    r_turn = _readings(C_turns, B, truth, noises, rng)
+    r_test = _readings(C_test, B, truth, noises, rng)
+    turns = _frame(r_turn, C_turns, {"turn": labels, "step_deg": np.tile(np.degrees(steps), 4)})
+    test = _frame(r_test, C_test, {})
     doc = {
         "preset": "qiu2017",
         "seed": int(seed),
@@ -128,6 +95,49 @@ def replica(*, seed: int = 0, noise: float | None = None, n: int | None = None) 
         },
     }
     return {"turns": turns, "test": test, "truth": doc}
+
+
+def _random_errors(rng) -> dict:
+    """Sensor -> the true errors of the replica: six mounting angles [deg], three sensitivity
+    errors [1] and three biases [nT for the magnetometer, g for the accelerometer]."""
+    return {
+        "magnetometer": {
+            "mounting_deg": rng.uniform(-1.5, 1.5, 6),
+            "sensitivity": rng.uniform(-0.03, 0.03, 3),
+            "bias": rng.uniform(-2000, 2000, 3),
+        },
+        "accelerometer": {
+            "mounting_deg": rng.uniform(-1.5, 1.5, 6),
+            "sensitivity": rng.uniform(-0.03, 0.03, 3),
+            "bias": rng.uniform(-0.03, 0.03, 3),
+        },
+    }
+
+
+def _readings(C, B, truth: dict, noises: dict, rng) -> dict:
+    """Sensor -> its readings (N, 3) at the attitudes C (N, 3, 3) in the field B [nT] and
+    gravity: Eq. 3 with the sensor's true errors, plus noise of the standard deviation in
+    `noises` [nT or g]."""
+    f_body, b_body = model.body_vectors(C, B)
+    out = {}
+    for name, v in (("magnetometer", b_body), ("accelerometer", f_body)):
+        t = truth[name]
+        out[name] = model.sensor_reading(
+            v, np.radians(t["mounting_deg"]), t["sensitivity"], t["bias"]
+        ) + rng.normal(0, noises[name], v.shape)
+    return out
+
+
+def _frame(r: dict, C, extra: dict) -> pd.DataFrame:
+    """The table of readings `r` ([nT] and [g] columns) beside `extra` columns and the true
+    roll, pitch and heading of the attitudes C. [deg]"""
+    ro, pi_, he = (np.degrees(v) + 0.0 for v in model.euler_from_matrix(C))  # no "-0"
+    data = dict(extra)
+    for name, prefix, unit in (("magnetometer", "m", "nT"), ("accelerometer", "a", "g")):
+        for i, axis in enumerate(model.AXES):
+            data[f"{prefix}{axis}_{unit}"] = r[name][:, i]
+    data.update(true_roll_deg=ro, true_pitch_deg=pi_, true_heading_deg=he)
+    return pd.DataFrame(data)
 
 
 def write_replica(
