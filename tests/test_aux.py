@@ -168,7 +168,7 @@ def test_a_smooth_flight_gets_standard_errors_that_follow_its_dependence(seed):
         aux_columns={"current": current},
         require_identifiable=False,  # a smooth path leaves some of the nine poorly determined
     )
-    assert result.identifiability["aux"]["standard_errors"]["method"] == "block-jackknife"
+    assert result.identifiability["aux"]["standard_errors"]["method"] == "moving-block-jackknife"
     (channel,) = result.aux
     # the sandwich of independent samples states errors 10-30 times too small here
     assert np.all(np.abs(channel.coefficients - PER_AMP) < COVER * channel.standard_errors)

@@ -11,11 +11,11 @@ to the scaled parameters y (`nlpcal.nlp.channels`) are those of `nlpcal.calibrat
 
 One pass sums, per block of consecutive samples (counted from the log's first row, so that the
 sums do not depend on how the pass splits the rows), the scores r_i J_i and the information
-J_i J_i^T, and over the log the meat of independent samples, r_i^2 J_i J_i^T. Independent
-scores give the sandwich A^-1 M A^-1 (A = sum J J^T); scores whose neighbouring blocks are
-alike (`nlpcal.inference.scores_dependent`: a smooth trajectory, a current that varies slowly)
-the grouped block jackknife of `nlpcal.inference.block_jackknife`, widened by Student's t on its
-groups, as the nine-parameter calibration does (`nlpcal.calibration.diagnostics.score_meat`).
+J_i J_i^T, and over the log the meat of independent samples, r_i^2 J_i J_i^T. The covariance is
+the sandwich A^-1 Omega A^-1 (A = sum J J^T) with the meat of `nlpcal.inference.dependence_meat`,
+as the nine-parameter calibration's: that of independent samples widened by Student's t, or,
+when neighbouring blocks are alike (a smooth trajectory, a current that varies slowly), the
+moving-block jackknife's, never narrower than the independent one.
 
 References
 ----------
@@ -32,7 +32,7 @@ from .. import inference
 from ..auxiliary.moments import stacked, subsample
 from ..models.zhou2010 import PARAMETER_NAMES
 from ..passes import reduce
-from .scores import MAX_BLOCKS, _merge, entry_derivatives, sensitivities
+from .scores import _merge, entry_derivatives, sensitivities
 
 #: Rows per chunk of the scores pass (512 rows of up to 15 + 225 sums: 1 MB).
 CHUNK_ROWS = 512
@@ -107,7 +107,7 @@ def joint_covariance(fit, samples, reference, kind: str, scale, q) -> dict:
     """
     k, n = fit.channels.count, samples.shape[0]
     extra = stacked(fit.channels.values, reference) if kind == "series" else fit.channels.values
-    work = ChannelScores(fit.theta, fit.v, scale, k, max(1, -(-n // MAX_BLOCKS)))
+    work = ChannelScores(fit.theta, fit.v, scale, k, inference.block_rows(n))
     if kind == "constant":
         work = ChannelScores(**{**work.__dict__, "constant": float(reference)})
     elif kind == "none":  # the mean |B1| and the mean J profiled out, from an even stride
@@ -144,21 +144,13 @@ def joint_covariance(fit, samples, reference, kind: str, scale, q) -> dict:
 
 def _covariance(q, series, blocks, meat, dof: int) -> tuple:
     """(covariance of the scaled parameters within the directions q, how), or (None, ...) when
-    the information along q is singular: the sandwich of independent samples times N / dof, or
-    the block jackknife when the block sums of the scores are dependent."""
+    the information along q is singular: the sandwich A^-1 Omega A^-1 with the meat Omega of
+    `nlpcal.inference.dependence_meat` (the meat of independent samples `meat`, or the
+    moving-block jackknife's when the block sums of the scores are dependent)."""
     information = q.T @ blocks.sum(axis=0) @ q
     if not np.linalg.cond(information) < CONDITION_LIMIT:
         return None, {"method": "singular"}
     inverse = np.linalg.inv(information)
-    projected = series @ q
-    n_blocks = len(projected)
-    if not inference.scores_dependent(projected):
-        count = dof + q.shape[1]
-        covariance = inverse @ (q.T @ meat @ q) @ inverse * count / max(dof, 1)
-        return q @ covariance @ q.T, {"method": "independent", "blocks": n_blocks}
-    shares = np.einsum("ji,kjl,lm->kim", q, blocks, q)
-    length = inference.group_length(inference.bartlett_bandwidth(projected), n_blocks)
-    covariance, groups = inference.block_jackknife(projected, shares, length)
-    widening = inference.t_widening(groups - 1)
-    how = {"method": "block-jackknife", "blocks": n_blocks, "group_blocks": length}
-    return q @ covariance @ q.T * widening**2, {**how, "groups": int(groups)}
+    omega, how, _ = inference.dependence_meat(series, blocks, meat, dof, q)
+    covariance = q @ inverse @ (q.T @ omega @ q) @ inverse @ q.T
+    return covariance, {k: v for k, v in how.items() if k != "degrees_of_freedom"}
