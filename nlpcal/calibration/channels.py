@@ -41,6 +41,7 @@ from ..nlp.blocks import variable_scale, variables
 from ..nlp.channels import channel_derivatives, channel_parameters, channel_problem, v_scale
 from ..nlp.solver import IpoptOptions, solve
 from ..passes import LazySamples
+from ..results import TableRow
 from .channel_errors import joint_covariance
 
 #: A channel whose variance a quadratic fit on the sample direction explains to this fraction
@@ -447,12 +448,9 @@ def attach(result, fit: ChannelFit, raw_moments: Moments) -> None:
             f = np.array([factor.get(n, 1.0) for n in result.estimated_parameters])
             result.covariance = np.asarray(result.covariance) * np.outer(f, f)
     if result.statistics and result.statistics[0].get("label") == "measured":
-        result.statistics[0] = {
-            "label": "measured",
-            **raw_moments.measured,
-            "iterations": 0,
-            "wall_s": 0.0,
-        }
+        result.statistics[0] = TableRow.of(
+            {"label": "measured", **raw_moments.measured, "iterations": 0, "wall_s": 0.0}
+        )
     result.notes.append(
         f"the stray fields of {', '.join(fit.channels.names)} were estimated jointly with the "
         f"nine parameters, B1 = O_p S_p (B_M - Z_p - sum_k v_k c_k); the rows after the "
