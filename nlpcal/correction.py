@@ -94,6 +94,10 @@ class Correction:
     time_column : str or None
         The log's column of times [s] for parameters whose scale factors drift in time
         (`nlpcal.models.time_drift`), or None.
+    aux_columns : dict
+        Channel of the calibration -> the log's column it is read from, for parameters with
+        auxiliary channels (`nlpcal.auxiliary`); their stray field is subtracted from the raw
+        vector first, B_M - sum_k v_k c_k.
     notes : list of str
         What was decided on the user's behalf.
 
@@ -111,6 +115,7 @@ class Correction:
     temperature_column: str | None = None
     notes: list = field(default_factory=list)
     time_column: str | None = None
+    aux_columns: dict = field(default_factory=dict)
 
     @classmethod
     def plan(
@@ -122,11 +127,15 @@ class Correction:
         log_columns=(),
         require_temperature: bool = True,
         time_column: str | None = None,
+        aux_columns=None,
     ) -> Correction:
         """Check that the pieces fit together and choose the temperature column.
 
         log_columns : the columns of the log it will be applied to (to find the temperature
-            column the model was fitted with).
+            column the model was fitted with, and the aux channels).
+        aux_columns : log column -> the calibration's channel it holds (`--aux-columns
+            NEW=OLD`), for channels recorded under another name; the others are read under
+            their own.
         require_temperature : a temperature model without its column is an error (apply);
             False leaves the temperature step out with a note (stats).
         time_column : the log's column of times (--time-column), for parameters whose scale
@@ -168,7 +177,11 @@ class Correction:
                     f"the log has no column {stored!r} for the temperature model; "
                     f"pass --temperature-column COL for the temperature row"
                 )
-        return cls(parameters, drift, temperature_column, notes, time_column)
+        channels = list(getattr(parameters, "aux", None) or [])
+        aux = aux_sources(channels, aux_columns or {}, log_columns)
+        return cls(
+            parameters, drift, temperature_column, notes, time_column=time_column, aux_columns=aux
+        )
 
     @property
     def unit(self) -> str:
@@ -226,13 +239,31 @@ class Correction:
     def apply(self, log: Log) -> np.ndarray:
         """Corrected samples of the log. [base unit]"""
         temperature = self.temperature(log) if self.temperature_column is not None else None
-        return self.correct(log.samples, log.base_unit, temperature, self.times(log))
+        return self.correct(
+            log.samples, log.base_unit, temperature, self.times(log), self.channels(log)
+        )
 
-    def correct(self, samples, base_unit: str, temperature=None, times=None) -> np.ndarray:
+    def channels(self, log: Log) -> dict:
+        """The aux channels of the calibration, name -> the log's values. [channel unit]"""
+        return {name: log.values(column) for name, column in self.aux_columns.items()}
+
+    def without_stray(self, log: Log) -> np.ndarray:
+        """The log's raw samples less the stray field of the aux channels, B_M - sum_k v_k c_k
+        (the samples themselves without aux channels). [base unit]"""
+        if not self.aux_columns:
+            return log.samples
+        return log.samples - self.parameters.stray_field(self.channels(log))  # type: ignore[union-attr]
+
+    def correct(
+        self, samples, base_unit: str, temperature=None, times=None, channels=None
+    ) -> np.ndarray:
         """Corrected `samples` [base_unit] (Eq. 4, after the temperature step with the
         `temperature` of each sample [degC] when the correction has one, and the time drift's
-        gains at the samples' `times` [s] when the parameters have one)."""
+        gains at the samples' `times` [s] when the parameters have one; the stray field of the
+        aux channels, `channels` name -> (N,) values, subtracted first)."""
         units.check_compatible(self.unit, base_unit, "the log", "the calibration")
+        if self.aux_columns:
+            samples = samples - self.parameters.stray_field(channels or {})  # type: ignore[union-attr]
         if self.time_drift_alone:
             assert isinstance(self.parameters, TemperatureCalibrationResult)
             return self.parameters.apply(samples, None, times=times)
@@ -316,7 +347,10 @@ def corrected_chunks(
     is called with the |B| of each chunk's readings before and after the correction. [base
     unit]"""
     seen = [np.inf, -np.inf]
-    temperature_column = stream.extra[0] if correction.temperature_column else None
+    # the stream's names of the extra columns, in the order `extra_columns_for` asked for them
+    resolved = dict(zip(extra_columns_for(correction).values(), stream.extra))
+    temperature_column = resolved.get(correction.temperature_column)
+    aux = {name: resolved[column] for name, column in correction.aux_columns.items()}
     for chunk in stream:
         if precision is not None:
             precision.observe(chunk.frame[column] for column in stream.columns)
@@ -328,7 +362,8 @@ def corrected_chunks(
                 seen = [min(seen[0], temperature.min()), max(seen[1], temperature.max())]
         samples = chunk.raw[valid] * stream.factor
         times = chunk_times(chunk, correction.time_column, valid)
-        corrected = correction.correct(samples, stream.base_unit, temperature, times)
+        channels = {name: chunk.extras[column][valid] for name, column in aux.items()}
+        corrected = correction.correct(samples, stream.base_unit, temperature, times, channels)
         magnitude = np.linalg.norm(corrected, axis=1)
         if tally is not None:
             tally(np.linalg.norm(samples, axis=1), magnitude)
@@ -345,11 +380,44 @@ def corrected_chunks(
         correction.note_range(float(seen[0]), float(seen[1]))
 
 
-def read_log_for(path, correction: Correction, *, reference_column=None, **kw) -> Log:
-    """Read a log to apply `correction` to: its temperature column comes along, and its unit
-    defaults to the unit of the log the parameters were estimated from."""
+def aux_sources(channels: list, mapping: dict, log_columns) -> dict:
+    """Channel name -> the log column it is read from: `mapping` (log column -> channel) where
+    given, else the channel's own name; InputError naming a channel the log lacks, or a mapped
+    name the calibration has no channel of."""
+    names = [c.name for c in channels]
+    for column, name in mapping.items():
+        if name not in names:
+            have = f"its channels are {', '.join(names)}" if names else "it has none"
+            raise InputError(
+                f"--aux-columns {column}={name}: the calibration has no aux channel {name!r} "
+                f"({have})"
+            )
+    by_channel = {name: column for column, name in mapping.items()}
+    sources = {name: by_channel.get(name, name) for name in names}
+    present = {str(c) for c in log_columns}
+    for name, column in sources.items():
+        if column not in present:
+            raise InputError(
+                f"the calibration needs the aux channel {name!r}, and the log has no column "
+                f"{column!r}; pass --aux-columns NEW={name} for a column named otherwise"
+            )
+    return sources
+
+
+def extra_columns_for(correction: Correction) -> dict:
+    """The log columns a correction reads besides the field, by role: the temperature column
+    and the aux channels' columns."""
     column = correction.temperature_column
     extra = {"the temperature column of the calibration": column} if column else {}
+    for name, source in correction.aux_columns.items():
+        extra[f"the aux channel {name!r}"] = source
+    return extra
+
+
+def read_log_for(path, correction: Correction, *, reference_column=None, **kw) -> Log:
+    """Read a log to apply `correction` to: its temperature and aux columns come along, and its
+    unit defaults to the unit of the log the parameters were estimated from."""
+    extra = extra_columns_for(correction)
     return read_log(
         path,
         reference_column=reference_column,
@@ -387,9 +455,10 @@ def statistics_rows(log: Log, correction: Correction | None = None) -> tuple:
             mean = float(np.mean(np.asarray(reference, dtype=float)))
             _compare_references(correction, mean, log.base_unit)
         params = correction.parameters.model  # the nine parameters (at t0 with a model)
-        rows.append({"label": "corrected", **field_statistics(log.samples, params.theta)})
+        raw = correction.without_stray(log)  # less the stray field of aux channels
+        rows.append({"label": "corrected", **field_statistics(raw, params.theta)})
         if reference is not None:
-            corrected = correct(log.samples, params)  # Eq. 4
+            corrected = correct(raw, params)  # Eq. 4
             rows[1]["rmse"] = rmse(np.linalg.norm(corrected, axis=1), reference)  # Eq. 10
     if reference is not None:
         rows[0]["rmse"] = rmse(np.linalg.norm(log.samples, axis=1), reference)  # Eq. 10

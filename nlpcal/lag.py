@@ -71,7 +71,7 @@ import numpy as np
 from . import inference, passes, validation
 from .errors import InputError, SolveError
 from .models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters, correct, model_directions
-from .moments import CHUNK_ROWS, Layout, Moments, _features, accumulate
+from .moments import CHUNK_ROWS, Layout, Moments, accumulate, fill_features
 from .nlp.blocks import variable_scale
 from .nlp.objective import coefficient_derivative_functions, objective_derivatives
 from .timing import reference_at
@@ -357,7 +357,7 @@ class LagBlock:
             gamma = (self.length / ref) ** 2
             a = gamma * (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) - 1.0
             chunk = buffer[:, : end - begin]
-            _features(d, a, gamma, self.lay, chunk)
+            fill_features(d, a, gamma, self.lay, chunk)
             wx = (ref / self.length) ** 2 * (D[begin:end] / ref)  # w_i x_i
             sums.g += chunk @ wx
             sums.c += float(np.sum(wx * D[begin:end] / ref))

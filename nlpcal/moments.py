@@ -72,13 +72,14 @@ N_PSI = len(PSI_EXPONENTS)
 PAIR_INDICES = tuple((k, l) for k in range(N_PSI) for l in range(k, N_PSI))
 
 
-def _monomials(max_degree: int):
-    """Exponent triples of degree <= max_degree, by degree, and how to build each one."""
-    exps: list[tuple[int, ...]] = [(0, 0, 0)]
+def monomials(max_degree: int, variables: int = 3):
+    """Exponent tuples of `variables` variables of degree <= max_degree, by degree, and how to
+    build each one: (parent index, variable), the monomial being its parent times the variable."""
+    exps: list[tuple[int, ...]] = [(0,) * variables]
     recipe = [(-1, -1)]  # (parent index, variable): monomial = parent * d[:, variable]
     for degree in range(1, max_degree + 1):
-        for combo in combinations_with_replacement(range(3), degree):
-            e = [0, 0, 0]
+        for combo in combinations_with_replacement(range(variables), degree):
+            e = [0] * variables
             for v in combo:
                 e[v] += 1
             parent = list(e)
@@ -88,7 +89,7 @@ def _monomials(max_degree: int):
     return tuple(exps), tuple(recipe)
 
 
-MONOMIALS, _RECIPE = _monomials(4)  # 35 monomials of degree <= 4
+MONOMIALS, _RECIPE = monomials(4)  # 35 monomials of degree <= 4
 
 
 def _add(a, b):
@@ -219,19 +220,21 @@ def _groups(varying_gamma: bool):
     return tuple((g, p, np.array(c), np.array(m)) for (g, p), (c, m) in groups.items())
 
 
-def _features(d, a, gamma, lay: Layout, out) -> None:
+def fill_features(d, a, gamma, lay: Layout, out, recipe=_RECIPE, groups=None) -> None:
     """Fill `out` (lay.size x rows) with the distinct features gamma^j a^k d^m of one chunk.
 
     Features are rows, samples are columns: every operation runs along contiguous memory. With
     gamma constant the first rows of the layout are the monomials themselves, built in place.
+    `recipe` and `groups` (default: those of d's three coordinates) build the monomials of
+    other variables, the rows of `d` (the channels' feature group, `nlpcal.auxiliary.moments`).
     """
     in_place = not lay.varying_gamma
-    mono = out[: len(MONOMIALS)] if in_place else np.empty((len(MONOMIALS), d.shape[1]))
+    mono = out[: len(recipe)] if in_place else np.empty((len(recipe), d.shape[1]))
     mono[0] = 1.0
-    for index in range(1, len(MONOMIALS)):
-        parent, variable = _RECIPE[index]
+    for index in range(1, len(recipe)):
+        parent, variable = recipe[index]
         np.multiply(mono[parent], d[variable], out=mono[index])
-    for g_pow, a_pow, rows, monos in _groups(lay.varying_gamma):
+    for g_pow, a_pow, rows, monos in groups or _groups(lay.varying_gamma):
         if in_place and not (g_pow or a_pow):
             continue
         block = mono[monos]
@@ -283,7 +286,7 @@ class GramBlock:
                 gamma = (self.length / ref) ** 2
                 a = gamma * radius_sq - 1.0
             chunk = buffer[:, : stop - start]
-            _features(d, a, gamma, self.lay, chunk)
+            fill_features(d, a, gamma, self.lay, chunk)
             root = ref / self.length if series else None  # sqrt of w_i
             if self.weight is not None:
                 omega = np.asarray(self.weight(raw, ref), dtype=float)

@@ -259,17 +259,24 @@ def reference_scale(reference, magnitude: float, what: str = "the reference fiel
         )
 
 
-def _per_sample(values, n: int, what: str, unit: str) -> np.ndarray:
-    """N finite numbers, one per sample, called `what` in messages, in `unit`."""
+def _per_sample(values, n: int | None, what: str, unit: str) -> np.ndarray:
+    """N finite numbers, one per sample (any number without `n`), called `what` in messages,
+    in `unit`."""
     try:
         array = np.asarray(values, dtype=float).ravel()
     except (TypeError, ValueError):
         raise InputError(f"the {what} must be numbers [{unit}]") from None
-    if array.size != n:
+    if n is not None and array.size != n:
         raise InputError(f"got {array.size} {what} for {n} samples")
     if not np.isfinite(array).all():
         raise InputError(f"the {what} contain NaN or infinite values; drop or fix those rows")
     return array
+
+
+def channel(values, n: int | None, what: str) -> np.ndarray:
+    """N finite numbers of a channel logged with the samples (an aux channel, say), any number
+    of them without `n`. [the channel's unit]"""
+    return _per_sample(values, n, f"values of {what}", "its unit")
 
 
 def times(values, n: int) -> np.ndarray:

@@ -146,6 +146,33 @@ def gauge_truth(truth=PAPER_TRUTH):
     return {**truth, **{f"s_{a}": (1.0 + truth[f"s_{a}"]) / mean - 1.0 for a in "xyz"}}
 
 
+def motor_current_log(n=20_000, noise=5.0, seed=27, per_amp=(120.0, -80.0, 300.0), amps=40.0):
+    """(B_M, current [A]) of a sensor near a motor: Eq. 4 typed in again (`sensor_output`) plus
+    a stray field per_amp * current [nT/A] added in the sensor's axes, the offset that follows
+    the current; the current uniform on 0..amps A, drawn independently of the attitudes."""
+    rng = np.random.default_rng(seed)
+    field_ideal = PAPER_FIELD * uniform_directions(n, rng)
+    current = rng.uniform(0.0, amps, n)
+    stray = current[:, None] * np.asarray(per_amp, dtype=float)[None, :]
+    samples = sensor_output(field_ideal, PAPER_TRUTH) + stray
+    return samples + noise * rng.standard_normal(samples.shape), current
+
+
+def smooth_motor_log(n=20_000, noise=5.0, seed=0, per_amp=(120.0, -80.0, 300.0)):
+    """(B_M, current [A]) of a vehicle turned smoothly (`smooth_directions`) whose motor
+    current swings slowly between 5 and 35 A with a random walk on top, and whose field carries
+    a slowly drifting error along (1, 1, 1) nT: residuals and scores alike in neighbours."""
+    rng = np.random.default_rng(seed)
+    directions = smooth_directions(n, rng)
+    phase = rng.uniform(0.0, 2 * np.pi)
+    current = 20.0 + 15.0 * np.sin(np.linspace(0.0, 6 * np.pi, n) + phase)
+    current += np.cumsum(rng.normal(0.0, 0.05, n))
+    drift = np.cumsum(rng.normal(0.0, 0.3, n))
+    samples = sensor_output(PAPER_FIELD * directions, PAPER_TRUTH)
+    samples += np.outer(current, per_amp) + np.outer(drift - drift.mean(), (1.0, 1.0, 1.0))
+    return samples + noise * rng.standard_normal(samples.shape), current
+
+
 # --- a platform's own field: the Tolles-Lawson figure-of-merit box ------------------------------
 
 #: True Tolles-Lawson coefficients of a platform: permanent [nT], induced [1] (x x, x y, x z, y y,

@@ -40,6 +40,7 @@ LAYERS = {
     "geomagnetic": 1,
     "timing": 1,
     "nlp": 1,
+    "auxiliary": 1,
     "lag": 1,
     "delta_f": 1,
     "calibration": 2,
@@ -124,6 +125,14 @@ def test_every_problem_is_built_once_and_does_not_grow_with_the_log():
                 nlpcal.calibrate(
                     samples, method=method, cycles=5, model=model, reference_field=PAPER_FIELD
                 )
+        current = np.random.default_rng(seed).uniform(0.0, 40.0, n)  # aux channels too
+        for reference in (None, PAPER_FIELD):
+            nlpcal.calibrate(
+                samples + np.outer(current, (120.0, -80.0, 300.0)),
+                method="joint",
+                reference_field=reference,
+                aux_columns={"current": current},
+            )
         probe = nlpcal.orthogonality.synthetic_rotation((0.07, 0.04, 0.1), n=n, seed=seed)
         nlpcal.invert(probe)
         nlpcal.invert(probe, field_nT=55_000.0)

@@ -166,9 +166,16 @@ def test_ardupilot_import_names_unused_and_carries_identity(tmp_path, capsys):
         "name": "Yaw180",
     }
     unused = next(note for note in notes if note.startswith("not used"))
-    for name in ("COMPASS_MOT_X", "COMPASS_MOTCT", "COMPASS_OFS2_X", "COMPASS_DEV_ID2"):
+    for name in ("COMPASS_OFS2_X", "COMPASS_DEV_ID2"):
         assert name.rsplit("_", 1)[0] in unused
     assert "ARMING_*" in unused and "BATT_*" in unused
+    # COMPASS_MOTCT 2 with COMPASS_MOT_*: a current channel, v = -D^-1 MOT [mG/A -> nT/A]
+    assert "COMPASS_MOT" not in unused
+    (motor,) = result.aux
+    assert motor.kind == "current"
+    d = np.array([[1.01, 0.01, 0.0], [0.01, 0.99, 0.0], [0.0, 0.0, 1.0]])
+    expected = -np.linalg.solve(d, [0.1, 0.2, 0.3]) * 100.0
+    np.testing.assert_allclose(motor.coefficients, expected, rtol=1e-12)
     # the correction itself does not depend on them
     bare = tmp_path / "bare.param"
     kept = ("COMPASS_OFS_", "COMPASS_DIA_", "COMPASS_ODI_", "COMPASS_SCALE,")
@@ -185,7 +192,7 @@ def test_ardupilot_import_names_unused_and_carries_identity(tmp_path, capsys):
     out = tmp_path / "params.json"
     assert main(["import", str(path), "-o", str(out)]) == 0
     err = capsys.readouterr().err
-    assert "COMPASS_MOT" in err and "COMPASS_ORIENT = 4" in err
+    assert "COMPASS_ORIENT = 4" in err
     document = json.loads(out.read_text())
     assert document["sensor_id"] == DEVICE_ID and document["orientation"]["value"] == 4
     assert nlpcal.CalibrationResult.load(out).orientation == result.orientation

@@ -46,7 +46,9 @@ NAMED_WRITER = (
 #: The named writer held after it filled its temporary file, until a signal ends it: a kill
 #: that always lands between the write and the rename, however loaded the machine.
 HELD_NAMED_WRITER = """
-import sys, time
+import signal, sys, time
+# Ctrl-C as a terminal delivers it, also where the suite runs with SIGINT ignored (nohup, cmd &)
+signal.signal(signal.SIGINT, signal.default_int_handler)
 from nlpcal.io import files
 files.UNNAMED_FILES = False
 fill = files._fill

@@ -10,10 +10,11 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from .. import chunks, units
-from ..errors import QualityError, SolveError
+from ..errors import InputError, QualityError, SolveError
 from ..io.logs import Log
 from ..results import Provenance
 from ..robust import Loss
+from .channels import Channels, attach, compensated, fit_channels, log_channels, prepare_channels
 from .lagged import LAG_ARGUMENTS, calibrate_lagged
 from .problem import Problem
 from .result import CalibrationResult
@@ -50,6 +51,8 @@ def calibrate(
     verbose: bool = False,
     threads: int | None = None,
     ipopt_options: dict | None = None,
+    aux_columns=None,
+    aux_kind=None,
     lag=None,
     times=None,
     lag_tolerance=None,
@@ -118,6 +121,15 @@ def calibrate(
         (`nlpcal.nlp.blocks.OPTIONS`). IPOPT checks them first (InputError for an option it does
         not know or a value it refuses); the result records every option IPOPT was given under
         `solver.ipopt_options`.
+    aux_columns : list of str or mapping, optional
+        Auxiliary channels c_k (`--aux-columns`): columns of a DataFrame `samples`, or a mapping
+        of names to (N,) values. Their stray fields v_k c_k are estimated jointly with the nine
+        parameters, B1 = O_p S_p (B_M - Z_p - sum_k v_k c_k) (`nlpcal.calibration.channels`),
+        and recorded under the result's `aux`. Least squares with the model "full", "diagonal"
+        or "offset". [channel unit]
+    aux_kind : str or list of str, optional
+        What each channel is (`--aux-kind`): "current" [A], "throttle" [fraction] or "other"
+        (the default), one for all or one per channel.
     lag : None, "auto" or float
         The lag of a reference series (`--lag`): "auto" estimates it with the nine parameters,
         a number [s] takes it out of the reference; the result records it under `lag`
@@ -168,6 +180,8 @@ def calibrate(
     >>> corrected.shape
     (2000, 3)
     """
+    if lag is not None and aux_columns is not None:
+        raise InputError("a lag and aux channels are not estimated together; drop one of them")
     settings = CalibrationSettings.of(
         method=method,
         model=model,
@@ -188,12 +202,39 @@ def calibrate(
         lag=lag,
         times=times,
         lag_tolerance=lag_tolerance,
+        aux_columns=aux_columns,
+        aux_kind=aux_kind,
     )
     if settings.lag.value is not None:  # the lag of a reference series (nlpcal.lag)
         options = {k: v for k, v in locals().items() if k not in (*LAG_ARGUMENTS, "settings")}
         return calibrate_lagged(calibrate, samples, reference_field, settings.lag, options)
     with chunks.call_threads(settings.input.threads):
-        return calibrate_prepared(prepare(samples, settings), settings, progress)
+        if settings.aux.columns is None:
+            return calibrate_prepared(prepare(samples, settings), settings, progress)
+        samples, channels = prepare_channels(samples, settings)
+        return calibrate_channels(prepare(samples, settings), channels, settings, progress)
+
+
+def calibrate_channels(
+    data: Prepared,
+    channels: Channels,
+    settings: CalibrationSettings,
+    progress: Callable | None = None,
+) -> CalibrationResult:
+    """`calibrate` with aux channels: their stray fields solved jointly with the nine
+    parameters (`fit_channels`), then `calibrate_prepared` on the log without them, whose
+    optimum is the joint one; the result (also one a QualityError holds) records them
+    (`attach`)."""
+    gate = settings.gate
+    fit = fit_channels(data, channels, settings.model, settings.ipopt, gate.require_identifiable)
+    try:
+        result = calibrate_prepared(compensated(data, fit), settings, progress)
+    except QualityError as failure:
+        if isinstance(failure.result, CalibrationResult):
+            attach(failure.result, fit, data.moments)
+        raise
+    attach(result, fit, data.moments)
+    return result
 
 
 def calibrate_prepared(
@@ -298,8 +339,11 @@ def calibrate_log(
     target_std, target_range, loss_scale : in the unit of the log's field columns.
     The result records the log (file, columns, unit and where the unit came from) under
     `input`, and the reader's warnings (a unit that does not fit the magnitudes) first among its
-    own; so does the result a QualityError holds.
+    own; so does the result a QualityError holds. `aux_columns`, a list, names extra columns
+    the log was read with.
     """
+    if isinstance(options.get("aux_columns"), (list, tuple)):  # their values come with the log
+        options["aux_columns"] = log_channels(log, options["aux_columns"])
     try:
         result = calibrate(
             log.samples,

@@ -12,6 +12,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from .. import inference, units, validation
+from ..auxiliary.model import read_aux, stray_field
 from ..errors import InputError
 from ..lag import read_lag
 from ..models.zhou2010 import (
@@ -471,6 +472,10 @@ class CalibrationResult(Document):
         How the sensor is mounted, as the file a calibration was imported from states it
         ({"system", "parameter", "value"[, "name"]}, e.g. ArduPilot's COMPASS_ORIENT); carried,
         not applied ("orientation" in the document, written when given).
+    aux : list of AuxChannel
+        The stray fields v_k c_k of auxiliary channels (`nlpcal.auxiliary.model`), estimated
+        with the nine parameters ("aux" in the document, written when any). [unit per channel
+        unit]
     lag : dict or None
         The lag of a reference series (`nlpcal.lag`): {"status": "estimated", "given" or
         "undetermined", "seconds" [s], "standard_error_s" [s], ...}; None without one.
@@ -523,6 +528,7 @@ class CalibrationResult(Document):
     model_selection: dict | None = None
     sensor_id: int | str | None = None
     orientation: dict | None = None
+    aux: list = field(default_factory=list)
     lag: dict | None = None
 
     def __setattr__(self, name: str, value) -> None:
@@ -568,17 +574,36 @@ class CalibrationResult(Document):
             return "the reference field"
         return None
 
-    def apply(self, samples, unit: str | None = None) -> np.ndarray:
-        """Corrected field B1 = O_p S_p (B_M - Z_p), Eq. 4 in [1].
+    def apply(self, samples, unit: str | None = None, aux=None) -> np.ndarray:
+        """Corrected field B1 = O_p S_p (B_M - Z_p), Eq. 4 in [1]; with aux channels
+        B1 = O_p S_p (B_M - Z_p - sum_k v_k c_k) (`nlpcal.auxiliary.model`).
 
         samples : (N, 3) raw output, in `unit` (default: the unit of the calibration).
+        aux : channel name -> (N,) values (a DataFrame's columns do), for a result with aux
+            channels. [channel unit]
         Returns (N, 3) corrected field in the same unit as `samples`.
         """
         samples = validation.vectors(samples)
         unit = unit or self.unit
         units.check_compatible(self.unit, unit, "the samples")
-        corrected = correct(units.to_base(samples, unit), self.model)
-        return units.from_base(corrected, unit)
+        base = units.to_base(samples, unit)
+        if self.aux:
+            base = base - self.stray_field(aux if aux is not None else {}, len(base))
+        return units.from_base(correct(base, self.model), unit)
+
+    def stray_field(self, aux, rows: int | None = None) -> np.ndarray:
+        """sum_k v_k c_k of the aux channels for `aux`, channel name -> (N,) values; InputError
+        naming a channel it lacks or whose values are not N finite numbers. [unit]"""
+        values = []
+        for channel in self.aux:
+            if channel.name not in aux:
+                raise InputError(
+                    f"the calibration needs the aux channel {channel.name!r}; pass its values"
+                )
+            values.append(
+                validation.channel(aux[channel.name], rows, f"aux channel {channel.name!r}")
+            )
+        return stray_field(self.aux, np.column_stack(values))
 
     def correlation(self) -> np.ndarray | None:
         """(9, 9) correlation matrix of the parameters, or None without a covariance. [1]"""
@@ -604,6 +629,9 @@ class CalibrationResult(Document):
             )
         if block.not_identifiable:
             failures.append(f"the data do not determine {', '.join(block.not_identifiable)}")
+        blind = (block.get("aux") or {}).get("not_identifiable")
+        if blind:
+            failures.append(f"aux channels {', '.join(blind)} vary only with the attitude")
         poor = block.poorly_determined or []
         return judge(
             failures,
@@ -654,6 +682,8 @@ class CalibrationResult(Document):
             document["sensor_id"] = self.sensor_id
         if self.orientation is not None:
             document["orientation"] = dict(self.orientation)
+        if self.aux:
+            document["aux"] = {c.name: c.to_dict(self.unit) for c in self.aux}
         if self.lag is not None:
             document["lag"] = dict(self.lag)
         return document
@@ -665,6 +695,7 @@ class CalibrationResult(Document):
         model_name = reader.string("model", "full", options=list(MODELS))
         reference = Reference.read(reader)
         scale_known = reference.scale_known
+        unit = reader.string("unit", "nT", options=list(units.FIELD_UNITS_NT))
         estimated = estimated_parameters(model_name, scale_known)
         parameters = read_parameters(reader).to_dict()
         check_model(parameters, model_name, scale_known, reader.source)
@@ -678,7 +709,7 @@ class CalibrationResult(Document):
             "reference": reference,
             "gauge": reader.mapping("gauge", None),
             "solver": SolverReport.from_dict(reader.mapping("solver", {}), reader.source),
-            "unit": reader.string("unit", "nT", options=list(units.FIELD_UNITS_NT)),
+            "unit": unit,
             "unit_source": reader.string("unit_source", None, options=units.UNIT_SOURCES),
             "standard_errors": None
             if errors is None
@@ -707,6 +738,7 @@ class CalibrationResult(Document):
             if not reader.has("sensor_id")
             else validation.sensor_id(reader.raw("sensor_id"), f"{reader.source}: sensor_id"),
             "orientation": read_orientation(reader),
+            "aux": read_aux(reader, unit),
             "lag": read_lag(reader),
         }
 

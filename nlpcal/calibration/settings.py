@@ -121,6 +121,24 @@ class LagSettings:
     tolerance: float = LAG_TOLERANCE_S
 
 
+@dataclass(frozen=True)
+class AuxSettings:
+    """The auxiliary channels whose stray fields are estimated with the nine parameters
+    (`nlpcal.calibration.channels`).
+
+    Attributes
+    ----------
+    columns : None, list of str or mapping
+        None (no channels), columns of a DataFrame of samples, or names -> (N,) values
+        (`--aux-columns`). [channel unit]
+    kind : None, str or list of str
+        "current", "throttle" or "other", one for all or one per channel (`--aux-kind`).
+    """
+
+    columns: Any = field(default=None, compare=False)
+    kind: Any = None
+
+
 #: The gate of a trial calibration (model "auto", the full model a restriction is judged
 #: against): every result that solved is returned.
 NO_GATE = QualityGate(require_identifiable=False, allow_unconverged=True)
@@ -149,6 +167,8 @@ class CalibrationSettings:
         When the result is refused.
     ipopt : nlpcal.nlp.solver.IpoptOptions
         IPOPT's settings for every solve.
+    aux : AuxSettings
+        Auxiliary channels, or none.
 
     References
     ----------
@@ -171,6 +191,7 @@ class CalibrationSettings:
     gate: QualityGate = field(default_factory=QualityGate)
     ipopt: IpoptOptions = OPTIONS
     lag: LagSettings = field(default_factory=LagSettings)
+    aux: AuxSettings = field(default_factory=AuxSettings)
 
     @classmethod
     def of(
@@ -195,6 +216,8 @@ class CalibrationSettings:
         lag=None,
         times=None,
         lag_tolerance=None,
+        aux_columns=None,
+        aux_kind=None,
     ) -> CalibrationSettings:
         """The settings of `nlpcal.calibrate`'s keywords (see there), each checked: InputError
         names the first that is unusable. Quantities are in `unit` (default nT) and are stored
@@ -234,4 +257,5 @@ class CalibrationSettings:
             ),
             ipopt=ipopt,
             lag=LagSettings(lag_option(lag), times, tolerance_option(lag_tolerance)),
+            aux=AuxSettings(columns=aux_columns, kind=aux_kind),
         )

@@ -57,6 +57,19 @@ def add_correction_arguments(parser):
     parser.add_argument("log", metavar="LOG", help=LOG_HELP)
     add_log_arguments(parser, CALIBRATED_LOG_UNIT)
     add_temperature_arguments(parser)
+    add_aux_argument(parser)
+
+
+def add_aux_argument(parser):
+    """--aux-columns NEW=OLD: where the calibration's aux channels are in the log."""
+    parser.add_argument(
+        "--aux-columns",
+        nargs="+",
+        type=aux_source,
+        metavar="NEW=OLD",
+        help="read the calibration's aux channel OLD from the log's column NEW (default: each "
+        "channel from the column of its own name)",
+    )
 
 
 def add_temperature_arguments(parser):
@@ -118,11 +131,23 @@ is read and written in chunks, in bounded memory whatever its size (with --plot 
     parser.set_defaults(func=run_apply, log_time_column=True)  # --time-column: a time drift's
 
 
+def aux_source(text: str) -> tuple:
+    """(log column, calibration channel) of an --aux-columns NEW=OLD (NAME alone: NAME=NAME)."""
+    import argparse
+
+    new, sep, old = text.partition("=")
+    new, old = new.strip(), (old.strip() if sep else new.strip())
+    if not new or not old:
+        raise argparse.ArgumentTypeError(f"expected NEW=OLD (e.g. curr=current), got {text!r}")
+    return new, old
+
+
 def correction_for(args, columns, require_temperature: bool):
     """The Correction that --params/PARAMS.json, --drift and --temperature-column ask for, to
     be applied to a log with these `columns`."""
     from ..correction import Correction, load_parameters
     from ..drift.fit import DriftFit
+    from ..results import distinct
 
     params_path = getattr(args, "params", None)
     parameters = load_parameters(params_path) if params_path else None
@@ -135,13 +160,14 @@ def correction_for(args, columns, require_temperature: bool):
         log_columns=columns,
         require_temperature=require_temperature,
         time_column=getattr(args, "time_column", None),
+        aux_columns=distinct(getattr(args, "aux_columns", None) or (), "--aux-columns", "column"),
     )
 
 
 def run_apply(args) -> int:
     import numpy as np
 
-    from ..correction import corrected_chunks, outlier_bounds, read_log_for
+    from ..correction import corrected_chunks, extra_columns_for, outlier_bounds, read_log_for
     from ..errors import InputError
     from ..io import Outputs, check_output_path
     from ..io.output import Precision, check_table_output, is_parquet_output, write_frames
@@ -156,12 +182,11 @@ def run_apply(args) -> int:
         correction = correction_for(args, stream.table_columns, require_temperature=True)
         if args.plot and correction.parameters is None:
             raise InputError("--plot needs parameters (PARAMS.json), not a drift file alone")
-        column = correction.temperature_column
         stream.open(
             args.columns,
             unit=args.unit,
             fallback_unit=correction.fallback_unit,
-            extra_columns={"the temperature column of the calibration": column} if column else {},
+            extra_columns=extra_columns_for(correction),
             drop_invalid=args.drop_invalid,
         )
         report_log(stream)
@@ -234,6 +259,7 @@ the lag are computed, the nine parameters cannot be.""",
         help="parameters written by 'nlpcal calibrate': add the corrected row",
     )
     add_temperature_arguments(parser)
+    add_aux_argument(parser)
     parser.add_argument(
         "--reference-column",
         metavar="COL",

@@ -204,6 +204,22 @@ them (say, the sensor was never turned over); --allow-unidentifiable writes them
         "optimum of the same data (with a warning and without standard errors) instead of "
         "failing the quality check",
     )
+    parser.add_argument(
+        "--aux-columns",
+        nargs="+",
+        metavar="COL",
+        help="auxiliary channels (motor current, throttle, heater power): estimate with the "
+        "nine parameters a stray field v_k c_k per channel, B1 = O_p S_p (B_M - Z_p - "
+        "sum_k v_k c_k); written under 'aux' [field unit per channel unit]",
+    )
+    parser.add_argument(
+        "--aux-kind",
+        nargs="+",
+        metavar="KIND",
+        choices=("current", "throttle", "other"),
+        help="what each --aux-columns channel is: current [A], throttle [fraction 0..1] or "
+        "other; one for all or one per column (default: other)",
+    )
     add_scheduler_arguments(parser)
     add_sensor_id_argument(parser)
     parser.add_argument(
@@ -315,9 +331,11 @@ def _run_calibrate(args) -> int:
             "the temperature calibration needs --reference-column COL, a reference "
             "magnitude per sample (for example a proton magnetometer)"
         )
+    check_aux_arguments(args, temperature)
     warn_ignored(args, joint=args.method == "joint" or bool(temperature))
     started = time.perf_counter()
     extra = {"--temperature-column": args.temperature_column} if args.temperature_column else {}
+    extra.update({f"--aux-columns ({name})": name for name in args.aux_columns or ()})
     log = _read_for_calibration(args, extra)
     report_log(log)
     read_s = time.perf_counter() - started
@@ -391,6 +409,26 @@ def _run_calibrate(args) -> int:
     return 0
 
 
+def check_aux_arguments(args, temperature) -> None:
+    """InputError for --aux-columns and --aux-kind with options they do not combine with."""
+    from ..errors import InputError
+
+    if args.aux_kind and not args.aux_columns:
+        raise InputError("--aux-kind needs --aux-columns COL [COL ...]")
+    if not args.aux_columns:
+        return
+    if temperature:
+        raise InputError(
+            "--aux-columns applies to the nine-parameter calibration, not to the temperature "
+            "calibration; drop one of them"
+        )
+    if args.scheduler:
+        raise InputError(
+            "--aux-columns reads its channels with the log in memory; drop --scheduler (the "
+            "Python API takes a Dask DataFrame with aux_columns)"
+        )
+
+
 def say_verdict(result) -> None:
     """The verdict of a result (`nlpcal.verdict`) in one line, before the rest of the summary."""
     warn(f"verdict: {result.verdict.line()}")
@@ -439,6 +477,11 @@ def calibration_options(args) -> dict:
         "allow_unconverged": args.allow_unconverged,
         "threads": args.threads,
         "ipopt_options": ipopt_options,
+        **(
+            {"aux_columns": list(args.aux_columns), "aux_kind": args.aux_kind}
+            if getattr(args, "aux_columns", None)
+            else {}
+        ),
         **({"lag": args.lag} if getattr(args, "lag", None) is not None else {}),
         **(
             {"lag_tolerance": args.lag_tolerance}

@@ -142,7 +142,7 @@ def export(
         max_rotation_deg = validation.number(
             max_rotation_deg, "--max-rotation-deg", minimum=0.0, maximum=180.0, unit="[deg]"
         )
-    calibration = getattr(result, "calibration", result)  # a temperature calibration's own
+    calibration = refuse_aux(getattr(result, "calibration", result), fmt)  # a temperature's own
     target = FORMATS[fmt].UNIT if fmt in AUTOPILOTS else unit or calibration.log_unit
     notes = scale_notes(calibration, target)
     correction = AffineCorrection.from_result(result, None if fmt in AUTOPILOTS else unit)
@@ -163,6 +163,21 @@ def export(
             f"not written to {fmt} (it has no place for them): {'; '.join(written.dropped)}"
         )
     return written
+
+
+def refuse_aux(calibration: CalibrationResult, fmt: str) -> CalibrationResult:
+    """InputError for a calibration with aux channels in a format that holds the correction of
+    Eq. 4 alone (the autopilots' motor compensation takes one current or throttle channel):
+    written without the stray fields it would correct every sample wrongly."""
+    channels = getattr(calibration, "aux", None)
+    if channels and fmt not in AUTOPILOTS:
+        names = ", ".join(f"{c.name} ({c.kind})" for c in channels)
+        raise InputError(
+            f"the calibration has aux channels {names}, whose stray fields {fmt} has no place "
+            f"for; apply it with 'nlpcal apply', which subtracts them, or export to ardupilot "
+            f"or px4 (one current or throttle channel)"
+        )
+    return calibration
 
 
 def dropped(calibration: CalibrationResult, correction: AffineCorrection, fmt: str) -> list:

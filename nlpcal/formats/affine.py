@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import units, validation
+from ..auxiliary.model import converted
 from ..calibration.result import CalibrationResult, Reference, read_orientation
 from ..errors import InputError
 from ..models.zhou2010 import correction_matrix, from_correction, smallest_model
@@ -146,6 +147,10 @@ class AffineCorrection(Document):
         applied.
     temperature : TemperatureDrift or None
         How the correction drifts with temperature (not in the matrix JSON).
+    aux : list of AuxChannel
+        Stray fields v_k c_k of auxiliary channels, B_out = A (B_M - b - sum_k v_k c_k)
+        (`nlpcal.auxiliary.model`); the autopilots' motor compensation carries one current or
+        throttle channel. [unit per channel unit]
     unused : list of str
         Names of the fields of the file read that the correction does not carry.
 
@@ -173,6 +178,7 @@ class AffineCorrection(Document):
     orientation: dict | None = None
     temperature: TemperatureDrift | None = None
     unused: list = dataclasses.field(default_factory=list)
+    aux: list = dataclasses.field(default_factory=list)
 
     @classmethod
     def from_result(cls, result, unit: str | None = None) -> AffineCorrection:
@@ -193,6 +199,7 @@ class AffineCorrection(Document):
             sensor_id=calibration.sensor_id,
             orientation=calibration.orientation,
             temperature=None if drift is None else TemperatureDrift.from_result(result, unit),
+            aux=converted(list(calibration.aux), calibration.unit, unit),
         )
 
     def checked(self, source: str) -> AffineCorrection:
@@ -225,6 +232,7 @@ class AffineCorrection(Document):
             temperature=None
             if self.temperature is None
             else self.temperature.in_unit(self.unit, unit),
+            aux=converted(self.aux, self.unit, unit),
         )
 
     def apply(self, samples) -> np.ndarray:
@@ -282,6 +290,7 @@ class AffineCorrection(Document):
             # by nlpcal reads back as that model
             model_name=smallest_model(params.to_dict(), reference.scale_known),
             unit=base,
+            aux=converted(self.aux, self.unit, base),
             unit_source=unit_source,
             input=Provenance.from_dict(
                 {

@@ -26,8 +26,17 @@ mounting by COMPASS_ORIENT (ORIENT2, ORIENT3; a number of ArduPilot's rotation l
 relative to the frame for an external compass). An import carries both into the result
 (`sensor_id`, `orientation`); an export writes COMPASS_DEV_ID when the result's sensor_id is a
 device id, so that the file states the compass it was made for, and COMPASS_ORIENT when the
-orientation came from ArduPilot. Motor compensation (COMPASS_MOT_*, COMPASS_MOTCT) is a
-correction nlpcal does not model: an import names it among the unused parameters.
+orientation came from ArduPilot.
+
+Motor compensation (ArduPilot 4.x, the same correct_field): after the matrix, ArduPilot adds
+
+    m'' = m' + MOT c,   MOT = (COMPASS_MOT_X, _Y, _Z)  [mGauss per A, or per full throttle]
+
+with c the battery current [A] (COMPASS_MOTCT = 2) or the throttle, 0 to 1 (COMPASS_MOTCT = 1,
+Compass::set_throttle); MOT2_*, MOT3_* for instances 2 and 3, COMPASS_MOTCT shared by all. An
+aux channel of nlpcal (`nlpcal.auxiliary`) of kind current or throttle is that term:
+R^T B1 = P (B_M - b - v c) = P (B_M - b) - P v c, so MOT = -P v [mG per channel unit]; an import
+reads it back as v = -P^-1 MOT. Several channels, or one of kind other, ArduPilot cannot hold.
 """
 
 from __future__ import annotations
@@ -47,6 +56,8 @@ OFFDIAGONAL_LIMIT = 1.0
 SCALE_RANGE = (1.0 / 1.5, 1.5)
 #: Default COMPASS_OFFS_MAX: the longest offset vector the pre-arm check accepts. [mG]
 OFFSETS_MAX = 1800.0
+#: The range of COMPASS_MOT_* in ArduPilot's parameter metadata. [mG per A or full throttle]
+MOT_LIMIT = 1000.0
 INSTANCES = (1, 2, 3)
 #: The prefix of ArduPilot's compass parameters (the others are another subsystem's).
 PREFIX = ("COMPASS_",)
@@ -77,6 +88,8 @@ def names(instance: int) -> dict:
         "DIA": [f"COMPASS_DIA{n}_{a}" for a in "XYZ"],
         "ODI": [f"COMPASS_ODI{n}_{a}" for a in "XYZ"],
         "SCALE": f"COMPASS_SCALE{n}",
+        "MOT": [f"COMPASS_MOT{n}_{a}" for a in "XYZ"],
+        "MOTCT": "COMPASS_MOTCT",
         "DEV_ID": f"COMPASS_DEV_ID{n}",
         "ORIENT": f"COMPASS_ORIENT{n}",
     }
@@ -98,6 +111,7 @@ def write(correction: AffineCorrection, instance: int = 1, max_rotation_deg=None
             "ArduPilot",
             "CompassCalibrator accepts |ODI| < 1",
         )
+    motor = autopilot.motor_channel(correction, "ArduPilot")
     offsets = -b  # ArduPilot adds its offsets: m + OFS = m - b
     notes = []
     if np.linalg.norm(offsets) > OFFSETS_MAX:
@@ -124,15 +138,37 @@ def write(correction: AffineCorrection, instance: int = 1, max_rotation_deg=None
     lines += [f"{k},{number_text(v)}" for k, v in zip(keys["ODI"], odi)]
     lines.append(f"{keys['SCALE']},1.0")
     lines += [f"{k},{v}" for k, v in identity]
+    if motor is not None:
+        lines += _motor_lines(correction, p, keys, notes)
     return Export("\n".join(lines) + "\n", notes, angle, dropped)
 
 
+def _motor_lines(correction: AffineCorrection, p: np.ndarray, keys: dict, notes: list) -> list:
+    """COMPASS_MOTCT and COMPASS_MOT*_X/Y/Z of the correction's one motor channel: MOT = -P v,
+    added after the matrix (correct_field). [mG per channel unit]"""
+    (channel,) = correction.in_unit(UNIT).aux
+    mot = -p @ channel.coefficients
+    per = "A" if channel.kind == "current" else "full throttle"
+    if np.abs(mot).max() > MOT_LIMIT:
+        notes.append(
+            f"{keys['MOT'][0][:-2]}_* reach {np.abs(mot).max():.0f} mG per {per}, beyond the "
+            f"+/-{MOT_LIMIT:g} of ArduPilot's parameter range"
+        )
+    signal = "battery current [A]" if channel.kind == "current" else "throttle (0 to 1)"
+    return [
+        f"# motor compensation from aux channel {channel.name!r}: m'' = m' + MOT c, c the "
+        f"{signal}; {keys['MOTCT']} is shared by every compass",
+        f"{keys['MOTCT']},{autopilot.MOTOR_TYPES[channel.kind]}",
+        *(f"{k},{number_text(v)}" for k, v in zip(keys["MOT"], mot)),
+    ]
+
+
 def read(text: str, source: str, instance: int = 1) -> AffineCorrection:
-    """The correction ArduPilot applies with the file's parameters of one compass instance."""
+    """The correction ArduPilot applies with the file's parameters of one compass instance, its
+    motor compensation as an aux channel (the module docstring)."""
     values = parameters(text, source)
     keys = names(instance)
     wanted = [*keys["OFS"], *keys["DIA"], *keys["ODI"], keys["SCALE"]]
-    used = [*wanted, keys["DEV_ID"], keys["ORIENT"]]
     if not any(name in values for name in wanted):
         raise InputError(
             f"{source}: no {keys['OFS'][0]}, {keys['DIA'][0]}, ... for compass "
@@ -147,10 +183,15 @@ def read(text: str, source: str, instance: int = 1) -> AffineCorrection:
     if not SCALE_RANGE[0] <= scale <= SCALE_RANGE[1]:
         scale = 1.0  # have_scale_factor: outside the range the scale is not applied
     d = np.array([[dia[0], odi[0], odi[1]], [odi[0], dia[1], odi[2]], [odi[1], odi[2], dia[2]]])
+    mot = np.array([values.get(k, 0.0) for k in keys["MOT"]])
+    aux = autopilot.motor_aux(values.get(keys["MOTCT"], 0.0), mot, source, scale * d)
+    motor = [*keys["MOT"], keys["MOTCT"]] if aux else []  # else named among the unused
+    used = [*wanted, *motor, keys["DEV_ID"], keys["ORIENT"]]
     return AffineCorrection(
         matrix=scale * d,
         offsets=-ofs,
         unit=UNIT,
         source={"file": source, "format": "ardupilot", "instance": instance},
+        aux=aux,
         **autopilot.identity(values, used, "ardupilot", ROTATIONS, PREFIX, source),
     )

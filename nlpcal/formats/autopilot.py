@@ -13,6 +13,7 @@ import re
 import numpy as np
 
 from .. import validation
+from ..auxiliary.model import AuxChannel
 from ..errors import InputError
 from ..results import distinct
 from .affine import AffineCorrection, rotation_angle_deg
@@ -153,6 +154,56 @@ def identity_lines(correction: AffineCorrection, system: str, id_name: str, rot_
     elif mounting is not None:
         dropped.append(f"the orientation {mounting['parameter']} = {mounting['value']}")
     return rows, dropped
+
+
+#: The kind of an aux channel an autopilot's motor compensation takes -> its type parameter's
+#: value: ArduPilot's COMPASS_MOTCT and PX4's CAL_MAG_COMP_TYP (1 throttle, 2 current).
+MOTOR_TYPES = {"throttle": 1, "current": 2}
+
+
+def motor_channel(correction: AffineCorrection, system: str):
+    """The one aux channel (`nlpcal.auxiliary`) an autopilot's motor compensation holds, or None
+    without aux channels; InputError for several channels or one of kind "other", which it has
+    no place for."""
+    channels = list(correction.aux)
+    if not channels:
+        return None
+    if len(channels) > 1:
+        names = ", ".join(c.name for c in channels)
+        raise InputError(
+            f"{system}'s motor compensation follows one channel, a current or the throttle; "
+            f"this calibration has {len(channels)} aux channels ({names}): calibrate with one"
+        )
+    (channel,) = channels
+    if channel.kind not in MOTOR_TYPES:
+        raise InputError(
+            f"{system}'s motor compensation follows a current or the throttle; aux channel "
+            f"{channel.name!r} is of kind {channel.kind!r} (calibrate with --aux-kind current or "
+            f"throttle when it is one)"
+        )
+    return channel
+
+
+def motor_aux(kind_value: float, compensation, source: str, matrix=None, kinds=None) -> list:
+    """The aux channel (`nlpcal.auxiliary`) of an autopilot's motor compensation read from a
+    file: none when its type is 0 (disabled) or the compensation all zero; v = -matrix^-1
+    compensation where the compensation is added to the field after `matrix` (ArduPilot),
+    v = -compensation where it is added before it (PX4). `kinds` : type value -> channel kind
+    (default 1 throttle, 2 current); InputError for another type. [the file's unit per
+    channel unit]"""
+    kinds = kinds or {value: kind for kind, value in MOTOR_TYPES.items()}
+    if kind_value == 0 or not np.any(compensation):
+        return []
+    if kind_value not in kinds:
+        raise InputError(
+            f"{source}: motor compensation type {kind_value:g} is not one of "
+            f"{', '.join(f'{v} ({k})' for v, k in kinds.items())}"
+        )
+    kind = kinds[kind_value]
+    compensation = np.asarray(compensation, dtype=float)
+    if matrix is not None:
+        compensation = np.linalg.solve(np.asarray(matrix, dtype=float), compensation)
+    return [AuxChannel(kind, kind, -compensation)]
 
 
 def check_range(name: str, value: float, low: float, high: float, system: str, why: str) -> None:

@@ -20,7 +20,15 @@ CAL_MAGn_ID is the device id of the sensor the slot belongs to (Magnetometer::Pa
 writes it; FindCurrentCalibrationIndex matches it) and CAL_MAGn_ROT its rotation (-1: the
 board's). An import carries them into the result (`sensor_id`, `orientation`); an export writes
 CAL_MAGn_ID when the result's sensor_id is a device id, and CAL_MAGn_ROT when the orientation
-came from PX4. CAL_MAGn_XCOMP.. (power compensation) and CAL_MAGn_PRIO are named as unused.
+came from PX4. CAL_MAGn_PRIO is named as unused.
+
+Power compensation (Magnetometer::Correct, VehicleMagnetometer::UpdatePowerCompensation): PX4
+adds COMP p to the raw data before the offsets, m' = S ((m + COMP p) - OFF), with
+COMP = (CAL_MAGn_XCOMP, _YCOMP, _ZCOMP) and p the throttle, 0 to 1 (CAL_MAG_COMP_TYP = 1;
+COMP in gauss), or the battery current in kA (CAL_MAG_COMP_TYP = 2 for battery instance 0, 3
+for instance 1; COMP in gauss per kA). That is nlpcal's aux channel of kind throttle or current
+exactly (`nlpcal.auxiliary`): COMP p = -v c, so COMP = -v [G per full throttle] or -1000 v
+[G/kA, from v in G/A]. Several channels, or one of kind other, PX4 cannot hold.
 
 Thermal compensation (src/modules/temperature_compensation): with TC_M_ENABLE = 1, PX4 subtracts
 from the sensor's readings, in the sensor frame and in gauss, before the calibration offsets,
@@ -54,6 +62,11 @@ INSTANCES = (0, 1, 2, 3)
 #: MAV_PARAM_TYPE_REAL32 and _INT32, the type column of QGroundControl's parameter files.
 REAL32 = 9
 INT32 = 6
+#: CAL_MAG_COMP_TYP -> the kind of the aux channel (2 and 3: the current of battery 0 or 1).
+COMPENSATION_KINDS = {1: "throttle", 2: "current", 3: "current"}
+#: What one unit of a channel is in PX4's power signal p: the throttle itself, the current in
+#: kA (bat_stat.current_a * 0.001f). [p per channel unit]
+POWER_PER_UNIT = {"throttle": 1.0, "current": 1e-3}
 #: The prefixes of PX4's magnetometer parameters (the others are another subsystem's).
 PREFIX = ("CAL_MAG", "TC_M", "SENS_MAG")
 
@@ -65,6 +78,8 @@ def names(instance: int) -> dict:
         **{
             key: [f"CAL_MAG{instance}_{a}{key}" for a in "XYZ"] for key in ("OFF", "SCALE", "ODIAG")
         },
+        "COMP": [f"CAL_MAG{instance}_{a}COMP" for a in "XYZ"],
+        "COMP_TYP": "CAL_MAG_COMP_TYP",
         "ID": f"CAL_MAG{instance}_ID",
         "ROT": f"CAL_MAG{instance}_ROT",
     }
@@ -93,6 +108,7 @@ def write(
     """The parameter file of slot `instance`; a temperature drift as TC_M* parameters when
     they represent it exactly, else InputError unless `drop_temperature`."""
     p, rotation, b, angle = symmetric(correction, UNIT, "PX4", max_rotation_deg)
+    motor = autopilot.motor_channel(correction, "PX4")
     keys = names(instance)
     scale = np.diag(p)
     odiag = np.array([p[0, 1], p[0, 2], p[1, 2]])
@@ -130,9 +146,29 @@ def write(
             f"the temperature model (--drop-temperature; the calibration holds at "
             f"{drift.base_temperature_degC:g} degC)"
         )
+    if motor is not None:
+        power, comment = _power_rows(correction, keys)
+        rows += power
+        lines += comment
     lines += ["#", "# Vehicle-Id Component-Id Name Value Type"]
     lines += [_row(name, value) for name, value in rows]
     return Export("\n".join(lines) + "\n", notes, angle, dropped)
+
+
+def _power_rows(correction: AffineCorrection, keys: dict) -> tuple[list, list]:
+    """(rows, comment lines) of the power compensation of the correction's one motor channel:
+    CAL_MAG_COMP_TYP and COMP = -v / (p per channel unit) (the module docstring). [G per
+    full throttle, or G/kA]"""
+    (channel,) = correction.in_unit(UNIT).aux
+    compensation = -channel.coefficients / POWER_PER_UNIT[channel.kind]
+    rows: list = [(keys["COMP_TYP"], autopilot.MOTOR_TYPES[channel.kind])]
+    rows += list(zip(keys["COMP"], map(float, compensation)))
+    signal = "battery 0 current [kA]" if channel.kind == "current" else "throttle (0 to 1)"
+    comment = [
+        f"# power compensation from aux channel {channel.name!r}: m' = S ((m + COMP p) - OFF), "
+        f"p the {signal}"
+    ]
+    return rows, comment
 
 
 def _row(name: str, value) -> str:
@@ -178,10 +214,18 @@ def read(text: str, source: str, instance: int = 0) -> AffineCorrection:
     scale = np.array([values.get(k, 1.0) for k in keys["SCALE"]])
     o = np.array([values.get(k, 0.0) for k in keys["ODIAG"]])
     s = np.array([[scale[0], o[0], o[1]], [o[0], scale[1], o[2]], [o[1], o[2], scale[2]]])
+    kind_value = values.get(keys["COMP_TYP"], 0.0)
+    comp = np.array([values.get(k, 0.0) for k in keys["COMP"]])
+    kind = COMPENSATION_KINDS.get(int(kind_value), "") if float(kind_value).is_integer() else ""
+    comp = comp * POWER_PER_UNIT.get(kind, 1.0)  # [G per channel unit]
+    aux = autopilot.motor_aux(kind_value, comp, source, kinds=COMPENSATION_KINDS)
+    if aux:  # else named among the unused
+        used[-2:-2] = [*keys["COMP"], keys["COMP_TYP"]]
     return AffineCorrection(
         matrix=s,
         offsets=off,
         unit=UNIT,
         source={"file": source, "format": "px4", "instance": instance},
+        aux=aux,
         **autopilot.identity(values, used, "px4", {-1: "board"}, PREFIX, source),
     )

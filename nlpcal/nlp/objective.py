@@ -76,7 +76,7 @@ def feature_coefficients(e, layout: mom.Layout):
     U = [ca.SX(0)] * size
     P = [ca.SX(0)] * size
     U[layout.a] += 1
-    for k in range(mom.N_PSI):
+    for k in range(len(layout.psi)):
         U[layout.psi[k]] += e[k]
         P[layout.apsi[k]] += 2 * e[k]  # 2 a (e . psi')
     for (k, l), index in layout.pair.items():

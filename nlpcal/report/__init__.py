@@ -36,11 +36,16 @@ def figure_png(log: Log, parameters, corrected=None, *, title: str = "", dpi: in
     """The calibration figure (`nlpcal.plots.calibration_png`) of a log and its correction.
 
     parameters : a CalibrationResult (or a temperature calibration); corrected : the corrected
-    samples [base unit] (default: Eq. 4 with the parameters).
+    samples [base unit] (default: Eq. 4 with the parameters, after the stray field of their aux
+    channels, read from the log under their names).
     """
     calibration = _calibration(parameters)
     if corrected is None:
-        corrected = correct(log.samples, calibration.model)  # type: ignore[union-attr]
+        raw = log.samples
+        channels = getattr(calibration, "aux", None)
+        if channels:
+            raw = raw - calibration.stray_field({c.name: log.values(c.name) for c in channels})  # type: ignore[union-attr]
+        corrected = correct(raw, calibration.model)  # type: ignore[union-attr]
     view = CalibrationView.build(log, corrected, calibration, title)
     if not _same_log(calibration, log):
         view.cycles = []  # the cycles of another log's calibration do not describe this one
