@@ -13,7 +13,7 @@ import nlpcal.calibration.joint as joint_module
 from nlpcal.calibration.result import BlockSolve, SolverReport
 from nlpcal.cli import main
 from nlpcal.comparison.conjugate_gradient import CGOptions
-from nlpcal.errors import InputError
+from nlpcal.errors import InputError, SolveError
 from nlpcal.nlp.solver import FINISHERS, NLPCAL_STATUSES, SUCCESS_STATUSES, ipopt_value
 from synthetic import make_log
 
@@ -108,6 +108,14 @@ def test_ipopt_options_are_recorded_and_effective(samples, log_csv, tmp_path, ca
     recorded = json.loads(out.read_text())["solver"]["ipopt_options"]
     assert recorded["max_iter"] == 1 and recorded["mu_strategy"] == "adaptive"
     assert nlpcal.CalibrationResult.load(out).solver.ipopt_options == recorded
+
+
+def test_an_iteration_limit_the_user_set_is_named_as_the_cause(samples):
+    with pytest.raises(SolveError) as failure:
+        nlpcal.calibrate(samples, ipopt_options={"max_iter": 0})
+    assert failure.value.status == "Maximum_Iterations_Exceeded"
+    assert "max_iter 0" in str(failure.value) and "coverage" not in str(failure.value)
+    assert failure.value.identifiability is None  # no diagnosis of the data was needed
 
 
 @pytest.mark.parametrize(

@@ -399,6 +399,14 @@ def explain_failure(
     theta = failure.result
     if theta is None or not np.all(np.isfinite(theta)):
         return failure
+    limit = dict(problem.ipopt.extra).get("max_iter")  # an iteration limit the user set
+    if failure.status == "Maximum_Iterations_Exceeded" and limit is not None:
+        return SolveError(
+            f"{failure}: IPOPT stopped at the iteration limit given (max_iter {limit}); raise "
+            f"it or leave it at its default",
+            failure.status,
+            result=theta,
+        )
     flat = problem_flatness(problem, theta)
     if flat["planar"]:
         return SolveError(

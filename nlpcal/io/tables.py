@@ -216,8 +216,13 @@ def column_name(frame: pd.DataFrame, name, what: str = "column") -> str:
     lower = {str(c).lower(): c for c in frame.columns}
     if key.lower() in lower:
         return lower[key.lower()]
-    if re.fullmatch(r"\d+", key) and int(key) < frame.shape[1]:
-        return str(frame.columns[int(key)])
+    if re.fullmatch(r"\d+", key):
+        if int(key) < frame.shape[1]:
+            return str(frame.columns[int(key)])
+        raise InputError(
+            f"{what} {key!r} is out of range: positions are 0-based, and the log has "
+            f"{_listing(frame)}"
+        )
     raise InputError(f"{what} {key!r} not found; the log has {_listing(frame)}")
 
 
