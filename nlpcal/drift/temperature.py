@@ -440,7 +440,7 @@ def calibrate_temperature(
     validation.choice(time_drift, "time drift", TIME_DRIFTS)
     timed_only = temperature is None
     if timed_only:  # a time drift alone: no temperature model, every temperature zero
-        model, base_temperature, temperature = _time_drift_alone(given, time_drift, samples)
+        model, base_temperature = _time_drift_alone(given, time_drift)
     samples, temperature, reference = _checked_series(
         samples, temperature, reference, unit, reference_unit
     )
@@ -552,11 +552,12 @@ def _days(times, time_drift: str, temperature: np.ndarray) -> tuple:
 
 
 def _checked_series(samples, temperature, reference, unit: str, reference_unit) -> tuple:
-    """The samples and the reference series in the base unit and the temperatures [degC],
-    checked: one of each per sample, a reference given and of the samples' field."""
+    """The samples and the reference series in the base unit and the temperatures [degC]
+    (zero for a time drift alone: `temperature` None), checked: one of each per sample, a
+    reference given and of the samples' field."""
     samples = validation.samples(samples)
     n = samples.shape[0]
-    temperature = validation.temperature(temperature, n)
+    temperature = np.zeros(n) if temperature is None else validation.temperature(temperature, n)
     if reference is None:
         raise InputError(
             "the temperature calibration needs a reference field per sample (a "
@@ -592,10 +593,9 @@ def _standard_errors(uncertainty, scale, names, model: str) -> tuple:
     return errors, coefficient_errors, poor
 
 
-def _time_drift_alone(temperature_model: str | None, time_drift: str, samples) -> tuple:
-    """(NO_TEMPERATURE, base temperature 0 [degC], a zero temperature per sample) for a
-    calibration without temperatures: a time drift alone; InputError when a temperature model
-    or no time drift is asked for."""
+def _time_drift_alone(temperature_model: str | None, time_drift: str) -> tuple:
+    """(NO_TEMPERATURE, base temperature 0 [degC]) for a calibration without temperatures: a
+    time drift alone; InputError when a temperature model or no time drift is asked for."""
     if temperature_model is not None:
         raise InputError(
             f"a {temperature_model} temperature model needs the samples' temperatures "
@@ -606,7 +606,7 @@ def _time_drift_alone(temperature_model: str | None, time_drift: str, samples) -
             "the temperature calibration needs the samples' temperatures, or a time drift "
             "(--temperature-column COL or --time-drift common|per-axis)"
         )
-    return NO_TEMPERATURE, 0.0, np.zeros(validation.samples(samples).shape[0])
+    return NO_TEMPERATURE, 0.0
 
 
 def _labels(model: str, time_drift: str, timed_only: bool) -> tuple:
