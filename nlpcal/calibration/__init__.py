@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from .. import chunks, units
-from ..errors import InputError, QualityError, SolveError
+from ..errors import QualityError, SolveError
 from ..io.logs import Log
 from ..results import Provenance
 from ..robust import Loss
@@ -180,8 +180,6 @@ def calibrate(
     >>> corrected.shape
     (2000, 3)
     """
-    if lag is not None and aux_columns is not None:
-        raise InputError("a lag and aux channels are not estimated together; drop one of them")
     settings = CalibrationSettings.of(
         method=method,
         model=model,

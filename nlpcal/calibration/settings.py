@@ -27,6 +27,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 from .. import units, validation
+from ..errors import InputError
 from ..lag import LAG_TOLERANCE_S, lag_option, tolerance_option
 from ..nlp.blocks import OPTIONS
 from ..nlp.solver import IpoptOptions
@@ -222,6 +223,8 @@ class CalibrationSettings:
         """The settings of `nlpcal.calibrate`'s keywords (see there), each checked: InputError
         names the first that is unusable. Quantities are in `unit` (default nT) and are stored
         in its base unit. [nT or raw]"""
+        if lag is not None and aux_columns is not None:
+            raise InputError("a lag and aux channels are not estimated together; drop one of them")
         threads = validation.optional_whole(threads, "threads")
         validation.choice(method, "method", METHODS)
         validation.choice(model, "model", MODEL_CHOICES)
