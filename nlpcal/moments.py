@@ -309,6 +309,7 @@ def accumulate(
     frame: Frame | None = None,
     chunk_rows: int = CHUNK_ROWS,
     weight=None,
+    length: float | None = None,
 ) -> Moments:
     """One pass over the samples that builds the Gram matrix of the features, chunk by chunk.
 
@@ -318,6 +319,8 @@ def accumulate(
     weight : None, or a function (raw chunk, its reference) -> the chunk's weights omega_i >= 0,
         so that the objectives become weighted means, sum omega_i r_i^2 / sum omega_i (the
         reweighting passes of a robust loss). [1]
+    length : L of a reference series, when not the rms of the series (a Dask log's first
+        pass, before its survey has that rms). [field unit]
     """
     samples = as_rows(samples)
     n = samples.shape[0]
@@ -329,11 +332,12 @@ def accumulate(
     else:
         kind = "series"
         reference = as_rows(reference)
-        length = float(np.sqrt(mean_square(reference)))
+        length = length or float(np.sqrt(mean_square(reference)))
     first = samples[: min(1024, n)]
     shift = float(np.sqrt(np.einsum("ij,ij->i", first, first)).mean())
     work = GramBlock(frame.centre, length, layout(kind == "series"), shift, chunk_rows, weight)
     gram, measured, total = reduce(samples, reference, work, merge_gram, chunk_rows)
+    n = measured.n  # the rows read: a Dask log's first pass may find fewer than declared
     if weight is not None and not total > 0:
         raise InputError(
             "every sample has weight zero: the loss scale is too small for the residuals of "

@@ -12,19 +12,24 @@ The same work function runs on both: it receives a block of raw rows and the blo
 reference (None, a number or an array of the block's rows) and loops over chunks of its own, so
 a sum over a Dask array differs from the in-memory one only by the order of additions.
 
-A Dask array enters the library as `LazySamples`. One pass (`survey`) gathers what the rest of a
+A Dask array enters the library as `LazySamples`. Its survey gathers what the rest of a
 calibration reads without a pass of its own: the range and the sum of every column, the first
 rows, and the evenly strided subsamples `values[::max(1, N // m)]` for the sizes m of
 `SURVEY_SIZES` (the sphere frame, the attitude coverage, the median absolute deviation of the
-residuals, the mean magnitude). Indexing rows returns numpy arrays, from the survey when it has
-them; turning the whole array into numpy is refused, so that no step loads a log larger than
-memory by accident.
+residuals, the mean magnitude). It is not a pass of its own: the first pass over a log not yet
+surveyed (`reduce`, whatever its work) gathers it along, block by block (`Surveying`), and so
+do the reader's checks that wait for that pass (`Pending`). Only a step that asks for the
+survey before any pass (`LazySamples.survey`) runs it alone. The first rows come from the first
+block without a pass. Indexing rows returns numpy arrays, from the survey when it has them;
+turning the whole array into numpy is refused, so that no step loads a log larger than memory
+by accident.
 """
 
 from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -132,6 +137,11 @@ def merge_surveys(first: Survey, second: Survey) -> Survey:
     )
 
 
+def merge_optional(first: Survey | None, second: Survey | None) -> Survey | None:
+    """`merge_surveys` of two neighbouring surveys, None when there are none."""
+    return None if first is None or second is None else merge_surveys(first, second)
+
+
 def merge_all(surveys: list) -> Survey:
     """The surveys of consecutive blocks, in order, merged at once."""
     return Survey(
@@ -145,25 +155,88 @@ def merge_all(surveys: list) -> Survey:
     )
 
 
+@dataclass
+class Ledger:
+    """The passes over one log's data and what each cost, shared by the arrays made from it
+    (its columns, its values in another unit).
+
+    passes : how many passes over the data have run.
+    timings : (what, seconds) of every pass: "read", "survey" or the name of the work of the
+        pass ("GramBlock", "StatisticsBlock" ...; "+ survey" when the survey came along), and of
+        the reads of the first block ("head", not a pass). [s]
+    """
+
+    passes: int = 0
+    timings: list = field(default_factory=list)
+
+    def record(self, what: str, seconds: float, whole: bool = True) -> None:
+        """Count a pass (`whole`) or a read of a few blocks, and what it cost. [s]"""
+        self.passes += int(whole)
+        self.timings.append((what, seconds))
+
+
+@dataclass
+class Pending:
+    """Checks of a reader that wait for the first pass over a log (`nlpcal.io.lazy`): `parts`
+    are Dask objects computed along with that pass (reading the same blocks, so each is read
+    once), and `settle(values)` takes their values. It returns True when the pass stands, or
+    False when it found that the blocks are not as declared: then it has rebuilt the arrays
+    and the pass runs again (a pass more, counted)."""
+
+    parts: list
+    settle: Callable
+
+
 class LazySamples:
     """Rows of a Dask array that stay where they are: samples (N, 3) or a reference series (N,).
 
     array : the Dask array, in one chunk across its columns.
-    passes : how many passes over the data have run (the survey included).
-    timings : (what, seconds) of every pass: "survey", or the name of the work of the pass
-        ("GramBlock", "StatisticsBlock" ...). [s]
+    survey : its survey when already gathered (by a reader's pass), else None: the first pass
+        gathers it.
+    pending : a reader's `Pending` checks, settled by the first pass.
+    ledger : the passes over the log (`Ledger`), shared with the arrays made from it.
     """
 
-    def __init__(self, array, survey: Survey | None = None):
+    def __init__(
+        self,
+        array,
+        survey: Survey | None = None,
+        *,
+        pending: Pending | None = None,
+        ledger: Ledger | None = None,
+    ):
+        self.ledger = ledger or Ledger()
         if any(np.isnan(size) for size in array.chunks[0]):
+            started = time.perf_counter()
             array = array.compute_chunk_sizes()  # one pass: the rows of every block
+            self.ledger.record("count", time.perf_counter() - started)
         if array.ndim == 2:
             array = array.rechunk({1: -1})
         self.array = array
         self._survey = survey
         self._cache: dict = {}
-        self.passes = 0
-        self.timings: list = []
+        self.pending = pending
+
+    @property
+    def passes(self) -> int:
+        """How many passes over the log's data have run (the read and the survey included)."""
+        return self.ledger.passes
+
+    @property
+    def timings(self) -> list:
+        """(what, seconds) of every pass over the log (`Ledger`). [s]"""
+        return self.ledger.timings
+
+    @property
+    def surveyed(self) -> bool:
+        """Whether the survey is gathered (else the next pass gathers it)."""
+        return self._survey is not None
+
+    def rebuilt(self, array) -> None:
+        """Take another Dask array of the same log (the blocks' rows counted): the survey and
+        the rows kept from the old one are dropped."""
+        self.array = array.rechunk({1: -1}) if array.ndim == 2 else array
+        self._survey, self._cache = None, {}
 
     @property
     def shape(self) -> tuple:
@@ -190,8 +263,10 @@ class LazySamples:
         factor = float(factor)
         if not factor > 0:
             raise ValueError("LazySamples scale by a positive factor only")
+        if self.pending is not None:  # the reader's checks settle on the log as read
+            survey_together(self)
         survey = self._survey.scaled(factor) if self._survey is not None else None
-        return LazySamples(self.array * factor, survey)
+        return LazySamples(self.array * factor, survey, ledger=self.ledger)
 
     __rmul__ = __mul__
 
@@ -220,17 +295,23 @@ class LazySamples:
         return values[(slice(None), *columns)] if columns else values
 
     def _rows(self, start: int, stop: int, step: int) -> np.ndarray:
-        head = start == 0 and step == 1 and stop <= SURVEY_HEAD
         strided = start == 0 and stop == self.n and step in self.steps()
-        survey = self.survey() if head or strided else self._survey  # the survey has them
+        survey = self.survey() if strided else self._survey  # the survey has them
         if survey is not None and step > 0:
             if step == 1 and start == 0 and stop <= survey.head.shape[0]:
                 return survey.head[:stop]
             if start == 0 and stop == self.n and step in survey.rows:
                 return survey.rows[step]
+        head = self._cache.get("head")
+        if head is not None and start == 0 and step == 1 and stop <= head.shape[0]:
+            return head[:stop]  # the first rows, read before the survey
         key = (start, stop, step)
-        if key not in self._cache:
+        if key not in self._cache:  # the first rows: from the first blocks, not a pass
+            started = time.perf_counter()
             self._cache[key] = np.asarray(self.array[start:stop:step].compute(), dtype=float)
+            self.ledger.record("head", time.perf_counter() - started, whole=False)
+            if start == 0 and step == 1 and stop > (0 if head is None else head.shape[0]):
+                self._cache["head"] = self._cache[key]
         return self._cache[key]
 
     def mean(self, axis=None):
@@ -251,36 +332,72 @@ class LazySamples:
 
 
 def survey_together(*values) -> None:
-    """Survey every `LazySamples` among `values` that has no survey yet, in one pass: arrays
-    made from the same files read each block once."""
-    pending = [v for v in values if isinstance(v, LazySamples) and v._survey is None]
-    if not pending:
-        return
-    import dask
-
-    trees = []
-    for value in pending:
-        steps = value.steps()
-        parts = [
-            dask.delayed(survey_block)(block, start, steps)
-            for block, (start, _) in zip(value.blocks(), value.block_offsets())
-        ]
-        trees.append(tree(parts, merge_surveys))
-    started = time.perf_counter()
-    with chunks.single_blas():  # Dask threads run blocks side by side
-        surveys = dask.compute(*trees)
-    for value, survey in zip(pending, surveys):
-        value._survey = survey
-        value.passes += 1
-        value.timings.append(("survey", time.perf_counter() - started))
+    """Survey every `LazySamples` among `values` that has no survey yet (and settle a reader's
+    pending checks), in passes of their own: a pair of arrays of the same rows (samples and
+    their reference series) in one pass, so that arrays made from the same files read each
+    block once. The survey usually comes along with the first pass instead (`reduce`)."""
+    pending = [v for v in values if isinstance(v, LazySamples) and not v.surveyed]
+    while pending:
+        first = pending.pop(0)
+        partner = next((v for v in pending if v.shape[0] == first.shape[0]), None)
+        if partner is not None:
+            pending.remove(partner)
+        _reduce_dask(first, partner, nothing, no_merge)
 
 
-def surveyed(*values) -> tuple:
-    """`values` with every Dask array as `LazySamples`, all of them surveyed in one pass; other
-    values as they are."""
-    values = tuple(LazySamples(v) if is_dask(v) else v for v in values)
-    survey_together(*values)
-    return values
+def nothing(block, reference) -> None:
+    """The work of a pass that only gathers the survey (`survey_together`)."""
+    return None
+
+
+def no_merge(first, second) -> None:
+    return None
+
+
+@dataclass(frozen=True)
+class Surveying:
+    """The work of a pass that also gathers the survey of its rows (`survey_block`), and of the
+    rows of a reference series, on the way: one task per block does both, so that no survey
+    needs a pass of its own.
+
+    work : the pass's own work; indexed : whether it takes the block's first row.
+    steps, reference_steps : the strides of the surveys' subsamples, None for no survey.
+    """
+
+    work: Callable
+    indexed: bool
+    steps: tuple | None
+    reference_steps: tuple | None
+
+    def __call__(self, block, reference, start: int) -> tuple:
+        """(the work's partial result, the samples' survey, the reference's survey)."""
+        with np.errstate(over="ignore", invalid="ignore"):  # values checked once surveyed
+            result = self.work(block, reference, *((start,) if self.indexed else ()))
+            mine = None if self.steps is None else survey_block(block, start, self.steps)
+            theirs = None
+            if self.reference_steps is not None:
+                theirs = survey_block(reference, start, self.reference_steps)
+        return result, mine, theirs
+
+
+@dataclass(frozen=True)
+class SurveyingMerge:
+    """The merge of `Surveying` partial results: the work's own merge, and the surveys'."""
+
+    merge: Callable
+
+    def __call__(self, first: tuple, second: tuple) -> tuple:
+        return (
+            self.merge(first[0], second[0]),
+            merge_optional(first[1], second[1]),
+            merge_optional(first[2], second[2]),
+        )
+
+
+def lazy(*values) -> tuple:
+    """`values` with every Dask array as `LazySamples` (not surveyed: the first pass gathers
+    their survey); other values as they are."""
+    return tuple(LazySamples(v) if is_dask(v) else v for v in values)
 
 
 def as_rows(values):
@@ -318,6 +435,20 @@ def axis_ranges(array, chunk_rows: int) -> tuple:
         chunk_low, chunk_high = column_ranges(array[start : start + chunk_rows])
         low, high = np.minimum(low, chunk_low), np.maximum(high, chunk_high)
     return low, high
+
+
+#: Rows of the first block of a Dask log read for what must be known before the first pass
+#: (the frame of its moments, the plausibility of its unit), at most. [1]
+FIRST_BLOCK_ROWS = 2**20
+
+
+def first_block(values) -> np.ndarray:
+    """The first rows of a log, at most FIRST_BLOCK_ROWS: of a Dask log its first block (read
+    apart, not a pass: one block of many). [unit of the values]"""
+    rows = min(values.shape[0], FIRST_BLOCK_ROWS)
+    if isinstance(values, LazySamples):
+        rows = min(rows, values.block_offsets()[0][1])
+    return np.asarray(values[:rows], dtype=float)
 
 
 def in_memory(values, most: int) -> np.ndarray:
@@ -367,28 +498,72 @@ def reduce(samples, reference, work, merge, chunk_rows: int, indexed: bool = Fal
 
 
 def _reduce_dask(samples, reference, work, merge, indexed: bool = False):
+    """One pass on the current Dask scheduler: the survey of every `LazySamples` not yet
+    surveyed comes along (`Surveying`), and the reader's `Pending` checks settle; a pass whose
+    checks found the blocks not as declared runs again on the rebuilt arrays."""
     import dask
     import dask.array as da
 
-    if not isinstance(samples, LazySamples):  # a Dask reference with samples in memory
+    survey_samples = isinstance(samples, LazySamples)
+    if not survey_samples:  # a Dask reference with samples in memory
         blocks = (reference.array.chunks[0], -1)
-        samples = LazySamples(da.from_array(np.asarray(samples), chunks=blocks))
+        samples = LazySamples(
+            da.from_array(np.asarray(samples), chunks=blocks), ledger=reference.ledger
+        )
+    ledgers = {id(v.ledger): v.ledger for v in (samples, reference) if isinstance(v, LazySamples)}
+    while True:
+        whole, surveys = _pass_tree(samples, reference, work, merge, indexed, survey_samples)
+        pending = list(
+            {
+                id(v.pending): v.pending
+                for v in (samples, reference)
+                if isinstance(v, LazySamples) and v.pending is not None
+            }.values()
+        )
+        started = time.perf_counter()
+        with chunks.single_blas():  # Dask threads run blocks side by side
+            result, *checked = dask.compute(whole, *[p.parts for p in pending])
+        stands = all([p.settle(values) for p, values in zip(pending, checked)])
+        name = "survey" if work is nothing else type(work).__name__
+        for ledger in ledgers.values():
+            ledger.record(
+                name + (" + survey" if surveys and name != "survey" else ""),
+                time.perf_counter() - started,
+            )
+        if stands:
+            break
+    if not surveys:
+        return result
+    result, mine, theirs = result
+    if mine is not None:  # the survey holds the first rows: drop those read before it
+        samples._survey, samples._cache = mine, {}
+    if theirs is not None:
+        reference._survey, reference._cache = theirs, {}
+    return result
+
+
+def _pass_tree(samples, reference, work, merge, indexed: bool, survey_samples: bool) -> tuple:
+    """(the delayed result of a pass, whether it gathers surveys) over the blocks of
+    `samples` and the same rows of `reference`."""
+    import dask
+
     offsets = samples.block_offsets()
     if isinstance(reference, LazySamples):
         rows = samples.array.chunks[0]
         references = reference.blocks(None if reference.array.chunks[0] == rows else rows)
+        reference_steps = None if reference.surveyed else reference.steps()
     else:  # in memory: each task takes its own rows of the reference
         references = [reference_chunk(reference, start, stop) for start, stop in offsets]
+        reference_steps = None
+    steps = samples.steps() if survey_samples and not samples.surveyed else None
+    surveys = steps is not None or reference_steps is not None
+    if surveys:
+        work, merge = Surveying(work, indexed, steps, reference_steps), SurveyingMerge(merge)
     parts = [
-        dask.delayed(work)(block, ref, *((start,) if indexed else ()))
+        dask.delayed(work)(block, ref, *((start,) if indexed or surveys else ()))
         for block, ref, (start, _) in zip(samples.blocks(), references, offsets)
     ]
-    started = time.perf_counter()
-    with chunks.single_blas():  # Dask threads run blocks side by side
-        result = dask.compute(tree(parts, merge))[0]
-    samples.passes += 1
-    samples.timings.append((type(work).__name__, time.perf_counter() - started))
-    return result
+    return tree(parts, merge), surveys
 
 
 def tree(parts: list, merge):

@@ -110,27 +110,37 @@ def test_the_gram_matrix_differs_by_rounding_only_and_no_block_is_loaded_whole(s
         np.asarray(lazy)
 
 
-def test_a_calibration_on_dask_takes_one_pass_per_table_row(spiky_log):
-    calls = []
-
-    def counting(values, *args):
-        calls.append(values)
-        return original(values, *args)
-
+def counted_passes(monkeypatch) -> list:
+    """The works of the passes `nlpcal.passes.reduce` runs on Dask, from now on."""
+    works = []
     original = passes._reduce_dask
-    passes._reduce_dask = counting
-    try:
-        with dask.config.set(scheduler="sync"):
-            lazy = passes.LazySamples(da.from_array(spiky_log, chunks=(10_000, 3)))
-            result = nlpcal.calibrate(lazy, method="staged", reference_field=PAPER_FIELD)
-    finally:
-        passes._reduce_dask = original
-    # survey + Gram + one pass per exact Table 1 row (the rows between the first and the last
-    # cycle come from the moments) + the scores of the standard errors: the subsamples of the
-    # diagnostics (frame, coverage, residual spread) come from the survey.
+
+    def counting(samples, reference, work, *args):
+        works.append(type(work).__name__)
+        return original(samples, reference, work, *args)
+
+    monkeypatch.setattr(passes, "_reduce_dask", counting)
+    return works
+
+
+@pytest.mark.parametrize("method", ["joint", "staged"])
+def test_the_survey_of_a_dask_log_comes_with_its_first_pass(spiky_log, method, monkeypatch):
+    works = counted_passes(monkeypatch)
+    with dask.config.set(scheduler="sync"):
+        lazy = passes.LazySamples(da.from_array(spiky_log, chunks=(10_000, 3)))
+        result = nlpcal.calibrate(lazy, method=method, reference_field=PAPER_FIELD)
+    memory = nlpcal.calibrate(spiky_log, method=method, reference_field=PAPER_FIELD)
+    assert_same_calibration(memory, result)
+    # one pass before the solve gathers the moments and the survey the checks, the frame and
+    # the diagnostics read (no survey pass of its own); the moments are then taken to the
+    # frame of the samples in memory; after the solve, the Table 1 rows not from the moments
+    # and the scores of the standard errors
+    names = [what for what, _ in lazy.timings]
+    assert names[0] == "head" and names[1] == "GramBlock + survey"
+    assert "survey" not in names and "read" not in names
     exact = sum(not row.get("from_moments") for row in result.statistics[1:])
-    assert exact == 2 < len(result.statistics) - 1
-    assert lazy.passes == 3 + exact and len(calls) == 2 + exact
+    after = ["StatisticsBlock"] * exact + ["ScoreBlock"]
+    assert works == ["GramBlock", "GramBlock", *after] and lazy.passes == len(works)
 
 
 def test_a_dask_dataframe_has_its_field_columns_detected(spiky_log):
@@ -312,6 +322,7 @@ def test_the_exact_objective_at_many_points_takes_one_pass(spiky_log):
 
 def test_a_bad_value_on_dask_is_placed_as_the_reader_in_memory_places_it(tmp_path):
     pytest.importorskip("pyarrow")
+    from nlpcal.calibration import calibrate_log
     from nlpcal.errors import InputError
     from nlpcal.io import read_log
     from nlpcal.io.lazy import read_lazy_log
@@ -327,8 +338,9 @@ def test_a_bad_value_on_dask_is_placed_as_the_reader_in_memory_places_it(tmp_pat
         read_log(parquet)
     assert "data row 23457" in str(memory.value)
     with dask.config.set(scheduler="sync"):
+        log = read_lazy_log(parquet)  # no pass: the blocks are checked in the first one
         with pytest.raises(InputError) as lazy:
-            read_lazy_log(parquet)
+            calibrate_log(log)
         assert "data row 23457" in str(lazy.value)
         with pytest.raises(InputError) as blocks:
             read_lazy_log(text, block_bytes=100_000)
@@ -368,3 +380,30 @@ def test_an_assumed_unit_ruled_out_is_raw_counts_in_blocks_too(tmp_path, spiky_l
     for log in (memory, lazy):
         assert (log.unit, log.unit_source) == ("raw", "assumed") and "--unit G" in log.warnings[0]
     np.testing.assert_array_equal(memory.samples, frame[["bx", "by", "bz"]].to_numpy())
+
+
+def test_rows_left_out_of_parquet_are_found_by_the_first_pass_as_in_memory(tmp_path):
+    pytest.importorskip("pyarrow")
+    from nlpcal.calibration import calibrate_log
+    from nlpcal.io import read_log
+    from nlpcal.io.lazy import read_lazy_log
+
+    samples, _ = make_log(n=30_000, noise=1.0, seed=5)
+    frame = pd.DataFrame(samples, columns=["bx", "by", "bz"])
+    frame["proton_nT"] = PAPER_FIELD
+    frame.loc[12_345, ["bx", "by", "bz"]] = 0.0  # a zero vector: always left out
+    frame.loc[23_456, "by"] = np.nan  # dropped with drop_invalid
+    frame.to_parquet(tmp_path / "log.parquet", index=False, row_group_size=10_000)
+    options = {"drop_invalid": True, "reference_column": "proton_nT"}
+    memory = read_log(tmp_path / "log.parquet", **options)
+    expected = calibrate_log(memory, method="joint")
+    with dask.config.set(scheduler="sync"):
+        log = read_lazy_log(tmp_path / "log.parquet", **options)
+        assert log.dropped == 0 and log.samples.passes == 0  # the footers' rows, not read yet
+        result = calibrate_log(log, method="joint")
+    assert log.dropped == memory.dropped == 2 and result.n_samples == expected.n_samples
+    assert set(memory.notes) <= set(log.notes)
+    # the first pass found the blocks shorter than declared: it ran again on the rows counted
+    names = [what for what, _ in log.samples.timings]
+    assert names.count("GramBlock + survey") == 2 and "survey" not in names
+    assert_same_optimum(result.parameters, expected.parameters, expected.standard_errors)

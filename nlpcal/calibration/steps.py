@@ -28,7 +28,7 @@ from ..inference import Z_975
 from ..io.lazy import field_samples
 from ..io.logs import settle_unit
 from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
-from ..moments import Moments, accumulate
+from ..moments import Moments, accumulate, sphere_frame
 from ..nlp.blocks import GAUGE
 from ..results import Provenance, TableRow
 from ..robust import TUNING
@@ -111,33 +111,116 @@ def prepare(samples, settings: CalibrationSettings) -> Prepared:
     """Check the samples and the reference, take them to their base unit and gather their
     moments in one pass.
 
-    A Dask array or DataFrame stays on its cluster: one survey pass checks it
-    (`nlpcal.passes.surveyed`). An assumed unit (none given) under which the magnitudes are far
-    from Earth's field is taken as raw counts, with the warning (`nlpcal.io.logs.settle_unit`).
-    Raises InputError for unusable samples or a reference in a unit that does not mix with
-    theirs.
+    A Dask array or DataFrame stays on its cluster (`prepare_lazy`). An assumed unit (none
+    given) under which the magnitudes are far from Earth's field is taken as raw counts, with
+    the warning (`nlpcal.io.logs.settle_unit`). Raises InputError for unusable samples or a
+    reference in a unit that does not mix with theirs.
     """
-    unit, source = settings.input.given_unit, settings.input.unit_source
-    reference_unit = settings.reference.unit
-    samples, reference = passes.surveyed(field_samples(samples), settings.reference.field)
+    samples, reference = passes.lazy(field_samples(samples), settings.reference.field)
+    if passes.is_lazy(samples) or passes.is_lazy(reference):
+        return prepare_lazy(samples, reference, settings)
     samples = validation.samples(samples)
     reference = validation.reference(reference, samples.shape[0])
-    samples = units.to_base(samples, unit)  # in base units a memory map stays mapped
-    warnings = []
-    if source == "assumed":
-        samples, unit, warning = settle_unit(samples, unit, source)
-        warnings = [warning] if warning else []
-        units.check_compatible(unit, reference_unit or unit)
-    reference = units.to_base(reference, reference_unit or unit)
-    validation.reference_scale(reference, validation.mean_magnitude(samples))
+    samples, reference = in_base_units(samples, reference, settings)  # a memory map stays mapped
+    unit, warnings = settled_unit(samples, reference, settings)
     return Prepared(
         samples=samples,
         reference=reference,
         moments=accumulate(samples, reference),
         unit=units.base_unit(unit),
-        unit_source=source,
+        unit_source=settings.input.unit_source,
         warnings=warnings,
     )
+
+
+def in_base_units(samples, reference, settings: CalibrationSettings) -> tuple:
+    """The samples and the reference in their base unit (from the unit given, else nT)."""
+    unit = settings.input.given_unit
+    return units.to_base(samples, unit), units.to_base(reference, settings.reference.unit or unit)
+
+
+def settled_unit(samples, reference, settings: CalibrationSettings) -> tuple:
+    """(unit, warnings): an assumed unit checked against the magnitudes of the samples
+    (`settle_unit`; ruled out, nT becomes raw counts: the same numbers, another name), its
+    reference's unit against it, and the reference's scale against the samples'."""
+    unit, source = settings.input.given_unit, settings.input.unit_source
+    warnings = []
+    if source == "assumed":  # the unit given is nT: factor 1, the samples stay as they are
+        _, unit, warning = settle_unit(samples, unit, source)
+        warnings = [warning] if warning else []
+        units.check_compatible(unit, settings.reference.unit or unit)
+    validation.reference_scale(reference, validation.mean_magnitude(samples))
+    return unit, warnings
+
+
+def prepare_lazy(samples, reference, settings: CalibrationSettings) -> Prepared:
+    """`prepare` for samples or a reference series that stay on a Dask cluster, in one pass.
+
+    The pass that gathers the moments gathers the survey too (`nlpcal.passes.reduce`), and a
+    reader's pending checks settle in it; so the checks that read the survey (the ranges of the
+    values, a series' signs, the unit's plausibility, the reference's scale) come after it, on
+    the survey, and refuse the log as they would before it (the assumed unit they may rule out
+    is nT, whose numbers are raw counts': the moments stay valid under its new name). The
+    frame of that pass, needed before it, is fitted to the log's first block (`first_frame`);
+    the moments are then taken to the frame the samples in memory get (`reframed`).
+    """
+    samples = validation.vectors(samples, minimum=validation.MIN_SAMPLES, purpose=NINE)
+    if not passes.is_lazy(reference):
+        reference = validation.reference(reference, samples.shape[0])
+    samples, reference = in_base_units(samples, reference, settings)
+    frame, length = first_frame(samples, reference)
+    moments = accumulate(samples, reference, frame=frame, length=length)
+    samples = validation.samples(samples)  # from the survey the pass gathered
+    reference = validation.reference(reference, samples.shape[0])
+    unit, warnings = settled_unit(samples, reference, settings)
+    return Prepared(
+        samples=samples,
+        reference=reference,
+        moments=reframed(moments, samples, reference),
+        unit=units.base_unit(unit),
+        unit_source=settings.input.unit_source,
+        warnings=warnings,
+    )
+
+
+#: The purpose of the samples' count in messages.
+NINE = "for nine parameters"
+
+
+def first_frame(samples, reference) -> tuple:
+    """(frame, length) of the first pass over a Dask log: the sphere fitted to its first block
+    (`nlpcal.passes.first_block`: one block read, not a pass), and the length the moments
+    take (the sphere's radius, the constant reference or the rms of the series' first block).
+    [field unit]"""
+    head = validation.finite_vectors(passes.first_block(samples))  # NaN refused before the fit
+    frame = sphere_frame(head)
+    if reference is None:
+        return frame, frame.radius
+    if np.ndim(reference) == 0:
+        return frame, float(reference)
+    first = np.asarray(reference[: head.shape[0]], dtype=float)
+    finite = first[np.isfinite(first)]
+    return frame, float(np.sqrt(np.mean(finite**2))) if finite.size else frame.radius
+
+
+def reframed(moments: Moments, samples, reference) -> Moments:
+    """The moments of the first pass in the frame the samples in memory get (the sphere fitted
+    to the survey's subsample, `accumulate`): the same moments, so the same solves."""
+    frame = sphere_frame(samples)
+    length = moments_length(frame, reference)
+    if np.array_equal(frame.centre, moments.frame.centre) and length == moments.length:
+        return moments
+    return accumulate(samples, reference, frame=frame, length=length)  # a pass more
+
+
+def moments_length(frame, reference) -> float:
+    """L of the moments (`accumulate`): the sphere's radius, the constant reference or the
+    rms of the series. [field unit]"""
+    if reference is None:
+        return frame.radius
+    if np.ndim(reference) == 0:
+        return float(reference)
+    return float(np.sqrt(passes.mean_square(reference)))
 
 
 # --- solve -----------------------------------------------------------------------------------

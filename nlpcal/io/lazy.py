@@ -9,21 +9,27 @@ rows screened (`nlpcal.io.rows`: zero vectors left out, repeats counted and drop
 drop_invalid; a repeat across the boundary of two blocks is not seen). A bad value fails the read
 with its file named.
 
-Reading takes one pass when the blocks' row counts are known beforehand (Parquet footers) and
-every row is kept: each task reads, checks and screens its block and gathers the survey of
-`nlpcal.passes` at once. Otherwise (CSV, rows left out) that pass counts the rows of every block,
-and the survey is a second one.
+When the blocks' row counts are known beforehand (Parquet footers), reading is no pass of its
+own: the log is taken to hold the rows its footers declare, and the checks of every block (its
+values, its rows left out, the notes on them) wait for the first pass over it, which reads each
+block once for its own work, the survey of `nlpcal.passes` and these checks (`Reading`, a
+`nlpcal.passes.Pending`). A bad value then fails that first pass, with its file named; rows left
+out make it find the blocks shorter than declared: the arrays are rebuilt on the rows counted
+and that pass runs again. Otherwise (CSV) a pass counts the rows of every block first. The unit's
+plausibility is checked on the first block (`first_rows`): the unit is the file's, the same in
+every block.
 """
 
 from __future__ import annotations
 
 import io
 import time
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
 
-from .. import passes, units, validation
+from .. import passes, units
 from ..errors import InputError
 from ..geomagnetic import ReferenceModel
 from . import sources
@@ -149,19 +155,6 @@ def _block(spec, wanted, factors, drop_invalid: bool) -> tuple:
     return values, rows, invalid, screen
 
 
-def _values(spec, wanted, factors, drop_invalid):
-    return _block(spec, wanted, factors, drop_invalid)[0]
-
-
-def _count(spec, wanted, factors, drop_invalid, start: int, steps):
-    """(rows kept, rows read, rows not numeric, RowScreen, survey or None) of a block: the survey
-    as if it began at row `start` with strides `steps` (right when no earlier row was left out),
-    when `steps` are given."""
-    values, rows, lost, screen = _block(spec, wanted, factors, drop_invalid)
-    survey = None if steps is None else passes.survey_block(values, start, steps)
-    return values.shape[0], rows, lost, screen, survey
-
-
 def _specs(files, block_bytes: int) -> list:
     """(spec, rows or None) of every block of a log's files, in row order."""
     from dask.bytes import read_bytes
@@ -202,48 +195,116 @@ def _screen_notes(screens: list, offsets: list, drop_invalid: bool) -> list:
     return whole.notes()
 
 
-def lazy_table(files, wanted, factors, *, drop_invalid=False, block_bytes=BLOCK_BYTES):
-    """(Dask array (N, k) of the `wanted` columns times `factors`, the survey of its rows when
-    the counting pass could gather it, rows left out, notes) of a log's files
-    (`nlpcal.io.tables.log_files`)."""
-    import dask
-    import dask.array as da
+def _checks(block: tuple) -> tuple:
+    """(rows kept, rows read, rows not numeric, RowScreen) of a block read by `_block`."""
+    return block[0].shape[0], *block[1:]
 
-    specs = _specs(files, block_bytes)
-    factors = np.asarray(factors, dtype=float)
-    declared = [n for _, n in specs]
-    known = all(n is not None for n in declared)
-    starts = np.concatenate([[0], np.cumsum(declared)]).astype(int) if known else [0] * len(specs)
-    steps = None
-    if known:
-        steps = tuple(sorted({max(1, int(starts[-1]) // size) for size in passes.SURVEY_SIZES}))
-    counted = dask.compute(
-        *[
-            dask.delayed(_count)(spec, wanted, factors, drop_invalid, int(start), steps)
-            for (spec, _), start in zip(specs, starts)
-        ]
-    )
-    kept = [c[0] for c in counted]
-    read_offsets = np.concatenate([[0], np.cumsum([c[1] for c in counted])]).astype(int)
-    invalid = sum(c[2] for c in counted)
-    lost = int(read_offsets[-1]) - sum(kept)
+
+def _take_values(block: tuple) -> np.ndarray:
+    return block[0]
+
+
+def _notes(checked: list, drop_invalid: bool) -> tuple:
+    """(rows left out, notes) of the blocks' `_checks`, in row order."""
+    read_offsets = np.concatenate([[0], np.cumsum([c[1] for c in checked])]).astype(int)
+    invalid = sum(c[2] for c in checked)
+    lost = int(read_offsets[-1]) - sum(c[0] for c in checked)
     notes = [f"dropped {invalid} row(s) with missing or non-numeric values"] if invalid else []
-    notes += _screen_notes([c[3] for c in counted], list(read_offsets[:-1]), drop_invalid)
-    survey = None
-    if known and not lost:  # every block as declared: the counting pass was the survey
-        survey = passes.merge_all([c[4] for c in counted])
-    blocks = [
-        da.from_delayed(
-            dask.delayed(_values)(spec, wanted, factors, drop_invalid),
-            shape=(n, len(wanted)),
-            dtype=float,
-        )
-        for (spec, _), n in zip(specs, kept)
-        if n
-    ]
-    if not blocks:
-        raise InputError(f"{files[0].name}: no data rows")
-    return da.concatenate(blocks, axis=0), survey, lost, notes
+    notes += _screen_notes([c[3] for c in checked], list(read_offsets[:-1]), drop_invalid)
+    return lost, notes
+
+
+@dataclass
+class Reading:
+    """How the blocks of a log in its files are read, and the rows each declares.
+
+    specs : (spec, rows declared or None) of every block, in row order (`_specs`).
+    wanted, factors, drop_invalid : the columns read, their factors to the base unit, and
+        whether rows with a bad value are dropped (`_block`).
+    name : the first file's name, for messages.
+    """
+
+    specs: list
+    wanted: list
+    factors: np.ndarray
+    drop_invalid: bool
+    name: str
+
+    @property
+    def declared(self) -> bool:
+        """Whether every block declares its rows (Parquet footers)."""
+        return all(n is not None for _, n in self.specs)
+
+    def reads(self) -> list:
+        """One Dask object per block: `_block` of it."""
+        import dask
+
+        return [
+            dask.delayed(_block)(spec, self.wanted, self.factors, self.drop_invalid)
+            for spec, _ in self.specs
+        ]
+
+    def table(self, rows: list, reads: list | None = None):
+        """The Dask array (N, k) of the blocks (`reads`, else new ones), holding `rows` rows
+        each."""
+        import dask
+        import dask.array as da
+
+        reads = reads or self.reads()
+        blocks = [
+            da.from_delayed(dask.delayed(_take_values)(read), (n, len(self.wanted)), float)
+            for read, n in zip(reads, rows)
+            if n
+        ]
+        if not blocks:
+            raise InputError(f"{self.name}: no data rows")
+        return da.concatenate(blocks, axis=0)
+
+    def as_declared(self) -> tuple:
+        """(the Dask array of the rows the blocks declare, the Dask objects of their `_checks`):
+        no pass; the checks read the same blocks as the array, in the same pass."""
+        import dask
+
+        reads = self.reads()
+        checks = [dask.delayed(_checks)(read) for read in reads]
+        return self.table([n for _, n in self.specs], reads), checks
+
+    def counted(self) -> tuple:
+        """(Dask array, rows left out, notes) after a pass that counts the rows every block
+        keeps (and checks them)."""
+        import dask
+
+        checked = dask.compute(*[dask.delayed(_checks)(read) for read in self.reads()])
+        lost, notes = _notes(list(checked), self.drop_invalid)
+        return self.table([c[0] for c in checked]), lost, notes
+
+
+@dataclass
+class Deferred:
+    """The checks of a log read on the rows its files declare, settled by the first pass over
+    it (`nlpcal.passes.Pending`): the rows left out, the notes on them (into `log`), and the
+    arrays of its columns rebuilt on the rows counted when some were left out.
+
+    columns : (LazySamples, the columns of the table it holds) of the log.
+    """
+
+    reading: Reading
+    log: Log | None = None
+    columns: list = field(default_factory=list)
+
+    def settle(self, checked: list) -> bool:
+        lost, notes = _notes(list(checked), self.reading.drop_invalid)
+        for lazy, _ in self.columns:
+            lazy.pending = None
+        if self.log is not None:
+            self.log.dropped += lost
+            self.log.notes.extend(notes)
+        if not lost:
+            return True
+        table = self.reading.table([c[0] for c in checked])
+        for lazy, selection in self.columns:
+            lazy.rebuilt(table[:, selection])
+        return False
 
 
 def read_lazy_log(
@@ -289,28 +350,24 @@ def read_lazy_log(
         wanted.append(name)
         factors.append(units.field_factor(ref_unit))
     started = time.perf_counter()
-    table, survey, lost, screened = lazy_table(
-        files, wanted, factors, drop_invalid=drop_invalid, block_bytes=block_bytes
+    reading = Reading(
+        _specs(files, block_bytes), wanted, np.asarray(factors, float), drop_invalid, first.name
     )
+    samples, column, deferred, lost, screened = _lazy_columns(reading, name is not None)
     notes.extend(screened)
-    samples = passes.LazySamples(
-        table[:, :3], None if survey is None else survey.columns(slice(0, 3))
-    )
-    samples.passes += 1
-    samples.timings.append(("read", time.perf_counter() - started))
+    if deferred is None:  # counted: a pass
+        samples.ledger.record("read", time.perf_counter() - started)
+    _, settled, check = settle_unit(passes.first_block(samples), unit, how)
+    if settled != unit:  # an assumed unit ruled out: the file's numbers, as raw counts
+        samples, unit = passes.scaled(samples, 1.0 / units.field_factor(unit)), settled
     reference: passes.LazySamples | float | None = None
     model = None
-    column = None
-    if name is not None:
-        column = passes.LazySamples(table[:, 3], None if survey is None else survey.columns(3))
-    passes.survey_together(samples, column)
-    samples, unit, check = settle_unit(samples, unit, how)
     if column is not None and name is not None:
         if unit == "raw" and units.unit_in_name(name) is None:  # read in the assumed unit
             factor = units.field_factor(ref_unit)
             column, ref_unit = (column if factor == 1.0 else column * (1.0 / factor)), "raw"
         units.check_compatible(unit, ref_unit, f"reference column {name!r}")
-        reference = validation.reference(column, samples.n, f"the reference column {name!r}")
+        reference = column  # its values checked with the log's, by the first pass (`prepare`)
     elif reference_model is not None:
         reference, model = model_reference(reference_model, unit, notes)
     elif reference_field is not None:
@@ -318,7 +375,7 @@ def read_lazy_log(
     blocks = len(samples.block_offsets())
     what = "Parquet row groups" if all(part.parquet for part in files) else "blocks"
     notes.append(f"the log stays in its files: {blocks} {what} read in every pass")
-    return Log(
+    log = Log(
         path=str(source),
         columns=list(chosen),
         samples=samples,  # rows that stay on the cluster (LazySamples)
@@ -333,6 +390,31 @@ def read_lazy_log(
         warnings=[check] if check else [],
         layout=first.layout,
     )
+    if deferred is not None:  # what the first pass finds goes to the log
+        deferred.log = log
+    return log
+
+
+def _lazy_columns(reading: Reading, with_reference: bool) -> tuple:
+    """(samples, the reference column or None, their `Deferred` checks or None, rows left out,
+    notes) of a log's blocks: on the rows the blocks declare, checked by the first pass, or
+    counted by a pass now."""
+    deferred: Deferred | None = None
+    if reading.declared:
+        table, checks = reading.as_declared()
+        deferred = Deferred(reading)
+        pending = passes.Pending(checks, deferred.settle)
+        lost, notes = 0, []
+    else:
+        table, lost, notes = reading.counted()
+        pending = None
+    samples = passes.LazySamples(table[:, :3], pending=pending)
+    column = None
+    if with_reference:
+        column = passes.LazySamples(table[:, 3], pending=pending, ledger=samples.ledger)
+    if deferred is not None:
+        deferred.columns = [(samples, slice(0, 3)), *([(column, 3)] if column is not None else [])]
+    return samples, column, deferred, lost, notes
 
 
 def _require_lazy(extra_columns, reference_model) -> None:
