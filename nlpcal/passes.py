@@ -326,9 +326,11 @@ class LazySamples:
 
     def blocks(self, chunks=None) -> list:
         """One Dask delayed object per block of rows (rechunked to `chunks` along the rows when
-        given)."""
+        given). Not optimised: a fused graph would give the read of a block a key of its own in
+        each array made from it (the samples, a reference column, a reader's checks), and one
+        pass would read the block once for each."""
         array = self.array if chunks is None else self.array.rechunk({0: chunks})
-        return list(array.to_delayed().ravel())
+        return list(array.to_delayed(optimize_graph=False).ravel())
 
 
 def survey_together(*values) -> None:

@@ -407,3 +407,24 @@ def test_rows_left_out_of_parquet_are_found_by_the_first_pass_as_in_memory(tmp_p
     names = [what for what, _ in log.samples.timings]
     assert names.count("GramBlock + survey") == 2 and "survey" not in names
     assert_same_optimum(result.parameters, expected.parameters, expected.standard_errors)
+
+
+def test_each_block_of_a_parquet_log_is_read_once_per_pass(tmp_path, monkeypatch):
+    pytest.importorskip("pyarrow")
+    from nlpcal.calibration import calibrate_log
+    from nlpcal.io import lazy as reader
+
+    samples, _ = make_log(n=30_000, noise=1.0, seed=5)
+    frame = pd.DataFrame(samples, columns=["bx", "by", "bz"])
+    frame["proton_nT"] = PAPER_FIELD + np.sin(np.arange(len(frame)) / 300.0)
+    frame.to_parquet(tmp_path / "log.parquet", index=False, row_group_size=5_000)
+    reads = []
+    original = reader._table_of
+    monkeypatch.setattr(reader, "_table_of", lambda spec: reads.append(spec) or original(spec))
+    with dask.config.set(scheduler="threads"):
+        log = reader.read_lazy_log(tmp_path / "log.parquet", reference_column="proton_nT")
+        calibrate_log(log, method="joint")
+    # the samples, the reference column and the reader's checks of a pass share each read;
+    # the first block is read apart for the frame of the first pass and the unit's check
+    heads = sum(what == "head" for what, _ in log.samples.timings)
+    assert len(reads) == 6 * log.samples.passes + heads and heads <= 2

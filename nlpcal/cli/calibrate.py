@@ -40,6 +40,7 @@ from .common import (
     say,
     show_progress,
     solver_log,
+    tell,
     tell_written,
     warn,
     warning,
@@ -338,6 +339,7 @@ def _run_calibrate(args) -> int:
     extra.update({f"--aux-columns ({name})": name for name in args.aux_columns or ()})
     log = _read_for_calibration(args, extra)
     report_log(log)
+    told = len(log.notes)  # a log left in its files has its rows checked by the first pass
     read_s = time.perf_counter() - started
     started = time.perf_counter()
     result: CalibrationResult | TemperatureCalibrationResult
@@ -375,6 +377,7 @@ def _run_calibrate(args) -> int:
             result=failure.result,
         ) from None
     progress("")
+    tell(log.notes[told:])
     if isinstance(result, TemperatureCalibrationResult):
         result.calibration.sensor_id = sensor_id
     else:
