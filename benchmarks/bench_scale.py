@@ -11,13 +11,16 @@ rows each (row groups of 2^20 rows, pyarrow's default). In one run it measures
   read into numpy) and on the cluster (one task per row group that reads it and sums it);
 - cluster: `nlpcal calibrate 'DIR/*.parquet' --scheduler local` as library calls on a
   LocalCluster of `--workers` single-threaded worker processes started beforehand: reading
-  (the survey pass) and calibrating, every pass a Dask reduction over the row groups;
+  (the footers: no pass) and calibrating, every pass a Dask reduction over the row groups;
 - low-memory: `nlpcal calibrate 'DIR/*.parquet' --low-memory` as library calls in this
   process: the files streamed into a memory-mapped file, then the passes over it in threads;
+- memory (up to IN_MEMORY_MOST samples): `read_log` and `calibrate_log` in this process, the
+  log in memory;
 
 for each method, and prints medians over the repeats with their range (min-max), the ratios to
-the floors, the largest gap between the two paths' parameters in standard errors, the passes
-over the data and the peak memory of a worker.
+the floors, the passes over the files, the largest gap of each path's parameters to the
+in-memory path's in standard errors (to --low-memory's above IN_MEMORY_MOST samples, the same
+code on a memory map), where the cluster's time goes and the peak memory of a worker.
 
 fleet: `--logs` CSV logs of `--samples` samples, two of them broken on purpose (a non-numeric
 cell, no field columns). In one run it measures
@@ -157,8 +160,38 @@ def _peak_rss_mib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def bench_big(args) -> None:
+#: Above this many samples the in-memory path is left out (a 10^8 log takes 2.4 GB as one
+#: array and several times that while pandas reads it): the cluster is compared with
+#: --low-memory, which runs the same in-process code on a memory map.
+IN_MEMORY_MOST = 30_000_000
 
+
+def run_path(path: str, pattern: str, method: str) -> tuple:
+    """(seconds, of which reading, result, passes over the files or None, timings) of one
+    calibration: "cluster" (read_lazy_log on the current cluster), "low-memory" or "memory"."""
+    started = time.perf_counter()
+    if path == "cluster":
+        log = read_lazy_log(pattern)
+    else:
+        log = read_log(pattern, low_memory=path == "low-memory")
+    read_s = time.perf_counter() - started
+    result = calibrate_log(log, method=method)
+    total = time.perf_counter() - started
+    lazy = path == "cluster"
+    passes = log.samples.passes if lazy else None
+    timings = list(log.samples.timings) if lazy else []
+    del log
+    return total, read_s, result, passes, timings
+
+
+def largest_gap(result, peer) -> float:
+    """The largest difference of two results' parameters, in the peer's standard errors (at
+    the joint optimum for a staged result that states none). [SE]"""
+    errors = peer.standard_errors or peer.identifiability.get("standard_errors_at_joint_optimum")
+    return max(abs(result.parameters[k] - peer.parameters[k]) / errors[k] for k in PARAMETER_NAMES)
+
+
+def bench_big(args) -> None:
     n = int(args.samples)
     folder = Path(args.data_dir) / f"big-{n:.0e}"
     started = time.perf_counter()
@@ -167,43 +200,47 @@ def bench_big(args) -> None:
     size = sum(p.stat().st_size for p in paths) / 2**30
     print(f"# {n:.0e} samples in {len(paths)} Parquet files, {size:.2f} GiB ({load()})")
     print(f"# data ready in {time.perf_counter() - started:.0f} s", flush=True)
+    baseline = "memory" if n <= IN_MEMORY_MOST else "low-memory"
+    routes = ["cluster", "low-memory", *(["memory"] if baseline == "memory" else [])]
     started = time.perf_counter()
+    times: dict = {}
+    results: dict = {}
+    splits: dict = {}
     with cluster.scheduler("local", workers=args.workers) as client:  # as --scheduler local
         print(
             f"# LocalCluster of {args.workers} workers up in {time.perf_counter() - started:.1f} s",
             flush=True,
         )
-        times: dict = {}
-        results: dict = {}
-        splits: dict = {}
         for repeat in range(args.repeats):
             times.setdefault("read here", []).append(read_here(paths))
             times.setdefault("read cluster", []).append(read_on_cluster(paths))
             for method in args.methods:
-                started = time.perf_counter()
-                log = read_lazy_log(pattern)
-                read_s = time.perf_counter() - started
-                result = calibrate_log(log, method=method)
-                total = time.perf_counter() - started
-                times.setdefault(f"cluster {method}", []).append(total)
-                times.setdefault(f"cluster {method} read", []).append(read_s)
-                results[f"cluster {method}"] = (result, log.samples.passes)
-                splits.setdefault(method, []).append((total, list(log.samples.timings)))
-                started = time.perf_counter()
-                log = read_log(pattern, low_memory=True)
-                read_s = time.perf_counter() - started
-                result = calibrate_log(log, method=method)
-                total = time.perf_counter() - started
-                del log
-                times.setdefault(f"low-memory {method}", []).append(total)
-                times.setdefault(f"low-memory {method} read", []).append(read_s)
-                results[f"low-memory {method}"] = (result, None)
+                for path in routes:
+                    total, read_s, result, passes, timings = run_path(path, pattern, method)
+                    key = f"{path} {method}"
+                    times.setdefault(key, []).append(total)
+                    times.setdefault(f"{key} read", []).append(read_s)
+                    results[key] = (result, passes)
+                    if path == "cluster":
+                        splits.setdefault(method, []).append((total, timings))
             print(f"# repeat {repeat + 1} done ({load()})", flush=True)
         worker_peak = client.run(_peak_rss_mib)
+    print_big(args, n, times, results, baseline, routes)
+    print_splits(splits)
+    print(
+        f"\npeak memory of the workers: "
+        f"{', '.join(f'{v:.0f} MiB' for v in worker_peak.values())}; data {size:.2f} GiB"
+    )
+    print(f"staged cycles: {len(results[f'cluster {args.methods[-1]}'][0].statistics) - 1}")
+
+
+def print_big(args, n: int, times: dict, results: dict, baseline: str, routes: list) -> None:
+    """The table of `bench_big`: per path and method the time, its ratios to the reads, the
+    passes over the files and the largest gap to the `baseline` path's parameters."""
     floor_here = statistics.median(times["read here"])
     floor_cluster = statistics.median(times["read cluster"])
     print(f"\n## {n:.0e} samples, medians over {args.repeats} repeats [min-max]\n")
-    print("| what | time | / read here | / read on cluster | passes | gap to the other path |")
+    print(f"| what | time | / read here | / read on cluster | passes | largest gap to {baseline} |")
     print("|---|---|---|---|---|---|")
     for name in ("read here", "read cluster"):
         median = statistics.median(times[name])
@@ -212,25 +249,24 @@ def bench_big(args) -> None:
             f"{median / floor_cluster:.2f} | 1 | |"
         )
     for method in args.methods:
-        for path in ("cluster", "low-memory"):
+        for path in routes:
             key = f"{path} {method}"
-            other = f"{'low-memory' if path == 'cluster' else 'cluster'} {method}"
             result, passes = results[key]
-            peer = results[other][0]
-            errors = peer.standard_errors or peer.identifiability.get(
-                "standard_errors_at_joint_optimum"
-            )
-            gap = max(
-                abs(result.parameters[k] - peer.parameters[k]) / errors[k] for k in PARAMETER_NAMES
-            )
+            peer = results[f"{baseline} {method}"][0]
+            gap = "" if path == baseline else f"{largest_gap(result, peer):.1e} SE"
             median = statistics.median(times[key])
             print(
                 f"| {key} (read {spread(times[key + ' read'])}) | {spread(times[key])} | "
                 f"{median / floor_here:.2f} | {median / floor_cluster:.2f} | "
-                f"{passes if passes is not None else ''} | {gap:.1e} SE |"
+                f"{passes if passes is not None else ''} | {gap} |"
             )
+
+
+def print_splits(splits: dict) -> None:
+    """Where the time of the median cluster run of each method goes: its passes (and reads of
+    the first block), and the rest (the solves, the diagnostics, the scheduling)."""
     for method, runs in splits.items():
-        total, timings = runs[len(runs) // 2]
+        total, timings = sorted(runs, key=lambda run: run[0])[len(runs) // 2]
         parts: dict = {}
         for what, seconds in timings:
             count, spent = parts.get(what, (0, 0.0))
@@ -242,11 +278,6 @@ def bench_big(args) -> None:
         print(
             f"\ncluster {method}, where the time goes: {shares}, solves and the rest {rest:.2f} s"
         )
-    print(
-        f"\npeak memory of the workers: "
-        f"{', '.join(f'{v:.0f} MiB' for v in worker_peak.values())}; data {size:.2f} GiB"
-    )
-    print(f"staged cycles: {len(results[f'cluster {args.methods[-1]}'][0].statistics) - 1}")
 
 
 # --- a fleet ----------------------------------------------------------------------------------
