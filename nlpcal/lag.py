@@ -71,7 +71,8 @@ import numpy as np
 from . import inference, passes, validation
 from .errors import InputError, SolveError
 from .models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters, correct, model_directions
-from .moments import CHUNK_ROWS, Layout, Moments, accumulate, fill_features
+from .moments import CHUNK_ROWS, VARIABLES, Layout, Moments, accumulate, feature_exponents
+from .monomials import MomentSet, moment_set
 from .nlp.blocks import variable_scale
 from .nlp.objective import coefficient_derivative_functions, objective_derivatives
 from .timing import reference_at
@@ -345,23 +346,48 @@ class LagBlock:
     def __call__(self, samples, reference, start: int) -> LagSums:
         samples = np.asarray(samples, dtype=float)
         R, D, q, third = _block_columns(self.series, reference, start)
-        sums = LagSums(np.zeros(self.lay.size), 0.0, 0.0, 0, 0.0, 0)
+        moments, g_index, c_index = lag_moment_set(self.lay)
         found = np.isfinite(third)
-        sums.third, sums.thirds = float(third[found].sum()), int(found.sum())
-        sums.q, sums.counted = float(q.sum()), int(np.count_nonzero(q))
-        buffer = np.empty((self.lay.size, max(1, min(self.chunk_rows, samples.shape[0]))))
-        for begin in range(0, samples.shape[0], self.chunk_rows):
-            end = min(begin + self.chunk_rows, samples.shape[0])
+        sums = moments.empty()
+        rows = samples.shape[0]
+        variables = np.empty((len(VARIABLES) + 1, max(1, min(self.chunk_rows, rows))))
+        for begin in range(0, rows, self.chunk_rows):
+            end = min(begin + self.chunk_rows, rows)
             ref = R[begin:end]
-            d = (samples[begin:end] - self.centre).T / self.length
-            gamma = (self.length / ref) ** 2
-            a = gamma * (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) - 1.0
-            chunk = buffer[:, : end - begin]
-            fill_features(d, a, gamma, self.lay, chunk)
-            wx = (ref / self.length) ** 2 * (D[begin:end] / ref)  # w_i x_i
-            sums.g += chunk @ wx
-            sums.c += float(np.sum(wx * D[begin:end] / ref))
-        return sums
+            chunk = variables[:, : end - begin]
+            gamma, a, d, x = chunk[0], chunk[1], chunk[2:5], chunk[5]
+            np.divide((samples[begin:end] - self.centre).T, self.length, out=d)
+            np.divide(self.length, ref, out=gamma)
+            gamma *= gamma
+            np.einsum("ij,ij->j", d, d, out=a)
+            a *= gamma
+            a -= 1.0
+            np.divide(D[begin:end], ref, out=x)  # x_i = D_i / R_i
+            moments.add(sums, chunk, 1.0 / gamma)  # w_i = R_i^2 / L^2
+        values = moments.values(sums)
+        return LagSums(
+            values[g_index],
+            float(values[c_index]),
+            float(q.sum()),
+            int(np.count_nonzero(q)),
+            float(third[found].sum()),
+            int(found.sum()),
+        )
+
+
+_LAG_SETS: dict = {}
+
+
+def lag_moment_set(lay: Layout) -> tuple:
+    """The distinct moments of the lag's group (L3) over (gamma, a, x, y, z, x_i): w x f_p for
+    each feature f_p and w x^2; with the positions of g and of c among them."""
+    if lay not in _LAG_SETS:
+        features = feature_exponents(lay)
+        keys = [(*f, 1) for f in features] + [(0,) * len(VARIABLES) + (2,)]
+        moments: MomentSet = moment_set(keys)
+        where = moments.indices(keys)
+        _LAG_SETS[lay] = (moments, where[:-1], int(where[-1]))
+    return _LAG_SETS[lay]
 
 
 def _add(first, second):

@@ -24,10 +24,41 @@ then gamma = 1), 58 for a reference series. Their weighted Gram matrix
 carries everything the objectives need. It is additive over chunks: memory is O(chunk) and the
 symbolic problem has the same size for every N.
 
-Optional groups of moments sit beside G and share its features and frame: the lag of a
-reference series adds one vector and one number, (1/N) sum_i w_i x_i f_i and
-(1/N) sum_i w_i x_i^2 with x_i = D_i / F_i the reference's time derivative over its value
-(`nlpcal.lag`), gathered by a pass of its own.
+The pass gathers the distinct moments, not G. With v_i = (gamma_i, a_i, x_i, y_i, z_i) (d_i =
+(x_i, y_i, z_i)), omega_i a robust loss's weight (1 without one) and W = sum_i omega_i,
+
+    m_e = (1/W) sum_i omega_i w_i v_i^e,        G_pq = m_(e_p + e_q)                  (M1)
+
+where e_p is feature p's exponent tuple (`feature_exponents`): every Gram entry is one moment,
+and the fixed map from the moments to G a selection (`gram_index`). a is kept as a variable of
+its own, not expanded into |d|^2 - 1 (M2): near the solution a_i is of the order of the noise
+over the field, and a^4 expanded into moments of d of degree 8 would be the difference of sums
+of order one; kept, the a^k entries are sums of small terms, exact to the last digits as in the
+Gram matrix of the features. The set needed (`gram_moments`): 2k + |m| <= 8 in a^k d^m, 295
+moments, with gamma constant; j + k <= 4 and |m| <= 2j in gamma^j a^k d^m, 483 (and the ten
+unweighted cubic moments of (M3)), for a series. They are gathered as the entries of one
+staircase of matrix products per chunk (`nlpcal.monomials`).
+
+The sphere of the frame, the algebraic fit |b|^2 = 2 c.b + k, is a least-squares problem whose
+normal equations in d (b = c0 + L d) read the unweighted moments of degree <= 3:
+
+    [4 E(d d^T)  2 E(d)] [c_d]   [2 E(|d|^2 d)]
+    [2 E(d)^T    1     ] [k_d] = [E(|d|^2)    ],   c = c0 + L c_d, R^2 = L^2 (k_d + |c_d|^2)  (M3)
+
+(`sphere_from_moments`). The moments in another frame (centre c', length L') follow from those
+in the first by the binomial algebra of the change of variables (`recentred`): with
+s = L / L' and delta = (c' - c) / L',
+
+    d' = s d - delta,   gamma' = gamma / s^2,   w' = s^2 w,
+    a' = a - gamma (2 delta . d / s - |delta|^2 / s^2)               (a reference series)
+    a' = s^2 a + s^2 - 1 + |delta|^2 - 2 s delta . d                 (none: gamma = 1)     (M4)
+
+so each moment of the new frame is a fixed combination of moments of the old one of no higher
+order, a linear map of the moment vector (`recentring_map`). It is exact in exact arithmetic;
+in float64 the small entries of the new frame (the a^k ones near the solution) inherit the
+rounding of the larger old ones they are combined from, relative |delta| + |a_old| per power
+of a: a frame off the data by delta costs the precision of a frame that far, as in a pass
+gathered in it.
 
 Floating-point cancellation is kept away by the frame: centred on a sphere fitted to the samples
 and scaled by the field, a_i and e are small near the solution, so the small objective is never
@@ -43,11 +74,12 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cache
-from itertools import combinations_with_replacement
 
 import numpy as np
 
 from .errors import InputError
+from .monomials import MomentSet, moment_set, monomials
+from .monomials import parents as _parents
 from .passes import as_rows, mean_square, reduce, reference_chunk
 from .statistics import MagnitudeStats
 
@@ -72,24 +104,9 @@ N_PSI = len(PSI_EXPONENTS)
 PAIR_INDICES = tuple((k, l) for k in range(N_PSI) for l in range(k, N_PSI))
 
 
-def monomials(max_degree: int, variables: int = 3):
-    """Exponent tuples of `variables` variables of degree <= max_degree, by degree, and how to
-    build each one: (parent index, variable), the monomial being its parent times the variable."""
-    exps: list[tuple[int, ...]] = [(0,) * variables]
-    recipe = [(-1, -1)]  # (parent index, variable): monomial = parent * d[:, variable]
-    for degree in range(1, max_degree + 1):
-        for combo in combinations_with_replacement(range(variables), degree):
-            e = [0] * variables
-            for v in combo:
-                e[v] += 1
-            parent = list(e)
-            parent[combo[-1]] -= 1
-            exps.append(tuple(e))
-            recipe.append((exps.index(tuple(parent)), combo[-1]))
-    return tuple(exps), tuple(recipe)
-
-
 MONOMIALS, _RECIPE = monomials(4)  # 35 monomials of degree <= 4
+#: The variables of the moments, in the order of their exponent tuples.
+VARIABLES = ("gamma", "a", "x", "y", "z")
 
 
 def _add(a, b):
@@ -145,6 +162,37 @@ def layout(varying_gamma: bool) -> Layout:
     return Layout(varying_gamma, tuple(keys), one, a, a2, psi, pair, apsi)
 
 
+def feature_exponents(lay: Layout) -> np.ndarray:
+    """(size, 5) each feature's exponents over VARIABLES (gamma, a, x, y, z)."""
+    return np.array([(g, k, *exps) for g, k, exps in lay.keys], dtype=int)
+
+
+def pair_moments(lay: Layout, extra=()) -> tuple:
+    """The distinct moments the Gram matrix of the features of `lay` needs (M1), with the
+    exponent tuples `extra`; and the (size, size) position of each Gram entry among them."""
+    exps = feature_exponents(lay)
+    pairs = exps[:, None, :] + exps[None, :, :]
+    moments = moment_set([*map(tuple, pairs.reshape(-1, exps.shape[1])), *extra])
+    return moments, moments.indices(pairs)
+
+
+@cache
+def _gram_pairs(varying_gamma: bool) -> tuple:
+    # With the unweighted moments of degree <= 3 the sphere fit reads (`sphere_from_moments`).
+    unweighted = [(int(varying_gamma), 0, *e) for e in monomials(3)[0]]
+    return pair_moments(layout(varying_gamma), unweighted)
+
+
+def gram_moments(varying_gamma: bool) -> MomentSet:
+    """The distinct moments of `layout(varying_gamma)`'s Gram matrix and the sphere fit."""
+    return _gram_pairs(varying_gamma)[0]
+
+
+def gram_index(varying_gamma: bool) -> np.ndarray:
+    """(size, size) the position among `gram_moments` of each entry of the Gram matrix (M1)."""
+    return _gram_pairs(varying_gamma)[1]
+
+
 @dataclass(frozen=True)
 class Frame:
     """A sphere fitted to the raw samples.
@@ -180,7 +228,8 @@ def sphere_frame(samples: np.ndarray, max_points: int = 20000) -> Frame:
 class Moments:
     """Sufficient statistics of a log for the |B1| objectives.
 
-    gram : weighted mean of f f^T over the distinct features of `layout(reference == "series")`.
+    gram : weighted mean of f f^T over the distinct features of `layout(reference == "series")`,
+        assembled from `distinct` (M1).
     frame : the sphere fitted to the samples (the centre of d, and a start for the solvers).
     length : L, the scale of d and of u: the sphere radius (no reference), the reference field,
         or the rms of the reference series. [field unit]
@@ -188,8 +237,9 @@ class Moments:
     reference : "none", "constant" or "series".
     measured : Table 1 statistics of the raw |B_M| (`nlpcal.statistics.MagnitudeStats`),
         gathered in the same pass.
-    weight_sum : the sum of the per-sample weights the Gram matrix is normalised by (N without
+    weight_sum : the sum of the per-sample weights the moments are normalised by (N without
         weights).
+    distinct : the distinct moments of `moment_set`, normalised like `gram`.
     cache : values derived from these moments by the layers that use them (the problems'
         parameter vector), built once.
     """
@@ -201,105 +251,185 @@ class Moments:
     reference: str
     measured: dict
     weight_sum: float = 0.0
+    distinct: np.ndarray | None = None
     cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def layout(self) -> Layout:
         return layout(self.reference == "series")
 
-
-@cache
-def _groups(varying_gamma: bool):
-    """Feature columns grouped by their powers of gamma and a, with their monomial columns."""
-    column = {exps: i for i, exps in enumerate(MONOMIALS)}
-    groups: dict = {}
-    for j, (g_pow, a_pow, exps) in enumerate(layout(varying_gamma).keys):
-        cols, monos = groups.setdefault((g_pow, a_pow), ([], []))
-        cols.append(j)
-        monos.append(column[exps])
-    return tuple((g, p, np.array(c), np.array(m)) for (g, p), (c, m) in groups.items())
+    @property
+    def moment_set(self) -> MomentSet:
+        return gram_moments(self.reference == "series")
 
 
-def fill_features(d, a, gamma, lay: Layout, out, recipe=_RECIPE, groups=None) -> None:
-    """Fill `out` (lay.size x rows) with the distinct features gamma^j a^k d^m of one chunk.
-
-    Features are rows, samples are columns: every operation runs along contiguous memory. With
-    gamma constant the first rows of the layout are the monomials themselves, built in place.
-    `recipe` and `groups` (default: those of d's three coordinates) build the monomials of
-    other variables, the rows of `d` (the channels' feature group, `nlpcal.auxiliary.moments`).
-    """
-    in_place = not lay.varying_gamma
-    mono = out[: len(recipe)] if in_place else np.empty((len(recipe), d.shape[1]))
-    mono[0] = 1.0
-    for index in range(1, len(recipe)):
-        parent, variable = recipe[index]
-        np.multiply(mono[parent], d[variable], out=mono[index])
-    for g_pow, a_pow, rows, monos in groups or _groups(lay.varying_gamma):
-        if in_place and not (g_pow or a_pow):
-            continue
-        block = mono[monos]
-        if a_pow:
-            block *= a**a_pow
-        if g_pow:
-            block *= gamma**g_pow
-        out[rows] = block
+def moments_from(
+    distinct, frame: Frame, length: float, n: int, reference: str, measured: dict, weight_sum: float
+) -> Moments:
+    """`Moments` from the normalised distinct moments, the Gram matrix assembled (M1)."""
+    gram = distinct[gram_index(reference == "series")]  # (M1)
+    return Moments(gram, frame, length, n, reference, measured, weight_sum, distinct)
 
 
 @dataclass(frozen=True)
-class GramBlock:
-    """The work of the data pass on one block of rows: its partial Gram matrix (a sum, not yet
-    a mean), the Table 1 sums of its raw |B_M| and the sum of its weights.
+class MomentBlock:
+    """The work of the data pass on one block of rows: the sums of its distinct moments (not yet
+    means), the Table 1 sums of its raw |B_M| and the sum of its weights.
 
     centre, length : the frame of d = (b - centre) / length. [field unit]
-    lay : the feature layout. shift : the shift of the `MagnitudeStats` sums. [field unit]
+    series : whether the reference is a series (gamma varies). shift : the shift of the
+    `MagnitudeStats` sums. [field unit]
     weight : None, or a function (raw chunk, its reference) -> the chunk's weights. [1]
     """
 
     centre: np.ndarray
     length: float
-    lay: Layout
+    series: bool
     shift: float
     chunk_rows: int = CHUNK_ROWS
     weight: Callable | None = None
 
     def __call__(self, samples, reference) -> tuple:
-        """(gram, measured, weight total) of the rows `samples` and their `reference` (None, a
-        number or an array of the same rows). [field unit]"""
+        """(moment sums, measured, weight total) of the rows `samples` and their `reference`
+        (None, a number or an array of the same rows). [field unit]"""
         samples = np.asarray(samples, dtype=float)
         rows = samples.shape[0]
-        size = self.lay.size
-        gram = np.zeros((size, size))
-        buffer = np.empty((size, max(1, min(self.chunk_rows, rows))))
+        moments = gram_moments(self.series)
+        sums = moments.empty()
+        variables = np.empty((len(VARIABLES), max(1, min(self.chunk_rows, rows))))
         measured = MagnitudeStats(self.shift)
         total = 0.0
-        series = reference is not None and np.ndim(reference) > 0
         for start in range(0, rows, self.chunk_rows):
             stop = min(start + self.chunk_rows, rows)
             raw = samples[start:stop]
             ref = reference_chunk(reference, start, stop)
             measured.add(np.sqrt(np.einsum("ij,ij->i", raw, raw)), ref)
-            d = (raw - self.centre).T / self.length  # 3 x rows
-            radius_sq = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
-            if not series:
-                gamma, a = None, radius_sq - 1.0
-            else:
-                gamma = (self.length / ref) ** 2
-                a = gamma * radius_sq - 1.0
-            chunk = buffer[:, : stop - start]
-            fill_features(d, a, gamma, self.lay, chunk)
-            root = ref / self.length if series else None  # sqrt of w_i
+            chunk = variables[:, : stop - start]
+            gamma, a, d = chunk[0], chunk[1], chunk[2:]
+            np.divide((raw - self.centre).T, self.length, out=d)
+            np.einsum("ij,ij->j", d, d, out=a)
+            weight = None
+            if self.series:
+                np.divide(self.length, ref, out=gamma)
+                gamma *= gamma
+                a *= gamma
+                weight = 1.0 / gamma  # w_i = F_i^2 / L^2
+            a -= 1.0
             if self.weight is not None:
                 omega = np.asarray(self.weight(raw, ref), dtype=float)
                 total += float(omega.sum())
-                root = np.sqrt(omega) if root is None else root * np.sqrt(omega)
-            if root is not None:
-                chunk *= root
-            gram += chunk @ chunk.T
-        return gram, measured, total
+                weight = omega if weight is None else weight * omega
+            moments.add(sums, chunk, weight)
+        return moments.values(sums), measured, total
 
 
-def merge_gram(first: tuple, second: tuple) -> tuple:
-    """The partial results of `GramBlock` of two neighbouring blocks, `second` after `first`."""
+def sphere_from_moments(moments: Moments) -> Frame:
+    """The algebraic sphere fit |b|^2 = 2 c.b + k of `sphere_frame`, from the moments (M3).
+
+    It reads the unweighted moments of d of degree <= 3 (for a series, those of w gamma = 1;
+    with a robust loss's weights, the fit is weighted by them): the same least-squares problem
+    as `sphere_frame` on the rows the moments were gathered from, so the same sphere up to
+    rounding when `sphere_frame` reads every row (at most its `max_points`).
+    """
+    unit = int(moments.reference == "series")
+    pick = moments.moment_set.indices
+    basis = [(unit, 0, *e) for e in monomials(3)[0]]  # 1, d (3), d d (6), d d d (10)
+    m = np.asarray(moments.distinct)[pick(basis)]
+    total, mean = m[0], m[1:4]
+    second = np.empty((3, 3))
+    second[np.triu_indices(3)] = m[4:10]
+    second = np.triu(second) + np.triu(second, 1).T
+    third = dict(zip(basis[10:], m[10:]))
+
+    def cubic(v):  # mean |d|^2 d_v
+        return sum(
+            third[(unit, 0, *np.add(np.eye(3, dtype=int)[v], 2 * np.eye(3, dtype=int)[w]))]
+            for w in range(3)
+        )
+
+    normal = np.block([[4.0 * second, 2.0 * mean[:, None]], [2.0 * mean[None, :], total]])
+    radius_mean = float(np.trace(second))
+    right = np.append([2.0 * cubic(v) for v in range(3)], radius_mean)
+    solution, *_ = np.linalg.lstsq(normal, right, rcond=None)  # (M3)
+    length, origin = moments.length, moments.frame.centre
+    centre = origin + length * solution[:3]
+    radius_sq = (solution[3] + solution[:3] @ solution[:3]) * length**2
+    if not np.isfinite(radius_sq) or radius_sq <= 0 or not np.isfinite(centre).all():
+        # As in sphere_frame: the mean and the rms distance from it.
+        centre = origin + length * mean / total
+        radius_sq = (radius_mean / total - (mean / total) @ (mean / total)) * length**2
+    radius = float(np.sqrt(radius_sq)) if radius_sq > 0 else 1.0
+    return Frame(centre=np.asarray(centre, dtype=float), radius=radius)
+
+
+def recentred(moments: Moments, frame: Frame, length: float | None = None) -> Moments:
+    """The moments in another frame: centre `frame.centre`, scale `length` (M4), exactly in
+    exact arithmetic; a linear map of the distinct moments.
+
+    length : L' [field unit]; None: the sphere radius (no reference), F (a constant reference,
+    whose length cannot change) or the length of `moments` (a series).
+    """
+    kind = moments.reference
+    if length is None:
+        length = frame.radius if kind == "none" else moments.length
+    if kind == "constant" and length != moments.length:
+        raise ValueError("the length of moments with a constant reference is the reference F")
+    shrink = moments.length / length  # s
+    shift = (np.asarray(frame.centre, dtype=float) - moments.frame.centre) / length  # delta
+    mapped = recentring_map(kind == "series", shrink, shift) @ moments.distinct  # (M4)
+    return moments_from(
+        mapped, frame, float(length), moments.n, kind, moments.measured, moments.weight_sum
+    )
+
+
+def recentring_map(varying_gamma: bool, s: float, delta) -> np.ndarray:
+    """The matrix of (M4) on `gram_moments(varying_gamma)`: row e the monomial w' v'^e of the
+    new frame as a combination of the old moments."""
+    moments = gram_moments(varying_gamma)
+    keys = moments.keys
+    where = {k: i for i, k in enumerate(keys)}
+    unit = np.eye(len(VARIABLES), dtype=int)
+    gamma, a, d = unit[0], unit[1], unit[2:]
+    zero = (0,) * len(VARIABLES)
+    delta = np.asarray(delta, dtype=float)
+    near = float(delta @ delta)
+    # Each new variable as a polynomial in the old ones: {exponents: coefficient}.
+    if varying_gamma:
+        a_new = {tuple(a): 1.0, tuple(gamma): near / s**2}
+        a_new.update({tuple(gamma + d[v]): -2.0 * delta[v] / s for v in range(3)})
+    else:
+        a_new = {tuple(a): s**2, zero: s**2 - 1.0 + near}
+        a_new.update({tuple(d[v]): -2.0 * s * delta[v] for v in range(3)})
+    new = [{tuple(gamma): s**-2.0}, a_new, *({tuple(d[v]): s, zero: -delta[v]} for v in range(3))]
+    targets = {}
+    for poly in new:
+        for term in poly:
+            if term not in targets:
+                targets[term] = np.array(
+                    [where.get(tuple(np.add(k, term)), -1) for k in keys], dtype=np.intp
+                )
+    order = sorted(range(len(keys)), key=lambda i: sum(keys[i]))
+    recipe = dict(zip(order, _parents([keys[i] for i in order])))
+    matrix = np.zeros((len(keys), len(keys)))
+    for i in order:
+        parent, variable = recipe[i]
+        if parent == -1:  # the constant
+            matrix[i, i] = 1.0
+            continue
+        if parent < 0:
+            raise ValueError("the moment set is not closed under a change of frame")
+        row, source = matrix[i], matrix[order[parent]]
+        for term, coefficient in new[variable].items():
+            target = targets[term]
+            nonzero = source != 0
+            if (target[nonzero] < 0).any():
+                raise ValueError("the moment set is not closed under a change of frame")
+            row[target[nonzero]] += coefficient * source[nonzero]
+    return matrix * (s**2 if varying_gamma else 1.0)  # w' = s^2 w
+
+
+def merge_moments(first: tuple, second: tuple) -> tuple:
+    """The partial results of `MomentBlock` of two neighbouring blocks, `second` after `first`."""
     return first[0] + second[0], first[1].merge(second[1]), first[2] + second[2]
 
 
@@ -311,7 +441,8 @@ def accumulate(
     weight=None,
     length: float | None = None,
 ) -> Moments:
-    """One pass over the samples that builds the Gram matrix of the features, chunk by chunk.
+    """One pass over the samples that gathers the distinct moments, chunk by chunk, and the
+    Gram matrix of the features they make (M1).
 
     samples : (N, 3) raw sensor output B_M, in memory or a Dask log (`nlpcal.passes`). [field
         unit]
@@ -335,8 +466,8 @@ def accumulate(
         length = length or float(np.sqrt(mean_square(reference)))
     first = samples[: min(1024, n)]
     shift = float(np.sqrt(np.einsum("ij,ij->i", first, first)).mean())
-    work = GramBlock(frame.centre, length, layout(kind == "series"), shift, chunk_rows, weight)
-    gram, measured, total = reduce(samples, reference, work, merge_gram, chunk_rows)
+    work = MomentBlock(frame.centre, length, kind == "series", shift, chunk_rows, weight)
+    sums, measured, total = reduce(samples, reference, work, merge_moments, chunk_rows)
     n = measured.n  # the rows read: a Dask log's first pass may find fewer than declared
     if weight is not None and not total > 0:
         raise InputError(
@@ -344,13 +475,4 @@ def accumulate(
             "these data (raise --loss-scale, or leave it out to estimate it)"
         )
     total = total if weight is not None else float(n)
-    gram /= total
-    return Moments(
-        gram=gram,
-        frame=frame,
-        length=length,
-        n=n,
-        reference=kind,
-        measured=measured.result(),
-        weight_sum=total,
-    )
+    return moments_from(sums / total, frame, length, n, kind, measured.result(), total)

@@ -29,7 +29,7 @@ from nlpcal.errors import InputError
 from nlpcal.live import LiveSession, StreamMoments, Targets, targets_from
 from nlpcal.live.grid import CELLS, cell_centres, cell_index, coverage, zones
 from nlpcal.live.parsers import detect_parser
-from nlpcal.moments import GramBlock, accumulate, layout, sphere_frame
+from nlpcal.moments import MomentBlock, accumulate, gram_index, sphere_frame
 from resolution import assert_same_optimum
 from synthetic import PAPER_FIELD, make_log
 
@@ -135,10 +135,11 @@ def test_forgetting_weighs_each_sample_by_its_age():
         stream.add(samples[start : start + 257])
     weights = lam ** np.arange(len(samples) - 1, -1, -1, dtype=float)
     frame = stream.frame
-    block = GramBlock(
-        frame.centre, frame.radius, layout(False), 0.0, len(samples), lambda raw, ref: weights
+    block = MomentBlock(
+        frame.centre, frame.radius, False, 0.0, len(samples), lambda raw, ref: weights
     )
-    gram, _, total = block(samples, None)
+    sums, _, total = block(samples, None)
+    gram = sums[gram_index(False)]
     moments = stream.moments()
     assert moments.weight_sum == pytest.approx(total, rel=1e-12)
     scale = np.abs(gram).max()

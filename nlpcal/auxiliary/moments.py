@@ -99,17 +99,10 @@ def channel_layout(varying_gamma: bool, channels: int) -> mom.Layout:
 
 
 @cache
-def _recipe(channels: int, varying_gamma: bool) -> tuple:
-    """The monomials of (d, c~), how to build each, and the features grouped by their powers of
-    gamma and a with the monomial each one multiplies."""
-    exps, recipe = mom.monomials(4, 3 + channels)
-    column = {e: i for i, e in enumerate(exps)}
-    groups: dict = {}
-    for j, (g_pow, a_pow, e) in enumerate(channel_layout(varying_gamma, channels).keys):
-        rows, monos = groups.setdefault((g_pow, a_pow), ([], []))
-        rows.append(j)
-        monos.append(column[e])
-    return recipe, tuple((g, p, np.array(r), np.array(m)) for (g, p), (r, m) in groups.items())
+def channel_moments(varying_gamma: bool, channels: int) -> tuple:
+    """The distinct moments of `channel_layout`'s Gram matrix over (gamma, a, d, c~) and the
+    position of each Gram entry among them (`nlpcal.moments.pair_moments`)."""
+    return mom.pair_moments(channel_layout(varying_gamma, channels))
 
 
 @dataclass(frozen=True)
@@ -128,29 +121,33 @@ class ChannelGram:
     chunk_rows: int = mom.CHUNK_ROWS
 
     def __call__(self, samples, extra) -> np.ndarray:
+        """The sums of the distinct moments of the block (`channel_moments`)."""
         samples, extra = np.asarray(samples, dtype=float), np.asarray(extra, dtype=float)
         k = self.channels.centre.size
-        recipe, groups = _recipe(k, self.series)
-        lay = channel_layout(self.series, k)
-        size = lay.size
-        gram = np.zeros((size, size))
-        for start in range(0, samples.shape[0], self.chunk_rows):
-            stop = min(start + self.chunk_rows, samples.shape[0])
-            d = (samples[start:stop] - self.centre).T / self.length
-            c = ((extra[start:stop, :k] - self.channels.centre) / self.channels.scale).T
-            radius_sq = np.einsum("ij,ij->j", d, d)
+        moments = channel_moments(self.series, k)[0]
+        sums = moments.empty()
+        rows = samples.shape[0]
+        variables = np.empty((len(mom.VARIABLES) + k, max(1, min(self.chunk_rows, rows))))
+        for start in range(0, rows, self.chunk_rows):
+            stop = min(start + self.chunk_rows, rows)
+            chunk = variables[:, : stop - start]
+            gamma, a, d, c = chunk[0], chunk[1], chunk[2:5], chunk[5:]
+            np.divide((samples[start:stop] - self.centre).T, self.length, out=d)
+            np.divide(
+                (extra[start:stop, :k] - self.channels.centre).T,
+                self.channels.scale[:, None],
+                out=c,
+            )
+            np.einsum("ij,ij->j", d, d, out=a)
+            weight = None
             if self.series:
-                reference = extra[start:stop, k]
-                gamma = (self.length / reference) ** 2
-                a = gamma * radius_sq - 1.0
-            else:
-                gamma, a = None, radius_sq - 1.0
-            features = np.empty((size, stop - start))
-            mom.fill_features(np.vstack([d, c]), a, gamma, lay, features, recipe, groups)
-            if self.series:
-                features *= reference / self.length  # sqrt of w_i = F_i^2 / L^2
-            gram += features @ features.T
-        return gram
+                np.divide(self.length, extra[start:stop, k], out=gamma)
+                gamma *= gamma
+                a *= gamma
+                weight = 1.0 / gamma  # w_i = F_i^2 / L^2
+            a -= 1.0
+            moments.add(sums, chunk, weight)
+        return moments.values(sums)
 
 
 @dataclass
@@ -185,9 +182,10 @@ def accumulate_channels(samples, channels, reference, frame: mom.Frame, length: 
     cframe = channel_frame(channels)
     extra = channels if kind != "series" else stacked(channels, reference)
     work = ChannelGram(frame.centre, length, cframe, kind == "series")
-    gram = reduce(samples, extra, work, np.add, mom.CHUNK_ROWS)
+    sums = reduce(samples, extra, work, np.add, mom.CHUNK_ROWS)
     n = samples.shape[0]
-    return ChannelMoments(gram / n, frame, length, cframe, kind, n)
+    gram = sums[channel_moments(kind == "series", cframe.centre.size)[1]] / n
+    return ChannelMoments(gram, frame, length, cframe, kind, n)
 
 
 def dask_rows(*values) -> list:

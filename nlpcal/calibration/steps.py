@@ -28,7 +28,7 @@ from ..inference import Z_975
 from ..io.lazy import field_samples
 from ..io.logs import settle_unit
 from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
-from ..moments import Moments, accumulate, sphere_frame
+from ..moments import Moments, accumulate, recentred, sphere_frame
 from ..nlp.blocks import GAUGE
 from ..results import Provenance, TableRow
 from ..robust import TUNING
@@ -203,14 +203,26 @@ def first_frame(samples, reference) -> tuple:
     return frame, float(np.sqrt(np.mean(finite**2))) if finite.size else frame.radius
 
 
+#: The first pass's moments are taken to the final frame algebraically (`recentred`) while its
+#: centre lies within this fraction of the final length from the final one and the two lengths
+#: differ by less than this fraction: a moment of degree <= 8 about the new centre then sums
+#: terms at most (1 + 0.05)^8 = 1.5 times its size, and the map adds rounding of the order of
+#: the pass's own. Further away (a first block of a few attitudes, whose sphere is poorly
+#: determined), the pass runs again in the final frame. [1]
+REFRAME_LIMIT = 0.05
+
+
 def reframed(moments: Moments, samples, reference) -> Moments:
     """The moments of the first pass in the frame the samples in memory get (the sphere fitted
-    to the survey's subsample, `accumulate`): the same moments, so the same solves."""
+    to the survey's subsample, `accumulate`), so that the solves start and run as in memory:
+    re-centred algebraically within REFRAME_LIMIT of the first frame, else gathered again (a
+    pass more, counted)."""
     frame = sphere_frame(samples)
     length = moments_length(frame, reference)
-    if np.array_equal(frame.centre, moments.frame.centre) and length == moments.length:
-        return moments
-    return accumulate(samples, reference, frame=frame, length=length)  # a pass more
+    shift = float(np.linalg.norm(frame.centre - moments.frame.centre)) / length
+    if max(shift, abs(np.log(length / moments.length))) <= REFRAME_LIMIT:
+        return recentred(moments, frame, length)
+    return accumulate(samples, reference, frame=frame, length=length)
 
 
 def moments_length(frame, reference) -> float:

@@ -1,7 +1,8 @@
 """The moments of a stream (`nlpcal.moments`), gathered as the samples arrive.
 
 The Gram matrix G of `nlpcal.moments` is a sum over samples, so each batch of samples adds its
-own block (`nlpcal.moments.GramBlock`) and the problem the solver sees keeps its fixed size.
+own block of distinct moments (`nlpcal.moments.MomentBlock`, the Gram matrix assembled from
+them) and the problem the solver sees keeps its fixed size.
 The sum needs a frame (the centre and scale of d = (b - c) / L), fixed before the first sample
 is added: it is the sphere fitted to the first `FRAME_SAMPLES` samples. A sensor turned only a
 little at first gives a poor sphere; whenever the sphere fitted to all the samples so far moves
@@ -19,7 +20,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..moments import CHUNK_ROWS, Frame, GramBlock, Moments, layout, sphere_frame
+from ..moments import (
+    CHUNK_ROWS,
+    Frame,
+    MomentBlock,
+    Moments,
+    gram_moments,
+    moments_from,
+    sphere_frame,
+)
 from ..statistics import MagnitudeStats
 
 #: Samples the first frame is fitted to (about a second of a 75 Hz sensor).
@@ -89,20 +98,20 @@ class StreamMoments:
         if self.frame is None or self._weight <= 0:
             return None
         kind = "none" if self.reference is None else "constant"
-        return Moments(
-            gram=self._gram / self._weight,
-            frame=self.frame,
-            length=self._length,
-            n=self.n,
-            reference=kind,
-            measured=self._measured.result(),
-            weight_sum=self._weight,
+        return moments_from(
+            self._sums / self._weight,
+            self.frame,
+            self._length,
+            self.n,
+            kind,
+            self._measured.result(),
+            self._weight,
         )
 
     # --- the sums ---------------------------------------------------------------------------
 
     def _reset_sums(self) -> None:
-        self._gram = np.zeros((layout(False).size,) * 2)
+        self._sums = np.zeros(gram_moments(False).size)
         self._measured = MagnitudeStats()
         self._weight = 0.0
         self._added = 0
@@ -113,7 +122,7 @@ class StreamMoments:
         self._length = frame.radius if self.reference is None else float(self.reference)
         head = self.samples[:1024]
         shift = float(np.sqrt(np.einsum("ij,ij->i", head, head)).mean())
-        self._block = GramBlock(frame.centre, self._length, layout(False), shift)
+        self._block = MomentBlock(frame.centre, self._length, False, shift)
         self._reset_sums()
         self._sum_to_end()
 
@@ -129,21 +138,21 @@ class StreamMoments:
     def _add_block(self, rows: np.ndarray) -> None:
         lam = self.forgetting
         if lam == 1.0:
-            gram, measured, _ = self._block(rows, self.reference)
+            sums, measured, _ = self._block(rows, self.reference)
             weight = float(len(rows))
         else:  # lambda^(k - 1 - j) for row j of k: the newest row has weight one
             weights = lam ** np.arange(len(rows) - 1, -1, -1, dtype=float)
-            block = GramBlock(
+            block = MomentBlock(
                 self._block.centre,
                 self._block.length,
-                self._block.lay,
+                False,
                 self._block.shift,
                 weight=lambda raw, ref: weights,
             )
-            gram, measured, weight = block(rows, self.reference)
+            sums, measured, weight = block(rows, self.reference)
             decay = lam ** len(rows)
-            self._gram *= decay
+            self._sums *= decay
             self._weight *= decay
-        self._gram += gram
+        self._sums += sums
         self._weight += weight
         self._measured = self._measured.merge(measured) if self._measured.n else measured
