@@ -161,8 +161,9 @@ class Ledger:
     (its columns, its values in another unit).
 
     passes : how many passes over the data have run.
-    timings : (what, seconds) of every pass: "read", "survey" or the name of the work of the
-        pass ("GramBlock", "StatisticsBlock" ...; "+ survey" when the survey came along), and of
+    timings : (what, seconds) of every pass: "read" and "count" (a reader's, the rows of
+        blocks of unknown length counted), "survey", or the name of the work of the pass
+        ("MomentBlock", "StatisticsBlock" ...; "+ survey" when the survey came along); and of
         the reads of the first block ("head", not a pass). [s]
     """
 
