@@ -159,12 +159,15 @@ def prepare_lazy(samples, reference, settings: CalibrationSettings) -> Prepared:
     The pass that gathers the moments gathers the survey too (`nlpcal.passes.reduce`), and a
     reader's pending checks settle in it; so the checks that read the survey (the ranges of the
     values, a series' signs, the unit's plausibility, the reference's scale) come after it, on
-    the survey, and refuse the log as they would before it (the assumed unit they may rule out
-    is nT, whose numbers are raw counts': the moments stay valid under its new name). The
-    frame of that pass, needed before it, is fitted to the log's first block (`first_frame`);
-    the moments are then taken to the frame the samples in memory get (`reframed`).
+    the survey, and refuse the log as they would before it. The assumed unit they may rule out
+    is nT, whose numbers are also the raw counts: the moments stay valid under the new name.
+    The frame of that pass, needed before it, is fitted to the log's first block
+    (`first_frame`); the moments are then taken to the frame the samples in memory get
+    (`reframed`).
     """
-    samples = validation.vectors(samples, minimum=validation.MIN_SAMPLES, purpose=NINE)
+    samples = validation.vectors(
+        samples, minimum=validation.MIN_SAMPLES, purpose="for nine parameters"
+    )
     if not passes.is_lazy(reference):
         reference = validation.reference(reference, samples.shape[0])
     samples, reference = in_base_units(samples, reference, settings)
@@ -181,10 +184,6 @@ def prepare_lazy(samples, reference, settings: CalibrationSettings) -> Prepared:
         unit_source=settings.input.unit_source,
         warnings=warnings,
     )
-
-
-#: The purpose of the samples' count in messages.
-NINE = "for nine parameters"
 
 
 def first_frame(samples, reference) -> tuple:
