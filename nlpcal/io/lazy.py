@@ -16,8 +16,8 @@ block once for its own work, the survey of `nlpcal.passes` and these checks (`Re
 `nlpcal.passes.Pending`). A bad value then fails that first pass, with its file named; rows left
 out make it find the blocks shorter than declared: the arrays are rebuilt on the rows counted
 and that pass runs again. Otherwise (CSV) a pass counts the rows of every block first. The unit's
-plausibility is checked on the first block (`first_rows`): the unit is the file's, the same in
-every block.
+plausibility is checked on the first block (`nlpcal.passes.first_block`): the unit is the
+file's, the same in every block.
 """
 
 from __future__ import annotations
@@ -328,10 +328,12 @@ def read_lazy_log(
     """`nlpcal.io.read_log` for a Dask cluster: the same columns, units and checks, the samples
     (and a reference column) left in the files as `nlpcal.passes.LazySamples`.
 
-    Reading runs on the current Dask scheduler: one pass that checks every value and gathers
-    what the calibration takes from the log without a pass of its own (two for CSV, or when rows
-    are left out). A per-sample geomagnetic reference and extra columns (temperatures) need the
-    log in memory (`read_log`).
+    Reading a Parquet log is no pass: the footers give its rows, and the first pass over it (on
+    the current Dask scheduler) checks every value, counts the rows left out (into `dropped` and
+    `notes`) and gathers what the calibration takes from the log without a pass of its own; a
+    CSV log's rows are counted by a pass here. The unit's plausibility is checked on the first
+    block. A per-sample geomagnetic reference and extra columns (temperatures) need the log in
+    memory (`read_log`).
     """
     one_reference(reference_column, reference_field, reference_model)
     if reference_log is not None:
