@@ -32,9 +32,11 @@ from itertools import combinations_with_replacement
 
 import numpy as np
 
-#: Samples per step of `MomentSet.add` at most: the ~70 rows of monomials of a step (2.3 MB)
-#: stay in a core's L2 cache between their building and their product.
+#: Samples per step of `MomentSet.add` at most, and the values (rows of monomials times
+#: samples) a step holds at most: 2.3 MB, so that they stay in a core's L2 cache between their
+#: building and their product (70 rows x 4096 samples for the nine-parameter objective).
 KERNEL_ROWS = 4096
+KERNEL_VALUES = 140 * 4096
 #: The right factors tried: x; x and y; x, y and z (variables 2, 3, 4, the sample's coordinates
 #: in `nlpcal.moments.VARIABLES`; the others are as good by symmetry).
 RIGHT_CHOICES = ((2,), (2, 3), (2, 3, 4))
@@ -140,7 +142,7 @@ class MomentSet:
             samples as columns). weight : None (w_i = 1) or (rows,) w_i.
         """
         rows = variables.shape[1]
-        step = min(rows, KERNEL_ROWS)
+        step = max(1, min(rows, KERNEL_ROWS, KERNEL_VALUES // self.rows))
         left = np.empty((len(self.left_recipe), step))
         right = np.empty((len(self.right_recipe), step))
         for start in range(0, rows, step):

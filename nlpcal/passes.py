@@ -151,7 +151,7 @@ class LazySamples:
     array : the Dask array, in one chunk across its columns.
     passes : how many passes over the data have run (the survey included).
     timings : (what, seconds) of every pass: "survey", or the name of the work of the pass
-        ("GramBlock", "StatisticsBlock" ...). [s]
+        ("MomentBlock", "StatisticsBlock" ...). [s]
     """
 
     def __init__(self, array, survey: Survey | None = None):
