@@ -127,8 +127,9 @@ class MomentSet:
         """Positions of the exponent tuples `keys` among the moments (an index array of their
         shape minus the tuples' own axis)."""
         where = {k: i for i, k in enumerate(self.keys)}
-        flat = [where[tuple(int(p) for p in k)] for k in np.reshape(keys, (-1, len(self.keys[0])))]
-        return np.reshape(np.array(flat, dtype=np.intp), np.shape(keys)[:-1])
+        rows = np.asarray(keys, dtype=int)
+        flat = [where[tuple(k)] for k in rows.reshape(-1, rows.shape[-1]).tolist()]
+        return np.reshape(np.array(flat, dtype=np.intp), rows.shape[:-1])
 
     def empty(self) -> list:
         """Zero block sums, to be filled by `add` and read by `values`."""
@@ -185,7 +186,9 @@ def moment_set(keys, right=None) -> MomentSet:
     """The plan of `MomentSet.add` for the exponent tuples `keys` (duplicates dropped, order
     kept), with the variables `right` as the right factor (None: of RIGHT_CHOICES, the one
     whose plan costs least, rows built and products, `cost`)."""
-    keys = tuple(dict.fromkeys(tuple(int(p) for p in k) for k in keys))
+    rows = np.asarray(keys, dtype=int)
+    _, first = np.unique(rows, axis=0, return_index=True)
+    keys = tuple(map(tuple, rows[np.sort(first)].tolist()))
     if right is None:
         plans = [moment_set(keys, choice) for choice in RIGHT_CHOICES]
         return min(plans, key=lambda plan: plan.cost)

@@ -22,7 +22,7 @@ from nlpcal.moments import (
     sphere_frame,
     sphere_from_moments,
 )
-from synthetic import PAPER_FIELD, make_log
+from synthetic import PAPER_FIELD, make_log, planar_directions
 
 #: ||G_new - G_old|| / ||G_old|| allowed: a few thousand roundings of sums of O(1) terms.
 GRAM_RTOL = 1e-12
@@ -153,3 +153,17 @@ def test_the_channels_gram_from_the_moments_is_the_features_gram(kind):
     ) / len(samples)
     assert found.gram.shape == old.shape == (found.layout.size,) * 2
     assert relative(found.gram, old) <= GRAM_RTOL
+
+
+def test_samples_in_one_plane_get_the_frame_of_their_mean():
+    # A turntable log: every sphere through its circle fits, and the least-squares one is fixed by
+    # the noise (four times the field away on this log); the frame falls back to the samples'
+    # mean and rms distance, from the rows and from the moments alike.
+    rng = np.random.default_rng(5)
+    flat, _ = make_log(n=1200, noise=1.0, seed=9, directions=planar_directions(1200, rng))
+    frame = sphere_frame(flat)
+    np.testing.assert_allclose(frame.centre, flat.mean(axis=0), rtol=1e-12)
+    assert frame.radius == pytest.approx(PAPER_FIELD, rel=0.05)
+    from_moments = sphere_from_moments(accumulate(flat, PAPER_FIELD, frame=FRAMES[1]))
+    np.testing.assert_allclose(from_moments.centre, frame.centre, rtol=0, atol=1e-9 * PAPER_FIELD)
+    assert from_moments.radius == pytest.approx(frame.radius, rel=1e-12)
