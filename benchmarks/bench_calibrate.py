@@ -14,6 +14,12 @@ and prints medians over the repeats, their ratios to the Gram pass, IPOPT iterat
 peak memory that tracemalloc sees during one more (untimed) call.
 
     python benchmarks/bench_calibrate.py [--sizes 1e3 1e4 1e5 1e6] [--repeats 5]
+
+With --pass-costs it prints instead the data pass's cost per sample for each feature set
+(`pass_costs`): the distinct moments gathered now beside the Gram matrix of features gathered
+before (tests/gram_reference.py), in the same run.
+
+    python benchmarks/bench_calibrate.py --pass-costs [--sizes 1e6] [--repeats 7]
 """
 
 from __future__ import annotations
@@ -98,12 +104,150 @@ def machine() -> str:
     )
 
 
+def pass_costs(n: int, repeats: int) -> None:
+    """The data pass's cost per sample [ns] for each feature set, beside the number of distinct
+    moments it needs: the moment passes (`nlpcal.moments.MomentBlock`, the lag's `LagBlock`,
+    the channels' `ChannelGram`) and the Gram matrix of the features as gathered before
+    (`FeatureGram` of tests/gram_reference.py: its figure leaves out the Table 1 sums the
+    moment pass also gathers). Each repeat times every pass once, in turn, through
+    `nlpcal.passes.reduce` (the pass's threads); medians with their spread (min-max)."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+    from gram_reference import FeatureGram
+
+    from nlpcal import lag
+    from nlpcal.auxiliary import moments as aux
+    from nlpcal.moments import CHUNK_ROWS, MomentBlock, gram_moments, layout, sphere_frame
+    from nlpcal.passes import reduce
+
+    samples = simulate(n, noise=1.0, seed=1).to_numpy()
+    rng = np.random.default_rng(2)
+    series = FIELD * (1.0 + 1e-3 * np.sin(np.linspace(0.0, 60.0, n)))
+    times = np.arange(n) * 0.1
+    channels = np.column_stack([rng.uniform(0.0, 40.0, n), rng.normal(3.0, 1.0, n)])
+    frame = sphere_frame(samples)
+    centre = frame.centre
+    moments = accumulate(samples, series, frame=frame)
+    length = moments.length
+    cframe = aux.channel_frame(channels)
+    scaled = (channels - cframe.centre) / cframe.scale
+    store = lag.Series(series, times)
+
+    def new_moments(reference, is_series):
+        block = MomentBlock(centre, FIELD if not is_series else length, is_series, FIELD)
+        return reduce(samples, reference, block, lambda a, b: a, CHUNK_ROWS)
+
+    def old_gram(reference, is_series):
+        block = FeatureGram(centre, FIELD if not is_series else length, is_series)
+        return reduce(samples, reference, block, np.add, CHUNK_ROWS)
+
+    def new_lag():
+        return lag.lag_moments(samples, series, times, moments, noise=0.0)
+
+    def old_lag():
+        block = FeatureGram(centre, length, True)
+
+        def work(rows, ref, start):
+            R, D, _, _ = store.columns(start, len(rows))
+            return block(rows, R, derivative=D)
+
+        return reduce(samples, series, work, np.add, CHUNK_ROWS, indexed=True)
+
+    def new_channels():
+        block = aux.ChannelGram(centre, FIELD, cframe, False)
+        return reduce(samples, channels, block, np.add, CHUNK_ROWS)
+
+    def old_channels():
+        block = FeatureGram(centre, FIELD, False, channels=2)
+        return reduce(
+            samples, scaled, lambda rows, extra: block(rows, None, extra=extra), np.add, CHUNK_ROWS
+        )
+
+    lag_set = lag.lag_moment_set(layout(True))[0]
+    channel_set = aux.channel_moments(False, 2)[0]
+    constant, varying = gram_moments(False), gram_moments(True)
+    sets = {  # name: (distinct moments, features, new passes, old passes)
+        "constant reference": (
+            constant.size,
+            46,
+            [lambda: new_moments(FIELD, False)],
+            [lambda: old_gram(FIELD, False)],
+        ),
+        "reference series": (
+            varying.size,
+            58,
+            [lambda: new_moments(series, True)],
+            [lambda: old_gram(series, True)],
+        ),
+        "series + derivative": (
+            varying.size + lag_set.size,
+            58,
+            [lambda: new_moments(series, True), new_lag],
+            [lambda: old_gram(series, True), old_lag],
+        ),
+        "constant + 2 channels": (
+            constant.size + channel_set.size,
+            46 + 148,
+            [lambda: new_moments(FIELD, False), new_channels],
+            [lambda: old_gram(FIELD, False), old_channels],
+        ),
+    }
+    calls = {"gram10": [lambda: gram_pass(samples)]}
+    for name, (_, _, new, old) in sets.items():
+        calls[name + " new"], calls[name + " old"] = new, old
+    times_ns: dict = {key: [] for key in calls}
+    for passes in calls.values():  # warm: plans and caches built
+        for call in passes:
+            call()
+    for _ in range(repeats):
+        for key, passes in calls.items():
+            started = time.perf_counter()
+            for call in passes:
+                call()
+            times_ns[key].append((time.perf_counter() - started) / n * 1e9)
+
+    def cell(values):
+        return f"{statistics.median(values):.1f} ({min(values):.1f}-{max(values):.1f})"
+
+    print(f"# machine: {machine()}")
+    print(f"# N = {n:.0e}, {repeats} repeats: medians (min-max) [ns per sample]")
+    print(f"# one numpy 10-feature Gram pass (gram_pass): {cell(times_ns['gram10'])}")
+    header = (
+        "feature set",
+        "distinct moments",
+        "features (Gram)",
+        "moments ns/sample",
+        "Gram ns/sample",
+        "moments/Gram",
+        "moments/gram10",
+    )
+    print(" | ".join(header))
+    gram10 = statistics.median(times_ns["gram10"])
+    for name, (distinct, features, _, _) in sets.items():
+        new, old = times_ns[name + " new"], times_ns[name + " old"]
+        row = (
+            name,
+            str(distinct),
+            str(features),
+            cell(new),
+            cell(old),
+            f"{statistics.median(new) / statistics.median(old):.2f}",
+            f"{statistics.median(new) / gram10:.2f}",
+        )
+        print(" | ".join(row), flush=True)
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=float, nargs="+", default=[1e3, 1e4, 1e5, 1e6])
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--no-scipy", action="store_true", help="skip the scipy baseline")
+    parser.add_argument("--pass-costs", action="store_true", help="the pass per feature set")
     args = parser.parse_args(argv)
+    if args.pass_costs:
+        return pass_costs(int(max(args.sizes)), args.repeats)
     print(f"# machine: {machine()}")
     print(f"# medians over {args.repeats} repeats; ratios to the Gram pass on the same array")
     header = (

@@ -21,7 +21,8 @@ f_0 the reference objective of `nlpcal.nlp.objective`. With the notation of `nlp
 (U and P give u and u^2 on the features, `nlpcal.nlp.objective.feature_coefficients`; the term
 u^3 / 16 dropped is of relative size u^2, below 1e-6 near any solution). g and c are the lag's
 own group of moments, one more vector and one number beside the Gram matrix, gathered by one
-pass block by block (`LagBlock`): f keeps its size for every N.
+pass block by block (`LagBlock`) as the distinct moments w x f_p and w x^2 over the variables
+(gamma, a, d, x) (`lag_moment_set`, `nlpcal.monomials`): f keeps its size for every N.
 
 The derivative is the central difference D_i = (R_{i+1} - R_{i-1}) / (t_{i+1} - t_{i-1}); a block
 reads one row beyond each of its ends (two ahead for the noise estimate below), so the pass runs

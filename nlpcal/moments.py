@@ -206,7 +206,8 @@ class Frame:
 
 
 def sphere_frame(samples: np.ndarray, max_points: int = 20000) -> Frame:
-    """Algebraic sphere fit |b|^2 = 2 c.b + k to an evenly strided subsample."""
+    """Algebraic sphere fit |b|^2 = 2 c.b + k to an evenly strided subsample; on samples in one
+    plane (`planar`), whose sphere the fit cannot determine, their mean and rms distance."""
     step = max(1, samples.shape[0] // max_points)
     sub = samples[::step]
     scale = float(np.sqrt(np.mean(np.einsum("ij,ij->i", sub, sub)))) or 1.0
@@ -215,13 +216,28 @@ def sphere_frame(samples: np.ndarray, max_points: int = 20000) -> Frame:
     solution, *_ = np.linalg.lstsq(design, np.einsum("ij,ij->i", unit, unit), rcond=None)
     centre = solution[:3] * scale
     radius_sq = (solution[3] + solution[:3] @ solution[:3]) * scale**2
-    if not np.isfinite(radius_sq) or radius_sq <= 0 or not np.isfinite(centre).all():
-        # Degenerate coverage (all samples on a plane through the origin, say): fall back to the
-        # mean and the rms distance from it.
-        centre = sub.mean(axis=0)
-        radius_sq = float(np.mean(np.sum((sub - centre) ** 2, axis=1)))
+    mean = sub.mean(axis=0)
+    spread = (sub - mean).T @ (sub - mean) / sub.shape[0]
+    if _degenerate(centre, radius_sq, spread):
+        centre = mean
+        radius_sq = float(np.trace(spread))
     radius = float(np.sqrt(radius_sq)) if radius_sq > 0 else 1.0
     return Frame(centre=np.asarray(centre, dtype=float), radius=radius)
+
+
+#: Samples whose spread across their flattest direction is below this fraction of the spread
+#: along the widest lie in one plane: a circle, through which every sphere of a family passes,
+#: so that the sphere fit is fixed by the noise alone (and may lie far from the samples). [1]
+PLANAR_SPREAD = 1e-3
+
+
+def _degenerate(centre, radius_sq, spread) -> bool:
+    """Whether the sphere fit gives no frame: not finite, not positive, or the samples (their
+    covariance `spread` [field unit^2]) in one plane (PLANAR_SPREAD)."""
+    if not np.isfinite(radius_sq) or radius_sq <= 0 or not np.isfinite(centre).all():
+        return True
+    extremes = np.linalg.eigvalsh(spread)[[0, -1]]
+    return bool(extremes[0] < PLANAR_SPREAD**2 * extremes[1])
 
 
 @dataclass
@@ -354,10 +370,10 @@ def sphere_from_moments(moments: Moments) -> Frame:
     length, origin = moments.length, moments.frame.centre
     centre = origin + length * solution[:3]
     radius_sq = (solution[3] + solution[:3] @ solution[:3]) * length**2
-    if not np.isfinite(radius_sq) or radius_sq <= 0 or not np.isfinite(centre).all():
-        # As in sphere_frame: the mean and the rms distance from it.
+    spread = (second / total - np.outer(mean, mean) / total**2) * length**2
+    if _degenerate(centre, radius_sq, spread):  # as in sphere_frame
         centre = origin + length * mean / total
-        radius_sq = (radius_mean / total - (mean / total) @ (mean / total)) * length**2
+        radius_sq = float(np.trace(spread))
     radius = float(np.sqrt(radius_sq)) if radius_sq > 0 else 1.0
     return Frame(centre=np.asarray(centre, dtype=float), radius=radius)
 

@@ -32,9 +32,11 @@ from itertools import combinations_with_replacement
 
 import numpy as np
 
-#: Samples per step of `MomentSet.add` at most: the ~70 rows of monomials of a step (2.3 MB)
-#: stay in a core's L2 cache between their building and their product.
+#: Samples per step of `MomentSet.add` at most, and the values (rows of monomials times
+#: samples) a step holds at most: 2.3 MB, so that they stay in a core's L2 cache between their
+#: building and their product (70 rows x 4096 samples for the nine-parameter objective).
 KERNEL_ROWS = 4096
+KERNEL_VALUES = 140 * 4096
 #: The right factors tried: x; x and y; x, y and z (variables 2, 3, 4, the sample's coordinates
 #: in `nlpcal.moments.VARIABLES`; the others are as good by symmetry).
 RIGHT_CHOICES = ((2,), (2, 3), (2, 3, 4))
@@ -125,8 +127,9 @@ class MomentSet:
         """Positions of the exponent tuples `keys` among the moments (an index array of their
         shape minus the tuples' own axis)."""
         where = {k: i for i, k in enumerate(self.keys)}
-        flat = [where[tuple(int(p) for p in k)] for k in np.reshape(keys, (-1, len(self.keys[0])))]
-        return np.reshape(np.array(flat, dtype=np.intp), np.shape(keys)[:-1])
+        rows = np.asarray(keys, dtype=int)
+        flat = [where[tuple(k)] for k in rows.reshape(-1, rows.shape[-1]).tolist()]
+        return np.reshape(np.array(flat, dtype=np.intp), rows.shape[:-1])
 
     def empty(self) -> list:
         """Zero block sums, to be filled by `add` and read by `values`."""
@@ -140,7 +143,7 @@ class MomentSet:
             samples as columns). weight : None (w_i = 1) or (rows,) w_i.
         """
         rows = variables.shape[1]
-        step = min(rows, KERNEL_ROWS)
+        step = max(1, min(rows, KERNEL_ROWS, KERNEL_VALUES // self.rows))
         left = np.empty((len(self.left_recipe), step))
         right = np.empty((len(self.right_recipe), step))
         for start in range(0, rows, step):
@@ -183,7 +186,9 @@ def moment_set(keys, right=None) -> MomentSet:
     """The plan of `MomentSet.add` for the exponent tuples `keys` (duplicates dropped, order
     kept), with the variables `right` as the right factor (None: of RIGHT_CHOICES, the one
     whose plan costs least, rows built and products, `cost`)."""
-    keys = tuple(dict.fromkeys(tuple(int(p) for p in k) for k in keys))
+    rows = np.asarray(keys, dtype=int)
+    _, first = np.unique(rows, axis=0, return_index=True)
+    keys = tuple(map(tuple, rows[np.sort(first)].tolist()))
     if right is None:
         plans = [moment_set(keys, choice) for choice in RIGHT_CHOICES]
         return min(plans, key=lambda plan: plan.cost)

@@ -8,8 +8,10 @@ loss's weights, in several frames.
 
 import numpy as np
 import pytest
-from gram_reference import reference_gram
+from gram_reference import FeatureGram, reference_gram
 
+from nlpcal.auxiliary.moments import accumulate_channels
+from nlpcal.lag import Series, lag_moments
 from nlpcal.moments import (
     Frame,
     MomentBlock,
@@ -20,7 +22,7 @@ from nlpcal.moments import (
     sphere_frame,
     sphere_from_moments,
 )
-from synthetic import PAPER_FIELD, make_log
+from synthetic import PAPER_FIELD, make_log, planar_directions
 
 #: ||G_new - G_old|| / ||G_old|| allowed: a few thousand roundings of sums of O(1) terms.
 GRAM_RTOL = 1e-12
@@ -118,3 +120,50 @@ def test_the_sphere_from_the_moments_is_the_sphere_of_the_rows(kind):
     # Both solve the same least-squares problem in differently scaled units: rounding only.
     np.testing.assert_allclose(fitted.centre, direct.centre, rtol=0, atol=1e-9 * PAPER_FIELD)
     assert fitted.radius == pytest.approx(direct.radius, rel=1e-12)
+
+
+def test_the_lag_group_from_the_moments_is_the_features_sum():
+    # g = (1/N) sum_i w_i x_i f_i and c = (1/N) sum_i w_i x_i^2 (L3 in nlpcal.lag), x = D / F.
+    samples, references, _ = log_and_references(n=6000, seed=9)
+    reference = references["series"]
+    times = np.arange(len(samples)) * 0.1
+    moments = accumulate(samples, reference)
+    lag = lag_moments(samples, reference, times, moments, noise=0.0)
+    R, D, _, _ = Series(reference, times).columns(0, len(samples))
+    old = FeatureGram(moments.frame.centre, moments.length, True)(samples, R, derivative=D) / len(
+        samples
+    )
+    assert relative(lag.g, old) <= GRAM_RTOL
+    c = np.mean((R / moments.length) ** 2 * (D / R) ** 2)
+    assert lag.c_observed == pytest.approx(c, rel=GRAM_RTOL)
+
+
+@pytest.mark.parametrize("kind", ["constant", "series"])
+def test_the_channels_gram_from_the_moments_is_the_features_gram(kind):
+    samples, references, _ = log_and_references(n=5000, seed=11)
+    rng = np.random.default_rng(11)
+    channels = np.column_stack([rng.uniform(0, 40, len(samples)), rng.normal(3, 1, len(samples))])
+    moments = accumulate(samples, references[kind])
+    found = accumulate_channels(
+        samples, channels, references[kind], moments.frame, moments.length, kind
+    )
+    scaled = (channels - found.channels.centre) / found.channels.scale
+    old = FeatureGram(moments.frame.centre, moments.length, kind == "series", channels=2)(
+        samples, references[kind], extra=scaled
+    ) / len(samples)
+    assert found.gram.shape == old.shape == (found.layout.size,) * 2
+    assert relative(found.gram, old) <= GRAM_RTOL
+
+
+def test_samples_in_one_plane_get_the_frame_of_their_mean():
+    # A turntable log: every sphere through its circle fits, and the least-squares one is fixed by
+    # the noise (four times the field away on this log); the frame falls back to the samples'
+    # mean and rms distance, from the rows and from the moments alike.
+    rng = np.random.default_rng(5)
+    flat, _ = make_log(n=1200, noise=1.0, seed=9, directions=planar_directions(1200, rng))
+    frame = sphere_frame(flat)
+    np.testing.assert_allclose(frame.centre, flat.mean(axis=0), rtol=1e-12)
+    assert frame.radius == pytest.approx(PAPER_FIELD, rel=0.05)
+    from_moments = sphere_from_moments(accumulate(flat, PAPER_FIELD, frame=FRAMES[1]))
+    np.testing.assert_allclose(from_moments.centre, frame.centre, rtol=0, atol=1e-9 * PAPER_FIELD)
+    assert from_moments.radius == pytest.approx(frame.radius, rel=1e-12)

@@ -26,7 +26,7 @@ def test_memory_stays_o_chunk_on_a_memory_mapped_log(tmp_path):
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
     # The data are 24 MB; the calibration allocates a few chunk buffers per thread
-    # (about 50 x 8192 doubles each).
+    # (the moment pass's monomials, about 75 x 4096 doubles, and a chunk of 8192 rows).
     assert peak < 0.4 * log.nbytes
     assert abs(result.parameters["z_x"] - PAPER_TRUTH["z_x"]) < 0.1
 
