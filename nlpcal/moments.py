@@ -34,10 +34,13 @@ and the fixed map from the moments to G a selection (`gram_index`). a is kept as
 its own, not expanded into |d|^2 - 1 (M2): near the solution a_i is of the order of the noise
 over the field, and a^4 expanded into moments of d of degree 8 would be the difference of sums
 of order one; kept, the a^k entries are sums of small terms, exact to the last digits as in the
-Gram matrix of the features. The set needed (`gram_moments`): 2k + |m| <= 8 in a^k d^m, 295
-moments, with gamma constant; j + k <= 4 and |m| <= 2j in gamma^j a^k d^m, 483 (and the ten
-unweighted cubic moments of (M3)), for a series. They are gathered as the entries of one
-staircase of matrix products per chunk (`nlpcal.monomials`).
+Gram matrix of the features. (A calibrated sensor, 0.05 nT of noise in 50 000 nT, N = 1e6,
+against sums in long double: mean a^4 is off by 4e-13 of itself kept, by 5e7 times itself
+expanded, while both Gram matrices meet ||dG|| / ||G|| <= 1e-12.) The set needed
+(`gram_moments`): 2k + |m| <= 8 in a^k d^m, 295 moments, with gamma constant; j + k <= 4
+and |m| <= 2j in gamma^j a^k d^m, 483 (and the ten unweighted cubic moments of (M3)), for a
+series. They are gathered as the entries of one staircase of matrix products per chunk
+(`nlpcal.monomials`).
 
 The sphere of the frame, the algebraic fit |b|^2 = 2 c.b + k, is a least-squares problem whose
 normal equations in d (b = c0 + L d) read the unweighted moments of degree <= 3:
@@ -58,7 +61,8 @@ order, a linear map of the moment vector (`recentring_map`). It is exact in exac
 in float64 the small entries of the new frame (the a^k ones near the solution) inherit the
 rounding of the larger old ones they are combined from, relative |delta| + |a_old| per power
 of a: a frame off the data by delta costs the precision of a frame that far, as in a pass
-gathered in it.
+gathered in it. (On the log above, a centre 5, 50 and 500 nT off: mean a^2 off by 1e-12, 1e-10
+and 1e-8 of itself after the change, mean a^4 by 9e-9, 3e-4 and 0.3.)
 
 Floating-point cancellation is kept away by the frame: centred on a sphere fitted to the samples
 and scaled by the field, a_i and e are small near the solution, so the small objective is never

@@ -10,6 +10,7 @@ import nlpcal
 from nlpcal import CalibrationResult, calibrate
 from nlpcal.calibration.coverage import PLANAR_NOISE, flatness
 from nlpcal.errors import InputError, QualityError, SolveError
+from nlpcal.moments import Frame
 from nlpcal.nlp import steps
 from nlpcal.nlp.solver import SolveOutcome
 from resolution import assert_same_optimum
@@ -511,11 +512,18 @@ def test_ipopt_starts_from_the_newton_step_of_the_start(block, monkeypatch):
     np.testing.assert_allclose(warm.theta, cold.theta, rtol=0, atol=1e-9 * moments.length)
 
 
-def test_a_negative_objective_is_a_failure_not_a_floor():
-    # Turns about one axis with 0.01 nT of noise: the staged cycle leaves the region where the
-    # moment series holds and the objective, a variance, goes negative.
+def test_a_negative_objective_is_a_failure_not_a_floor(monkeypatch):
+    # Turns about one axis with 0.01 nT of noise, in the frame of the least-squares sphere through
+    # their circle (136 times the field away; `sphere_frame` takes the samples' mean for a log in
+    # one plane): the staged cycle leaves the region where the moment series holds and the
+    # objective, a variance, goes negative.
     rng = np.random.default_rng(5)
     samples, _ = make_log(n=2000, noise=0.01, seed=5, directions=planar_directions(2000, rng))
+    unit = samples / PAPER_FIELD
+    design = np.column_stack([2.0 * unit, np.ones(len(unit))])
+    fit, *_ = np.linalg.lstsq(design, np.einsum("ij,ij->i", unit, unit), rcond=None)
+    far = Frame(fit[:3] * PAPER_FIELD, float(np.sqrt(fit[3] + fit[:3] @ fit[:3])) * PAPER_FIELD)
+    monkeypatch.setattr("nlpcal.moments.sphere_frame", lambda *args, **kwargs: far)
     with pytest.raises(SolveError) as info:
         calibrate(samples, method="staged")
     assert info.value.status == "Negative_Objective"

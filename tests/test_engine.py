@@ -36,6 +36,7 @@ LAYERS = {
     "passes": 1,
     "cluster": 1,
     "moments": 1,
+    "monomials": 1,
     "plots": 1,
     "geomagnetic": 1,
     "timing": 1,
