@@ -93,3 +93,30 @@ def test_the_gate_alone_refuses_what_the_data_do_not_determine():
     assert refused.value.overrides == {"require_identifiable": False}
     assert np.isfinite(list(refused.value.result.parameters.values())).all()
     assert NO_GATE.allow_unconverged and not NO_GATE.require_identifiable
+
+
+@pytest.mark.parametrize("unit", [None, "uT"])
+def test_prepare_fits_the_sphere_once(monkeypatch, unit):
+    """The unit check of an assumed unit and the moments' frame share one sphere fit, the one
+    the moments would fit alone: the same subsample, the same sphere."""
+    import nlpcal.calibration.steps as steps_module
+    import nlpcal.io.logs as logs_module
+    import nlpcal.moments as moments_module
+
+    fit = moments_module.sphere_frame
+    samples, _ = make_log(2000, noise=1.0, seed=3)
+    samples = samples / 1000.0 if unit == "uT" else samples
+    expected = fit(samples * 1000.0 if unit == "uT" else samples)
+    calls = []
+
+    def counted(values, *args, **kwargs):
+        calls.append(values.shape)
+        return fit(values, *args, **kwargs)
+
+    for module in (steps_module, logs_module, moments_module):
+        monkeypatch.setattr(module, "sphere_frame", counted)
+    field = PAPER_FIELD / 1000.0 if unit == "uT" else PAPER_FIELD
+    data = prepare(samples, CalibrationSettings.of(unit=unit, reference_field=field))
+    assert len(calls) == 1
+    np.testing.assert_array_equal(data.moments.frame.centre, expected.centre)
+    assert data.moments.frame.radius == expected.radius

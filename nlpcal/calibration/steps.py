@@ -28,7 +28,7 @@ from ..inference import Z_975
 from ..io.lazy import field_samples
 from ..io.logs import settle_unit
 from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
-from ..moments import Moments, accumulate
+from ..moments import Moments, accumulate, sphere_frame
 from ..nlp.blocks import GAUGE
 from ..results import Provenance, TableRow
 from ..robust import TUNING
@@ -123,17 +123,20 @@ def prepare(samples, settings: CalibrationSettings) -> Prepared:
     samples = validation.samples(samples)
     reference = validation.reference(reference, samples.shape[0])
     samples = units.to_base(samples, unit)  # in base units a memory map stays mapped
-    warnings = []
-    if source == "assumed":
-        samples, unit, warning = settle_unit(samples, unit, source)
+    warnings, frame = [], None
+    if source == "assumed":  # one sphere fit for the unit check and the moments' frame
+        frame = sphere_frame(samples)
+        settled, unit, warning = settle_unit(samples, unit, source, frame)
         warnings = [warning] if warning else []
+        frame = frame if settled is samples else None  # samples taken back to counts: refit
+        samples = settled
         units.check_compatible(unit, reference_unit or unit)
     reference = units.to_base(reference, reference_unit or unit)
     validation.reference_scale(reference, validation.mean_magnitude(samples))
     return Prepared(
         samples=samples,
         reference=reference,
-        moments=accumulate(samples, reference),
+        moments=accumulate(samples, reference, frame=frame),
         unit=units.base_unit(unit),
         unit_source=source,
         warnings=warnings,
