@@ -25,6 +25,7 @@ import statistics
 import time
 
 import numpy as np
+from bench_load import timed  # the benchmarks' folder is the script's
 
 import nlpcal
 from nlpcal.calibration import assemble, diagnose, gate, prepare, solve
@@ -36,16 +37,6 @@ from nlpcal.nlp.steps import block_step
 from nlpcal.simulation import ZHOU2010_FIELD_NT, simulate
 
 FIELD = ZHOU2010_FIELD_NT
-
-
-def timings(function, repeats: int) -> list:
-    """The wall time of each of `repeats` calls of `function` [s]."""
-    times = []
-    for _ in range(repeats):
-        started = time.perf_counter()
-        function()
-        times.append(time.perf_counter() - started)
-    return times
 
 
 def ms(times) -> str:
@@ -125,7 +116,7 @@ def floor_parts(samples, repeats: int) -> dict:
         "Table 1 pass": lambda: problem.row("final", theta, iterations=0, wall_s=0.0),
         "joint Newton check": newton_check,
     }
-    return {name: statistics.median(timings(call, repeats)) for name, call in parts.items()}
+    return {name: statistics.median(timed(call, repeats)) for name, call in parts.items()}
 
 
 def main(argv=None) -> int:
@@ -139,7 +130,7 @@ def main(argv=None) -> int:
     for method in ("joint", "staged"):
         call = lambda m=method: nlpcal.calibrate(samples, method=m, reference_field=FIELD)  # noqa: E731
         call()
-        warm[method] = timings(call, args.repeats)
+        warm[method] = timed(call, args.repeats)
         print(f"warm {method}: {ms(warm[method])}")
         split = step_times(samples, method, args.repeats)
         print("  steps: " + ", ".join(f"{k} {v * 1e3:.3f} ms" for k, v in split.items()))
