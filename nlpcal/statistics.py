@@ -182,15 +182,40 @@ class StatisticsBlock:
         sums = np.zeros(4)  # rho, outliers, w, w |B1|
         for start in range(0, samples.shape[0], self.chunk_rows):
             stop = min(start + self.chunk_rows, samples.shape[0])
-            values = corrected_magnitude(samples[start:stop], self.offset, self.matrix)
-            ref = reference_chunk(reference, start, stop)
-            stats.add(values, ref)
-            if self.loss is not None:
-                loss = self.loss
-                r = values - (ref if ref is not None else self.centre)
-                w = loss.weight(r)
-                sums += (loss.rho(r).sum(), loss.outliers(r).sum(), w.sum(), w @ values)
+            chunk = samples[start:stop]
+            self.add(stats, sums, self.of(chunk), reference_chunk(reference, start, stop))
         return stats, sums
+
+    def of(self, raw) -> np.ndarray:
+        """|B1| of a chunk of raw samples. [field unit]"""
+        return corrected_magnitude(raw, self.offset, self.matrix)
+
+    def add(self, stats: MagnitudeStats, sums: np.ndarray, values, reference) -> None:
+        """Add a chunk's |B1| (`values`) and its reference to `stats` and the loss's `sums`."""
+        stats.add(values, reference)
+        if self.loss is not None:
+            loss = self.loss
+            r = values - (reference if reference is not None else self.centre)
+            w = loss.weight(r)
+            sums += (loss.rho(r).sum(), loss.outliers(r).sum(), w.sum(), w @ values)
+
+
+def statistics_block(samples, theta, chunk_rows: int = 16384, loss=None, centre=None):
+    """The `StatisticsBlock` of a Table 1 row at theta (None: the measured |B_M|)."""
+    offset, matrix, shift = shifted_correction(samples, theta)
+    return StatisticsBlock(offset, matrix, shift, chunk_rows, loss, centre)
+
+
+def statistics_result(total: MagnitudeStats, sums: np.ndarray, loss=None) -> dict:
+    """The Table 1 statistics of a pass (`MagnitudeStats.result`), with a robust loss's."""
+    result = total.result()
+    if loss is not None:
+        result.update(
+            robust_objective=float(sums[0] / total.n),
+            downweighted=int(sums[1]),
+            weighted_centre=float(sums[3] / sums[2]) if sums[2] > 0 else result["mean"],
+        )
+    return result
 
 
 def _merge_statistics(first: tuple, second: tuple) -> tuple:
@@ -211,17 +236,9 @@ def field_statistics(
         "weighted_centre" (sum w |B1| / sum w with the IRLS weights w [field unit]).
     """
     samples = as_rows(samples)
-    offset, matrix, shift = shifted_correction(samples, theta)
-    work = StatisticsBlock(offset, matrix, shift, chunk_rows, loss, centre)
+    work = statistics_block(samples, theta, chunk_rows, loss, centre)
     total, sums = reduce(samples, reference, work, _merge_statistics, chunk_rows)
-    result = total.result()
-    if loss is not None:
-        result.update(
-            robust_objective=float(sums[0] / total.n),
-            downweighted=int(sums[1]),
-            weighted_centre=float(sums[3] / sums[2]) if sums[2] > 0 else result["mean"],
-        )
-    return result
+    return statistics_result(total, sums, loss)
 
 
 @dataclass(frozen=True)

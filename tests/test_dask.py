@@ -110,27 +110,36 @@ def test_the_gram_matrix_differs_by_rounding_only_and_no_block_is_loaded_whole(s
         np.asarray(lazy)
 
 
-def test_a_calibration_on_dask_takes_one_pass_per_table_row(spiky_log):
-    calls = []
-
-    def counting(values, *args):
-        calls.append(values)
-        return original(values, *args)
-
+@pytest.mark.parametrize("method", ["staged", "joint"])
+@pytest.mark.parametrize("reference", [None, "constant", "series"])
+def test_a_least_squares_calibration_on_dask_reads_the_blocks_in_two_passes(
+    spiky_log, method, reference
+):
+    """The moments, then one pass after the solve for every exact Table 1 row (each at its own
+    cycle's parameters) and the scores; the subsamples of the diagnostics (frame, coverage,
+    residual spread) come from the survey, which a pass of its own may gather first."""
+    n = spiky_log.shape[0]
+    field = {None: None, "constant": PAPER_FIELD, "series": np.full(n, PAPER_FIELD)}[reference]
+    works = []
     original = passes._reduce_dask
+
+    def counting(values, reference, work, *args):
+        works.append(type(work).__name__)
+        return original(values, reference, work, *args)
+
     passes._reduce_dask = counting
     try:
         with dask.config.set(scheduler="sync"):
             lazy = passes.LazySamples(da.from_array(spiky_log, chunks=(10_000, 3)))
-            result = nlpcal.calibrate(lazy, method="staged", reference_field=PAPER_FIELD)
+            result = nlpcal.calibrate(lazy, method=method, reference_field=field)
     finally:
         passes._reduce_dask = original
-    # survey + Gram + one pass per exact Table 1 row (the rows between the first and the last
-    # cycle come from the moments) + the scores of the standard errors: the subsamples of the
-    # diagnostics (frame, coverage, residual spread) come from the survey.
-    exact = sum(not row.get("from_moments") for row in result.statistics[1:])
-    assert exact == 2 < len(result.statistics) - 1
-    assert lazy.passes == 3 + exact and len(calls) == 2 + exact
+    exact = [row for row in result.statistics[1:] if not row.get("from_moments")]
+    assert len(exact) >= 2 if method == "staged" else len(exact) == 1
+    assert all(row.max is not None and row.series_rel_error is not None for row in exact)
+    surveys = sum(what == "survey" for what, _ in lazy.timings)
+    assert lazy.passes - surveys == 2 and len(works) == 2 and works[-1] == "AfterSolve"
+    assert result.standard_errors is not None
 
 
 def test_a_dask_dataframe_has_its_field_columns_detected(spiky_log):

@@ -18,11 +18,17 @@ from ..nlp.blocks import evaluate, objective_function, variable_scale
 from ..nlp.steps import block_step
 from ..results import TableRow
 from ..robust import robust_std
-from ..statistics import exact_objectives, field_statistics
+from ..statistics import (
+    exact_objectives,
+    field_statistics,
+    shifted_correction,
+    statistics_block,
+    statistics_result,
+)
 from .coverage import COVERAGE_WARN, direction_coverage, flatness, planar_message
 from .problem import Problem
 from .result import Identifiability
-from .scores import score_block_sums
+from .scores import ScoreSums, after_solve, block_rows, finished, score_terms
 
 #: Standard errors above these are "poorly determined": offsets 1 % of the field, scale errors
 #: 0.01, angles 1 deg (a calibration that changes |B| by about 1 % either way).
@@ -69,7 +75,12 @@ def _names(indices) -> list:
 
 
 def uncertainty(
-    problem: Problem, objective: float, hs: np.ndarray, theta=None, centre: float | None = None
+    problem: Problem,
+    objective: float,
+    hs: np.ndarray,
+    theta=None,
+    centre: float | None = None,
+    sums: ScoreSums | None = None,
 ):
     """Standard errors [parameter units], the identifiability block of a result and the
     covariance of the nine parameters in their units (angles in deg), or None.
@@ -84,7 +95,8 @@ def uncertainty(
     (`inference.scores_dependent`) keep s^2 A^-1 (A^-1 B A^-1, B = sum psi^2 J J^T, for a robust
     loss), widened by Student's t on N - p. Without `theta` (identifiability alone) it is
     s^2 A^-1. `centre` : without a reference, the mean |B1| the least-squares residuals are
-    taken from. [field unit]
+    taken from [field unit]; `sums` : the scores at theta when the pass after the solve
+    (`settle`) has gathered them, else a pass of their own.
     """
     n = problem.samples.shape[0]
     robust = problem.loss.robust and theta is not None
@@ -93,7 +105,9 @@ def uncertainty(
         if robust
         else inference.information_from_hessian(hs, n)
     )
-    result, alone, dependence, noise = sandwich(problem, information, objective, theta, centre)
+    result, alone, dependence, noise = sandwich(
+        problem, information, objective, theta, centre, sums
+    )
     estimated = problem.estimated
     to_units = scaled_to_units(problem.moments.frame.radius)
     errors, covariance = in_units(result, to_units, estimated)
@@ -120,7 +134,7 @@ def uncertainty(
     return errors, block, covariance
 
 
-def sandwich(problem: Problem, information, objective: float, theta, centre) -> tuple:
+def sandwich(problem: Problem, information, objective: float, theta, centre, sums=None) -> tuple:
     """(estimate, estimate of independent samples, score dependence, noise terms) of
     `uncertainty`: s^2 A^-1 without `theta`; with it the sandwich A^-1 Omega A^-1 of the scores
     (`score_meat`, `inference.dependence_meat`): the moving-block jackknife's meat where they
@@ -134,10 +148,10 @@ def sandwich(problem: Problem, information, objective: float, theta, centre) -> 
     variance = n * objective / max(n - fitted, 1)
     if theta is None:
         return inference.estimate(information, residual_variance=variance, **options), *(None,) * 3
-    series, shares, independent, dependence, noise = score_meat(
-        problem, theta, centre, basis, n - fitted
-    )
-    if not problem.loss.robust:  # s^2 A: the meat of independent samples of least squares
+    if sums is None:
+        sums = settle(problem, theta, centre)
+    series, shares, independent, dependence, noise = score_meat(sums, basis, n, n - fitted)
+    if independent is None:  # s^2 A: the meat of independent samples of least squares
         independent = variance * np.asarray(information)
     meat, described, freedom = inference.dependence_meat(
         series, shares, independent, n - fitted, basis
@@ -274,23 +288,48 @@ def noise_bias(information, basis, noise: dict, variance: float) -> np.ndarray:
     return -sigma2 * basis @ np.linalg.solve(reduced, basis.T @ noise["gradient"])
 
 
-def score_meat(problem: Problem, theta, centre: float | None, basis, dof: int) -> tuple:
-    """(scores, informations, G_0, description, noise): the block sums of the scores and of the
-    information (`score_block_sums`) on the estimated directions (`basis`), for
-    `inference.dependence_meat`; sum psi(r_i)^2 J_i J_i^T times N / dof (the meat of
-    independent samples of an M-estimate); what the result says of the blocks
-    (`score_dependence`); and the noise terms of the bias (`noise_bias`)."""
-    n = problem.samples.shape[0]
-    series, informations, block_rows, noise, squares = score_block_sums(
-        problem.samples,
-        theta,
-        problem.reference,
-        problem.loss,
-        problem.centre if problem.loss.robust else centre,
-        problem.moments.frame.radius,
-    )
-    independent = basis @ (basis.T @ squares @ basis) @ basis.T * n / max(dof, 1)
-    return series, informations, independent, {"block_samples": block_rows}, noise
+def score_meat(sums: ScoreSums, basis, n: int, dof: int) -> tuple:
+    """(scores, informations, G_0, description, noise): the block sums of the scores and (when
+    asked: `ScoreSums.informations`) of the information, for `inference.dependence_meat`;
+    sum psi(r_i)^2 J_i J_i^T times N / dof on the estimated directions (`basis`), the meat of
+    independent samples of an M-estimate (None when not gathered: least squares takes s^2 A);
+    what the result says of the blocks (`score_dependence`); and the noise terms of the bias
+    (`noise_bias`)."""
+    independent = None
+    if sums.meat is not None:
+        independent = basis @ (basis.T @ sums.meat @ basis) @ basis.T * n / max(dof, 1)
+    description = {"block_samples": sums.block_rows}
+    return sums.series, sums.informations, independent, description, sums.bias
+
+
+def settle(problem: Problem, theta, centre: float | None = None) -> ScoreSums:
+    """The one pass over the data after the solve: the statistics of the Table 1 rows the solve
+    deferred (`Problem.deferred`, each at its own parameters) and the scores at theta
+    (`nlpcal.calibration.scores`), sharing |B1| at theta. Without a reference a least-squares
+    fit takes its residuals from the mean |B1| of the same pass: the scores are gathered about
+    the mean of the first samples' and moved to it after (exact: psi = r is linear in the
+    centre). `centre` : a given centre instead (the mean of an earlier pass). [field unit]"""
+    samples, reference, loss = problem.samples, problem.reference, problem.loss
+    n = samples.shape[0]
+    deferred, problem.deferred = problem.deferred, []
+    theta = np.asarray(theta, dtype=float)
+    thetas = [theta] + [at for _, at, _ in deferred if not np.array_equal(at, theta)]
+    rows = [statistics_block(samples, at) for at in thetas]
+    robust = loss.robust
+    if robust:
+        centre = problem.centre
+    elif reference is None and centre is None:
+        centre = shifted_correction(samples, theta)[2]  # the shift of the first row's sums
+    radius = problem.moments.frame.radius
+    terms = score_terms(theta, radius, block_rows(n), loss, centre, robust)
+    stats, part = after_solve(samples, reference, rows, terms)
+    for row, at, series in deferred:
+        index = next(k for k, other in enumerate(thetas) if np.array_equal(other, at))
+        problem.fill_row(row, at, series, statistics_result(*stats[index]))
+    shift = 0.0
+    if reference is None and not robust:
+        shift = statistics_result(*stats[0])["mean"] - float(centre)  # type: ignore[arg-type]
+    return finished(part, terms, n, reference is None, shift)
 
 
 def weighted_information(problem: Problem, theta, weight) -> tuple:

@@ -71,6 +71,8 @@ class Problem:
     frozen: bool = False  # the weights stay as they are (a comparison of solvers on them)
     ipopt: IpoptOptions = OPTIONS
     model: str = "full"
+    #: Table 1 rows whose statistics the pass after the solve gathers: (row, theta, series).
+    deferred: list = field(default_factory=list)
 
     def __post_init__(self):
         self.scale_given = self.loss.scale is not None
@@ -92,16 +94,34 @@ class Problem:
 
     def row(self, label, theta, series: float | None = None, *, iterations, wall_s) -> TableRow:
         """A Table 1 row of |B1| for `theta`, with the relative gap between the moment objective
-        (`series`, evaluated here when not given) and the exact per-sample one."""
-        stats = self.statistics(theta)
-        row = TableRow(label, **stats)
+        (`series`, evaluated here when not given) and the exact per-sample one (one pass)."""
+        row = TableRow(label)
+        row.parameters = Zhou2010Parameters.from_theta(theta).to_dict()
+        row.iterations, row.wall_s = int(iterations), float(wall_s)
+        self.fill_row(row, theta, series, self.statistics(theta))
+        return row
+
+    def deferred_row(
+        self, label, theta, series: float | None = None, *, iterations, wall_s
+    ) -> TableRow:
+        """`row`, its statistics gathered by the pass after the solve (`deferred`): least
+        squares, whose rows no step of the solve reads; a robust loss's rows now."""
+        if self.loss.robust:
+            return self.row(label, theta, series, iterations=iterations, wall_s=wall_s)
+        row = TableRow(label)
+        row.parameters = Zhou2010Parameters.from_theta(theta).to_dict()
+        row.iterations, row.wall_s = int(iterations), float(wall_s)
+        self.deferred.append((row, np.array(theta, dtype=float), series))
+        return row
+
+    def fill_row(self, row: TableRow, theta, series: float | None, stats: dict) -> None:
+        """Set a row's statistics of |B1| at theta (`statistics`) and the relative gap between
+        the moment objective `series` (evaluated here when None) and the exact one."""
+        row.update(stats)
         if series is None or self.loss.robust:
             (series,) = evaluate(value_function, self.moments, theta)
         exact = stats["objective"] if not self.loss.robust else self._weighted_objective(theta)
         row.series_rel_error = abs(series - exact) / exact if exact > 0 else 0.0
-        row.parameters = Zhou2010Parameters.from_theta(theta).to_dict()
-        row.iterations, row.wall_s = int(iterations), float(wall_s)
-        return row
 
     def moment_row(self, label, theta, *, iterations, wall_s) -> TableRow | None:
         """A Table 1 row from the moments alone: mean and std of |B1| and the objective, without
