@@ -225,30 +225,39 @@ class ScoreTerms:
             first, products = block_products(x, y, first_row, self.block_rows)
             start = first - part.first
             part.products[start : start + len(products)] += products  # type: ignore[index]
-        part.totals[:NOISE_WIDTH] += self.noise_terms(f, centred, inverse, slope)
+        part.totals[:NOISE_WIDTH] += self.noise_terms(f, inverse, slope)
         if self.meat:
             weighted = y * x[PSI]
             part.totals[NOISE_WIDTH:] += (weighted @ weighted.T).ravel()
         return magnitude
 
-    def noise_terms(self, f, centred, inverse, slope) -> np.ndarray:
+    def noise_terms(self, f, inverse, slope) -> np.ndarray:
         """The sums of the noise terms of the bias (`noise_bias`), weighted by psi' (Stein's
         lemma: the noise moves psi(r) by psi' times it; 1 for least squares): f's derivative
-        along g = M^T u, df = (du, du c^T + u g^T) with du = (M g - u |g|^2) / |B1|, and
-        tr(d2|B1|/db2) = (|M|_F^2 - |g|^2) / |B1|; then sum |g|^2. (NOISE_WIDTH,)"""
-        u = f[0:3]
-        g = self.matrix.T @ u
+        along g = M^T u, df = (du, du c^T + u g^T) with du = (M g - u s) / |B1|, s = |g|^2,
+        and tr(d2|B1|/db2) = (|M|_F^2 - s) / |B1|; then sum s. (NOISE_WIDTH,)
+
+        All from the sums of a f and b f, a = psi' / |B1| and b = a s (one matrix product),
+        since u u^T = u c^T M^T / |B1|: sum psi' du = M M^T sum a u - sum b u, sum psi' du c^T
+        = M M^T sum a u c^T - sum b u c^T, sum psi' u g^T = (sum a u c^T) M^T M, and
+        sum psi' tr f = |M|_F^2 sum a f - sum b f."""
+        matrix = self.matrix
+        g = matrix.T @ f[0:3]
         squares = np.einsum("in,in->n", g, g)
-        du = ((self.matrix @ self.matrix.T) @ u - u * squares) * inverse
-        trace = (float(np.sum(self.matrix * self.matrix)) - squares) * inverse
-        weighted = u
-        if slope is not None:
-            du, trace, weighted = du * slope, trace * slope, u * slope
+        weights = np.empty((2, f.shape[1]))
+        if slope is None:
+            weights[0] = inverse
+        else:
+            np.multiply(inverse, slope, out=weights[0])
+        np.multiply(squares, weights[0], out=weights[1])
+        (a, b), (total_a, total_b) = (f @ weights.T).T, weights.sum(axis=1)
+        gram, frobenius = matrix @ matrix.T, float(np.sum(matrix * matrix))
+        a_outer, b_outer = a[3:12].reshape(3, 3), b[3:12].reshape(3, 3)
         terms = np.empty(NOISE_WIDTH)
-        terms[0:3] = du.sum(axis=1)
-        terms[3:12] = (du @ centred.T + weighted @ g.T).ravel()
-        terms[12:24] = f @ trace
-        terms[24], terms[25] = trace.sum(), squares.sum()
+        terms[0:3] = gram @ a[0:3] - b[0:3]
+        terms[3:12] = (gram @ a_outer - b_outer + a_outer @ matrix.T @ matrix).ravel()
+        terms[12:24] = frobenius * a - b
+        terms[24], terms[25] = frobenius * total_a - total_b, squares.sum()
         return terms
 
 
