@@ -130,3 +130,23 @@ def test_the_pass_after_the_solve_gives_each_row_at_its_parameters_and_the_score
     np.testing.assert_allclose(scores.series, series, rtol=0, atol=1e-9 * scale)
     np.testing.assert_allclose(scores.informations(), informations, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(scores.bias["gradient"], bias["gradient"], rtol=1e-9)
+
+
+def test_every_cycle_shows_its_std_while_its_exact_row_waits_for_the_pass_after_the_solve():
+    """Offsets beyond the field: the first cycles' rows are not held by the moments, so the
+    progress of such a cycle gathers its row at once; the others show the moments' row (the
+    table keeps its exact first and last rows)."""
+    samples, _ = make_log(n=3000, noise=1.0, seed=3)
+    samples = samples + 60_000.0
+    shown = []
+    result = nlpcal.calibrate(
+        samples,
+        method="staged",
+        reference_field=PAPER_FIELD,
+        progress=lambda cycle, row: shown.append((cycle, row.std, row.get("from_moments"))),
+    )
+    rows = result.statistics[1:]
+    assert [cycle for cycle, _, _ in shown] == list(range(1, len(rows) + 1))
+    assert all(std is not None and std > 0 for _, std, _ in shown)  # as it was shown
+    assert rows[0].max is not None and rows[-1].max is not None
+    assert any(moments for _, _, moments in shown)

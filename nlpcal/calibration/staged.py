@@ -223,14 +223,16 @@ def cycle_row(
 
 def shown_row(problem, row: TableRow, step, iterations: int, wall_s: float) -> TableRow:
     """What the progress of a cycle shows of its row: the row; one left to the pass after the
-    solve (no statistics yet) from the moments where they hold it, else the exact row now."""
+    solve (no statistics yet) from the moments where they hold it, else gathered now (a pass)
+    and no longer left to that pass."""
     if row.std is not None:
         return row
-    label = row.label
-    shown = problem.moment_row(label, step.theta, iterations=iterations, wall_s=wall_s)
-    if shown is None:
-        shown = problem.row(label, step.theta, step.f_end, iterations=iterations, wall_s=wall_s)
-    return shown
+    shown = problem.moment_row(row.label, step.theta, iterations=iterations, wall_s=wall_s)
+    if shown is not None:
+        return shown
+    problem.deferred = [entry for entry in problem.deferred if entry[0] is not row]
+    problem.fill_row(row, step.theta, step.f_end, problem.statistics(step.theta))
+    return row
 
 
 def target_met(rule: StopRule, row: TableRow) -> str | None:
