@@ -88,7 +88,7 @@ def uncertainty(
     For f = (1/N) sum r_i^2 the Gauss-Newton information is A = N H / 2 (`nlpcal.inference`),
     here in the scaled variables of the problems, on the directions the model estimates (without
     a reference, within the gauge's null space: `nlpcal.nlp.blocks.Variables.basis`); with a
-    robust loss A = sum psi'(r) J J^T (`weighted_information`). With `theta` the covariance is
+    robust loss A = sum psi'(r) J J^T (`ScoreSums.information`). With `theta` the covariance is
     the sandwich A^-1 Omega A^-1 with Omega = A V A, V the moving-block jackknife of the scores
     psi(r_i) J_i (`sandwich`): it follows the dependence of the scores of neighbouring samples
     (a smooth trajectory in a slowly changing field); scores without clear dependence
@@ -100,14 +100,13 @@ def uncertainty(
     """
     n = problem.samples.shape[0]
     robust = problem.loss.robust and theta is not None
-    information = (
-        weighted_information(problem, theta, problem.loss.slope)[1]
-        if robust
-        else inference.information_from_hessian(hs, n)
-    )
-    result, alone, dependence, noise = sandwich(
-        problem, information, objective, theta, centre, sums
-    )
+    if theta is not None and sums is None:
+        sums = settle(problem, theta, centre)
+    if robust and sums is not None:
+        information = sums.information()
+    else:
+        information = inference.information_from_hessian(hs, n)
+    result, alone, dependence, noise = sandwich(problem, information, objective, theta, sums)
     estimated = problem.estimated
     to_units = scaled_to_units(problem.moments.frame.radius)
     errors, covariance = in_units(result, to_units, estimated)
@@ -134,12 +133,13 @@ def uncertainty(
     return errors, block, covariance
 
 
-def sandwich(problem: Problem, information, objective: float, theta, centre, sums=None) -> tuple:
+def sandwich(problem: Problem, information, objective: float, theta, sums) -> tuple:
     """(estimate, estimate of independent samples, score dependence, noise terms) of
     `uncertainty`: s^2 A^-1 without `theta`; with it the sandwich A^-1 Omega A^-1 of the scores
     (`score_meat`, `inference.dependence_meat`): the moving-block jackknife's meat where they
     are dependent, never narrower than that of independent samples, else the latter widened by
-    Student's t. The second and the last two are None without `theta`."""
+    Student's t. The second and the last two are None without `theta`. `sums` : the
+    `ScoreSums` at theta (None without it)."""
     n = problem.samples.shape[0]
     basis = problem.free.basis
     # the parameters fitted: the model's free directions, and without a reference the mean |B1|
@@ -148,8 +148,6 @@ def sandwich(problem: Problem, information, objective: float, theta, centre, sum
     variance = n * objective / max(n - fitted, 1)
     if theta is None:
         return inference.estimate(information, residual_variance=variance, **options), *(None,) * 3
-    if sums is None:
-        sums = settle(problem, theta, centre)
     series, shares, independent, dependence, noise = score_meat(sums, basis, n, n - fitted)
     if independent is None:  # s^2 A: the meat of independent samples of least squares
         independent = variance * np.asarray(information)
@@ -382,7 +380,9 @@ def problem_flatness(problem: Problem, theta, spread: dict | None = None) -> dic
     return flatness(problem.samples, spread["residual_robust_std"], problem.reference is not None)
 
 
-def exact_optimum_shift(problem: Problem, theta, hs: np.ndarray, errors) -> float | None:
+def exact_optimum_shift(
+    problem: Problem, theta, hs: np.ndarray, errors, scores: ScoreSums | None = None
+) -> float | None:
     """How far the exact optimum lies from `theta`, in standard errors (largest over parameters).
 
     One Newton step on the exact per-sample objective: its gradient by central differences (the
@@ -390,8 +390,8 @@ def exact_optimum_shift(problem: Problem, theta, hs: np.ndarray, errors) -> floa
     stays in the directions the model estimates (without a reference, in the gauge's null
     space). With a robust loss the objective is the one the fit minimises, (2/N) sum rho(r_i)
     (`statistics.exact_objectives`), and its Hessian (2/N) sum psi'(r_i) J_i J_i^T (the bread of
-    the sandwich, one more pass): the distance to the optimum of the loss, not of the unweighted
-    squares.
+    the sandwich: from the `scores` at theta when given, else one more pass): the distance to the
+    optimum of the loss, not of the unweighted squares.
     """
     if errors is None:
         return None
@@ -408,7 +408,11 @@ def exact_optimum_shift(problem: Problem, theta, hs: np.ndarray, errors) -> floa
     )
     grad = (values[0::2] - values[1::2]) / (2 * h)
     if robust:
-        information = weighted_information(problem, theta, problem.loss.slope)[1]
+        information = (
+            scores.information()
+            if scores is not None
+            else weighted_information(problem, theta, problem.loss.slope)[1]
+        )
         hs = 2.0 * information / problem.samples.shape[0]
     basis = problem.free.basis
     reduced = basis.T @ hs @ basis
@@ -631,8 +635,10 @@ def warnings_for(
     identifiability: Identifiability,
     final: TableRow,
     unit: str = "nT",
+    scores: ScoreSums | None = None,
 ) -> list:
-    """What the data cannot tell, in words (and the exact-optimum check, into identifiability)."""
+    """What the data cannot tell, in words (and the exact-optimum check, into identifiability);
+    `scores` : those at theta, when the pass after the solve has gathered them."""
     warnings = []
     reference = problem.moments.reference
     if identifiability.not_identifiable:
@@ -665,7 +671,7 @@ def warnings_for(
     inexact = (final.series_rel_error or 0.0) > SERIES_CHECK
     robust = problem.loss.robust  # reweighting may stop before the weights settle
     if inexact or robust:
-        shift = exact_optimum_shift(problem, theta, hs, errors)
+        shift = exact_optimum_shift(problem, theta, hs, errors, scores)
         identifiability.exact_optimum_shift_in_standard_errors = shift
         if shift is None or shift > SHIFT_WARN:
             where = (

@@ -346,6 +346,21 @@ class ScoreSums:
     bias: dict
     meat: np.ndarray | None
 
+    def information(self) -> np.ndarray:
+        """A = sum psi'(r_i) J_i J_i^T over the samples (profiled without a reference): the
+        bread of the sandwich of an M-estimate. (9, 9)"""
+        if self.part.rows is not None:
+            x, jacobian = self.part.rows
+            total = x[:, 0:9].T @ jacobian
+            weighted, slopes = x[:, 0:9].sum(axis=0), x[:, PSI_SLOPE].sum()
+        else:
+            products = self.part.products_all().sum(axis=0)
+            total, weighted, slopes = products[0:9, 0:9], products[0:9, 9], products[PSI_SLOPE, 9]
+        if self.mean is not None:
+            cross = np.outer(weighted, self.mean)
+            total = total - cross - cross.T + slopes * np.outer(self.mean, self.mean)
+        return 0.5 * (total + total.T)
+
     def informations(self) -> np.ndarray:
         products = self.part.products_all()
         information = products[:, 0:9, 0:9]

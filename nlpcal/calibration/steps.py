@@ -234,7 +234,9 @@ def diagnose(
     )
     spread = residual_spread(problem, theta)
     judge_attitudes(problem, theta, spread, identifiability)
-    warnings = warnings_for(problem, theta, solution.hessian, errors, identifiability, final, unit)
+    warnings = warnings_for(
+        problem, theta, solution.hessian, errors, identifiability, final, unit, solution.scores
+    )
     diagnosis = Diagnosis(
         errors=errors,
         covariance=covariance,
