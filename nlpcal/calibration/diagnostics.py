@@ -330,15 +330,6 @@ def settle(problem: Problem, theta, centre: float | None = None) -> ScoreSums:
     return finished(part, terms, n, reference is None, shift)
 
 
-def weighted_information(problem: Problem, theta, weight) -> tuple:
-    """(sum g, sum g_i J_i J_i^T) with per-sample weights g_i = weight(r_i) at theta, in the scaled
-    variables: from the Hessian of the moment objective with the samples weighted by g (a
-    weighted mean of squares has sum(g) H_g / 2 = sum g J J^T up to terms in the curvature of r).
-    One pass over the data."""
-    moments = problem.weighted_moments(theta, weight)
-    return moments.weight_sum, 0.5 * moments.weight_sum * scaled_hessian(moments, theta)
-
-
 def joint_gap(problem: Problem, theta, errors) -> dict:
     """How far the joint optimum of the same objective (the same moments, the same weights) lies
     from a staged estimate: the joint problem solved from `theta`.
@@ -381,7 +372,7 @@ def problem_flatness(problem: Problem, theta, spread: dict | None = None) -> dic
 
 
 def exact_optimum_shift(
-    problem: Problem, theta, hs: np.ndarray, errors, scores: ScoreSums | None = None
+    problem: Problem, theta, hs: np.ndarray, errors, scores: ScoreSums
 ) -> float | None:
     """How far the exact optimum lies from `theta`, in standard errors (largest over parameters).
 
@@ -390,8 +381,8 @@ def exact_optimum_shift(
     stays in the directions the model estimates (without a reference, in the gauge's null
     space). With a robust loss the objective is the one the fit minimises, (2/N) sum rho(r_i)
     (`statistics.exact_objectives`), and its Hessian (2/N) sum psi'(r_i) J_i J_i^T (the bread of
-    the sandwich: from the `scores` at theta when given, else one more pass): the distance to the
-    optimum of the loss, not of the unweighted squares.
+    the sandwich, `ScoreSums.information` of the `scores` at theta): the distance to the optimum
+    of the loss, not of the unweighted squares.
     """
     if errors is None:
         return None
@@ -408,12 +399,7 @@ def exact_optimum_shift(
     )
     grad = (values[0::2] - values[1::2]) / (2 * h)
     if robust:
-        information = (
-            scores.information()
-            if scores is not None
-            else weighted_information(problem, theta, problem.loss.slope)[1]
-        )
-        hs = 2.0 * information / problem.samples.shape[0]
+        hs = 2.0 * scores.information() / problem.samples.shape[0]
     basis = problem.free.basis
     reduced = basis.T @ hs @ basis
     step = -basis @ np.linalg.solve(0.5 * (reduced + reduced.T), basis.T @ grad)
@@ -634,11 +620,11 @@ def warnings_for(
     errors,
     identifiability: Identifiability,
     final: TableRow,
+    scores: ScoreSums,
     unit: str = "nT",
-    scores: ScoreSums | None = None,
 ) -> list:
     """What the data cannot tell, in words (and the exact-optimum check, into identifiability);
-    `scores` : those at theta, when the pass after the solve has gathered them."""
+    `scores` : those at theta (`settle`)."""
     warnings = []
     reference = problem.moments.reference
     if identifiability.not_identifiable:

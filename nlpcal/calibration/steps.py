@@ -229,13 +229,14 @@ def diagnose(
     reweighting stopped at its limit, and a staged result away from the joint optimum."""
     theta, final = solution.theta, solution.rows[-1]
     objective = final.objective or 0.0  # a solved row has one
+    scores = solution.scores if solution.scores is not None else settle(problem, theta)
     errors, identifiability, covariance = uncertainty(
-        problem, objective, solution.hessian, theta, final.mean, solution.scores
+        problem, objective, solution.hessian, theta, final.mean, scores
     )
     spread = residual_spread(problem, theta)
     judge_attitudes(problem, theta, spread, identifiability)
     warnings = warnings_for(
-        problem, theta, solution.hessian, errors, identifiability, final, unit, solution.scores
+        problem, theta, solution.hessian, errors, identifiability, final, scores, unit
     )
     diagnosis = Diagnosis(
         errors=errors,
