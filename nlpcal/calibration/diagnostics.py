@@ -21,7 +21,6 @@ from ..robust import robust_std
 from ..statistics import (
     exact_objectives,
     field_statistics,
-    shifted_correction,
     statistics_block,
     statistics_result,
 )
@@ -317,7 +316,7 @@ def settle(problem: Problem, theta, centre: float | None = None) -> ScoreSums:
     if robust:
         centre = problem.centre
     elif reference is None and centre is None:
-        centre = shifted_correction(samples, theta)[2]  # the shift of the first row's sums
+        centre = rows[0].shift  # the mean |B1| of the first samples (`shifted_correction`)
     radius = problem.moments.frame.radius
     terms = score_terms(theta, radius, block_rows(n), loss, centre, robust)
     stats, part = after_solve(samples, reference, rows, terms)

@@ -209,11 +209,11 @@ class ScoreTerms:
         np.multiply(u[:, None, :], centred[None, :, :], out=f[3:12].reshape(3, 3, n))
         x = np.empty((11, n))
         np.matmul(self.linear.T, f, out=x[0:9])
-        r = magnitude - (ref if ref is not None else self.centre)
+        r = np.subtract(magnitude, ref if ref is not None else self.centre, out=x[PSI])
         slope = None if self.loss is None else self.loss.slope(r)
         y = x[0:10]
         if slope is None:  # least squares: x = (J, 1, r), y = (J, 1)
-            x[PSI_SLOPE], x[PSI] = 1.0, r
+            x[PSI_SLOPE] = 1.0
         else:
             y = np.concatenate([x[0:9], np.ones((1, n))])
             x[0:9] *= slope
