@@ -197,7 +197,7 @@ class ScoreTerms:
         """Add a chunk of raw samples (rows begin: of `part`, `first_row` of the log) and its
         reference to `part`; returns |B1| of the chunk. [field unit]
 
-        One column per sample (c, u, f: (3 or 9, n)), so that every element-wise operation
+        One column per sample (c, u: (3, n), f: (12, n), x: (11, n)), so that every operation
         runs along the samples."""
         n = raw.shape[0]
         centred = np.subtract(raw.T, self.offset[:, None], out=np.empty((3, n)))
