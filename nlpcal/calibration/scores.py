@@ -209,7 +209,8 @@ class ScoreTerms:
         np.multiply(u[:, None, :], centred[None, :, :], out=f[3:12].reshape(3, 3, n))
         x = np.empty((11, n))
         np.matmul(self.linear.T, f, out=x[0:9])
-        r = np.subtract(magnitude, ref if ref is not None else self.centre, out=x[PSI])
+        r = x[PSI]
+        r[:] = magnitude - (ref if ref is not None else self.centre)
         slope = None if self.loss is None else self.loss.slope(r)
         y = x[0:10]
         if slope is None:  # least squares: x = (J, 1, r), y = (J, 1)
