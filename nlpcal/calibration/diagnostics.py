@@ -269,7 +269,7 @@ def noise_bias(information, basis, noise: dict, variance: float) -> np.ndarray:
     The residual r_i = |M (b_i + n_i - Z_p)| - F_i depends on the noise n_i of the raw sample,
     and so does its sensitivity J_i: E[r_i J_i] = sigma^2 (dJ_i/db g_i + tr(d2 r_i/db2) J_i / 2)
     with g_i = dr_i/db = M^T u_i, which does not vanish. The estimating equation sum r_i J_i = 0
-    is then off by sigma^2 times their sum (`scores.score_block_sums`), and the estimate by
+    is then off by sigma^2 times their sum (`scores.ScoreSums.bias`), and the estimate by
     bias = -sigma^2 A^-1 sum(...) (on the directions the model estimates). It grows as sigma^2
     and as A^-1: along a direction the attitudes barely determine (a short arc) it reaches
     standard errors. The formula assumes the noise is the sensor's: sigma^2 = s^2 / mean |g|^2
