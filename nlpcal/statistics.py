@@ -12,6 +12,7 @@ References
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -167,6 +168,9 @@ class StatisticsBlock:
     offset, matrix : the correction of Eq. 4 (`correction`). shift : the shift of the sums.
     loss, centre : a robust `nlpcal.robust.Loss` with its scale, and the centre of |B1| the
         residuals are taken from without a reference. [field unit]
+    weights : (raw chunk, its reference) -> given weights v of its samples (a robust fit's
+        latest reweighting): the sums of v, v r and v r^2 follow, r the residuals about the
+        reference or `centre`, whose weighted mean square the weighted moments expand.
     """
 
     offset: np.ndarray
@@ -175,35 +179,53 @@ class StatisticsBlock:
     chunk_rows: int = 16384
     loss: Any = None
     centre: float | None = None
+    weights: Callable | None = None
 
     def __call__(self, samples, reference) -> tuple:
         samples = np.asarray(samples, dtype=float)
-        stats = MagnitudeStats(self.shift)
-        sums = np.zeros(4)  # rho, outliers, w, w |B1|
+        stats, sums = self.start()
         for start in range(0, samples.shape[0], self.chunk_rows):
             stop = min(start + self.chunk_rows, samples.shape[0])
-            chunk = samples[start:stop]
-            self.add(stats, sums, self.of(chunk), reference_chunk(reference, start, stop))
+            self.add(stats, sums, samples[start:stop], reference_chunk(reference, start, stop))
         return stats, sums
+
+    def start(self) -> tuple:
+        """The sums of no rows: `MagnitudeStats`, and rho, outliers, w, w |B1| (then v, v r,
+        v r^2 with `weights`)."""
+        return MagnitudeStats(self.shift), np.zeros(4 if self.weights is None else 7)
 
     def of(self, raw) -> np.ndarray:
         """|B1| of a chunk of raw samples. [field unit]"""
         return corrected_magnitude(raw, self.offset, self.matrix)
 
-    def add(self, stats: MagnitudeStats, sums: np.ndarray, values, reference) -> None:
-        """Add a chunk's |B1| (`values`) and its reference to `stats` and the loss's `sums`."""
+    def add(self, stats: MagnitudeStats, sums: np.ndarray, raw, reference, values=None) -> None:
+        """Add a chunk of raw samples and its reference to `stats` and `sums`; `values` : their
+        |B1| when already at hand. [field unit]"""
+        values = self.of(raw) if values is None else values
         stats.add(values, reference)
-        if self.loss is not None:
-            loss = self.loss
-            r = values - (reference if reference is not None else self.centre)
-            w = loss.weight(r)
-            sums += (loss.rho(r).sum(), loss.outliers(r).sum(), w.sum(), w @ values)
+        if self.loss is None:
+            return
+        loss = self.loss
+        r = values - (reference if reference is not None else self.centre)
+        w = loss.weight(r)
+        sums[0:4] += (loss.rho(r).sum(), loss.outliers(r).sum(), w.sum(), w @ values)
+        if self.weights is not None:
+            v = self.weights(raw, reference)
+            sums[4:7] += (v.sum(), v @ r, v @ (r * r))
+
+    def weighted_objective(self, sums: np.ndarray, reference: bool) -> float:
+        """The weighted mean square of the residuals with the given weights, from a pass's
+        `sums` (about their weighted mean without a `reference`). [field unit^2]"""
+        total, first, second = sums[4:7]
+        return float(second / total - (0.0 if reference else (first / total) ** 2))
 
 
-def statistics_block(samples, theta, chunk_rows: int = 16384, loss=None, centre=None):
+def statistics_block(
+    samples, theta, chunk_rows: int = 16384, loss=None, centre=None, weights=None
+) -> StatisticsBlock:
     """The `StatisticsBlock` of a Table 1 row at theta (None: the measured |B_M|)."""
     offset, matrix, shift = shifted_correction(samples, theta)
-    return StatisticsBlock(offset, matrix, shift, chunk_rows, loss, centre)
+    return StatisticsBlock(offset, matrix, shift, chunk_rows, loss, centre, weights)
 
 
 def statistics_result(total: MagnitudeStats, sums: np.ndarray, loss=None) -> dict:

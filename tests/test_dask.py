@@ -159,6 +159,33 @@ def test_a_least_squares_calibration_on_dask_reads_the_blocks_in_two_passes(
                 assert again[key] == pytest.approx(row[key], rel=ROW_TOLERANCE), key
 
 
+def test_a_robust_joint_fit_on_dask_reads_the_blocks_twice_after_its_last_reweighting(spiky_log):
+    """After the last reweighting's moments: the pass after the solve (the joint row with the
+    loss's sums and the exact objective its weights expand, the scores, the bread of the
+    sandwich), then the exact objectives of the exact-optimum check."""
+    works = []
+    original = passes._reduce_dask
+
+    def counting(values, reference, work, *args):
+        works.append(type(work).__name__)
+        return original(values, reference, work, *args)
+
+    passes._reduce_dask = counting
+    try:
+        with dask.config.set(scheduler="sync"):
+            lazy = passes.LazySamples(da.from_array(spiky_log, chunks=(10_000, 3)))
+            result = nlpcal.calibrate(
+                lazy, method="joint", reference_field=PAPER_FIELD, loss="huber"
+            )
+    finally:
+        passes._reduce_dask = original
+    last = max(k for k, what in enumerate(works) if what == "GramBlock")
+    assert works[last + 1 :] == ["AfterSolve", "ObjectivesBlock"]
+    assert works.count("GramBlock") == 1 + result.robust["reweightings"]
+    row = result.statistics[-1]
+    assert row.robust_objective is not None and row.series_rel_error is not None
+
+
 def test_a_dask_dataframe_has_its_field_columns_detected(spiky_log):
     dd = pytest.importorskip("dask.dataframe")
     frame = pd.DataFrame(spiky_log[:, [2, 0, 1]], columns=["mag_z", "mag_x", "mag_y"])

@@ -310,22 +310,26 @@ def settle(problem: Problem, theta, centre: float | None = None) -> ScoreSums:
     n = samples.shape[0]
     deferred, problem.deferred = problem.deferred, []
     theta = np.asarray(theta, dtype=float)
-    thetas = [theta] + [at for _, at, _ in deferred if not np.array_equal(at, theta)]
-    rows = [statistics_block(samples, at) for at in thetas]
+    rows = [entry[3] for entry in deferred]
+    shared = [np.array_equal(entry[1], theta) for entry in deferred]
+    if not any(shared):  # the statistics at theta: the mean |B1| of least squares
+        rows.append(statistics_block(samples, theta))
+        shared.append(True)
+    at_theta = shared.index(True)
     robust = loss.robust
     if robust:
         centre = problem.centre
     elif reference is None and centre is None:
-        centre = rows[0].shift  # the mean |B1| of the first samples (`shifted_correction`)
+        centre = rows[at_theta].shift  # the mean |B1| of the first samples
     radius = problem.moments.frame.radius
     terms = score_terms(theta, radius, block_rows(n), loss, centre, robust)
-    stats, part = after_solve(samples, reference, rows, terms)
-    for row, at, series in deferred:
-        index = next(k for k, other in enumerate(thetas) if np.array_equal(other, at))
-        problem.fill_row(row, at, series, statistics_result(*stats[index]))
+    stats, part = after_solve(samples, reference, rows, terms, shared)
+    for entry, sums in zip(deferred, stats):
+        problem.fill_deferred(entry, *sums)
     shift = 0.0
     if reference is None and not robust:
-        shift = statistics_result(*stats[0])["mean"] - float(centre)  # type: ignore[arg-type]
+        mean = statistics_result(*stats[at_theta])["mean"]
+        shift = mean - float(centre)  # type: ignore[arg-type]
     return finished(part, terms, n, reference is None, shift)
 
 

@@ -40,7 +40,7 @@ from ..inference import MAX_BLOCKS
 from ..models.zhou2010 import correction_matrix_entries
 from ..nlp.blocks import variable_scale
 from ..passes import as_rows, reduce, reference_chunk
-from ..statistics import MagnitudeStats, correction
+from ..statistics import correction
 
 #: Complex step for the derivatives of M's entries. [rad or 1]
 COMPLEX_STEP = 1e-30
@@ -288,11 +288,12 @@ class AfterSolve:
     rows: tuple
     scores: ScoreTerms | None
     chunk_rows: int
+    shared: tuple = ()  # whether each row is at the scores' theta
 
     def __call__(self, samples, reference, start: int) -> tuple:
         samples = np.asarray(samples, dtype=float)
         n = samples.shape[0]
-        stats = [(MagnitudeStats(row.shift), np.zeros(4)) for row in self.rows]
+        stats = [row.start() for row in self.rows]
         part = None if self.scores is None else self.scores.empty(start, n)
         begin = 0
         while begin < n:  # chunks aligned to multiples of chunk_rows rows of the log
@@ -302,7 +303,8 @@ class AfterSolve:
             if self.scores is not None:
                 shared = self.scores.add(part, raw, ref, start + begin, begin)  # type: ignore[arg-type]
             for k, (row, (total, sums)) in enumerate(zip(self.rows, stats)):
-                row.add(total, sums, shared if k == 0 and shared is not None else row.of(raw), ref)
+                at_theta = shared is not None and k < len(self.shared) and self.shared[k]
+                row.add(total, sums, raw, ref, shared if at_theta else None)
             begin = stop
         return stats, part
 
@@ -320,13 +322,15 @@ def chunk_rows_for(block_rows: int) -> int:
     return max(1, SCORE_CHUNK_ROWS // block_rows) * block_rows
 
 
-def after_solve(samples, reference, rows: list, scores: ScoreTerms | None = None) -> tuple:
+def after_solve(
+    samples, reference, rows: list, scores: ScoreTerms | None = None, shared=()
+) -> tuple:
     """One pass over the samples: the Table 1 sums of each `nlpcal.statistics.StatisticsBlock`
-    of `rows` (the first at the scores' theta when `scores` are asked) and the `ScorePart` of
-    the whole log (None without `scores`). Returns ([(MagnitudeStats, sums)], part)."""
+    of `rows` (those `shared` at the scores' theta take their |B1|) and the `ScorePart` of the
+    whole log (None without `scores`). Returns ([(MagnitudeStats, sums)], part)."""
     samples = as_rows(samples)
     chunk = chunk_rows_for(scores.block_rows) if scores is not None else SCORE_CHUNK_ROWS
-    work = AfterSolve(tuple(rows), scores, chunk)
+    work = AfterSolve(tuple(rows), scores, chunk, tuple(shared))
     return reduce(samples, reference, work, _merge_after, chunk, indexed=True)
 
 

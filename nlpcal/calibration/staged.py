@@ -205,7 +205,8 @@ def cycle_row(
     """The Table 1 row of a cycle: from the moments where `rule` and the problem let it
     (`StopRule.every_row_exact`, `Problem.rows_from_moments`; never the first cycle, nor with a
     target), else exact: from a pass over the data now where a stop rule reads it (every row
-    exact, a target), else with `defer` from the pass after the solve."""
+    exact, a target, a robust loss's objective), else with `defer` from the pass after the
+    solve."""
     targets = rule.target_range is not None or rule.target_std is not None
     exact = rule.every_row_exact or cycle == 1 or targets or not problem.rows_from_moments
     label = f"cycle {cycle}"
@@ -215,7 +216,7 @@ def cycle_row(
         else problem.moment_row(label, step.theta, iterations=iterations, wall_s=wall_s)
     )
     if row is None:
-        later = defer and not (rule.every_row_exact or targets)
+        later = defer and not (rule.every_row_exact or targets or problem.loss.robust)
         make = problem.deferred_row if later else problem.row
         row = make(label, step.theta, step.f_end, iterations=iterations, wall_s=wall_s)
     return row
