@@ -276,21 +276,38 @@ class ObjectivesBlock:
 
     def __call__(self, samples, reference) -> list:
         samples = np.asarray(samples, dtype=float)
-        stats = [(MagnitudeStats(shift), np.zeros(3)) for _, _, shift in self.corrections]
+        stats = self.start()
         for start in range(0, samples.shape[0], self.chunk_rows):
             stop = min(start + self.chunk_rows, samples.shape[0])
-            chunk, ref = samples[start:stop], reference_chunk(reference, start, stop)
-            for (offset, matrix, _), (total, sums) in zip(self.corrections, stats):
-                magnitude = corrected_magnitude(chunk, offset, matrix)
-                total.add(magnitude, ref)
-                if self.loss is not None:
-                    r = magnitude - (ref if ref is not None else self.centre)
-                    loss = self.loss
-                    sums += (loss.rho(r).sum(), (loss.weight(r) * r).sum(), loss.slope(r).sum())
+            self.add(stats, samples[start:stop], reference_chunk(reference, start, stop))
         return stats
 
+    def start(self) -> list:
+        """The sums of no rows, one (MagnitudeStats, rho psi psi' sums) per correction."""
+        return [(MagnitudeStats(shift), np.zeros(3)) for _, _, shift in self.corrections]
 
-def _merge_each(first: list, second: list) -> list:
+    def add(self, stats: list, chunk, reference) -> None:
+        """Add a chunk of raw samples and its reference to the sums of every correction."""
+        for (offset, matrix, _), (total, sums) in zip(self.corrections, stats):
+            magnitude = corrected_magnitude(chunk, offset, matrix)
+            total.add(magnitude, reference)
+            if self.loss is not None:
+                r = magnitude - (reference if reference is not None else self.centre)
+                loss = self.loss
+                sums += (loss.rho(r).sum(), (loss.weight(r) * r).sum(), loss.slope(r).sum())
+
+    def values(self, totals: list, reference: bool) -> np.ndarray:
+        """The objectives of a pass's `totals` (see `exact_objectives`). [field^2]"""
+        if self.loss is None:
+            return np.array([total.result()["objective"] for total, _ in totals])
+        values = []
+        for total, (rho, psi, slope) in totals:
+            profiled = 0.0 if reference or not slope > 0 else psi * psi / (2.0 * slope)
+            values.append(2.0 * (rho - profiled) / total.n)
+        return np.array(values)
+
+
+def merge_each(first: list, second: list) -> list:
     return [(a.merge(b), x + y) for (a, x), (b, y) in zip(first, second)]
 
 
@@ -307,17 +324,16 @@ def exact_objectives(
         least squares is the variance of |B1| (Eq. 8) exactly.
     """
     samples = as_rows(samples)
+    work = objectives_block(samples, thetas, chunk_rows, loss, centre)
+    totals = reduce(samples, reference, work, merge_each, chunk_rows)
+    return work.values(totals, reference is not None)
+
+
+def objectives_block(samples, thetas, chunk_rows: int = 16384, loss=None, centre=None):
+    """The `ObjectivesBlock` of `exact_objectives`."""
     corrections = tuple(shifted_correction(samples, theta) for theta in thetas)
     robust = loss is not None and loss.robust
-    work = ObjectivesBlock(corrections, chunk_rows, loss if robust else None, centre)
-    totals = reduce(samples, reference, work, _merge_each, chunk_rows)
-    if not robust:
-        return np.array([total.result()["objective"] for total, _ in totals])
-    values = []
-    for total, (rho, psi, slope) in totals:
-        profiled = 0.0 if reference is not None or not slope > 0 else psi * psi / (2.0 * slope)
-        values.append(2.0 * (rho - profiled) / total.n)
-    return np.array(values)
+    return ObjectivesBlock(corrections, chunk_rows, loss if robust else None, centre)
 
 
 def shown_rows(count: int, most: int | None) -> list:

@@ -21,6 +21,7 @@ from ..robust import robust_std
 from ..statistics import (
     exact_objectives,
     field_statistics,
+    objectives_block,
     statistics_block,
     statistics_result,
 )
@@ -305,7 +306,9 @@ def settle(problem: Problem, theta, centre: float | None = None) -> ScoreSums:
     (`nlpcal.calibration.scores`), sharing |B1| at theta. Without a reference a least-squares
     fit takes its residuals from the mean |B1| of the same pass: the scores are gathered about
     the mean of the first samples' and moved to it after (exact: psi = r is linear in the
-    centre). `centre` : a given centre instead (the mean of an earlier pass). [field unit]"""
+    centre). A robust fit's exact-optimum check, which every robust fit runs, takes its 18
+    objectives from the same pass (`optimum_points`). `centre` : a given centre instead (the
+    mean of an earlier pass). [field unit]"""
     samples, reference, loss = problem.samples, problem.reference, problem.loss
     n = samples.shape[0]
     deferred, problem.deferred = problem.deferred, []
@@ -323,14 +326,18 @@ def settle(problem: Problem, theta, centre: float | None = None) -> ScoreSums:
         centre = rows[at_theta].shift  # the mean |B1| of the first samples
     radius = problem.moments.frame.radius
     terms = score_terms(theta, radius, block_rows(n), loss, centre, robust)
-    stats, part = after_solve(samples, reference, rows, terms, shared)
+    check = objectives_block(samples, **optimum_points(problem, theta)) if robust else None
+    stats, part, totals = after_solve(samples, reference, rows, terms, shared, check)
     for entry, sums in zip(deferred, stats):
         problem.fill_deferred(entry, *sums)
     shift = 0.0
     if reference is None and not robust:
         mean = statistics_result(*stats[at_theta])["mean"]
         shift = mean - float(centre)  # type: ignore[arg-type]
-    return finished(part, terms, n, reference is None, shift)
+    sums = finished(part, terms, n, reference is None, shift)
+    if check is not None:  # a robust fit's exact-optimum check, always run
+        sums.exact_objectives = check.values(totals, reference is not None)
+    return sums
 
 
 def joint_gap(problem: Problem, theta, errors) -> dict:
@@ -385,22 +392,19 @@ def exact_optimum_shift(
     space). With a robust loss the objective is the one the fit minimises, (2/N) sum rho(r_i)
     (`statistics.exact_objectives`), and its Hessian (2/N) sum psi'(r_i) J_i J_i^T (the bread of
     the sandwich, `ScoreSums.information` of the `scores` at theta): the distance to the optimum
-    of the loss, not of the unweighted squares.
+    of the loss, not of the unweighted squares. A robust fit's objectives come with the
+    `scores` from the pass after the solve (`settle`); an inexact expansion takes a pass.
     """
     if errors is None:
         return None
     scale = variable_scale(problem.moments.frame.radius)
-    h = 1e-3  # in scaled variables: 1e-6 of the field for offsets, 1e-6 for scales, 1e-5 rad
-    steps = [sign * h * e for e in np.eye(9) for sign in (1.0, -1.0)]
     robust = problem.loss.robust and problem.loss.scale is not None
-    values = exact_objectives(
-        problem.samples,
-        [theta + scale * x for x in steps],
-        problem.reference,
-        loss=problem.loss if robust else None,
-        centre=problem.centre,
-    )
-    grad = (values[0::2] - values[1::2]) / (2 * h)
+    values = scores.exact_objectives
+    if values is None:
+        values = exact_objectives(
+            problem.samples, reference=problem.reference, **optimum_points(problem, theta)
+        )
+    grad = (values[0::2] - values[1::2]) / (2 * SHIFT_STEP)
     if robust:
         hs = 2.0 * scores.information() / problem.samples.shape[0]
     basis = problem.free.basis
@@ -409,6 +413,25 @@ def exact_optimum_shift(
     shift = step * scale
     shift[6:9] = np.degrees(shift[6:9])
     return float(np.max(np.abs(shift) / _standard_errors(errors)))
+
+
+#: The central differences of `exact_optimum_shift`, in the scaled variables: 1e-6 of the field
+#: for offsets, 1e-6 for scales, 1e-5 rad.
+SHIFT_STEP = 1e-3
+
+
+def optimum_points(problem: Problem, theta) -> dict:
+    """The keywords of `statistics.exact_objectives` for the 18 exact objectives of
+    `exact_optimum_shift`: theta moved by +/- SHIFT_STEP along each scaled variable, the loss
+    the fit minimises when robust."""
+    scale = variable_scale(problem.moments.frame.radius)
+    steps = [sign * SHIFT_STEP * e for e in np.eye(9) for sign in (1.0, -1.0)]
+    robust = problem.loss.robust and problem.loss.scale is not None
+    return {
+        "thetas": [theta + scale * x for x in steps],
+        "loss": problem.loss if robust else None,
+        "centre": problem.centre,
+    }
 
 
 def _standard_errors(errors: dict) -> np.ndarray:

@@ -40,7 +40,7 @@ from ..inference import MAX_BLOCKS
 from ..models.zhou2010 import correction_matrix_entries
 from ..nlp.blocks import variable_scale
 from ..passes import as_rows, reduce, reference_chunk
-from ..statistics import correction
+from ..statistics import correction, merge_each
 
 #: Complex step for the derivatives of M's entries. [rad or 1]
 COMPLEX_STEP = 1e-30
@@ -289,12 +289,14 @@ class AfterSolve:
     scores: ScoreTerms | None
     chunk_rows: int
     shared: tuple = ()  # whether each row is at the scores' theta
+    objectives: Any = None  # a `nlpcal.statistics.ObjectivesBlock`, or None
 
     def __call__(self, samples, reference, start: int) -> tuple:
         samples = np.asarray(samples, dtype=float)
         n = samples.shape[0]
         stats = [row.start() for row in self.rows]
         part = None if self.scores is None else self.scores.empty(start, n)
+        objectives = None if self.objectives is None else self.objectives.start()
         begin = 0
         while begin < n:  # chunks aligned to multiples of chunk_rows rows of the log
             stop = min(n, ((start + begin) // self.chunk_rows + 1) * self.chunk_rows - start)
@@ -305,15 +307,18 @@ class AfterSolve:
             for k, (row, (total, sums)) in enumerate(zip(self.rows, stats)):
                 at_theta = shared is not None and k < len(self.shared) and self.shared[k]
                 row.add(total, sums, raw, ref, shared if at_theta else None)
+            if objectives is not None:
+                self.objectives.add(objectives, raw, ref)
             begin = stop
-        return stats, part
+        return stats, part, objectives
 
 
 def _merge_after(earlier: tuple, later: tuple) -> tuple:
     """Two partial results of the pass after the solve on neighbouring rows, merged."""
-    stats = [(a.merge(b), x + y) for (a, x), (b, y) in zip(earlier[0], later[0])]
+    stats = merge_each(earlier[0], later[0])
     part = None if earlier[1] is None else earlier[1].merge(later[1])
-    return stats, part
+    objectives = None if earlier[2] is None else merge_each(earlier[2], later[2])
+    return stats, part, objectives
 
 
 def chunk_rows_for(block_rows: int) -> int:
@@ -323,14 +328,15 @@ def chunk_rows_for(block_rows: int) -> int:
 
 
 def after_solve(
-    samples, reference, rows: list, scores: ScoreTerms | None = None, shared=()
+    samples, reference, rows: list, scores: ScoreTerms | None = None, shared=(), objectives=None
 ) -> tuple:
     """One pass over the samples: the Table 1 sums of each `nlpcal.statistics.StatisticsBlock`
-    of `rows` (those `shared` at the scores' theta take their |B1|) and the `ScorePart` of the
-    whole log (None without `scores`). Returns ([(MagnitudeStats, sums)], part)."""
+    of `rows` (those `shared` at the scores' theta take their |B1|), the `ScorePart` of the
+    whole log (None without `scores`) and the totals of an `ObjectivesBlock` (or None).
+    Returns ([(MagnitudeStats, sums)], part, totals)."""
     samples = as_rows(samples)
     chunk = chunk_rows_for(scores.block_rows) if scores is not None else SCORE_CHUNK_ROWS
-    work = AfterSolve(tuple(rows), scores, chunk, tuple(shared))
+    work = AfterSolve(tuple(rows), scores, chunk, tuple(shared), objectives)
     return reduce(samples, reference, work, _merge_after, chunk, indexed=True)
 
 
@@ -350,6 +356,8 @@ class ScoreSums:
     block_rows: int
     bias: dict
     meat: np.ndarray | None
+    #: The exact objectives of the exact-optimum check, when gathered in the same pass.
+    exact_objectives: np.ndarray | None = None
 
     def information(self) -> np.ndarray:
         """A = sum psi'(r_i) J_i J_i^T over the samples (profiled without a reference): the
@@ -432,6 +440,6 @@ def score_block_sums(
     terms = score_terms(theta, radius, rows, loss, centre, meat=True)
     chunk = max(1, min(chunk_rows, SCORE_CHUNK_ROWS) // rows) * rows
     work = AfterSolve((), terms, chunk)
-    _, part = reduce(samples, reference, work, _merge_after, chunk, indexed=True)
+    _, part, _ = reduce(samples, reference, work, _merge_after, chunk, indexed=True)
     sums = finished(part, terms, n, reference is None)
     return sums.series, sums.informations(), rows, sums.bias, sums.meat
