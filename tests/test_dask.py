@@ -113,6 +113,26 @@ def test_the_gram_matrix_differs_by_rounding_only_and_no_block_is_loaded_whole(s
         np.asarray(lazy)
 
 
+def counted_calibration(samples, **options) -> tuple:
+    """(LazySamples, result, the names of the works of its passes after the survey) of a
+    calibration of `samples` as a Dask log in blocks of 10 000 rows."""
+    works = []
+    original = passes._reduce_dask
+
+    def counting(values, reference, work, *args):
+        works.append(type(work).__name__)
+        return original(values, reference, work, *args)
+
+    passes._reduce_dask = counting
+    try:
+        with dask.config.set(scheduler="sync"):
+            lazy = passes.LazySamples(da.from_array(samples, chunks=(10_000, 3)))
+            result = nlpcal.calibrate(lazy, **options)
+    finally:
+        passes._reduce_dask = original
+    return lazy, result, works
+
+
 @pytest.mark.parametrize("method", ["staged", "joint"])
 @pytest.mark.parametrize("reference", [None, "constant", "series"])
 def test_a_least_squares_calibration_on_dask_reads_the_blocks_in_two_passes(
@@ -126,20 +146,7 @@ def test_a_least_squares_calibration_on_dask_reads_the_blocks_in_two_passes(
     standard errors within 1e-3 (1e-11 measured: the same scores at the same parameters)."""
     n = spiky_log.shape[0]
     field = {None: None, "constant": PAPER_FIELD, "series": np.full(n, PAPER_FIELD)}[reference]
-    works = []
-    original = passes._reduce_dask
-
-    def counting(values, reference, work, *args):
-        works.append(type(work).__name__)
-        return original(values, reference, work, *args)
-
-    passes._reduce_dask = counting
-    try:
-        with dask.config.set(scheduler="sync"):
-            lazy = passes.LazySamples(da.from_array(spiky_log, chunks=(10_000, 3)))
-            result = nlpcal.calibrate(lazy, method=method, reference_field=field)
-    finally:
-        passes._reduce_dask = original
+    lazy, result, works = counted_calibration(spiky_log, method=method, reference_field=field)
     exact = [row for row in result.statistics[1:] if not row.get("from_moments")]
     assert len(exact) >= 2 if method == "staged" else len(exact) == 1
     assert all(row.max is not None and row.series_rel_error is not None for row in exact)
@@ -163,22 +170,9 @@ def test_a_robust_joint_fit_on_dask_reads_the_blocks_once_after_its_last_reweigh
     """After the last reweighting's moments, one pass: the joint row with the loss's sums and
     the exact objective its weights expand, the scores with the bread of the sandwich, and the
     18 exact objectives of the exact-optimum check."""
-    works = []
-    original = passes._reduce_dask
-
-    def counting(values, reference, work, *args):
-        works.append(type(work).__name__)
-        return original(values, reference, work, *args)
-
-    passes._reduce_dask = counting
-    try:
-        with dask.config.set(scheduler="sync"):
-            lazy = passes.LazySamples(da.from_array(spiky_log, chunks=(10_000, 3)))
-            result = nlpcal.calibrate(
-                lazy, method="joint", reference_field=PAPER_FIELD, loss="huber"
-            )
-    finally:
-        passes._reduce_dask = original
+    _, result, works = counted_calibration(
+        spiky_log, method="joint", reference_field=PAPER_FIELD, loss="huber"
+    )
     last = max(k for k, what in enumerate(works) if what == "GramBlock")
     assert works[last + 1 :] == ["AfterSolve"]
     assert works.count("GramBlock") == 1 + result.robust["reweightings"]
