@@ -120,6 +120,8 @@ def test_prepare_fits_the_sphere_once(monkeypatch, unit):
     assert len(calls) == 1
     np.testing.assert_array_equal(data.moments.frame.centre, expected.centre)
     assert data.moments.frame.radius == expected.radius
+
+
 @pytest.mark.parametrize("method", ["staged", "joint"])
 @pytest.mark.parametrize("reference", [None, PAPER_FIELD])
 def test_the_pass_after_the_solve_gives_each_row_at_its_parameters_and_the_scores(
