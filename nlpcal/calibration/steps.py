@@ -40,6 +40,7 @@ from .diagnostics import (
     problem_flatness,
     residual_spread,
     scaled_hessian,
+    settle,
     uncertainty,
     undetermined_message,
     warnings_for,
@@ -47,6 +48,7 @@ from .diagnostics import (
 from .joint import reweighting_limit_warning, run_joint
 from .problem import Problem
 from .result import BlockSolve, CalibrationResult, Identifiability, SolverReport
+from .scores import ScoreSums
 from .settings import CalibrationSettings, QualityGate
 from .staged import StopRule, run_staged
 
@@ -122,11 +124,13 @@ def prepare(samples, settings: CalibrationSettings) -> Prepared:
     samples = validation.samples(samples)
     reference = validation.reference(reference, samples.shape[0])
     samples, reference = in_base_units(samples, reference, settings)  # a memory map stays mapped
-    unit, warnings = settled_unit(samples, reference, settings)
+    # one sphere fit for the unit check and the moments' frame
+    frame = sphere_frame(samples) if settings.input.unit_source == "assumed" else None
+    unit, warnings = settled_unit(samples, reference, settings, frame)
     return Prepared(
         samples=samples,
         reference=reference,
-        moments=accumulate(samples, reference),
+        moments=accumulate(samples, reference, frame=frame),
         unit=units.base_unit(unit),
         unit_source=settings.input.unit_source,
         warnings=warnings,
@@ -139,14 +143,15 @@ def in_base_units(samples, reference, settings: CalibrationSettings) -> tuple:
     return units.to_base(samples, unit), units.to_base(reference, settings.reference.unit or unit)
 
 
-def settled_unit(samples, reference, settings: CalibrationSettings) -> tuple:
+def settled_unit(samples, reference, settings: CalibrationSettings, frame=None) -> tuple:
     """(unit, warnings): an assumed unit checked against the magnitudes of the samples
-    (`settle_unit`; ruled out, nT becomes raw counts: the same numbers, another name), its
-    reference's unit against it, and the reference's scale against the samples'."""
+    (`settle_unit`, with their sphere `frame` when fitted; ruled out, nT becomes raw counts: the
+    same numbers, another name), its reference's unit against it, and the reference's scale
+    against the samples'."""
     unit, source = settings.input.given_unit, settings.input.unit_source
     warnings = []
     if source == "assumed":  # the unit given is nT: factor 1, the samples stay as they are
-        _, unit, warning = settle_unit(samples, unit, source)
+        _, unit, warning = settle_unit(samples, unit, source, frame)
         warnings = [warning] if warning else []
         units.check_compatible(unit, settings.reference.unit or unit)
     validation.reference_scale(reference, validation.mean_magnitude(samples))
@@ -175,11 +180,12 @@ def prepare_lazy(samples, reference, settings: CalibrationSettings) -> Prepared:
     moments = accumulate(samples, reference, frame=frame, length=length)
     samples = validation.samples(samples)  # from the survey the pass gathered
     reference = validation.reference(reference, samples.shape[0])
-    unit, warnings = settled_unit(samples, reference, settings)
+    frame = sphere_frame(samples)  # on the survey's subsample, as in memory
+    unit, warnings = settled_unit(samples, reference, settings, frame)
     return Prepared(
         samples=samples,
         reference=reference,
-        moments=reframed(moments, samples, reference),
+        moments=reframed(moments, frame, samples, reference),
         unit=units.base_unit(unit),
         unit_source=settings.input.unit_source,
         warnings=warnings,
@@ -211,12 +217,11 @@ def first_frame(samples, reference) -> tuple:
 REFRAME_LIMIT = 0.05
 
 
-def reframed(moments: Moments, samples, reference) -> Moments:
-    """The moments of the first pass in the frame the samples in memory get (the sphere fitted
-    to the survey's subsample, `accumulate`), so that the solves start and run as in memory:
-    re-centred algebraically within REFRAME_LIMIT of the first frame, else gathered again (a
-    pass more, counted)."""
-    frame = sphere_frame(samples)
+def reframed(moments: Moments, frame, samples, reference) -> Moments:
+    """The moments of the first pass in `frame`, the frame the samples in memory get (the
+    sphere fitted to the survey's subsample, `accumulate`), so that the solves start and run as
+    in memory: re-centred algebraically within REFRAME_LIMIT of the first frame, else gathered
+    again (a pass more, counted)."""
     length = moments_length(frame, reference)
     shift = float(np.linalg.norm(frame.centre - moments.frame.centre)) / length
     if max(shift, abs(np.log(length / moments.length))) <= REFRAME_LIMIT:
@@ -246,12 +251,14 @@ class Solution:
     rows : Table 1 rows, the measured |B_M| first.
     report : what finished each block solve, and why the solve stopped.
     hessian : the Hessian of the objective in the scaled variables (`scaled_hessian`).
+    scores : the scores at theta, gathered by the pass after the solve with its rows.
     """
 
     theta: np.ndarray
     rows: list[TableRow]
     report: SolverReport
     hessian: np.ndarray
+    scores: ScoreSums | None = None
 
 
 def solve(
@@ -260,19 +267,25 @@ def solve(
     """Solve a calibration problem by the staged cycle of Fig. 1 in [1] (`run_staged`, stopped
     by `rule`, `progress` called after each cycle) or jointly (`run_joint`).
 
+    The Table 1 rows no step of the solve reads are gathered after it, with the scores at the
+    solution, in one pass over the data (`settle`).
+
     Raises SolveError, explained in words of the data (`explain_failure`), when a solve fails.
     """
     try:
         if method == "staged":
-            theta, rows, stages, stop_reason = run_staged(problem, rule, progress)
+            theta, rows, stages, stop_reason = run_staged(problem, rule, progress, defer=True)
             report = SolverReport(
                 stages, stop_reason=stop_reason, ipopt_options=problem.ipopt.settings()
             )
-            return Solution(theta, rows, report, scaled_hessian(problem.moments, theta))
-        step, rows, report = run_joint(problem)
+            hessian = scaled_hessian(problem.moments, theta)
+        else:
+            step, rows, report = run_joint(problem, defer=True)
+            theta, hessian = step.theta, scaled_hessian(problem.moments, step.theta, step)
     except SolveError as failure:
+        problem.deferred = []
         raise explain_failure(problem, failure, method, unit) from None
-    return Solution(step.theta, rows, report, scaled_hessian(problem.moments, step.theta, step))
+    return Solution(theta, rows, report, hessian, settle(problem, theta))
 
 
 # --- diagnose --------------------------------------------------------------------------------
@@ -313,12 +326,15 @@ def diagnose(
     reweighting stopped at its limit, and a staged result away from the joint optimum."""
     theta, final = solution.theta, solution.rows[-1]
     objective = final.objective or 0.0  # a solved row has one
+    scores = solution.scores if solution.scores is not None else settle(problem, theta)
     errors, identifiability, covariance = uncertainty(
-        problem, objective, solution.hessian, theta, final.mean
+        problem, objective, solution.hessian, theta, final.mean, scores
     )
     spread = residual_spread(problem, theta)
     judge_attitudes(problem, theta, spread, identifiability)
-    warnings = warnings_for(problem, theta, solution.hessian, errors, identifiability, final, unit)
+    warnings = warnings_for(
+        problem, theta, solution.hessian, errors, identifiability, final, scores, unit
+    )
     diagnosis = Diagnosis(
         errors=errors,
         covariance=covariance,
