@@ -8,12 +8,17 @@ in one process and on the same array:
 - joint: nlpcal.calibrate(method="joint"), cold: the problem caches are cleared before every
   repeat, so problem construction is included, as a first call pays it;
 - staged: nlpcal.calibrate(method="staged"), 7 cycles with their Table 1 rows, cold as well;
+- joint warm, staged warm: the calls a process calibrating one log after another makes, the
+  problems built by an untimed call first: the joint solve as above, and the staged cycle with
+  its default stop rules (the cycles its rtol rule takes), `--warm-repeats` times;
 - scipy: scipy.optimize.least_squares on the geometric residual |B1_i| - F, from the same start;
 
-and prints medians over the repeats, their ratios to the Gram pass, IPOPT iterations and the
-peak memory that tracemalloc sees during one more (untimed) call.
+and prints medians over the repeats (the warm ones with their spread, min-max), their ratios to
+the Gram pass, IPOPT iterations and the peak memory that tracemalloc sees during one more
+(untimed) call.
 
-    python benchmarks/bench_calibrate.py [--sizes 1e3 1e4 1e5 1e6] [--repeats 5]
+    python benchmarks/bench_calibrate.py [--sizes 1e3 2e3 1e4 1e5 1e6] [--repeats 5]
+        [--warm-repeats 21]
 
 With --pass-costs it prints instead the data pass's cost per sample for each feature set
 (`pass_costs`): the distinct moments gathered now beside the Gram matrix of features gathered
@@ -65,6 +70,10 @@ def staged(samples):
     return nlpcal.calibrate(samples, method="staged", reference_field=FIELD, cycles=7, rtol=0.0)
 
 
+def staged_default(samples):
+    return nlpcal.calibrate(samples, method="staged", reference_field=FIELD)
+
+
 def scipy_least_squares(samples):
     from scipy.optimize import least_squares
 
@@ -80,12 +89,30 @@ def scipy_least_squares(samples):
 
 
 def timed(function, samples, repeats):
+    times, result = timings(function, samples, repeats)
+    return statistics.median(times), result
+
+
+def timings(function, samples, repeats):
+    """(the wall time of each of `repeats` calls [s], the last result)."""
     times, result = [], None
     for _ in range(repeats):
         started = time.perf_counter()
         result = function(samples)
         times.append(time.perf_counter() - started)
-    return statistics.median(times), result
+    return times, result
+
+
+def warm(function, samples, repeats, gram_s) -> tuple:
+    """Table cells of a warm call (the problems built by one untimed call first): the median
+    with its spread (min-max) [s], and the median's ratio to the Gram pass."""
+    function(samples)
+    times, _ = timings(function, samples, repeats)
+    median = statistics.median(times)
+    return (
+        f"{median:.5f} ({min(times):.5f}-{max(times):.5f})",
+        f"{median / gram_s:.1f}",
+    )
 
 
 def peak_mib(function, samples) -> float:
@@ -241,15 +268,19 @@ def pass_costs(n: int, repeats: int) -> None:
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sizes", type=float, nargs="+", default=[1e3, 1e4, 1e5, 1e6])
+    parser.add_argument("--sizes", type=float, nargs="+", default=[1e3, 2e3, 1e4, 1e5, 1e6])
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--warm-repeats", type=int, default=21, help="repeats of a warm call")
     parser.add_argument("--no-scipy", action="store_true", help="skip the scipy baseline")
     parser.add_argument("--pass-costs", action="store_true", help="the pass per feature set")
     args = parser.parse_args(argv)
     if args.pass_costs:
         return pass_costs(int(max(args.sizes)), args.repeats)
     print(f"# machine: {machine()}")
-    print(f"# medians over {args.repeats} repeats; ratios to the Gram pass on the same array")
+    print(
+        f"# medians over {args.repeats} repeats ({args.warm_repeats} warm, with their min-max); "
+        f"ratios to the Gram pass on the same array"
+    )
     header = (
         "N",
         "gram_s",
@@ -257,6 +288,10 @@ def main(argv=None):
         "joint/gram",
         "staged_s",
         "staged/gram",
+        "joint_warm_s",
+        "joint_warm/gram",
+        "staged_warm_s",
+        "staged_warm/gram",
         "scipy_s",
         "scipy/gram",
         "joint_it",
@@ -272,21 +307,25 @@ def main(argv=None):
         gram_s, _ = timed(gram_pass, samples, args.repeats)
         joint_s, joint_result = timed(lambda x: cold(lambda: joint(x)), samples, args.repeats)
         staged_s, staged_result = timed(lambda x: cold(lambda: staged(x)), samples, args.repeats)
+        joint_warm = warm(joint, samples, args.warm_repeats, gram_s)
+        staged_warm = warm(staged_default, samples, args.warm_repeats, gram_s)
         if args.no_scipy:
             scipy_s = float("nan")
         else:
             scipy_s, _ = timed(scipy_least_squares, samples, max(1, min(args.repeats, 3)))
         row = (
             f"{n:.0e}",
-            f"{gram_s:.4f}",
+            f"{gram_s:.6f}",
             f"{joint_s:.4f}",
             f"{joint_s / gram_s:.1f}",
             f"{staged_s:.4f}",
             f"{staged_s / gram_s:.1f}",
+            *joint_warm,
+            *staged_warm,
             f"{scipy_s:.3f}",
             f"{scipy_s / gram_s:.1f}",
-            str(joint_result.solver["iterations"]),
-            str(staged_result.solver["iterations"]),
+            str(joint_result.solver.iterations),
+            str(staged_result.solver.iterations),
             f"{peak_mib(joint, samples):.1f}",
             f"{peak_mib(staged, samples):.1f}",
             f"{samples.nbytes / 2**20:.1f}",

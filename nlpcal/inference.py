@@ -186,12 +186,12 @@ def moving_block_jackknife(series, informations, length: int, directions) -> tup
         inverses = np.linalg.inv(remaining)  # C_j
     except np.linalg.LinAlgError:  # a block that holds all the information along a direction
         inverses = np.linalg.pinv(remaining, hermitian=True)
-    deltas = np.einsum("mij,mj->mi", inverses, sums)
+    deltas = np.matmul(inverses, sums[:, :, None])[:, :, 0]
     centred = deltas - deltas.mean(axis=0)
     starts = count - length + 1
     covariance = (count - length) / (length * starts) * centred.T @ centred
-    mapped = np.einsum("pi,mij->mpj", directions, inverses)  # D C_j
-    shares_of_variance = np.einsum("mpj,mjl,mpl->mp", mapped, shares, mapped)  # lambda_jk
+    mapped = np.matmul(directions, inverses)  # D C_j
+    shares_of_variance = np.sum(np.matmul(mapped, shares) * mapped, axis=2)  # lambda_jk
     mean_square = np.mean(shares_of_variance**2, axis=0)
     alike = np.divide(
         np.mean(shares_of_variance, axis=0) ** 2,
@@ -227,8 +227,9 @@ def block_sums(scores, informations) -> tuple:
 def dependence_meat(series, informations, independent, dof: int, basis=None) -> tuple:
     """(Omega, description, dof): the meat of the sandwich covariance A^-1 Omega A^-1 of an
     estimate from the (K, p) block sums of its scores psi(r_i) J_i at the estimate (`series`)
-    and the blocks' (K, p, p) shares of the information A (`informations`), on the directions
-    of `basis` (p, q orthonormal columns; None: all).
+    and the blocks' (K, p, p) shares of the information A (`informations`, or a function that
+    forms them: only a jackknife reads them), on the directions of `basis` (p, q orthonormal
+    columns; None: all).
 
     independent : (p, p) the meat of independent samples (s^2 A for least squares, sum psi^2
         J J^T for an M-estimate). dof : the degrees of freedom of the fit (N - p).
@@ -246,7 +247,6 @@ def dependence_meat(series, informations, independent, dof: int, basis=None) -> 
     p = series.shape[1]
     basis = np.eye(p) if basis is None else np.asarray(basis, dtype=float)
     projected = series @ basis
-    shares = np.einsum("ji,kjl,lm->kim", basis, np.asarray(informations, dtype=float), basis)
     bandwidth = bartlett_bandwidth(projected)
     student = t_widening(dof)
     description: dict = {
@@ -259,6 +259,7 @@ def dependence_meat(series, informations, independent, dof: int, basis=None) -> 
     if not scores_dependent(projected):
         freedom = np.full(p, float(max(dof, 1)))
         return np.asarray(independent) * student**2, description, freedom
+    shares = projected_shares(informations() if callable(informations) else informations, basis)
     length = group_length(bandwidth, len(projected))
     covariance, freedom = moving_block_jackknife(projected, shares, length, basis)
     widening = np.array([t_widening(v) for v in freedom])
@@ -273,6 +274,15 @@ def dependence_meat(series, informations, independent, dof: int, basis=None) -> 
         t_widening=float(widening.max()),
     )
     return loewner_max(meat, independent, basis), description, freedom
+
+
+def projected_shares(informations, basis) -> np.ndarray:
+    """B^T A_k B for each of the (K, p, p) `informations`, with two matrix products. (K, q, q)"""
+    blocks = np.asarray(informations, dtype=float)
+    count, p, q = blocks.shape[0], basis.shape[0], basis.shape[1]
+    right = (blocks.reshape(count * p, p) @ basis).reshape(count, p, q)  # A_k B
+    left = right.transpose(0, 2, 1).reshape(count * q, p) @ basis  # (A_k B)^T B = B^T A_k B
+    return left.reshape(count, q, q)
 
 
 def least_squares_uncertainty(jacobian, residuals, dof: int) -> tuple:

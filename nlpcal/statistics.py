@@ -12,6 +12,7 @@ References
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -167,6 +168,9 @@ class StatisticsBlock:
     offset, matrix : the correction of Eq. 4 (`correction`). shift : the shift of the sums.
     loss, centre : a robust `nlpcal.robust.Loss` with its scale, and the centre of |B1| the
         residuals are taken from without a reference. [field unit]
+    weights : (raw chunk, its reference) -> given weights v of its samples (a robust fit's
+        latest reweighting): the sums of v, v r and v r^2 follow, r the residuals about the
+        reference or `centre`, whose weighted mean square the weighted moments expand.
     """
 
     offset: np.ndarray
@@ -175,22 +179,65 @@ class StatisticsBlock:
     chunk_rows: int = 16384
     loss: Any = None
     centre: float | None = None
+    weights: Callable | None = None
 
     def __call__(self, samples, reference) -> tuple:
         samples = np.asarray(samples, dtype=float)
-        stats = MagnitudeStats(self.shift)
-        sums = np.zeros(4)  # rho, outliers, w, w |B1|
+        stats, sums = self.start()
         for start in range(0, samples.shape[0], self.chunk_rows):
             stop = min(start + self.chunk_rows, samples.shape[0])
-            values = corrected_magnitude(samples[start:stop], self.offset, self.matrix)
-            ref = reference_chunk(reference, start, stop)
-            stats.add(values, ref)
-            if self.loss is not None:
-                loss = self.loss
-                r = values - (ref if ref is not None else self.centre)
-                w = loss.weight(r)
-                sums += (loss.rho(r).sum(), loss.outliers(r).sum(), w.sum(), w @ values)
+            self.add(stats, sums, samples[start:stop], reference_chunk(reference, start, stop))
         return stats, sums
+
+    def start(self) -> tuple:
+        """The sums of no rows: `MagnitudeStats`, and rho, outliers, w, w |B1| (then v, v r,
+        v r^2 with `weights`)."""
+        return MagnitudeStats(self.shift), np.zeros(4 if self.weights is None else 7)
+
+    def of(self, raw) -> np.ndarray:
+        """|B1| of a chunk of raw samples. [field unit]"""
+        return corrected_magnitude(raw, self.offset, self.matrix)
+
+    def add(self, stats: MagnitudeStats, sums: np.ndarray, raw, reference, values=None) -> None:
+        """Add a chunk of raw samples and its reference to `stats` and `sums`; `values` : their
+        |B1| when already at hand. [field unit]"""
+        values = self.of(raw) if values is None else values
+        stats.add(values, reference)
+        if self.loss is None:
+            return
+        loss = self.loss
+        r = values - (reference if reference is not None else self.centre)
+        w = loss.weight(r)
+        sums[0:4] += (loss.rho(r).sum(), loss.outliers(r).sum(), w.sum(), w @ values)
+        if self.weights is not None:
+            v = self.weights(raw, reference)
+            sums[4:7] += (v.sum(), v @ r, v @ (r * r))
+
+    def weighted_objective(self, sums: np.ndarray, reference: bool) -> float:
+        """The weighted mean square of the residuals with the given weights, from a pass's
+        `sums` (about their weighted mean without a `reference`). [field unit^2]"""
+        total, first, second = sums[4:7]
+        return float(second / total - (0.0 if reference else (first / total) ** 2))
+
+
+def statistics_block(
+    samples, theta, chunk_rows: int = 16384, loss=None, centre=None, weights=None
+) -> StatisticsBlock:
+    """The `StatisticsBlock` of a Table 1 row at theta (None: the measured |B_M|)."""
+    offset, matrix, shift = shifted_correction(samples, theta)
+    return StatisticsBlock(offset, matrix, shift, chunk_rows, loss, centre, weights)
+
+
+def statistics_result(total: MagnitudeStats, sums: np.ndarray, loss=None) -> dict:
+    """The Table 1 statistics of a pass (`MagnitudeStats.result`), with a robust loss's."""
+    result = total.result()
+    if loss is not None:
+        result.update(
+            robust_objective=float(sums[0] / total.n),
+            downweighted=int(sums[1]),
+            weighted_centre=float(sums[3] / sums[2]) if sums[2] > 0 else result["mean"],
+        )
+    return result
 
 
 def _merge_statistics(first: tuple, second: tuple) -> tuple:
@@ -211,17 +258,9 @@ def field_statistics(
         "weighted_centre" (sum w |B1| / sum w with the IRLS weights w [field unit]).
     """
     samples = as_rows(samples)
-    offset, matrix, shift = shifted_correction(samples, theta)
-    work = StatisticsBlock(offset, matrix, shift, chunk_rows, loss, centre)
+    work = statistics_block(samples, theta, chunk_rows, loss, centre)
     total, sums = reduce(samples, reference, work, _merge_statistics, chunk_rows)
-    result = total.result()
-    if loss is not None:
-        result.update(
-            robust_objective=float(sums[0] / total.n),
-            downweighted=int(sums[1]),
-            weighted_centre=float(sums[3] / sums[2]) if sums[2] > 0 else result["mean"],
-        )
-    return result
+    return statistics_result(total, sums, loss)
 
 
 @dataclass(frozen=True)
@@ -237,21 +276,38 @@ class ObjectivesBlock:
 
     def __call__(self, samples, reference) -> list:
         samples = np.asarray(samples, dtype=float)
-        stats = [(MagnitudeStats(shift), np.zeros(3)) for _, _, shift in self.corrections]
+        stats = self.start()
         for start in range(0, samples.shape[0], self.chunk_rows):
             stop = min(start + self.chunk_rows, samples.shape[0])
-            chunk, ref = samples[start:stop], reference_chunk(reference, start, stop)
-            for (offset, matrix, _), (total, sums) in zip(self.corrections, stats):
-                magnitude = corrected_magnitude(chunk, offset, matrix)
-                total.add(magnitude, ref)
-                if self.loss is not None:
-                    r = magnitude - (ref if ref is not None else self.centre)
-                    loss = self.loss
-                    sums += (loss.rho(r).sum(), (loss.weight(r) * r).sum(), loss.slope(r).sum())
+            self.add(stats, samples[start:stop], reference_chunk(reference, start, stop))
         return stats
 
+    def start(self) -> list:
+        """The sums of no rows, one (MagnitudeStats, rho psi psi' sums) per correction."""
+        return [(MagnitudeStats(shift), np.zeros(3)) for _, _, shift in self.corrections]
 
-def _merge_each(first: list, second: list) -> list:
+    def add(self, stats: list, chunk, reference) -> None:
+        """Add a chunk of raw samples and its reference to the sums of every correction."""
+        for (offset, matrix, _), (total, sums) in zip(self.corrections, stats):
+            magnitude = corrected_magnitude(chunk, offset, matrix)
+            total.add(magnitude, reference)
+            if self.loss is not None:
+                r = magnitude - (reference if reference is not None else self.centre)
+                loss = self.loss
+                sums += (loss.rho(r).sum(), (loss.weight(r) * r).sum(), loss.slope(r).sum())
+
+    def values(self, totals: list, reference: bool) -> np.ndarray:
+        """The objectives of a pass's `totals` (see `exact_objectives`). [field^2]"""
+        if self.loss is None:
+            return np.array([total.result()["objective"] for total, _ in totals])
+        values = []
+        for total, (rho, psi, slope) in totals:
+            profiled = 0.0 if reference or not slope > 0 else psi * psi / (2.0 * slope)
+            values.append(2.0 * (rho - profiled) / total.n)
+        return np.array(values)
+
+
+def merge_each(first: list, second: list) -> list:
     return [(a.merge(b), x + y) for (a, x), (b, y) in zip(first, second)]
 
 
@@ -268,17 +324,16 @@ def exact_objectives(
         least squares is the variance of |B1| (Eq. 8) exactly.
     """
     samples = as_rows(samples)
+    work = objectives_block(samples, thetas, chunk_rows, loss, centre)
+    totals = reduce(samples, reference, work, merge_each, chunk_rows)
+    return work.values(totals, reference is not None)
+
+
+def objectives_block(samples, thetas, chunk_rows: int = 16384, loss=None, centre=None):
+    """The `ObjectivesBlock` of `exact_objectives`."""
     corrections = tuple(shifted_correction(samples, theta) for theta in thetas)
     robust = loss is not None and loss.robust
-    work = ObjectivesBlock(corrections, chunk_rows, loss if robust else None, centre)
-    totals = reduce(samples, reference, work, _merge_each, chunk_rows)
-    if not robust:
-        return np.array([total.result()["objective"] for total, _ in totals])
-    values = []
-    for total, (rho, psi, slope) in totals:
-        profiled = 0.0 if reference is not None or not slope > 0 else psi * psi / (2.0 * slope)
-        values.append(2.0 * (rho - profiled) / total.n)
-    return np.array(values)
+    return ObjectivesBlock(corrections, chunk_rows, loss if robust else None, centre)
 
 
 def shown_rows(count: int, most: int | None) -> list:

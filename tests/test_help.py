@@ -2,6 +2,8 @@
 in words a user who never read the papers can follow."""
 
 import argparse
+import subprocess
+import sys
 
 import pytest
 
@@ -68,3 +70,23 @@ def test_one_name_for_the_field_magnitude():
         assert not ({"--field", "--field-nt"} & visible), path
         if {"--field", "--field-nt"} & options:
             assert "--reference-field" in visible, path
+
+
+@pytest.mark.parametrize("argv", [["--version"], ["--help"], ["calibrate", "--help"]])
+def test_version_and_help_import_no_numerical_library(argv):
+    """The command line answers --version and --help without importing numpy, pandas or
+    CasADi, which take most of a second to import."""
+    heavy = ("numpy", "pandas", "casadi")
+    code = (
+        "import sys\n"
+        "from nlpcal.cli import main\n"
+        "try:\n"
+        f"    main({argv!r})\n"
+        "except SystemExit:\n"
+        "    pass\n"
+        f"print('imported:', *(m for m in {heavy!r} if m in sys.modules))\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60
+    )
+    assert done.stdout.splitlines()[-1] == "imported:"

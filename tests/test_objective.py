@@ -132,3 +132,23 @@ def test_an_evaluation_in_place_equals_the_function_call():
     evaluation = problems._evaluation(problems.value_function, moments.reference)
     with pytest.raises(ValueError, match="parameters"):
         evaluation(NEAR, p[:-1])
+
+
+@pytest.mark.parametrize("model", ["full", "diagonal", "offset"])
+@pytest.mark.parametrize("reference", ["none", "constant", "series"])
+def test_projection_onto_a_model_is_the_least_squares_one(model, reference):
+    """`Variables.project` is the least-squares projection onto the directions a model frees,
+    to the bit (a model that only selects parameters takes a shortcut): zeros where it fixes a
+    parameter (never -0.0), the mean of tied parameters."""
+    from nlpcal.nlp.blocks import variables
+
+    free = variables("joint", reference, model)
+    e = free.matrix
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        theta = rng.standard_normal(9) * 10.0 ** rng.uniform(-4, 5, 9)
+        expected = e @ np.linalg.lstsq(e, theta, rcond=None)[0]
+        assert free.project(theta).tobytes() == expected.tobytes()
+    if model == "offset" and reference != "none":  # one common scale: the mean of the three
+        projected = free.project(np.r_[0.0, 0.0, 0.0, 1.0, 2.0, 6.0, 0.0, 0.0, 0.0])
+        np.testing.assert_allclose(projected[3:6], 3.0)

@@ -231,3 +231,22 @@ def test_compare_takes_ipopt_options_and_records_them_as_calibrate_does(
     bad = tmp_path / "bad.json"
     code, stdout, err = run(capsys, "compare", log_csv, "--ipopt-option", "no_such=1", "-o", bad)
     assert code == 2 and not bad.exists() and "Traceback" not in err
+
+
+def test_a_solve_reports_its_wall_time_and_its_function_evaluations_alone():
+    """`SolveOutcome` times the solver's call and the evaluations of the problem's functions in
+    it: CasADi's timers run on across the calls of a built solver, and each outcome gets only
+    its own share (the same solve twice costs about the same, not twice as much)."""
+    import casadi as ca
+
+    from nlpcal.nlp.solver import build_nlpsol, solve
+
+    x, p = ca.MX.sym("x", 3), ca.MX.sym("p", 3)
+    solver = build_nlpsol("timed", x, ca.sumsqr(x - p) + ca.sumsqr(x * x - 1.0), p)
+    outcomes = [solve(solver, x0=np.full(3, 0.5), p=[1.0, 2.0, 3.0]) for _ in range(200)]
+    assert len({o.iterations for o in outcomes}) == 1 and outcomes[0].iterations > 0
+    for outcome in outcomes:
+        assert 0.0 < outcome.evaluations_s < outcome.wall_s
+    # a running total would make the k-th outcome's evaluations k times one solve's: their sum
+    # 100 times the 200 calls' (the evaluations are 2-10 % of a call)
+    assert sum(o.evaluations_s for o in outcomes) < sum(o.wall_s for o in outcomes)

@@ -374,3 +374,42 @@ def test_least_squares_standard_errors_follow_the_scores_not_the_residuals(regre
         z.append((fit[0] - 2.0) / result.standard_errors[0])
     mean_square = float(np.mean(np.square(z)))
     assert abs(mean_square - 1.0) < Z2_SPREADS * np.sqrt(2 / len(z)) + 0.15, mean_square
+
+
+@pytest.mark.parametrize("reference", [None, 50_000.0])
+def test_the_noise_terms_of_the_bias_are_the_derivatives_of_the_sensitivities(reference):
+    """The closed form of the pass (the derivative of J along g = M^T u, the trace of the
+    Hessian of |B1|) against central differences of `sensitivities` sample by sample, and the
+    block sums against a sum over the samples by hand."""
+    from nlpcal.calibration import scores
+    from nlpcal.nlp.blocks import variable_scale
+    from nlpcal.robust import Loss
+    from nlpcal.statistics import correction
+
+    rng = np.random.default_rng(9)
+    samples = scenario_log(700, 5.0, rng, uniform_directions(700, rng), 50_000.0)
+    theta = np.array([40.0, -25.0, 10.0, 0.01, -0.02, 0.015, 0.02, -0.01, 0.03])
+    radius, centre = 50_000.0, 49_990.0
+    series, informations, rows, bias, meat = scores.score_block_sums(
+        samples, theta, reference, Loss(), centre, radius
+    )
+    derivatives, scale = scores.entry_derivatives(theta), variable_scale(radius)
+    magnitude, jacobian, g = scores.sensitivities(samples, theta, derivatives, scale)
+    h = 1e-3  # [field unit]: the derivatives' truncation is (h / |B1|)^2 relative
+    ahead = scores.sensitivities(samples + h * g, theta, derivatives, scale)[1]
+    behind = scores.sensitivities(samples - h * g, theta, derivatives, scale)[1]
+    along = (ahead - behind) / (2 * h)
+    matrix = correction(theta)[1]
+    squares = np.sum(g * g, axis=1)
+    trace = (np.sum(matrix * matrix) - squares) / magnitude
+    r = magnitude - (centre if reference is None else reference)
+    if reference is None:  # the centre profiled out: J - mean J
+        jacobian = jacobian - jacobian.mean(axis=0)
+    expected = along.sum(axis=0) + 0.5 * (trace[:, None] * jacobian).sum(axis=0)
+    np.testing.assert_allclose(bias["gradient"], expected, rtol=1e-6, atol=1e-9)
+    assert bias["mean_square_g"] == pytest.approx(np.mean(squares), rel=1e-12)
+    assert rows == 1  # 700 samples: blocks of one
+    np.testing.assert_allclose(series, r[:, None] * jacobian, rtol=1e-9, atol=1e-9)
+    outer = jacobian[:, :, None] * jacobian[:, None, :]
+    np.testing.assert_allclose(informations, outer, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(meat, (r[:, None, None] ** 2 * outer).sum(axis=0), rtol=1e-9)

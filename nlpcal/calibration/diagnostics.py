@@ -18,11 +18,17 @@ from ..nlp.blocks import evaluate, objective_function, variable_scale
 from ..nlp.steps import block_step
 from ..results import TableRow
 from ..robust import robust_std
-from ..statistics import exact_objectives, field_statistics
+from ..statistics import (
+    exact_objectives,
+    field_statistics,
+    objectives_block,
+    statistics_block,
+    statistics_result,
+)
 from .coverage import COVERAGE_WARN, direction_coverage, flatness, planar_message
 from .problem import Problem
 from .result import Identifiability
-from .scores import score_block_sums
+from .scores import ScoreSums, after_solve, block_rows, finished, score_terms
 
 #: Standard errors above these are "poorly determined": offsets 1 % of the field, scale errors
 #: 0.01, angles 1 deg (a calibration that changes |B| by about 1 % either way).
@@ -69,7 +75,12 @@ def _names(indices) -> list:
 
 
 def uncertainty(
-    problem: Problem, objective: float, hs: np.ndarray, theta=None, centre: float | None = None
+    problem: Problem,
+    objective: float,
+    hs: np.ndarray,
+    theta=None,
+    centre: float | None = None,
+    sums: ScoreSums | None = None,
 ):
     """Standard errors [parameter units], the identifiability block of a result and the
     covariance of the nine parameters in their units (angles in deg), or None.
@@ -77,23 +88,25 @@ def uncertainty(
     For f = (1/N) sum r_i^2 the Gauss-Newton information is A = N H / 2 (`nlpcal.inference`),
     here in the scaled variables of the problems, on the directions the model estimates (without
     a reference, within the gauge's null space: `nlpcal.nlp.blocks.Variables.basis`); with a
-    robust loss A = sum psi'(r) J J^T (`weighted_information`). With `theta` the covariance is
+    robust loss A = sum psi'(r) J J^T (`ScoreSums.information`). With `theta` the covariance is
     the sandwich A^-1 Omega A^-1 with Omega = A V A, V the moving-block jackknife of the scores
     psi(r_i) J_i (`sandwich`): it follows the dependence of the scores of neighbouring samples
     (a smooth trajectory in a slowly changing field); scores without clear dependence
     (`inference.scores_dependent`) keep s^2 A^-1 (A^-1 B A^-1, B = sum psi^2 J J^T, for a robust
     loss), widened by Student's t on N - p. Without `theta` (identifiability alone) it is
     s^2 A^-1. `centre` : without a reference, the mean |B1| the least-squares residuals are
-    taken from. [field unit]
+    taken from [field unit]; `sums` : the scores at theta when the pass after the solve
+    (`settle`) has gathered them, else a pass of their own.
     """
     n = problem.samples.shape[0]
     robust = problem.loss.robust and theta is not None
-    information = (
-        weighted_information(problem, theta, problem.loss.slope)[1]
-        if robust
-        else inference.information_from_hessian(hs, n)
-    )
-    result, alone, dependence, noise = sandwich(problem, information, objective, theta, centre)
+    if theta is not None and sums is None:
+        sums = settle(problem, theta, centre)
+    if robust and sums is not None:
+        information = sums.information()
+    else:
+        information = inference.information_from_hessian(hs, n)
+    result, alone, dependence, noise = sandwich(problem, information, objective, theta, sums)
     estimated = problem.estimated
     to_units = scaled_to_units(problem.moments.frame.radius)
     errors, covariance = in_units(result, to_units, estimated)
@@ -120,12 +133,13 @@ def uncertainty(
     return errors, block, covariance
 
 
-def sandwich(problem: Problem, information, objective: float, theta, centre) -> tuple:
+def sandwich(problem: Problem, information, objective: float, theta, sums) -> tuple:
     """(estimate, estimate of independent samples, score dependence, noise terms) of
     `uncertainty`: s^2 A^-1 without `theta`; with it the sandwich A^-1 Omega A^-1 of the scores
     (`score_meat`, `inference.dependence_meat`): the moving-block jackknife's meat where they
     are dependent, never narrower than that of independent samples, else the latter widened by
-    Student's t. The second and the last two are None without `theta`."""
+    Student's t. The second and the last two are None without `theta`. `sums` : the
+    `ScoreSums` at theta (None without it)."""
     n = problem.samples.shape[0]
     basis = problem.free.basis
     # the parameters fitted: the model's free directions, and without a reference the mean |B1|
@@ -134,10 +148,8 @@ def sandwich(problem: Problem, information, objective: float, theta, centre) -> 
     variance = n * objective / max(n - fitted, 1)
     if theta is None:
         return inference.estimate(information, residual_variance=variance, **options), *(None,) * 3
-    series, shares, independent, dependence, noise = score_meat(
-        problem, theta, centre, basis, n - fitted
-    )
-    if not problem.loss.robust:  # s^2 A: the meat of independent samples of least squares
+    series, shares, independent, dependence, noise = score_meat(sums, basis, n, n - fitted)
+    if independent is None:  # s^2 A: the meat of independent samples of least squares
         independent = variance * np.asarray(information)
     meat, described, freedom = inference.dependence_meat(
         series, shares, independent, n - fitted, basis
@@ -258,7 +270,7 @@ def noise_bias(information, basis, noise: dict, variance: float) -> np.ndarray:
     The residual r_i = |M (b_i + n_i - Z_p)| - F_i depends on the noise n_i of the raw sample,
     and so does its sensitivity J_i: E[r_i J_i] = sigma^2 (dJ_i/db g_i + tr(d2 r_i/db2) J_i / 2)
     with g_i = dr_i/db = M^T u_i, which does not vanish. The estimating equation sum r_i J_i = 0
-    is then off by sigma^2 times their sum (`scores.score_block_sums`), and the estimate by
+    is then off by sigma^2 times their sum (`scores.ScoreSums.bias`), and the estimate by
     bias = -sigma^2 A^-1 sum(...) (on the directions the model estimates). It grows as sigma^2
     and as A^-1: along a direction the attitudes barely determine (a short arc) it reaches
     standard errors. The formula assumes the noise is the sensor's: sigma^2 = s^2 / mean |g|^2
@@ -274,32 +286,58 @@ def noise_bias(information, basis, noise: dict, variance: float) -> np.ndarray:
     return -sigma2 * basis @ np.linalg.solve(reduced, basis.T @ noise["gradient"])
 
 
-def score_meat(problem: Problem, theta, centre: float | None, basis, dof: int) -> tuple:
-    """(scores, informations, G_0, description, noise): the block sums of the scores and of the
-    information (`score_block_sums`) on the estimated directions (`basis`), for
-    `inference.dependence_meat`; sum psi(r_i)^2 J_i J_i^T times N / dof (the meat of
-    independent samples of an M-estimate); what the result says of the blocks
-    (`score_dependence`); and the noise terms of the bias (`noise_bias`)."""
-    n = problem.samples.shape[0]
-    series, informations, block_rows, noise, squares = score_block_sums(
-        problem.samples,
-        theta,
-        problem.reference,
-        problem.loss,
-        problem.centre if problem.loss.robust else centre,
-        problem.moments.frame.radius,
-    )
-    independent = basis @ (basis.T @ squares @ basis) @ basis.T * n / max(dof, 1)
-    return series, informations, independent, {"block_samples": block_rows}, noise
+def score_meat(sums: ScoreSums, basis, n: int, dof: int) -> tuple:
+    """(scores, informations, G_0, description, noise): the block sums of the scores and (when
+    asked: `ScoreSums.informations`) of the information, for `inference.dependence_meat`;
+    sum psi(r_i)^2 J_i J_i^T times N / dof on the estimated directions (`basis`), the meat of
+    independent samples of an M-estimate (None when not gathered: least squares takes s^2 A);
+    what the result says of the blocks (`score_dependence`); and the noise terms of the bias
+    (`noise_bias`)."""
+    independent = None
+    if sums.meat is not None:
+        independent = basis @ (basis.T @ sums.meat @ basis) @ basis.T * n / max(dof, 1)
+    description = {"block_samples": sums.block_rows}
+    return sums.series, sums.informations, independent, description, sums.bias
 
 
-def weighted_information(problem: Problem, theta, weight) -> tuple:
-    """(sum g, sum g_i J_i J_i^T) with per-sample weights g_i = weight(r_i) at theta, in the scaled
-    variables: from the Hessian of the moment objective with the samples weighted by g (a
-    weighted mean of squares has sum(g) H_g / 2 = sum g J J^T up to terms in the curvature of r).
-    One pass over the data."""
-    moments = problem.weighted_moments(theta, weight)
-    return moments.weight_sum, 0.5 * moments.weight_sum * scaled_hessian(moments, theta)
+def settle(problem: Problem, theta, centre: float | None = None) -> ScoreSums:
+    """The one pass over the data after the solve: the statistics of the Table 1 rows the solve
+    deferred (`Problem.deferred`, each at its own parameters) and the scores at theta
+    (`nlpcal.calibration.scores`), sharing |B1| at theta. Without a reference a least-squares
+    fit takes its residuals from the mean |B1| of the same pass: the scores are gathered about
+    the mean of the first samples' and moved to it after (exact: psi = r is linear in the
+    centre). A robust fit's exact-optimum check, which every robust fit runs, takes its 18
+    objectives from the same pass (`optimum_points`). `centre` : a given centre instead (the
+    mean of an earlier pass). [field unit]"""
+    samples, reference, loss = problem.samples, problem.reference, problem.loss
+    n = samples.shape[0]
+    deferred, problem.deferred = problem.deferred, []
+    theta = np.asarray(theta, dtype=float)
+    rows = [entry[3] for entry in deferred]
+    shared = [np.array_equal(entry[1], theta) for entry in deferred]
+    if not any(shared):  # the statistics at theta: the mean |B1| of least squares
+        rows.append(statistics_block(samples, theta))
+        shared.append(True)
+    at_theta = shared.index(True)
+    robust = loss.robust
+    if robust:
+        centre = problem.centre
+    elif reference is None and centre is None:
+        centre = rows[at_theta].shift  # the mean |B1| of the first samples
+    radius = problem.moments.frame.radius
+    terms = score_terms(theta, radius, block_rows(n), loss, centre, robust)
+    check = objectives_block(samples, **optimum_points(problem, theta)) if robust else None
+    stats, part, totals = after_solve(samples, reference, rows, terms, shared, check)
+    for entry, sums in zip(deferred, stats):
+        problem.fill_deferred(entry, *sums)
+    shift = 0.0
+    if reference is None and not robust:
+        mean = statistics_result(*stats[at_theta])["mean"]
+        shift = mean - float(centre)  # type: ignore[arg-type]
+    sums = finished(part, terms, n, reference is None, shift)
+    if check is not None:  # a robust fit's exact-optimum check, always run
+        sums.exact_objectives = check.values(totals, reference is not None)
+    return sums
 
 
 def joint_gap(problem: Problem, theta, errors) -> dict:
@@ -343,7 +381,9 @@ def problem_flatness(problem: Problem, theta, spread: dict | None = None) -> dic
     return flatness(problem.samples, spread["residual_robust_std"], problem.reference is not None)
 
 
-def exact_optimum_shift(problem: Problem, theta, hs: np.ndarray, errors) -> float | None:
+def exact_optimum_shift(
+    problem: Problem, theta, hs: np.ndarray, errors, scores: ScoreSums
+) -> float | None:
     """How far the exact optimum lies from `theta`, in standard errors (largest over parameters).
 
     One Newton step on the exact per-sample objective: its gradient by central differences (the
@@ -351,32 +391,47 @@ def exact_optimum_shift(problem: Problem, theta, hs: np.ndarray, errors) -> floa
     stays in the directions the model estimates (without a reference, in the gauge's null
     space). With a robust loss the objective is the one the fit minimises, (2/N) sum rho(r_i)
     (`statistics.exact_objectives`), and its Hessian (2/N) sum psi'(r_i) J_i J_i^T (the bread of
-    the sandwich, one more pass): the distance to the optimum of the loss, not of the unweighted
-    squares.
+    the sandwich, `ScoreSums.information` of the `scores` at theta): the distance to the optimum
+    of the loss, not of the unweighted squares. A robust fit's objectives come with the
+    `scores` from the pass after the solve (`settle`); an inexact expansion takes a pass.
     """
     if errors is None:
         return None
     scale = variable_scale(problem.moments.frame.radius)
-    h = 1e-3  # in scaled variables: 1e-6 of the field for offsets, 1e-6 for scales, 1e-5 rad
-    steps = [sign * h * e for e in np.eye(9) for sign in (1.0, -1.0)]
     robust = problem.loss.robust and problem.loss.scale is not None
-    values = exact_objectives(
-        problem.samples,
-        [theta + scale * x for x in steps],
-        problem.reference,
-        loss=problem.loss if robust else None,
-        centre=problem.centre,
-    )
-    grad = (values[0::2] - values[1::2]) / (2 * h)
+    values = scores.exact_objectives
+    if values is None:
+        values = exact_objectives(
+            problem.samples, reference=problem.reference, **optimum_points(problem, theta)
+        )
+    grad = (values[0::2] - values[1::2]) / (2 * SHIFT_STEP)
     if robust:
-        information = weighted_information(problem, theta, problem.loss.slope)[1]
-        hs = 2.0 * information / problem.samples.shape[0]
+        hs = 2.0 * scores.information() / problem.samples.shape[0]
     basis = problem.free.basis
     reduced = basis.T @ hs @ basis
     step = -basis @ np.linalg.solve(0.5 * (reduced + reduced.T), basis.T @ grad)
     shift = step * scale
     shift[6:9] = np.degrees(shift[6:9])
     return float(np.max(np.abs(shift) / _standard_errors(errors)))
+
+
+#: The central differences of `exact_optimum_shift`, in the scaled variables: 1e-6 of the field
+#: for offsets, 1e-6 for scales, 1e-5 rad.
+SHIFT_STEP = 1e-3
+
+
+def optimum_points(problem: Problem, theta) -> dict:
+    """The keywords of `statistics.exact_objectives` for the 18 exact objectives of
+    `exact_optimum_shift`: theta moved by +/- SHIFT_STEP along each scaled variable, the loss
+    the fit minimises when robust."""
+    scale = variable_scale(problem.moments.frame.radius)
+    steps = [sign * SHIFT_STEP * e for e in np.eye(9) for sign in (1.0, -1.0)]
+    robust = problem.loss.robust and problem.loss.scale is not None
+    return {
+        "thetas": [theta + scale * x for x in steps],
+        "loss": problem.loss if robust else None,
+        "centre": problem.centre,
+    }
 
 
 def _standard_errors(errors: dict) -> np.ndarray:
@@ -591,9 +646,11 @@ def warnings_for(
     errors,
     identifiability: Identifiability,
     final: TableRow,
+    scores: ScoreSums,
     unit: str = "nT",
 ) -> list:
-    """What the data cannot tell, in words (and the exact-optimum check, into identifiability)."""
+    """What the data cannot tell, in words (and the exact-optimum check, into identifiability);
+    `scores` : those at theta (`settle`)."""
     warnings = []
     reference = problem.moments.reference
     if identifiability.not_identifiable:
@@ -626,7 +683,7 @@ def warnings_for(
     inexact = (final.series_rel_error or 0.0) > SERIES_CHECK
     robust = problem.loss.robust  # reweighting may stop before the weights settle
     if inexact or robust:
-        shift = exact_optimum_shift(problem, theta, hs, errors)
+        shift = exact_optimum_shift(problem, theta, hs, errors, scores)
         identifiability.exact_optimum_shift_in_standard_errors = shift
         if shift is None or shift > SHIFT_WARN:
             where = (

@@ -103,7 +103,7 @@ IRLS_XTOL = 1e-6
 MAX_REWEIGHTS = 100
 
 
-def run_joint(problem, start=None, start_name: str = "given"):
+def run_joint(problem, start=None, start_name: str = "given", defer: bool = False):
     """Solve all nine at once; with a robust loss, reweight and re-solve from the least-squares
     solution until the weights no longer move the parameters (iteratively reweighted least
     squares, each solve warm-started), for at most MAX_REWEIGHTS reweightings: a reweighting
@@ -113,6 +113,8 @@ def run_joint(problem, start=None, start_name: str = "given"):
         (`algebraic_start`), else the sphere fit (`joint_start`), projected onto the model's
         parameters (`nlpcal.nlp.blocks.Variables.project`).
     start_name : what a given `start` is, for the report ("sphere" for `joint_start`).
+    defer : the joint row's statistics are left to the pass after the solve
+        (`Problem.deferred_row`).
 
     Returns (step, rows, report): the `nlpcal.nlp.steps.Step` of the last solve, the measured
     and the joint Table 1 rows, and the `SolverReport` of every solve (where the first started,
@@ -146,7 +148,7 @@ def run_joint(problem, start=None, start_name: str = "given"):
         start=kind,
     )
     rows.append(
-        problem.row(
+        (problem.deferred_row if defer else problem.row)(
             "joint",
             step.theta,
             step.f_end,

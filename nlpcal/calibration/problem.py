@@ -29,7 +29,16 @@ from ..nlp.solver import IpoptOptions
 from ..passes import reduce
 from ..results import TableRow
 from ..robust import MAD_SAMPLES, Loss
-from ..statistics import corrected_magnitude, correction, field_statistics, reference_chunk
+from ..statistics import (
+    MagnitudeStats,
+    StatisticsBlock,
+    corrected_magnitude,
+    correction,
+    field_statistics,
+    reference_chunk,
+    statistics_block,
+    statistics_result,
+)
 from .result import Reference
 
 #: A loss scale estimated from the residuals is re-estimated at every reweighting until it
@@ -71,6 +80,9 @@ class Problem:
     frozen: bool = False  # the weights stay as they are (a comparison of solvers on them)
     ipopt: IpoptOptions = OPTIONS
     model: str = "full"
+    #: Table 1 rows whose statistics the pass after the solve gathers: (row, theta, series,
+    #: the `nlpcal.statistics.StatisticsBlock` of the loss and weights of their time).
+    deferred: list = field(default_factory=list)
 
     def __post_init__(self):
         self.scale_given = self.loss.scale is not None
@@ -83,25 +95,67 @@ class Problem:
         """Table 1 statistics of |B1| at theta, with the loss's sums when it is robust and its
         residuals are defined: a scale, and a reference or the centre of a first reweighting
         (a scale given by the user is known before the first cycle, the centre is not)."""
+        loss = self.row_loss()
+        centre = self.centre if loss is not None else None
+        return field_statistics(self.samples, theta, self.reference, loss=loss, centre=centre)
+
+    def row_loss(self) -> Loss | None:
+        """The loss whose sums a Table 1 row gathers now (`statistics`), or None."""
         centred = self.reference is not None or self.centre is not None
-        if not (self.loss.robust and self.loss.scale is not None and centred):
-            return field_statistics(self.samples, theta, self.reference)
-        return field_statistics(
-            self.samples, theta, self.reference, loss=self.loss, centre=self.centre
-        )
+        robust = self.loss.robust and self.loss.scale is not None and centred
+        return self.loss if robust else None
+
+    def row_work(self, theta) -> StatisticsBlock:
+        """The work of a Table 1 row at theta in the pass after the solve: `statistics` and,
+        after a reweighting, the sums of the exact objective its weights expand
+        (`_weighted_objective`)."""
+        loss = self.row_loss()
+        weights = None
+        if loss is not None and self.weighted_at is not None:
+            weights = self.weight_function(self.weighted_at, self.loss.weight)
+        centre = self.centre if loss is not None else None
+        return statistics_block(self.samples, theta, loss=loss, centre=centre, weights=weights)
 
     def row(self, label, theta, series: float | None = None, *, iterations, wall_s) -> TableRow:
         """A Table 1 row of |B1| for `theta`, with the relative gap between the moment objective
-        (`series`, evaluated here when not given) and the exact per-sample one."""
-        stats = self.statistics(theta)
-        row = TableRow(label, **stats)
-        if series is None or self.loss.robust:
-            (series,) = evaluate(value_function, self.moments, theta)
-        exact = stats["objective"] if not self.loss.robust else self._weighted_objective(theta)
-        row.series_rel_error = abs(series - exact) / exact if exact > 0 else 0.0
+        (`series`, evaluated here when not given) and the exact per-sample one (one pass)."""
+        row = TableRow(label)
         row.parameters = Zhou2010Parameters.from_theta(theta).to_dict()
         row.iterations, row.wall_s = int(iterations), float(wall_s)
+        self.fill_row(row, theta, series, self.statistics(theta))
         return row
+
+    def deferred_row(
+        self, label, theta, series: float | None = None, *, iterations, wall_s
+    ) -> TableRow:
+        """`row`, its statistics gathered by the pass after the solve (`deferred`) with the
+        loss, centre and weights of now (`row_work`): for rows no step of the solve reads."""
+        row = TableRow(label)
+        row.parameters = Zhou2010Parameters.from_theta(theta).to_dict()
+        row.iterations, row.wall_s = int(iterations), float(wall_s)
+        self.deferred.append((row, np.array(theta, dtype=float), series, self.row_work(theta)))
+        return row
+
+    def fill_deferred(self, entry: tuple, stats: MagnitudeStats, sums: np.ndarray) -> None:
+        """Set the statistics of a `deferred` row from the sums of the pass after the solve."""
+        row, theta, series, work = entry
+        result = statistics_result(stats, sums, work.loss)
+        exact = result["objective"]
+        if work.weights is not None:
+            exact = work.weighted_objective(sums, self.reference is not None)
+        self.fill_row(row, theta, series, result, exact)
+
+    def fill_row(self, row: TableRow, theta, series, stats: dict, exact=None) -> None:
+        """Set a row's statistics of |B1| at theta (`statistics`) and the relative gap between
+        the moment objective `series` (evaluated here when None) and the `exact` one (the
+        objective the moments expand: `_weighted_objective` after a reweighting, evaluated here
+        when None). [field unit^2]"""
+        row.update(stats)
+        if series is None or self.loss.robust:
+            (series,) = evaluate(value_function, self.moments, theta)
+        if exact is None:
+            exact = stats["objective"] if not self.loss.robust else self._weighted_objective(theta)
+        row.series_rel_error = abs(series - exact) / exact if exact > 0 else 0.0
 
     def moment_row(self, label, theta, *, iterations, wall_s) -> TableRow | None:
         """A Table 1 row from the moments alone: mean and std of |B1| and the objective, without

@@ -110,7 +110,7 @@ def cycles_to_converge(objectives, rtol: float) -> tuple | None:
     return rate, max(int(np.ceil(needed)), 1)
 
 
-def run_staged(problem, rule: StopRule, progress=None):
+def run_staged(problem, rule: StopRule, progress=None, defer: bool = False):
     """Cycle the three stages until a stop rule holds.
 
     problem : a `nlpcal.calibration.problem.Problem` (samples, moments, reference, loss).
@@ -121,7 +121,11 @@ def run_staged(problem, rule: StopRule, progress=None):
     instead takes the weights far from the optimum, and on a log whose offsets the data determine
     weakly (the RM3100 logs of docs/real-data.md) the cycle then crawls along the valley until
     its cycle limit.
-    progress : None, or called with (cycle, its Table 1 row) after every cycle.
+    progress : None, or called with (cycle, its Table 1 row) after every cycle (a row left to
+        the pass after the solve is shown from the moments where they hold it, else gathered
+        now).
+    defer : the exact rows no stop rule reads are left to the pass after the solve
+        (`Problem.deferred_row`): a least-squares cycle then reads the data in no pass.
     Returns (theta, rows, stages, stop_reason): the last parameters, one Table 1 row per cycle
     (after the measured row), the `BlockSolve` of every stage solve and why the cycle stopped.
     """
@@ -146,10 +150,11 @@ def run_staged(problem, rule: StopRule, progress=None):
         changed = robust_phase and problem.reweight(theta)
         step, iterations = run_cycle(problem, order, theta, cycle, stages)
         theta = step.theta
-        row = cycle_row(problem, rule, cycle, step, iterations, time.perf_counter() - started)
+        wall_s = time.perf_counter() - started
+        row = cycle_row(problem, rule, cycle, step, iterations, wall_s, defer)
         rows.append(row)
         if progress is not None:
-            progress(cycle, row)
+            progress(cycle, shown_row(problem, row, step, iterations, wall_s))
         target = target_met(rule, row)
         if target:
             stop_reason = target
@@ -174,8 +179,8 @@ def run_staged(problem, rule: StopRule, progress=None):
             stages[-1].predicted_cycles = cycle + predicted[1]
             break
     last = rows[-1]
-    if last.from_moments:  # the last cycle's row is always a pass over the data
-        rows[-1] = problem.row(
+    if last.from_moments:  # the last cycle's row is always exact
+        rows[-1] = (problem.deferred_row if defer else problem.row)(
             last.label, theta, step.f_end, iterations=last.iterations, wall_s=last.wall_s
         )
     return theta, rows, stages, stop_reason
@@ -195,18 +200,15 @@ def run_cycle(problem, order: list, theta, cycle: int, stages: list):
 
 
 def cycle_row(
-    problem, rule: StopRule, cycle: int, step, iterations: int, wall_s: float
+    problem, rule: StopRule, cycle: int, step, iterations: int, wall_s: float, defer=False
 ) -> TableRow:
     """The Table 1 row of a cycle: from the moments where `rule` and the problem let it
     (`StopRule.every_row_exact`, `Problem.rows_from_moments`; never the first cycle, nor with a
-    target), else from a pass over the data."""
-    exact = (
-        rule.every_row_exact
-        or cycle == 1
-        or rule.target_range is not None
-        or rule.target_std is not None
-        or not problem.rows_from_moments
-    )
+    target), else exact: from a pass over the data now where a stop rule reads it (every row
+    exact, a target, a robust loss's objective), else with `defer` from the pass after the
+    solve."""
+    targets = rule.target_range is not None or rule.target_std is not None
+    exact = rule.every_row_exact or cycle == 1 or targets or not problem.rows_from_moments
     label = f"cycle {cycle}"
     row = (
         None
@@ -214,7 +216,23 @@ def cycle_row(
         else problem.moment_row(label, step.theta, iterations=iterations, wall_s=wall_s)
     )
     if row is None:
-        row = problem.row(label, step.theta, step.f_end, iterations=iterations, wall_s=wall_s)
+        later = defer and not (rule.every_row_exact or targets or problem.loss.robust)
+        make = problem.deferred_row if later else problem.row
+        row = make(label, step.theta, step.f_end, iterations=iterations, wall_s=wall_s)
+    return row
+
+
+def shown_row(problem, row: TableRow, step, iterations: int, wall_s: float) -> TableRow:
+    """What the progress of a cycle shows of its row: the row; one left to the pass after the
+    solve (no statistics yet) from the moments where they hold it, else gathered now (a pass)
+    and no longer left to that pass."""
+    if row.std is not None:
+        return row
+    shown = problem.moment_row(row.label, step.theta, iterations=iterations, wall_s=wall_s)
+    if shown is not None:
+        return shown
+    problem.deferred = [entry for entry in problem.deferred if entry[0] is not row]
+    problem.fill_row(row, step.theta, step.f_end, problem.statistics(step.theta))
     return row
 
 

@@ -28,7 +28,7 @@ from ..inference import Z_975
 from ..io.lazy import field_samples
 from ..io.logs import settle_unit
 from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
-from ..moments import Moments, accumulate
+from ..moments import Moments, accumulate, sphere_frame
 from ..nlp.blocks import GAUGE
 from ..results import Provenance, TableRow
 from ..robust import TUNING
@@ -40,6 +40,7 @@ from .diagnostics import (
     problem_flatness,
     residual_spread,
     scaled_hessian,
+    settle,
     uncertainty,
     undetermined_message,
     warnings_for,
@@ -47,6 +48,7 @@ from .diagnostics import (
 from .joint import reweighting_limit_warning, run_joint
 from .problem import Problem
 from .result import BlockSolve, CalibrationResult, Identifiability, SolverReport
+from .scores import ScoreSums
 from .settings import CalibrationSettings, QualityGate
 from .staged import StopRule, run_staged
 
@@ -123,17 +125,20 @@ def prepare(samples, settings: CalibrationSettings) -> Prepared:
     samples = validation.samples(samples)
     reference = validation.reference(reference, samples.shape[0])
     samples = units.to_base(samples, unit)  # in base units a memory map stays mapped
-    warnings = []
-    if source == "assumed":
-        samples, unit, warning = settle_unit(samples, unit, source)
+    warnings, frame = [], None
+    if source == "assumed":  # one sphere fit for the unit check and the moments' frame
+        frame = sphere_frame(samples)
+        settled, unit, warning = settle_unit(samples, unit, source, frame)
         warnings = [warning] if warning else []
+        frame = frame if settled is samples else None  # samples taken back to counts: refit
+        samples = settled
         units.check_compatible(unit, reference_unit or unit)
     reference = units.to_base(reference, reference_unit or unit)
     validation.reference_scale(reference, validation.mean_magnitude(samples))
     return Prepared(
         samples=samples,
         reference=reference,
-        moments=accumulate(samples, reference),
+        moments=accumulate(samples, reference, frame=frame),
         unit=units.base_unit(unit),
         unit_source=source,
         warnings=warnings,
@@ -152,12 +157,14 @@ class Solution:
     rows : Table 1 rows, the measured |B_M| first.
     report : what finished each block solve, and why the solve stopped.
     hessian : the Hessian of the objective in the scaled variables (`scaled_hessian`).
+    scores : the scores at theta, gathered by the pass after the solve with its rows.
     """
 
     theta: np.ndarray
     rows: list[TableRow]
     report: SolverReport
     hessian: np.ndarray
+    scores: ScoreSums | None = None
 
 
 def solve(
@@ -166,19 +173,25 @@ def solve(
     """Solve a calibration problem by the staged cycle of Fig. 1 in [1] (`run_staged`, stopped
     by `rule`, `progress` called after each cycle) or jointly (`run_joint`).
 
+    The Table 1 rows no step of the solve reads are gathered after it, with the scores at the
+    solution, in one pass over the data (`settle`).
+
     Raises SolveError, explained in words of the data (`explain_failure`), when a solve fails.
     """
     try:
         if method == "staged":
-            theta, rows, stages, stop_reason = run_staged(problem, rule, progress)
+            theta, rows, stages, stop_reason = run_staged(problem, rule, progress, defer=True)
             report = SolverReport(
                 stages, stop_reason=stop_reason, ipopt_options=problem.ipopt.settings()
             )
-            return Solution(theta, rows, report, scaled_hessian(problem.moments, theta))
-        step, rows, report = run_joint(problem)
+            hessian = scaled_hessian(problem.moments, theta)
+        else:
+            step, rows, report = run_joint(problem, defer=True)
+            theta, hessian = step.theta, scaled_hessian(problem.moments, step.theta, step)
     except SolveError as failure:
+        problem.deferred = []
         raise explain_failure(problem, failure, method, unit) from None
-    return Solution(step.theta, rows, report, scaled_hessian(problem.moments, step.theta, step))
+    return Solution(theta, rows, report, hessian, settle(problem, theta))
 
 
 # --- diagnose --------------------------------------------------------------------------------
@@ -219,12 +232,15 @@ def diagnose(
     reweighting stopped at its limit, and a staged result away from the joint optimum."""
     theta, final = solution.theta, solution.rows[-1]
     objective = final.objective or 0.0  # a solved row has one
+    scores = solution.scores if solution.scores is not None else settle(problem, theta)
     errors, identifiability, covariance = uncertainty(
-        problem, objective, solution.hessian, theta, final.mean
+        problem, objective, solution.hessian, theta, final.mean, scores
     )
     spread = residual_spread(problem, theta)
     judge_attitudes(problem, theta, spread, identifiability)
-    warnings = warnings_for(problem, theta, solution.hessian, errors, identifiability, final, unit)
+    warnings = warnings_for(
+        problem, theta, solution.hessian, errors, identifiability, final, scores, unit
+    )
     diagnosis = Diagnosis(
         errors=errors,
         covariance=covariance,

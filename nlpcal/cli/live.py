@@ -8,7 +8,6 @@ nlpcal live [-|--serial PORT --baud B|--udp HOST:PORT] [--columns X Y Z] [--unit
 
 from __future__ import annotations
 
-from ..results import Provenance
 from .common import FIELD_UNITS, add_command, say, tell_written, warn, warning
 
 FORMATS = ("matlab", "matrix", "ardupilot", "px4", "c-header")  # nlpcal.formats.FORMATS
@@ -119,6 +118,7 @@ def run(args) -> int:
     from ..live import LiveSession, open_source, open_stream, read_head, run, targets_from
     from ..live.parsers import detect_parser
     from ..live.run import json_line
+    from ..results import Provenance
 
     sources = [s for s in (args.source, args.serial, args.udp) if s]
     if len(sources) > 1:

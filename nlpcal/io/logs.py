@@ -23,7 +23,7 @@ import pandas as pd
 from .. import units, validation
 from ..errors import InputError
 from ..geomagnetic import ReferenceModel, parse_times
-from ..moments import sphere_frame
+from ..moments import Frame, sphere_frame
 from .layout import Layout
 from .mapped import csv_to_memmap
 from .observatory import Observatory
@@ -241,16 +241,21 @@ def sensor_unit(
     return unit, "option"
 
 
-def typical_magnitudes(samples) -> list:
+def typical_magnitudes(samples, frame: Frame | None = None) -> list:
     """Two estimates of a sensor's typical magnitude [unit of the samples]: the median |v|, and
     the radius of a sphere fitted to the samples (free of hard-iron offsets when the attitudes
-    vary; meaningless when they do not, hence both)."""
+    vary; meaningless when they do not, hence both).
+
+    frame : `nlpcal.moments.sphere_frame` of these samples, when the caller has fitted it (the
+    same strided subsample, so the same sphere); else it is fitted here.
+    """
     samples = np.asarray(samples[:: max(1, samples.shape[0] // 20000)], dtype=float)
     if samples.shape[0] == 0:
         return []
     median = float(np.median(np.linalg.norm(samples, axis=1)))
-    radius = sphere_frame(samples).radius if samples.shape[0] >= 10 else median
-    return [median, float(radius)]
+    if samples.shape[0] < 10:
+        return [median, median]
+    return [median, float((frame or sphere_frame(samples)).radius)]
 
 
 def reference_unit(column: str, log_unit_: str, notes) -> str:
@@ -604,26 +609,34 @@ def _unix_seconds(column) -> np.ndarray:
 
 
 def unit_check(
-    samples, unit: str, how: str, sensor="magnetometer", flag="--unit", raw_allowed=True
+    samples,
+    unit: str,
+    how: str,
+    sensor="magnetometer",
+    flag="--unit",
+    raw_allowed=True,
+    frame: Frame | None = None,
 ) -> str | None:
-    """`nlpcal.units.unit_warning` for samples in the base unit of `sensor`."""
+    """`nlpcal.units.unit_warning` for samples in the base unit of `sensor` (`frame`: their
+    sphere, when fitted already, `typical_magnitudes`)."""
     if unit == "raw" or samples.shape[0] == 0:
         return None
     factor = units.field_factor(unit) if sensor == "magnetometer" else units.acc_factor(unit)
-    in_unit = [m / factor for m in typical_magnitudes(samples)]
+    in_unit = [m / factor for m in typical_magnitudes(samples, frame)]
     return units.unit_warning(in_unit, unit, how, sensor=sensor, flag=flag, raw_allowed=raw_allowed)
 
 
-def settle_unit(samples, unit: str, how: str) -> tuple:
+def settle_unit(samples, unit: str, how: str, frame: Frame | None = None) -> tuple:
     """(samples, unit, warning or None) after the plausibility check of a field log's unit.
 
     samples : in the base unit of `unit`. [nT or raw]
+    frame : `nlpcal.moments.sphere_frame` of the samples, when the caller has fitted it.
     An assumed unit (`how` "assumed") under which the magnitudes are far from Earth's field is
     not kept: the samples are taken back to the file's numbers and recorded as raw counts, so no
     result made from them claims a field unit. A unit given, fixed by the format or carried by the
     names is kept, with the warning.
     """
-    warning = unit_check(samples, unit, how)
+    warning = unit_check(samples, unit, how, frame=frame)
     if warning is None or how != "assumed":
         return samples, unit, warning
     factor = units.field_factor(unit)

@@ -209,8 +209,20 @@ class Variables:
     def project(self, theta) -> np.ndarray:
         """The nearest theta the model allows: zero along the directions it fixes, tied
         parameters at their mean. [internal units]"""
+        theta = np.asarray(theta, dtype=float)
+        if self.kept is not None:  # the least-squares projection is exactly this selection
+            return np.where(self.kept, theta, 0.0)
         e = self.matrix
-        return e @ np.linalg.lstsq(e, np.asarray(theta, dtype=float), rcond=None)[0]
+        return e @ np.linalg.lstsq(e, theta, rcond=None)[0]
+
+    @cached_property
+    def kept(self) -> np.ndarray | None:
+        """(9,) which parameters the model frees when each direction frees one parameter (no
+        tied ones), else None."""
+        e = self.matrix
+        if not (np.all((e == 0.0) | (e == 1.0)) and np.all(e.sum(axis=0) == 1.0)):
+            return None
+        return _read_only(e.sum(axis=1) > 0)
 
     @cached_property
     def basis(self) -> np.ndarray:

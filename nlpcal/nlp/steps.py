@@ -19,6 +19,7 @@ References
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import lru_cache
 
 import numpy as np
 
@@ -133,7 +134,7 @@ class _Newton:
 
     @classmethod
     def at(cls, moments: mom.Moments, free: Variables, theta_ref, x) -> _Newton:
-        directions = variable_scale(moments.frame.radius)[:, None] * free.matrix  # d theta / dx
+        directions = _directions(moments.frame.radius, free)  # d theta / dx
         theta = _theta(moments, free, theta_ref, x)
         f_value, gradient, hess = evaluate(objective_function, moments, theta)
         g = directions.T @ gradient
@@ -189,7 +190,23 @@ FINISHING_STEP = 1.0
 
 def _theta(moments: mom.Moments, free: Variables, theta_ref, x) -> np.ndarray:
     """theta_ref + var_scale * (E x), x the scaled variables of the block."""
-    return free.theta(theta_ref, x, variable_scale(moments.frame.radius))
+    return free.theta(theta_ref, x, _scale(moments.frame.radius))
+
+
+@lru_cache(maxsize=64)
+def _scale(radius: float) -> np.ndarray:
+    """`variable_scale` of a frame, read-only: the same numbers for every check of a log."""
+    scale = variable_scale(radius)
+    scale.flags.writeable = False
+    return scale
+
+
+@lru_cache(maxsize=256)
+def _directions(radius: float, free: Variables) -> np.ndarray:
+    """d theta / dx of a block's scaled variables (var_scale E), read-only."""
+    directions = variable_scale(radius)[:, None] * free.matrix
+    directions.flags.writeable = False
+    return directions
 
 
 def block_step(
