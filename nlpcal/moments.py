@@ -326,7 +326,8 @@ class MomentBlock:
             measured.add(np.sqrt(np.einsum("ij,ij->i", raw, raw)), ref)
             chunk = variables[:, : stop - start]
             gamma, a, d = chunk[0], chunk[1], chunk[2:]
-            np.divide((raw - self.centre).T, self.length, out=d)
+            np.subtract(raw.T, self.centre[:, None], out=d)
+            d *= 1.0 / self.length
             np.einsum("ij,ij->j", d, d, out=a)
             weight = None
             if self.series:

@@ -523,8 +523,8 @@ def test_a_negative_objective_is_a_failure_not_a_floor(monkeypatch):
     design = np.column_stack([2.0 * unit, np.ones(len(unit))])
     fit, *_ = np.linalg.lstsq(design, np.einsum("ij,ij->i", unit, unit), rcond=None)
     far = Frame(fit[:3] * PAPER_FIELD, float(np.sqrt(fit[3] + fit[:3] @ fit[:3])) * PAPER_FIELD)
-    monkeypatch.setattr("nlpcal.moments.sphere_frame", lambda *args, **kwargs: far)
-    monkeypatch.setattr("nlpcal.calibration.steps.sphere_frame", lambda *args, **kwargs: far)
+    for where in ("nlpcal.moments", "nlpcal.calibration.steps"):
+        monkeypatch.setattr(f"{where}.sphere_frame", lambda *args, **kwargs: far)
     with pytest.raises(SolveError) as info:
         calibrate(samples, method="staged")
     assert info.value.status == "Negative_Objective"
