@@ -28,7 +28,7 @@ from ..nlp.blocks import (
 from ..nlp.solver import IpoptOptions
 from ..passes import reduce
 from ..results import TableRow
-from ..robust import MAD_SAMPLES, Loss
+from ..robust import MAD_SAMPLES, Loss, median
 from ..statistics import (
     MagnitudeStats,
     StatisticsBlock,
@@ -83,6 +83,9 @@ class Problem:
     #: Table 1 rows whose statistics the pass after the solve gathers: (row, theta, series,
     #: the `nlpcal.statistics.StatisticsBlock` of the loss and weights of their time).
     deferred: list = field(default_factory=list)
+    #: The latest `residuals`: (theta, centre, residuals), read-only; the diagnostics of one
+    #: solution read them several times.
+    _latest_residuals: tuple | None = field(default=None, repr=False, compare=False)
 
     def __post_init__(self):
         self.scale_given = self.loss.scale is not None
@@ -204,8 +207,20 @@ class Problem:
     # --- robust losses: iteratively reweighted moments ----------------------------------------
 
     def residuals(self, theta, centre: float | None = None) -> np.ndarray:
-        """Residuals |B1_i| - F_i (or - centre) on an even stride of at most MAD_SAMPLES samples.
+        """Residuals |B1_i| - F_i (or - centre) on an even stride of at most MAD_SAMPLES samples,
+        read-only (the latest are kept: the diagnostics of a solution read them several times).
         [field unit]"""
+        theta = np.asarray(theta, dtype=float)
+        latest = self._latest_residuals
+        if latest is not None and latest[1] == centre and np.array_equal(latest[0], theta):
+            return latest[2]
+        residuals = self._residuals(theta, centre)
+        residuals.flags.writeable = False
+        self._latest_residuals = (theta.copy(), centre, residuals)
+        return residuals
+
+    def _residuals(self, theta, centre: float | None) -> np.ndarray:
+        """`residuals`, computed. [field unit]"""
         step = max(1, self.samples.shape[0] // MAD_SAMPLES)
         strided, rows = self.samples[::step], CHUNK_ROWS  # in chunks: a few buffers of memory
         magnitude = np.concatenate(
@@ -215,7 +230,7 @@ class Problem:
             ]
         )
         if self.reference is None:
-            return magnitude - (np.median(magnitude) if centre is None else centre)
+            return magnitude - (median(magnitude) if centre is None else centre)
         if np.ndim(self.reference) == 0:
             return magnitude - float(self.reference)
         series: Any = self.reference  # an array in memory or LazySamples
@@ -253,7 +268,7 @@ class Problem:
         if self.frozen:
             return False
         if self.centre is None and self.reference is None:
-            self.centre = float(np.median(self.residuals(theta, 0.0)))
+            self.centre = median(self.residuals(theta, 0.0))
         changed = False
         if not self.scale_given:
             previous = self.loss.scale
