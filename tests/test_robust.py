@@ -10,6 +10,7 @@ import nlpcal
 from nlpcal.calibration.coverage import bin_hits, bins_visited
 from nlpcal.cli import main
 from nlpcal.robust import Loss, median, robust_std
+from nlpcal.validation import magnitudes
 from synthetic import (
     PAPER_FIELD,
     PAPER_TRUTH,
@@ -302,3 +303,10 @@ def test_bins_visited_are_those_of_bin_hits():
     tied = np.array([[0.0, 0.0, 0.0], [1.0, 1.0, -1.0]])  # the first equally near all bins
     for vectors in (tied, np.vstack([directions, [[np.nan, 0.0, 0.0]]])):
         assert np.array_equal(bins_visited(vectors), bin_hits(vectors) > 0)
+
+
+def test_magnitudes_are_numpys_norms():
+    """The row norms by column are np.linalg.norm's to the bit (the same sums of squares)."""
+    rng = np.random.default_rng(5)
+    vectors = rng.normal(size=(5000, 3)) * rng.uniform(1e-3, 1e5, size=(5000, 3))
+    assert np.array_equal(magnitudes(vectors), np.linalg.norm(vectors, axis=1))

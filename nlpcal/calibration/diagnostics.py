@@ -159,8 +159,8 @@ def sandwich(problem: Problem, information, objective: float, theta, sums) -> tu
         dependence["degrees_of_freedom"] = {
             name: float(freedom[PARAMETER_NAMES.index(name)]) for name in problem.estimated
         }
-    result = inference.estimate(information, meat=meat, **options)
-    return result, inference.estimate(information, meat=independent, **options), dependence, noise
+    result, alone = inference.estimates(information, [meat, independent], **options)
+    return result, alone, dependence, noise
 
 
 def scaled_to_units(radius: float) -> np.ndarray:
