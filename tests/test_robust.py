@@ -7,7 +7,6 @@ import pandas as pd
 import pytest
 
 import nlpcal
-from nlpcal.calibration.coverage import bin_hits, bins_visited
 from nlpcal.cli import main
 from nlpcal.robust import Loss, median, robust_std
 from nlpcal.validation import magnitudes
@@ -291,18 +290,6 @@ def test_median_is_numpys(n):
     assert median(values) == np.median(values)
     values[n // 2] = np.nan
     assert np.isnan(median(values))
-
-
-def test_bins_visited_are_those_of_bin_hits():
-    """The bins the field visits, found without a row-by-row argmax, are those `bin_hits`
-    counts, also where a vector lies equally near two bins (the zero vector) or is NaN."""
-    rng = np.random.default_rng(3)
-    directions = rng.normal(size=(500, 3)) * [1.0, 1.0, 0.05]  # a band: some bins unvisited
-    assert not np.all(bin_hits(directions) > 0)
-    assert np.array_equal(bins_visited(directions), bin_hits(directions) > 0)
-    tied = np.array([[0.0, 0.0, 0.0], [1.0, 1.0, -1.0]])  # the first equally near all bins
-    for vectors in (tied, np.vstack([directions, [[np.nan, 0.0, 0.0]]])):
-        assert np.array_equal(bins_visited(vectors), bin_hits(vectors) > 0)
 
 
 def test_magnitudes_are_numpys_norms():

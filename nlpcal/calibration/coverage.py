@@ -73,17 +73,6 @@ def bin_hits(vectors) -> np.ndarray:
     return np.bincount(np.argmax(np.asarray(vectors) @ _BIN_DIRECTIONS.T, axis=1), minlength=26)
 
 
-def bins_visited(vectors) -> np.ndarray:
-    """(26,) whether any of the vectors (N, 3) falls in each direction bin: `bin_hits` > 0,
-    without its row-by-row argmax where no vector lies equally near two bins (the bin of
-    each is then the only one reaching its largest projection)."""
-    projections = np.ascontiguousarray((np.asarray(vectors) @ _BIN_DIRECTIONS.T).T)  # (26, N)
-    nearest = projections == projections.max(axis=0, initial=-np.inf)
-    if np.count_nonzero(nearest) != projections.shape[1]:  # a tie, or NaN: as `bin_hits`
-        return bin_hits(vectors) > 0
-    return nearest.any(axis=1)
-
-
 def direction_bins() -> tuple:
     """(names, (26, 3) unit vectors) of the 26 direction bins, in `bin_hits` order. [1]"""
     return list(_BIN_NAMES), _BIN_DIRECTIONS.copy()
@@ -92,7 +81,7 @@ def direction_bins() -> tuple:
 def direction_coverage(samples, theta) -> dict:
     """How many of 26 direction bins the corrected field B1 visits."""
     b1 = correct(subsample(samples), Zhou2010Parameters.from_theta(theta))
-    hits = bins_visited(b1)
+    hits = bin_hits(b1)
     covered = int(np.count_nonzero(hits))
     missing = [_BIN_NAMES[k] for k in range(26) if not hits[k]]
     missing.sort(key=_bin_order)  # +x, -x, +y, -y, +z, -z, then edges and corners

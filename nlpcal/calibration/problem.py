@@ -83,9 +83,6 @@ class Problem:
     #: Table 1 rows whose statistics the pass after the solve gathers: (row, theta, series,
     #: the `nlpcal.statistics.StatisticsBlock` of the loss and weights of their time).
     deferred: list = field(default_factory=list)
-    #: The latest `residuals`: (theta, centre, residuals), read-only; the diagnostics of one
-    #: solution read them several times.
-    _latest_residuals: tuple | None = field(default=None, repr=False, compare=False)
 
     def __post_init__(self):
         self.scale_given = self.loss.scale is not None
@@ -207,20 +204,8 @@ class Problem:
     # --- robust losses: iteratively reweighted moments ----------------------------------------
 
     def residuals(self, theta, centre: float | None = None) -> np.ndarray:
-        """Residuals |B1_i| - F_i (or - centre) on an even stride of at most MAD_SAMPLES samples,
-        read-only (the latest are kept: the diagnostics of a solution read them several times).
+        """Residuals |B1_i| - F_i (or - centre) on an even stride of at most MAD_SAMPLES samples.
         [field unit]"""
-        theta = np.asarray(theta, dtype=float)
-        latest = self._latest_residuals
-        if latest is not None and latest[1] == centre and np.array_equal(latest[0], theta):
-            return latest[2]
-        residuals = self._residuals(theta, centre)
-        residuals.flags.writeable = False
-        self._latest_residuals = (theta.copy(), centre, residuals)
-        return residuals
-
-    def _residuals(self, theta, centre: float | None) -> np.ndarray:
-        """`residuals`, computed. [field unit]"""
         step = max(1, self.samples.shape[0] // MAD_SAMPLES)
         strided, rows = self.samples[::step], CHUNK_ROWS  # in chunks: a few buffers of memory
         magnitude = np.concatenate(
