@@ -401,6 +401,30 @@ def estimate(
     autocorrelation : lag-1 autocorrelation of the residuals, for the widening. [1]
     dof : degrees of freedom left (N - p); none left gives no covariance.
     """
+    (result,) = estimates(
+        information,
+        [meat],
+        residual_variance=residual_variance,
+        scale=scale,
+        basis=basis,
+        autocorrelation=autocorrelation,
+        dof=dof,
+    )
+    return result
+
+
+def estimates(
+    information,
+    meats: list,
+    *,
+    residual_variance: float = 1.0,
+    scale=None,
+    basis=None,
+    autocorrelation: float = 0.0,
+    dof: int = 1,
+) -> list:
+    """`estimate` with each of `meats` (None: s^2 A^-1), from one eigen-decomposition and one
+    inverse of the information. [as `estimate`]"""
     information = np.asarray(information, dtype=float)
     p = information.shape[0]
     d = np.ones(p) if scale is None else np.asarray(scale, dtype=float)
@@ -417,26 +441,40 @@ def estimate(
         return set(np.flatnonzero(np.abs(direction) > INVOLVED).tolist())
 
     weak = sorted(set().union(*(involved(k) for k in weak_directions)))
+    weakest = sorted(involved(0)) if values.size else []
     inflation = standard_error_inflation(autocorrelation)
-    covariance = errors = None
-    if not weak and dof > 0 and np.isfinite(residual_variance):
-        inverse = b @ np.linalg.inv(reduced) @ b.T
-        if meat is None:
-            cov_scaled = inverse * (float(residual_variance) * inflation**2)
-        else:
-            meat_scaled = d[:, None] * np.asarray(meat, dtype=float) * d[None, :]
-            cov_scaled = inverse @ meat_scaled @ inverse * inflation**2
-        covariance = d[:, None] * cov_scaled * d[None, :]
-        errors = np.sqrt(np.clip(np.diag(covariance), 0, None))
-    return Uncertainty(
-        covariance=covariance,
-        standard_errors=errors,
-        eigenvalues=values,
-        weak=weak,
-        weakest=sorted(involved(0)) if values.size else [],
-        autocorrelation=float(autocorrelation),
-        inflation=inflation,
-    )
+    determined = not weak and dof > 0 and np.isfinite(residual_variance)
+    inverse = b @ np.linalg.inv(reduced) @ b.T if determined else None
+    covariances = [
+        _covariance(inverse, meat, d, float(residual_variance), inflation) for meat in meats
+    ]
+    return [
+        Uncertainty(
+            covariance=covariance,
+            standard_errors=errors,
+            eigenvalues=values,
+            weak=list(weak),
+            weakest=list(weakest),
+            autocorrelation=float(autocorrelation),
+            inflation=inflation,
+        )
+        for covariance, errors in covariances
+    ]
+
+
+def _covariance(inverse, meat, d, residual_variance: float, inflation: float) -> tuple:
+    """(covariance, standard errors) in the parameters' units of `estimates`: s^2 A^-1 (`meat`
+    None) or A^-1 B A^-1 from `inverse` = A^-1 in the scaled variables; (None, None) without
+    it."""
+    if inverse is None:
+        return None, None
+    if meat is None:
+        cov_scaled = inverse * (residual_variance * inflation**2)
+    else:
+        meat_scaled = d[:, None] * np.asarray(meat, dtype=float) * d[None, :]
+        cov_scaled = inverse @ meat_scaled @ inverse * inflation**2
+    covariance = d[:, None] * cov_scaled * d[None, :]
+    return covariance, np.sqrt(np.clip(np.diag(covariance), 0, None))
 
 
 def information_from_hessian(hessian, n: int) -> np.ndarray:

@@ -41,7 +41,21 @@ def robust_std(residuals) -> float:
     unit]"""
     r = np.asarray(residuals, dtype=float)
     r = r[:: max(1, r.size // MAD_SAMPLES)]
-    return float(MAD_TO_STD * np.median(np.abs(r - np.median(r))))
+    return float(MAD_TO_STD * median(np.abs(r - median(r))))
+
+
+def median(values) -> float:
+    """The median of a vector, as `np.median` takes it (the mean of the two middle values of
+    an even count; NaN when one is NaN), by one partial sort. [value unit]"""
+    a = np.asarray(values, dtype=float).ravel()
+    n = a.size
+    if n == 0 or np.isnan(a).any():
+        return float(np.median(a))
+    half = n // 2
+    if n % 2:
+        return float(np.partition(a, half)[half])
+    middle = np.partition(a, (half - 1, half))[half - 1 : half + 1]
+    return float(np.mean(middle))
 
 
 @dataclass(frozen=True)

@@ -239,10 +239,18 @@ def _lazy_reference(values, n: int, what: str):
     return values
 
 
+def magnitudes(vectors) -> np.ndarray:
+    """|v| of each row of (N, 3) vectors, as `np.linalg.norm(vectors, axis=1)` sums the squares
+    (x^2 + y^2 first), by column: numpy's reduction over rows of three takes several times as
+    long. [vector unit]"""
+    squares = np.square(np.asarray(vectors, dtype=float))
+    return np.sqrt(squares[:, 0] + squares[:, 1] + squares[:, 2])
+
+
 def mean_magnitude(samples, most: int = 100_000) -> float:
     """The mean |sample| over an even stride of at most `most` samples. [sample unit]"""
     step = max(1, samples.shape[0] // most)
-    return float(np.linalg.norm(samples[::step], axis=1).mean())
+    return float(magnitudes(samples[::step]).mean())
 
 
 def reference_scale(reference, magnitude: float, what: str = "the reference field") -> None:

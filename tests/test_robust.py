@@ -8,7 +8,8 @@ import pytest
 
 import nlpcal
 from nlpcal.cli import main
-from nlpcal.robust import Loss, robust_std
+from nlpcal.robust import Loss, median, robust_std
+from nlpcal.validation import magnitudes
 from synthetic import (
     PAPER_FIELD,
     PAPER_TRUTH,
@@ -279,3 +280,20 @@ def test_a_robust_fit_stopped_early_states_its_distance(spiky, monkeypatch):
     assert true_distance > 0.5  # genuinely off
     assert stated == pytest.approx(true_distance, rel=0.1)
     assert any("exact optimum of the huber loss" in w for w in result.warnings)
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 2000, 2001])
+def test_median_is_numpys(n):
+    """The partial-sort median gives np.median's value to the bit, odd and even counts alike,
+    and NaN where a value is NaN."""
+    values = np.random.default_rng(n).normal(49462.0, 3.0, n)
+    assert median(values) == np.median(values)
+    values[n // 2] = np.nan
+    assert np.isnan(median(values))
+
+
+def test_magnitudes_are_numpys_norms():
+    """The row norms by column are np.linalg.norm's to the bit (the same sums of squares)."""
+    rng = np.random.default_rng(5)
+    vectors = rng.normal(size=(5000, 3)) * rng.uniform(1e-3, 1e5, size=(5000, 3))
+    assert np.array_equal(magnitudes(vectors), np.linalg.norm(vectors, axis=1))

@@ -81,6 +81,7 @@ def uncertainty(
     theta=None,
     centre: float | None = None,
     sums: ScoreSums | None = None,
+    residuals: np.ndarray | None = None,
 ):
     """Standard errors [parameter units], the identifiability block of a result and the
     covariance of the nine parameters in their units (angles in deg), or None.
@@ -96,7 +97,8 @@ def uncertainty(
     loss), widened by Student's t on N - p. Without `theta` (identifiability alone) it is
     s^2 A^-1. `centre` : without a reference, the mean |B1| the least-squares residuals are
     taken from [field unit]; `sums` : the scores at theta when the pass after the solve
-    (`settle`) has gathered them, else a pass of their own.
+    (`settle`) has gathered them, else a pass of their own; `residuals` : those at theta
+    (`Problem.residuals` with the problem's centre), when at hand.
     """
     n = problem.samples.shape[0]
     robust = problem.loss.robust and theta is not None
@@ -128,7 +130,7 @@ def uncertainty(
     block.score_dependence = dependence
     if dependence is not None and errors is not None and not result.weak:
         block.second_order_bias = second_order_bias(
-            problem, theta, robust, (information, noise), to_units, errors
+            problem, theta, robust, (information, noise), to_units, errors, residuals
         )
     return errors, block, covariance
 
@@ -159,8 +161,8 @@ def sandwich(problem: Problem, information, objective: float, theta, sums) -> tu
         dependence["degrees_of_freedom"] = {
             name: float(freedom[PARAMETER_NAMES.index(name)]) for name in problem.estimated
         }
-    result = inference.estimate(information, meat=meat, **options)
-    return result, inference.estimate(information, meat=independent, **options), dependence, noise
+    result, alone = inference.estimates(information, [meat, independent], **options)
+    return result, alone, dependence, noise
 
 
 def scaled_to_units(radius: float) -> np.ndarray:
@@ -227,13 +229,21 @@ def stated_limits(problem: Problem) -> tuple:
 
 
 def second_order_bias(
-    problem: Problem, theta, robust: bool, terms: tuple, to_units: np.ndarray, errors: dict
+    problem: Problem,
+    theta,
+    robust: bool,
+    terms: tuple,
+    to_units: np.ndarray,
+    errors: dict,
+    residuals: np.ndarray | None = None,
 ) -> dict:
     """The "second_order_bias" block: the bias of the estimate in the sensor's white noise
     (`noise_bias` of `terms`, the information and the noise terms of `score_meat`), with the
-    sensor's noise the white part of the residuals' variance less a reference series'.
-    [parameter units]"""
-    white = white_variance(problem.residuals(theta, problem.centre), robust)
+    sensor's noise the white part of the residuals' variance (`residuals` at theta, computed
+    when None) less a reference series'. [parameter units]"""
+    if residuals is None:
+        residuals = problem.residuals(theta, problem.centre)
+    white = white_variance(residuals, robust)
     series = problem.reference_series()
     reference = 0.0 if series is None else white_variance(series, robust)
     variance = max(white - reference, 0.0)  # the sensor's share of the white residuals
@@ -368,9 +378,11 @@ def joint_gap(problem: Problem, theta, errors) -> dict:
     }
 
 
-def residual_spread(problem: Problem, theta) -> dict:
-    """The standard deviation of the residuals and their robust one (1.4826 MAD). [field unit]"""
-    residuals = problem.residuals(theta, problem.centre)
+def residual_spread(problem: Problem, theta, residuals: np.ndarray | None = None) -> dict:
+    """The standard deviation of the residuals at theta (`residuals`, computed when None) and
+    their robust one (1.4826 MAD). [field unit]"""
+    if residuals is None:
+        residuals = problem.residuals(theta, problem.centre)
     return {"residual_std": float(np.std(residuals)), "residual_robust_std": robust_std(residuals)}
 
 

@@ -28,7 +28,7 @@ from ..nlp.blocks import (
 from ..nlp.solver import IpoptOptions
 from ..passes import reduce
 from ..results import TableRow
-from ..robust import MAD_SAMPLES, Loss
+from ..robust import MAD_SAMPLES, Loss, median
 from ..statistics import (
     MagnitudeStats,
     StatisticsBlock,
@@ -215,7 +215,7 @@ class Problem:
             ]
         )
         if self.reference is None:
-            return magnitude - (np.median(magnitude) if centre is None else centre)
+            return magnitude - (median(magnitude) if centre is None else centre)
         if np.ndim(self.reference) == 0:
             return magnitude - float(self.reference)
         series: Any = self.reference  # an array in memory or LazySamples
@@ -253,7 +253,7 @@ class Problem:
         if self.frozen:
             return False
         if self.centre is None and self.reference is None:
-            self.centre = float(np.median(self.residuals(theta, 0.0)))
+            self.centre = median(self.residuals(theta, 0.0))
         changed = False
         if not self.scale_given:
             previous = self.loss.scale

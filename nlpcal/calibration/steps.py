@@ -327,10 +327,12 @@ def diagnose(
     theta, final = solution.theta, solution.rows[-1]
     objective = final.objective or 0.0  # a solved row has one
     scores = solution.scores if solution.scores is not None else settle(problem, theta)
+    residuals = problem.residuals(theta, problem.centre)  # the bias's and the spread's
     errors, identifiability, covariance = uncertainty(
-        problem, objective, solution.hessian, theta, final.mean, scores
+        problem, objective, solution.hessian, theta, final.mean, scores, residuals
     )
-    spread = residual_spread(problem, theta)
+    spread = residual_spread(problem, theta, residuals)
+    del residuals  # a few buffers of memory (`judge_attitudes` takes its own)
     judge_attitudes(problem, theta, spread, identifiability)
     warnings = warnings_for(
         problem, theta, solution.hessian, errors, identifiability, final, scores, unit

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from .. import units, validation
+from .. import robust, units, validation
 from ..errors import InputError
 from ..geomagnetic import ReferenceModel, parse_times
 from ..moments import Frame, sphere_frame
@@ -252,7 +252,7 @@ def typical_magnitudes(samples, frame: Frame | None = None) -> list:
     samples = np.asarray(samples[:: max(1, samples.shape[0] // 20000)], dtype=float)
     if samples.shape[0] == 0:
         return []
-    median = float(np.median(np.linalg.norm(samples, axis=1)))
+    median = robust.median(validation.magnitudes(samples))
     if samples.shape[0] < 10:
         return [median, median]
     return [median, float((frame or sphere_frame(samples)).radius)]

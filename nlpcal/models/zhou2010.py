@@ -35,6 +35,7 @@ References
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from functools import cache
 
 import numpy as np
 
@@ -280,8 +281,14 @@ def model_directions(model: str, scale_known: bool) -> np.ndarray:
 
 def estimated_parameters(model: str, scale_known: bool) -> list:
     """The names of the parameters a form of Eq. 4 estimates (the others are fixed at zero)."""
+    return list(_estimated(model, bool(scale_known)))
+
+
+@cache
+def _estimated(model: str, scale_known: bool) -> tuple:
+    """`estimated_parameters`, found once per form and kind of reference."""
     rows = np.any(model_directions(model, scale_known) != 0.0, axis=1)
-    return [name for name, free in zip(PARAMETER_NAMES, rows) if free]
+    return tuple(name for name, free in zip(PARAMETER_NAMES, rows) if free)
 
 
 def tied_parameters(model: str, scale_known: bool) -> list:
