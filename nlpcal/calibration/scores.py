@@ -119,8 +119,8 @@ def sensitivity_map(theta, radius: float) -> np.ndarray:
 
 
 def block_products(x: np.ndarray, y: np.ndarray, first_row: int, rows: int) -> tuple:
-    """(index of the first block, X_k^T Y_k per block (k, 11, 10)) of the columns of a chunk
-    (x (11, n), y (10, n): one column per sample) that starts at row `first_row` of the log,
+    """(index of the first block, X_k^T Y_k per block (k, w, 10)) of the columns of a chunk
+    (x (w, n), y (10, n): one column per sample) that starts at row `first_row` of the log,
     blocks of `rows` samples counted from the log's first."""
     n = x.shape[1]
     head = min(n, (-first_row) % rows)
@@ -228,11 +228,12 @@ class ScoreTerms:
         if part.rows is not None:
             part.rows[0][begin : begin + n] = x.T
             part.rows[1][begin : begin + n] = f.T
-        else:
-            first, products = block_products(x, y, first_row, self.block_rows)
+            part.totals[:NOISE_WIDTH] += (work[NOISE] @ y.T).ravel()
+        else:  # the noise rows in the same batched product: one call, summed over the blocks
+            first, products = block_products(work, y, first_row, self.block_rows)
             start = first - part.first
-            part.products[start : start + len(products)] += products  # type: ignore[index]
-        part.totals[:NOISE_WIDTH] += (work[NOISE] @ y.T).ravel()
+            part.products[start : start + len(products)] += products[:, 0:11]  # type: ignore[index]
+            part.totals[:NOISE_WIDTH] += products[:, NOISE].sum(axis=0).ravel()
         if self.meat:
             weighted = y * x[PSI]
             part.totals[NOISE_WIDTH:] += (weighted @ weighted.T).ravel()
@@ -338,12 +339,13 @@ class AfterSolve:
         while begin < n:  # chunks aligned to multiples of chunk_rows rows of the log
             stop = min(n, ((start + begin) // self.chunk_rows + 1) * self.chunk_rows - start)
             raw, ref = samples[begin:stop], reference_chunk(reference, begin, stop)
-            shared = None
+            shared = (None, None)  # |B1| at the scores' theta, and |B1| - F with a reference
             if self.scores is not None:
-                shared, _ = self.scores.add(part, space, raw, ref, start + begin, begin)  # type: ignore[arg-type]
+                shared = self.scores.add(part, space, raw, ref, start + begin, begin)  # type: ignore[arg-type]
+                shared = (shared[0], shared[1] if ref is not None else None)
             for k, (row, (total, sums)) in enumerate(zip(self.rows, stats)):
-                at_theta = shared is not None and k < len(self.shared) and self.shared[k]
-                row.add(total, sums, raw, ref, shared if at_theta else None)
+                at_theta = k < len(self.shared) and self.shared[k]
+                row.add(total, sums, raw, ref, *(shared if at_theta else ()))
             if objectives is not None:
                 self.objectives.add(objectives, raw, ref)
             begin = stop
