@@ -58,23 +58,19 @@ F_WIDTH = 9
 PSI_SLOPE, PSI, NOISE = 9, 10, slice(11, 14)
 #: Sums over every sample: (a, b, s) times y. (3, 10)
 NOISE_WIDTH = 30
-#: The indices of ENTRIES, and the symmetric (3, 3) matrices with ones at each of them.
+#: The indices of ENTRIES.
 UPPER = tuple(np.array(index) for index in zip(*ENTRIES))
-SYMMETRIC = np.array(
-    [[[float({r, c} == {j, k}) for c in range(3)] for r in range(3)] for j, k in ENTRIES]
-)
 
 
 def entry_derivatives(theta) -> np.ndarray:
-    """(6, 6): d(M's upper entries, ENTRIES order) / d(s_x, s_y, s_z, alpha, beta, gamma). [1]"""
-    theta = np.asarray(theta, dtype=float)
-    columns = []
-    for k in range(3, 9):
-        step = theta.astype(complex)
-        step[k] += 1j * COMPLEX_STEP
-        matrix = correction_matrix_entries(step[6], step[7], step[8], step[3], step[4], step[5])
-        columns.append([complex(matrix[j][c]).imag / COMPLEX_STEP for j, c in ENTRIES])
-    return np.array(columns).T
+    """(6, 6): d(M's upper entries, ENTRIES order) / d(s_x, s_y, s_z, alpha, beta, gamma). [1]
+
+    One complex step per parameter, the six evaluated together: column k of `steps` is theta
+    with parameter 3 + k moved by i COMPLEX_STEP."""
+    steps = np.repeat(np.asarray(theta, dtype=complex)[:, None], 6, axis=1)
+    steps[3:9][np.diag_indices(6)] += 1j * COMPLEX_STEP
+    matrix = correction_matrix_entries(steps[6], steps[7], steps[8], steps[3], steps[4], steps[5])
+    return np.array([np.imag(matrix[j][c]) / COMPLEX_STEP for j, c in ENTRIES])
 
 
 def sensitivities(raw, theta, derivatives, scale) -> tuple:
@@ -282,19 +278,27 @@ def noise_sums(totals: np.ndarray, matrix: np.ndarray, linear: np.ndarray) -> tu
     C = sum a c c^T / |B1| symmetric, which they determine (`full_outer`)."""
     (a, b), (total_a, total_b), squares = totals[0:2, 0:9], totals[0:2, 9], totals[2, 9]
     gram, frobenius = matrix @ matrix.T, float(np.sum(matrix * matrix))
+    moved = np.empty(9)
+    moved[0:3] = gram @ a[0:3]
     outer = full_outer(a[3:9], matrix)
-    moved = gram @ outer + outer @ matrix.T @ matrix
-    along = np.concatenate([gram @ a[0:3] - b[0:3], moved[UPPER] - b[3:9]]) @ linear
-    traced = (frobenius * a - b) @ linear
+    moved[3:9] = (gram @ outer + outer @ matrix.T @ matrix)[UPPER]
+    along, traced = np.stack([moved - b, frobenius * a - b]) @ linear
     return along, traced, frobenius * total_a - total_b, squares
 
 
 def full_outer(upper: np.ndarray, matrix: np.ndarray) -> np.ndarray:
     """The (3, 3) sum w u c^T over samples (any weights w, u = M c / |B1|) from its entries at
     ENTRIES (6,): it is M C, C = sum w c c^T / |B1| symmetric, whose six entries the six given
-    determine (M upper triangular with a nonzero diagonal)."""
-    system = (matrix @ SYMMETRIC)[(slice(None), *UPPER)].T  # entry e of M S_e'
-    return matrix @ np.tensordot(np.linalg.solve(system, upper), SYMMETRIC, axes=1)
+    determine, by back substitution (M upper triangular with a nonzero diagonal)."""
+    (u00, u01, u02, u11, u12, u22), m = upper.tolist(), matrix.tolist()
+    (m00, m01, m02), (_, m11, m12), (_, _, m22) = m
+    c22 = u22 / m22
+    c12 = (u12 - m12 * c22) / m11
+    c11 = (u11 - m12 * c12) / m11
+    c02 = (u02 - m01 * c12 - m02 * c22) / m00
+    c01 = (u01 - m01 * c11 - m02 * c12) / m00
+    c00 = (u00 - m01 * c01 - m02 * c02) / m00
+    return matrix @ np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]])
 
 
 def block_rows(n: int) -> int:
