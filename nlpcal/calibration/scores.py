@@ -137,8 +137,8 @@ def block_products(x: np.ndarray, y: np.ndarray, first_row: int, rows: int) -> t
 class ScorePart:
     """The score sums of consecutive rows: from block `first` on, X_k^T Y_k per block
     (`products`, (k, 11, 10)) or, for blocks of one sample, x_i and f_i themselves (`rows`,
-    (x (k, 11), f (k, 9))), and the sums over every row (`totals`: the noise sums, then
-    sum psi^2 y y^T when asked)."""
+    (x (11, k), f (9, k)), one column per sample), and the sums over every row (`totals`: the
+    noise sums, then sum psi^2 y y^T when asked)."""
 
     first: int
     products: np.ndarray | None
@@ -149,7 +149,7 @@ class ScorePart:
         """These rows' sums joined with those of the rows right after them."""
         totals = self.totals + later.totals
         if self.rows is not None and later.rows is not None:
-            rows = tuple(np.concatenate([a, b]) for a, b in zip(self.rows, later.rows))
+            rows = tuple(np.concatenate([a, b], axis=1) for a, b in zip(self.rows, later.rows))
             return ScorePart(self.first, None, rows, totals)
         mine, theirs = self.products, later.products
         if mine is None or not len(mine):
@@ -167,8 +167,8 @@ class ScorePart:
         if self.products is not None:
             return self.products
         x, f = self.rows  # type: ignore[misc]
-        y = np.concatenate([f, np.ones((len(f), 1))], axis=1)
-        return x[:, :, None] * y[:, None, :]
+        y = np.concatenate([f, np.ones((1, f.shape[1]))])
+        return x.T[:, :, None] * y.T[:, None, :]
 
 
 @dataclass(frozen=True)
@@ -194,7 +194,7 @@ class ScoreTerms:
         first = first_row // self.block_rows
         width = NOISE_WIDTH + (100 if self.meat else 0)
         if self.block_rows == 1:
-            return ScorePart(first, None, (np.empty((n, 11)), np.empty((n, 9))), np.zeros(width))
+            return ScorePart(first, None, (np.empty((11, n)), np.empty((9, n))), np.zeros(width))
         count = (first_row + n - 1) // self.block_rows - first + 1 if n else 0
         return ScorePart(first, np.zeros((count, 11, 10)), None, np.zeros(width))
 
@@ -222,8 +222,8 @@ class ScoreTerms:
         np.multiply(work[11], work[13], out=work[12])  # b = a s
         x = work[0:11]
         if part.rows is not None:
-            part.rows[0][begin : begin + n] = x.T
-            part.rows[1][begin : begin + n] = f.T
+            part.rows[0][:, begin : begin + n] = x
+            part.rows[1][:, begin : begin + n] = f
             part.totals[:NOISE_WIDTH] += (work[NOISE] @ y.T).ravel()
         else:  # the noise rows in the same batched product: one call, summed over the blocks
             first, products = block_products(work, y, first_row, self.block_rows)
@@ -410,8 +410,8 @@ class ScoreSums:
         bread of the sandwich of an M-estimate. (9, 9)"""
         if self.part.rows is not None:
             x, f = self.part.rows
-            total = x[:, 0:F_WIDTH].T @ f
-            weighted, slopes = x[:, 0:F_WIDTH].sum(axis=0), x[:, PSI_SLOPE].sum()
+            total = x[0:F_WIDTH] @ f.T
+            weighted, slopes = x[0:F_WIDTH].sum(axis=1), x[PSI_SLOPE].sum()
         else:
             products = self.part.products_all().sum(axis=0)
             total, weighted, slopes = products[0:9, 0:9], products[0:9, 9], products[PSI_SLOPE, 9]
@@ -441,9 +441,9 @@ def finished(part: ScorePart, terms: ScoreTerms, n: int, profiled: bool, shift: 
     if part.rows is not None:
         x, f = part.rows
         if shift:
-            x[:, PSI] -= shift * x[:, PSI_SLOPE]
-        scores, psi = x[:, PSI, None] * (f @ linear), x[:, PSI]
-        weighted, slopes = x[:, 0:F_WIDTH], x[:, PSI_SLOPE]
+            x[PSI] -= shift * x[PSI_SLOPE]
+        scores, psi = (linear.T @ (f * x[PSI])).T, x[PSI]
+        weighted, slopes = x[0:F_WIDTH].T, x[PSI_SLOPE]
     else:
         products = part.products_all()
         if shift:
