@@ -348,9 +348,12 @@ class AfterSolve:
                 shared = self.scores.add(part, space, raw, ref, start + begin, begin)  # type: ignore[arg-type]
                 shared = (shared[0], shared[1] if ref is not None else None)
             for k, (row, (total, sums)) in enumerate(zip(self.rows, stats)):
-                at_theta = k < len(self.shared) and self.shared[k]
-                own = (magnitude_of_columns(raw, row.offset, row.matrix),)  # read by no solve
-                row.add(total, sums, raw, ref, *(shared if at_theta else own))
+                if k < len(self.shared) and self.shared[k]:
+                    row.add(total, sums, raw, ref, *shared)
+                else:  # a row no solve reads: |B1| by one matrix product
+                    row.add(
+                        total, sums, raw, ref, magnitude_of_columns(raw, row.offset, row.matrix)
+                    )
             if objectives is not None:
                 self.objectives.add(objectives, raw, ref)
             begin = stop
