@@ -413,3 +413,47 @@ def test_the_noise_terms_of_the_bias_are_the_derivatives_of_the_sensitivities(re
     outer = jacobian[:, :, None] * jacobian[:, None, :]
     np.testing.assert_allclose(informations, outer, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(meat, (r[:, None, None] ** 2 * outer).sum(axis=0), rtol=1e-9)
+
+
+@pytest.mark.parametrize("reference", [None, 50_000.0])
+def test_a_robust_pass_in_blocks_sums_the_scores_of_its_samples(reference, monkeypatch):
+    """Blocks of several samples (one batched product per chunk, the noise rows in it) and a
+    robust loss (psi' in the sums): the block sums of the scores and of the information, the
+    noise terms and the meat against sums over the samples of `sensitivities` by hand."""
+    from nlpcal.calibration import scores
+    from nlpcal.nlp.blocks import variable_scale
+    from nlpcal.robust import Loss
+    from nlpcal.statistics import correction
+
+    rng = np.random.default_rng(10)
+    samples = scenario_log(700, 5.0, rng, uniform_directions(700, rng), 50_000.0)
+    theta = np.array([40.0, -25.0, 10.0, 0.01, -0.02, 0.015, 0.02, -0.01, 0.03])
+    radius, centre, loss = 50_000.0, 49_990.0, Loss("huber", 6.0)
+    monkeypatch.setattr(scores, "MAX_BLOCKS", 90)  # blocks of 8 samples
+    series, informations, rows, bias, meat = scores.score_block_sums(
+        samples, theta, reference, loss, centre, radius, chunk_rows=100
+    )
+    derivatives, scale = scores.entry_derivatives(theta), variable_scale(radius)
+    magnitude, jacobian, g = scores.sensitivities(samples, theta, derivatives, scale)
+    h = 1e-3  # [field unit]
+    ahead = scores.sensitivities(samples + h * g, theta, derivatives, scale)[1]
+    behind = scores.sensitivities(samples - h * g, theta, derivatives, scale)[1]
+    r = magnitude - (centre if reference is None else reference)
+    psi, slope = loss.weight(r) * r, loss.slope(r)
+    assert 0 < slope.sum() < len(r)  # some samples beyond the scale
+    if reference is None:  # the centre profiled out: J - the psi'-weighted mean of J
+        jacobian = jacobian - slope @ jacobian / slope.sum()
+    matrix = correction(theta)[1]
+    squares = np.sum(g * g, axis=1)
+    trace = (np.sum(matrix * matrix) - squares) / magnitude
+    along = slope @ ((ahead - behind) / (2 * h))
+    expected = along + 0.5 * (slope * trace) @ jacobian
+    np.testing.assert_allclose(bias["gradient"], expected, rtol=1e-6, atol=1e-9)
+    assert bias["mean_square_g"] == pytest.approx(np.mean(squares), rel=1e-12)
+    assert rows == 8
+    starts = np.arange(0, len(r), rows)
+    np.testing.assert_allclose(series, np.add.reduceat(psi[:, None] * jacobian, starts), rtol=1e-9)
+    outer = jacobian[:, :, None] * jacobian[:, None, :]
+    shares = np.add.reduceat(slope[:, None, None] * outer, starts)
+    np.testing.assert_allclose(informations, shares, rtol=1e-9, atol=1e-12 * np.abs(shares).max())
+    np.testing.assert_allclose(meat, (psi[:, None, None] ** 2 * outer).sum(axis=0), rtol=1e-9)

@@ -5,24 +5,26 @@ over the data after the solve that also gathers the Table 1 rows (`after_solve`)
 The residual of sample i is r_i = |B1_i| - F_i (a reference) or |B1_i| - c (none: c the mean of
 |B1|, or the robust loss's centre), |B1_i| = |M (B_M,i - Z_p)| (Eq. 4 in [1]). With c_i =
 B_M,i - Z_p and u_i = B1_i / |B1_i|, its sensitivity in the scaled variables y = theta / D of
-the problems (`nlpcal.nlp.blocks.variable_scale`) is linear in f_i = (u_i, u_i c_i^T):
+the problems (`nlpcal.nlp.blocks.variable_scale`) is linear in f_i = (u_i, the entries u_j c_k
+of u_i c_i^T on and above the diagonal, j <= k):
 
     d|B1| / dZ_p = -M^T u,    d|B1| / dM_jk = u_j c_k,    J_i = f_i L,
 
-L (12, 9) fixed by theta (M's six entries follow the scale errors and angles by
+L (9, 9) fixed by theta (M's six entries follow the scale errors and angles by
 `correction_matrix_entries`, their derivatives by a complex step, exact to rounding). Without a
 reference the centre c is estimated with theta; the score of theta with c profiled out is
 psi(r_i) (J_i - Jbar), Jbar the psi'-weighted mean of J (the mean for least squares), so each
 block sum is sum psi J - Jbar sum psi.
 
-Per chunk the work is a few products of whole arrays: the rows x_i = (psi' J_i, psi', psi) and
-y_i = (J_i, 1), and per block of `block_rows` consecutive samples (counted from the log's first
+Per chunk the work is a few products of whole arrays: the rows x_i = (psi' f_i, psi', psi) and
+y_i = (f_i, 1), and per block of `block_rows` consecutive samples (counted from the log's first
 row, so that the sums do not depend on how a pass splits the rows: threads, `--low-memory` or
 Dask) the product X_k^T Y_k (11, 10), one batched matrix product for the blocks of a chunk. It
-holds the block's sums of the scores psi J, of psi, psi' J, psi' and psi' J J^T: the series
-`nlpcal.inference.dependence_meat` turns into the meat of the sandwich covariance. The noise
-terms of the bias and, on request, sum psi(r_i)^2 J_i J_i^T (the meat of independent samples)
-are sums over every sample, products of the chunk's arrays as well.
+holds the block's sums of psi f, psi, psi' f, psi' and psi' f f^T, which L turns into those of
+the scores psi J, psi' J and psi' J J^T after the pass (sums of products are linear in L): the
+series `nlpcal.inference.dependence_meat` turns into the meat of the sandwich covariance. The
+noise terms of the bias (`noise_sums`) and, on request, sum psi(r_i)^2 J_i J_i^T (the meat of
+independent samples) are sums over every sample, products of the chunk's arrays with y as well.
 
 References
 ----------
@@ -40,31 +42,35 @@ from ..inference import MAX_BLOCKS
 from ..models.zhou2010 import correction_matrix_entries
 from ..nlp.blocks import variable_scale
 from ..passes import as_rows, reduce, reference_chunk
-from ..statistics import correction, merge_each
+from ..statistics import correction, magnitude_of_columns, merge_each
 
 #: Complex step for the derivatives of M's entries. [rad or 1]
 COMPLEX_STEP = 1e-30
-#: Rows of the chunks of the pass after the solve (a few arrays of 12 columns: 0.8 MB), rounded
-#: to whole score blocks.
+#: Rows of the chunks of the pass after the solve (a work array of 14 rows: 0.9 MB, within a
+#: core's L2 cache), rounded to whole score blocks.
 SCORE_CHUNK_ROWS = 8192
 #: The upper-triangular entries of M, as (row, column).
 ENTRIES = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
-#: Columns of x_i: psi' J (9), psi', psi; y_i is (J, 1).
-PSI_SLOPE, PSI = 9, 10
-#: Sums over every sample: psi' df along g (12), psi' tr f (12), psi' tr, |g|^2.
-NOISE_WIDTH = 26
+#: Columns of f_i: u (3), then u_j c_k for (j, k) in ENTRIES (6).
+F_WIDTH = 9
+#: Rows of a chunk's work array: x_i = (psi' f (9), psi', psi), then the noise weights
+#: a = psi' / |B1|, b = a s and s = |g|^2; y_i is (f, 1).
+PSI_SLOPE, PSI, NOISE = 9, 10, slice(11, 14)
+#: Sums over every sample: (a, b, s) times y. (3, 10)
+NOISE_WIDTH = 30
+#: The indices of ENTRIES.
+UPPER = tuple(np.array(index) for index in zip(*ENTRIES))
 
 
 def entry_derivatives(theta) -> np.ndarray:
-    """(6, 6): d(M's upper entries, ENTRIES order) / d(s_x, s_y, s_z, alpha, beta, gamma). [1]"""
-    theta = np.asarray(theta, dtype=float)
-    columns = []
-    for k in range(3, 9):
-        step = theta.astype(complex)
-        step[k] += 1j * COMPLEX_STEP
-        matrix = correction_matrix_entries(step[6], step[7], step[8], step[3], step[4], step[5])
-        columns.append([complex(matrix[j][c]).imag / COMPLEX_STEP for j, c in ENTRIES])
-    return np.array(columns).T
+    """(6, 6): d(M's upper entries, ENTRIES order) / d(s_x, s_y, s_z, alpha, beta, gamma). [1]
+
+    One complex step per parameter, the six evaluated together: column k of `steps` is theta
+    with parameter 3 + k moved by i COMPLEX_STEP."""
+    steps = np.repeat(np.asarray(theta, dtype=complex)[:, None], 6, axis=1)
+    steps[3:9][np.diag_indices(6)] += 1j * COMPLEX_STEP
+    matrix = correction_matrix_entries(steps[6], steps[7], steps[8], steps[3], steps[4], steps[5])
+    return np.array([np.imag(matrix[j][c]) / COMPLEX_STEP for j, c in ENTRIES])
 
 
 def sensitivities(raw, theta, derivatives, scale) -> tuple:
@@ -99,19 +105,18 @@ def _merge(earlier: tuple, later: tuple) -> tuple:
 
 
 def sensitivity_map(theta, radius: float) -> np.ndarray:
-    """L (12, 9): J = f L for f = (u, u c^T flattened by rows), in the scaled variables."""
+    """L (9, 9): J = f L for f = (u, u_j c_k for the entries (j, k) of ENTRIES), in the scaled
+    variables."""
     _, matrix = correction(theta)
-    derivatives = entry_derivatives(theta)
-    linear = np.zeros((12, 9))
+    linear = np.zeros((F_WIDTH, 9))
     linear[0:3, 0:3] = -matrix  # d|B1|/dZ = -M^T u, as a row: -u M
-    for e, (j, c) in enumerate(ENTRIES):
-        linear[3 + 3 * j + c, 3:9] = derivatives[e]
+    linear[3:9, 3:9] = entry_derivatives(theta)
     return linear * variable_scale(radius)[None, :]
 
 
 def block_products(x: np.ndarray, y: np.ndarray, first_row: int, rows: int) -> tuple:
-    """(index of the first block, X_k^T Y_k per block (k, 11, 10)) of the columns of a chunk
-    (x (11, n), y (10, n): one column per sample) that starts at row `first_row` of the log,
+    """(index of the first block, X_k^T Y_k per block (k, w, 10)) of the columns of a chunk
+    (x (w, n), y (10, n): one column per sample) that starts at row `first_row` of the log,
     blocks of `rows` samples counted from the log's first."""
     n = x.shape[1]
     head = min(n, (-first_row) % rows)
@@ -131,9 +136,9 @@ def block_products(x: np.ndarray, y: np.ndarray, first_row: int, rows: int) -> t
 @dataclass
 class ScorePart:
     """The score sums of consecutive rows: from block `first` on, X_k^T Y_k per block
-    (`products`, (k, 11, 10)) or, for blocks of one sample, x_i and J_i themselves (`rows`,
-    (x (k, 11), J (k, 9))), and the sums over every row (`totals`: the noise terms, then
-    sum psi^2 y y^T when asked)."""
+    (`products`, (k, 11, 10)) or, for blocks of one sample, x_i and f_i themselves (`rows`,
+    (x (11, k), f (9, k)), one column per sample), and the sums over every row (`totals`: the
+    noise sums, then sum psi^2 y y^T when asked)."""
 
     first: int
     products: np.ndarray | None
@@ -144,7 +149,7 @@ class ScorePart:
         """These rows' sums joined with those of the rows right after them."""
         totals = self.totals + later.totals
         if self.rows is not None and later.rows is not None:
-            rows = tuple(np.concatenate([a, b]) for a, b in zip(self.rows, later.rows))
+            rows = tuple(np.concatenate([a, b], axis=1) for a, b in zip(self.rows, later.rows))
             return ScorePart(self.first, None, rows, totals)
         mine, theirs = self.products, later.products
         if mine is None or not len(mine):
@@ -161,9 +166,9 @@ class ScorePart:
         """X_k^T Y_k per block (k, 11, 10)."""
         if self.products is not None:
             return self.products
-        x, jacobian = self.rows  # type: ignore[misc]
-        y = np.concatenate([jacobian, np.ones((len(jacobian), 1))], axis=1)
-        return x[:, :, None] * y[:, None, :]
+        x, f = self.rows  # type: ignore[misc]
+        y = np.concatenate([f, np.ones((1, f.shape[1]))])
+        return x.T[:, :, None] * y.T[:, None, :]
 
 
 @dataclass(frozen=True)
@@ -189,77 +194,111 @@ class ScoreTerms:
         first = first_row // self.block_rows
         width = NOISE_WIDTH + (100 if self.meat else 0)
         if self.block_rows == 1:
-            return ScorePart(first, None, (np.empty((n, 11)), np.empty((n, 9))), np.zeros(width))
+            return ScorePart(first, None, (np.empty((11, n)), np.empty((9, n))), np.zeros(width))
         count = (first_row + n - 1) // self.block_rows - first + 1 if n else 0
         return ScorePart(first, np.zeros((count, 11, 10)), None, np.zeros(width))
 
-    def add(self, part: ScorePart, raw: np.ndarray, ref, first_row: int, begin: int):
-        """Add a chunk of raw samples (rows begin: of `part`, `first_row` of the log) and its
-        reference to `part`; returns |B1| of the chunk. [field unit]
+    def workspace(self, rows: int) -> tuple:
+        """The arrays of a chunk of at most `rows` samples, one column per sample, reused from
+        chunk to chunk (they stay in the core's cache): the work array (14, rows) whose rows
+        are x, then a, b, s; y (10, rows), the first ten rows of the work array for least
+        squares (psi' = 1); c = B_M - Z_p (3, rows) and g (3, rows)."""
+        work = np.empty((14, rows))
+        y = work[0:10] if self.loss is None else np.empty((10, rows))
+        y[F_WIDTH] = 1.0
+        return work, y, np.empty((3, rows)), np.empty((3, rows))
 
-        One column per sample (c, u: (3, n), f: (12, n), x: (11, n)), so that every operation
-        runs along the samples."""
+    def add(self, part: ScorePart, space: tuple, raw: np.ndarray, ref, first_row: int, begin: int):
+        """Add a chunk of raw samples (rows begin: of `part`, `first_row` of the log) and its
+        reference to `part`, computed in the arrays of `workspace`; returns (|B1|, r) of the
+        chunk. [field unit]"""
         n = raw.shape[0]
-        centred = np.subtract(raw.T, self.offset[:, None], out=np.empty((3, n)))
-        field = self.matrix @ centred
-        magnitude = np.sqrt(np.einsum("in,in->n", field, field))
-        inverse = 1.0 / magnitude
-        f = np.empty((12, n))  # u, then u c^T by rows
-        u = np.multiply(field, inverse, out=f[0:3])
-        np.multiply(u[:, None, :], centred[None, :, :], out=f[3:12].reshape(3, 3, n))
-        x = np.empty((11, n))
-        np.matmul(self.linear.T, f, out=x[0:9])
-        r = x[PSI]
-        r[:] = magnitude - (ref if ref is not None else self.centre)
-        slope = None if self.loss is None else self.loss.slope(r)
-        y = x[0:10]
-        if slope is None:  # least squares: x = (J, 1, r), y = (J, 1)
-            x[PSI_SLOPE] = 1.0
-        else:
-            y = np.concatenate([x[0:9], np.ones((1, n))])
-            x[0:9] *= slope
-            x[PSI_SLOPE], x[PSI] = slope, self.loss.weight(r) * r
+        work, y, centred, g = (array[:, :n] for array in space)
+        f, r = y[0:F_WIDTH], work[PSI]
+        magnitude = self.columns(raw, f, work[NOISE], centred, g)
+        np.subtract(magnitude, ref if ref is not None else self.centre, out=r)  # type: ignore[arg-type]
+        if self.loss is not None:
+            r = self.weigh(work, f, r)
+        np.multiply(work[11], work[13], out=work[12])  # b = a s
+        x = work[0:11]
         if part.rows is not None:
-            part.rows[0][begin : begin + n] = x.T
-            part.rows[1][begin : begin + n] = y[0:9].T
-        else:
-            first, products = block_products(x, y, first_row, self.block_rows)
+            part.rows[0][:, begin : begin + n] = x
+            part.rows[1][:, begin : begin + n] = f
+            part.totals[:NOISE_WIDTH] += (work[NOISE] @ y.T).ravel()
+        else:  # the noise rows in the same batched product: one call, summed over the blocks
+            first, products = block_products(work, y, first_row, self.block_rows)
             start = first - part.first
-            part.products[start : start + len(products)] += products  # type: ignore[index]
-        part.totals[:NOISE_WIDTH] += self.noise_terms(f, inverse, slope)
+            part.products[start : start + len(products)] += products[:, 0:11]  # type: ignore[index]
+            part.totals[:NOISE_WIDTH] += products[:, NOISE].sum(axis=0).ravel()
         if self.meat:
             weighted = y * x[PSI]
             part.totals[NOISE_WIDTH:] += (weighted @ weighted.T).ravel()
+        return magnitude, r
+
+    def columns(self, raw, f, noise, centred, g) -> np.ndarray:
+        """Fill f (9, n) and the noise rows (a, -, s) of a chunk of raw samples (n, 3) as for
+        least squares (a = 1 / |B1|, s = |g|^2, g = M^T u); returns |B1|. [field unit]"""
+        u = f[0:3]
+        np.subtract(raw.T, self.offset[:, None], out=centred)
+        np.matmul(self.matrix, centred, out=u)  # B1 = M c (Eq. 4)
+        magnitude = np.sqrt(np.einsum("in,in->n", u, u))
+        inverse = np.divide(1.0, magnitude, out=noise[0])
+        u *= inverse
+        np.multiply(u[0], centred, out=f[3:6])  # u_j c_k for (j, k) in ENTRIES
+        np.multiply(u[1], centred[1:3], out=f[6:8])
+        np.multiply(u[2], centred[2], out=f[8])
+        np.matmul(self.matrix.T, u, out=g)
+        np.einsum("in,in->n", g, g, out=noise[2])
         return magnitude
 
-    def noise_terms(self, f, inverse, slope) -> np.ndarray:
-        """The sums of the noise terms of the bias (`noise_bias`), weighted by psi' (Stein's
-        lemma: the noise moves psi(r) by psi' times it; 1 for least squares): f's derivative
-        along g = M^T u, df = (du, du c^T + u g^T) with du = (M g - u s) / |B1|, s = |g|^2,
-        and tr(d2|B1|/db2) = (|M|_F^2 - s) / |B1|; then sum s. (NOISE_WIDTH,)
+    def weigh(self, work, f, r) -> np.ndarray:
+        """The rows of x for the robust loss from the residuals r (the row psi of `work`, which
+        this sets): psi' f, psi', psi = w r, and a = psi' / |B1|; returns r. [field unit]"""
+        r = r.copy()
+        slope = self.loss.slope(r)
+        np.multiply(f, slope, out=work[0:F_WIDTH])
+        work[PSI_SLOPE] = slope
+        work[11] *= slope
+        np.multiply(self.loss.weight(r), r, out=work[PSI])
+        return r
 
-        All from the sums of a f and b f, a = psi' / |B1| and b = a s (one matrix product),
-        since u u^T = u c^T M^T / |B1|: sum psi' du = M M^T sum a u - sum b u, sum psi' du c^T
-        = M M^T sum a u c^T - sum b u c^T, sum psi' u g^T = (sum a u c^T) M^T M, and
-        sum psi' tr f = |M|_F^2 sum a f - sum b f."""
-        matrix = self.matrix
-        g = matrix.T @ f[0:3]
-        squares = np.einsum("in,in->n", g, g)
-        weights = np.empty((2, f.shape[1]))
-        if slope is None:
-            weights[0] = inverse
-        else:
-            np.multiply(inverse, slope, out=weights[0])
-        np.multiply(squares, weights[0], out=weights[1])
-        (a, b), (total_a, total_b) = (f @ weights.T).T, weights.sum(axis=1)
-        gram, frobenius = matrix @ matrix.T, float(np.sum(matrix * matrix))
-        a_outer, b_outer = a[3:12].reshape(3, 3), b[3:12].reshape(3, 3)
-        terms = np.empty(NOISE_WIDTH)
-        terms[0:3] = gram @ a[0:3] - b[0:3]
-        terms[3:12] = (gram @ a_outer - b_outer + a_outer @ matrix.T @ matrix).ravel()
-        terms[12:24] = frobenius * a - b
-        terms[24], terms[25] = frobenius * total_a - total_b, squares.sum()
-        return terms
+
+def noise_sums(totals: np.ndarray, matrix: np.ndarray, linear: np.ndarray) -> tuple:
+    """(along, traced, trace, squares) of the noise terms of the bias (`noise_bias`), from the
+    sums over every sample of (a, b, s) times y (`NOISE_WIDTH`), weighted by psi' (Stein's
+    lemma: the noise moves psi(r) by psi' times it; 1 for least squares): `along`, sum psi' J's
+    derivative along g = M^T u (9,); `traced`, sum psi' tr(d2|B1|/db2) J (9,); `trace`,
+    sum psi' tr(d2|B1|/db2); `squares`, sum s, s = |g|^2.
+
+    f's derivative along g is df = (du, du c^T + u g^T), du = (M g - u s) / |B1|, and
+    tr(d2|B1|/db2) = (|M|_F^2 - s) / |B1|. With a = psi' / |B1|, b = a s and u u^T =
+    u c^T M^T / |B1|: sum psi' du = M M^T sum a u - sum b u, sum psi' du c^T = M M^T sum a u c^T
+    - sum b u c^T, sum psi' u g^T = (sum a u c^T) M^T M and sum psi' tr f = |M|_F^2 sum a f -
+    sum b f. Only the upper entries of u c^T are columns of f: sum a u c^T = M C with
+    C = sum a c c^T / |B1| symmetric, which they determine (`full_outer`)."""
+    (a, b), (total_a, total_b), squares = totals[0:2, 0:9], totals[0:2, 9], totals[2, 9]
+    gram, frobenius = matrix @ matrix.T, float(np.sum(matrix * matrix))
+    moved = np.empty(9)
+    moved[0:3] = gram @ a[0:3]
+    outer = full_outer(a[3:9], matrix)
+    moved[3:9] = (gram @ outer + outer @ matrix.T @ matrix)[UPPER]
+    along, traced = np.stack([moved - b, frobenius * a - b]) @ linear
+    return along, traced, frobenius * total_a - total_b, squares
+
+
+def full_outer(upper: np.ndarray, matrix: np.ndarray) -> np.ndarray:
+    """The (3, 3) sum w u c^T over samples (any weights w, u = M c / |B1|) from its entries at
+    ENTRIES (6,): it is M C, C = sum w c c^T / |B1| symmetric, whose six entries the six given
+    determine, by back substitution (M upper triangular with a nonzero diagonal)."""
+    (u00, u01, u02, u11, u12, u22), m = upper.tolist(), matrix.tolist()
+    (m00, m01, m02), (_, m11, m12), (_, _, m22) = m
+    c22 = u22 / m22
+    c12 = (u12 - m12 * c22) / m11
+    c11 = (u11 - m12 * c12) / m11
+    c02 = (u02 - m01 * c12 - m02 * c22) / m00
+    c01 = (u01 - m01 * c11 - m02 * c12) / m00
+    c00 = (u00 - m01 * c01 - m02 * c02) / m00
+    return matrix @ np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]])
 
 
 def block_rows(n: int) -> int:
@@ -295,18 +334,26 @@ class AfterSolve:
         samples = np.asarray(samples, dtype=float)
         n = samples.shape[0]
         stats = [row.start() for row in self.rows]
-        part = None if self.scores is None else self.scores.empty(start, n)
+        part = space = None
+        if self.scores is not None:
+            part = self.scores.empty(start, n)
+            space = self.scores.workspace(min(n, self.chunk_rows))
         objectives = None if self.objectives is None else self.objectives.start()
         begin = 0
         while begin < n:  # chunks aligned to multiples of chunk_rows rows of the log
             stop = min(n, ((start + begin) // self.chunk_rows + 1) * self.chunk_rows - start)
             raw, ref = samples[begin:stop], reference_chunk(reference, begin, stop)
-            shared = None
+            shared = (None, None)  # |B1| at the scores' theta, and |B1| - F with a reference
             if self.scores is not None:
-                shared = self.scores.add(part, raw, ref, start + begin, begin)  # type: ignore[arg-type]
+                shared = self.scores.add(part, space, raw, ref, start + begin, begin)  # type: ignore[arg-type]
+                shared = (shared[0], shared[1] if ref is not None else None)
             for k, (row, (total, sums)) in enumerate(zip(self.rows, stats)):
-                at_theta = shared is not None and k < len(self.shared) and self.shared[k]
-                row.add(total, sums, raw, ref, shared if at_theta else None)
+                if k < len(self.shared) and self.shared[k]:
+                    row.add(total, sums, raw, ref, *shared)
+                else:  # a row no solve reads: |B1| by one matrix product
+                    row.add(
+                        total, sums, raw, ref, magnitude_of_columns(raw, row.offset, row.matrix)
+                    )
             if objectives is not None:
                 self.objectives.add(objectives, raw, ref)
             begin = stop
@@ -348,10 +395,12 @@ class ScoreSums:
     jackknife needs them, independent scores do not); `block_rows`; `bias` the noise terms of
     `nlpcal.calibration.diagnostics.noise_bias` ("gradient", E[sum psi(r_i) J_i] / sigma^2 =
     sum psi'(r_i) (dJ_i/db g_i + tr(d2|B1_i|/db2) J_i / 2), and "mean_square_g", the mean of
-    |g|^2); `meat` (9, 9) sum psi(r_i)^2 J_i J_i^T over the samples or None (not asked)."""
+    |g|^2); `meat` (9, 9) sum psi(r_i)^2 J_i J_i^T over the samples or None (not asked).
+    The `part`'s sums are of f_i, J_i = f_i L (`linear`, `sensitivity_map`)."""
 
     series: np.ndarray
     part: ScorePart
+    linear: np.ndarray
     mean: np.ndarray | None  # Jbar, when profiled
     block_rows: int
     bias: dict
@@ -363,12 +412,13 @@ class ScoreSums:
         """A = sum psi'(r_i) J_i J_i^T over the samples (profiled without a reference): the
         bread of the sandwich of an M-estimate. (9, 9)"""
         if self.part.rows is not None:
-            x, jacobian = self.part.rows
-            total = x[:, 0:9].T @ jacobian
-            weighted, slopes = x[:, 0:9].sum(axis=0), x[:, PSI_SLOPE].sum()
+            x, f = self.part.rows
+            total = x[0:F_WIDTH] @ f.T
+            weighted, slopes = x[0:F_WIDTH].sum(axis=1), x[PSI_SLOPE].sum()
         else:
             products = self.part.products_all().sum(axis=0)
             total, weighted, slopes = products[0:9, 0:9], products[0:9, 9], products[PSI_SLOPE, 9]
+        total, weighted = self.linear.T @ total @ self.linear, weighted @ self.linear
         if self.mean is not None:
             cross = np.outer(weighted, self.mean)
             total = total - cross - cross.T + slopes * np.outer(self.mean, self.mean)
@@ -376,10 +426,10 @@ class ScoreSums:
 
     def informations(self) -> np.ndarray:
         products = self.part.products_all()
-        information = products[:, 0:9, 0:9]
+        information = self.linear.T @ products[:, 0:9, 0:9] @ self.linear
         if self.mean is None:
-            return np.array(information)
-        weighted, slopes = products[:, 0:9, 9], products[:, PSI_SLOPE, 9]
+            return information
+        weighted, slopes = products[:, 0:9, 9] @ self.linear, products[:, PSI_SLOPE, 9]
         cross = weighted[:, :, None] * self.mean[None, None, :]
         outer = np.outer(self.mean, self.mean)
         return information - cross - cross.transpose(0, 2, 1) + slopes[:, None, None] * outer
@@ -390,25 +440,29 @@ def finished(part: ScorePart, terms: ScoreTerms, n: int, profiled: bool, shift: 
     reference. shift : for least squares, how far the centre the residuals were taken from lies
     below the one they are to be taken from (the mean of |B1|, known after the pass): psi = r is
     then lower by shift, psi' = 1 unchanged. [field unit]"""
+    linear = terms.linear
     if part.rows is not None:
-        x, jacobian = part.rows
+        x, f = part.rows
         if shift:
-            x[:, PSI] -= shift * x[:, PSI_SLOPE]
-        scores, psi = x[:, PSI, None] * jacobian, x[:, PSI]
-        weighted, slopes = x[:, 0:9], x[:, PSI_SLOPE]
+            x[PSI] -= shift * x[PSI_SLOPE]
+        scores, psi = (linear.T @ (f * x[PSI])).T, x[PSI]
+        weighted, slopes = x[0:F_WIDTH].T, x[PSI_SLOPE]
     else:
         products = part.products_all()
         if shift:
             products[:, PSI] -= shift * products[:, PSI_SLOPE]
-        scores, psi = products[:, PSI, 0:9], products[:, PSI, 9]
-        weighted, slopes = products[:, 0:9, 9], products[:, PSI_SLOPE, 9]
-    totals, linear = part.totals, terms.linear
-    along, traced = totals[0:12] @ linear, totals[12:24] @ linear
-    trace, squares = totals[24], totals[25]
-    meat = totals[NOISE_WIDTH:].reshape(10, 10) if terms.meat else None
+        scores, psi = products[:, PSI, 0:F_WIDTH] @ linear, products[:, PSI, F_WIDTH]
+        weighted, slopes = products[:, 0:F_WIDTH, F_WIDTH], products[:, PSI_SLOPE, F_WIDTH]
+    noise = part.totals[:NOISE_WIDTH].reshape(3, 10)
+    along, traced, trace, squares = noise_sums(noise, terms.matrix, linear)
+    meat = None
+    if terms.meat:  # sum psi^2 y y^T, y = (J, 1)
+        widened = np.eye(10)
+        widened[0:9, 0:9] = linear
+        meat = widened.T @ part.totals[NOISE_WIDTH:].reshape(10, 10) @ widened
     mean = None
     if profiled:  # the centre profiled out: J_i - Jbar, Jbar the psi'-weighted mean
-        mean = weighted.sum(axis=0) / slopes.sum()
+        mean = weighted.sum(axis=0) @ linear / slopes.sum()
         scores = scores - np.outer(psi, mean)
         traced = traced - mean * trace
         if meat is not None:
@@ -418,7 +472,7 @@ def finished(part: ScorePart, terms: ScoreTerms, n: int, profiled: bool, shift: 
     elif meat is not None:
         meat = meat[0:9, 0:9]
     bias = {"gradient": along + 0.5 * traced, "mean_square_g": squares / n}
-    return ScoreSums(scores, part, mean, terms.block_rows, bias, meat)
+    return ScoreSums(scores, part, linear, mean, terms.block_rows, bias, meat)
 
 
 def score_block_sums(
