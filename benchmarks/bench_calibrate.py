@@ -15,14 +15,16 @@ in one process and on the same array:
 
 and prints medians over the repeats (the warm ones with their spread, min-max), their ratios to
 the Gram pass, IPOPT iterations and the peak memory that tracemalloc sees during one more
-(untimed) call.
+(untimed) call. Each size runs with each kernel of the data pass (`nlpcal.compiled`): numpy,
+and the compiled one where numba is installed (loaded before the timed calls: the load, in a
+new process, is printed on its own).
 
     python benchmarks/bench_calibrate.py [--sizes 1e3 2e3 1e4 1e5 1e6] [--repeats 5]
-        [--warm-repeats 21]
+        [--warm-repeats 21] [--kernels numpy numba]
 
 With --pass-costs it prints instead the data pass's cost per sample for each feature set
-(`pass_costs`): the distinct moments gathered now beside the Gram matrix of features gathered
-before (tests/gram_reference.py), in the same run.
+(`pass_costs`): the distinct moments gathered now, with each kernel, beside the Gram matrix of
+features gathered before (tests/gram_reference.py), in the same run.
 
     python benchmarks/bench_calibrate.py --pass-costs [--sizes 1e6] [--repeats 7]
 """
@@ -30,9 +32,12 @@ before (tests/gram_reference.py), in the same run.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import platform
 import statistics
+import subprocess
+import sys
 import time
 import tracemalloc
 
@@ -40,6 +45,7 @@ import casadi
 import numpy as np
 
 import nlpcal
+from nlpcal import compiled
 from nlpcal.calibration.joint import joint_start
 from nlpcal.models.zhou2010 import correction_matrix_entries
 from nlpcal.moments import accumulate
@@ -53,6 +59,43 @@ def gram_pass(samples):
     x, y, z = samples.T
     features = np.column_stack([x * x, y * y, z * z, x * y, x * z, y * z, x, y, z, np.ones_like(x)])
     return features.T @ features
+
+
+@contextlib.contextmanager
+def kernel(name: str):
+    """The data pass runs the kernel `name` ("numpy" or "numba") inside the block."""
+    before = os.environ.get(compiled.KERNEL_VARIABLE)
+    os.environ[compiled.KERNEL_VARIABLE] = name
+    try:
+        yield
+    finally:
+        if before is None:
+            del os.environ[compiled.KERNEL_VARIABLE]
+        else:
+            os.environ[compiled.KERNEL_VARIABLE] = before
+
+
+def kernels_available() -> list:
+    return ["numpy", "numba"] if compiled.available() else ["numpy"]
+
+
+def kernel_load_s(repeats: int) -> str:
+    """Median (min-max) of the compiled kernel's load in a new process (`compiled.load`):
+    numba's import and the kernel read from numba's cache (compiled there by an untimed first
+    process). [s]"""
+    code = (
+        "import time\n"
+        "started = time.perf_counter()\n"
+        "from nlpcal import compiled\n"
+        "compiled.load()\n"
+        "print(time.perf_counter() - started)\n"
+    )
+    run = [sys.executable, "-c", code]
+    subprocess.run(run, check=True, capture_output=True)
+    times = [float(subprocess.run(run, check=True, capture_output=True, text=True).stdout)]
+    for _ in range(repeats - 1):
+        times.append(float(subprocess.run(run, check=True, capture_output=True, text=True).stdout))
+    return f"{statistics.median(times):.3f} ({min(times):.3f}-{max(times):.3f})"
 
 
 def cold(function):
@@ -163,7 +206,9 @@ def pass_costs(n: int, repeats: int) -> None:
     store = lag.Series(series, times)
 
     def new_moments(reference, is_series):
-        block = MomentBlock(centre, FIELD if not is_series else length, is_series, FIELD)
+        block = MomentBlock(
+            centre, FIELD if not is_series else length, is_series, FIELD, fast=compiled.use(n)
+        )
         return reduce(samples, reference, block, lambda a, b: a, CHUNK_ROWS)
 
     def old_gram(reference, is_series):
@@ -183,7 +228,7 @@ def pass_costs(n: int, repeats: int) -> None:
         return reduce(samples, series, work, np.add, CHUNK_ROWS, indexed=True)
 
     def new_channels():
-        block = aux.ChannelGram(centre, FIELD, cframe, False)
+        block = aux.ChannelGram(centre, FIELD, cframe, False, fast=compiled.use(n))
         return reduce(samples, channels, block, np.add, CHUNK_ROWS)
 
     def old_channels():
@@ -221,48 +266,46 @@ def pass_costs(n: int, repeats: int) -> None:
             [lambda: old_gram(FIELD, False), old_channels],
         ),
     }
-    calls = {"gram10": [lambda: gram_pass(samples)]}
+    kernels = kernels_available()
+    calls = {("gram10", "numpy"): [lambda: gram_pass(samples)]}
     for name, (_, _, new, old) in sets.items():
-        calls[name + " new"], calls[name + " old"] = new, old
+        calls[name + " old", "numpy"] = old
+        for kind in kernels:
+            calls[name + " new", kind] = new
     times_ns: dict = {key: [] for key in calls}
-    for passes in calls.values():  # warm: plans and caches built
-        for call in passes:
-            call()
-    for _ in range(repeats):
-        for key, passes in calls.items():
-            started = time.perf_counter()
+    for (_, kind), passes in calls.items():  # warm: plans, caches and the kernel loaded
+        with kernel(kind):
             for call in passes:
                 call()
-            times_ns[key].append((time.perf_counter() - started) / n * 1e9)
+    for _ in range(repeats):
+        for key, passes in calls.items():
+            with kernel(key[1]):
+                started = time.perf_counter()
+                for call in passes:
+                    call()
+                times_ns[key].append((time.perf_counter() - started) / n * 1e9)
 
     def cell(values):
         return f"{statistics.median(values):.1f} ({min(values):.1f}-{max(values):.1f})"
 
     print(f"# machine: {machine()}")
     print(f"# N = {n:.0e}, {repeats} repeats: medians (min-max) [ns per sample]")
-    print(f"# one numpy 10-feature Gram pass (gram_pass): {cell(times_ns['gram10'])}")
-    header = (
-        "feature set",
-        "distinct moments",
-        "features (Gram)",
-        "moments ns/sample",
-        "Gram ns/sample",
-        "moments/Gram",
-        "moments/gram10",
-    )
+    print(f"# one numpy 10-feature Gram pass (gram_pass): {cell(times_ns['gram10', 'numpy'])}")
+    header = ["feature set", "distinct moments", "features (Gram)", "old Gram ns/sample"]
+    for kind in kernels:
+        header += [f"moments {kind} ns/sample", f"{kind}/Gram", f"{kind}/gram10"]
     print(" | ".join(header))
-    gram10 = statistics.median(times_ns["gram10"])
+    gram10 = statistics.median(times_ns["gram10", "numpy"])
     for name, (distinct, features, _, _) in sets.items():
-        new, old = times_ns[name + " new"], times_ns[name + " old"]
-        row = (
-            name,
-            str(distinct),
-            str(features),
-            cell(new),
-            cell(old),
-            f"{statistics.median(new) / statistics.median(old):.2f}",
-            f"{statistics.median(new) / gram10:.2f}",
-        )
+        old = times_ns[name + " old", "numpy"]
+        row = [name, str(distinct), str(features), cell(old)]
+        for kind in kernels:
+            new = times_ns[name + " new", kind]
+            row += [
+                cell(new),
+                f"{statistics.median(new) / statistics.median(old):.2f}",
+                f"{statistics.median(new) / gram10:.2f}",
+            ]
         print(" | ".join(row), flush=True)
 
 
@@ -273,16 +316,23 @@ def main(argv=None):
     parser.add_argument("--warm-repeats", type=int, default=21, help="repeats of a warm call")
     parser.add_argument("--no-scipy", action="store_true", help="skip the scipy baseline")
     parser.add_argument("--pass-costs", action="store_true", help="the pass per feature set")
+    parser.add_argument(
+        "--kernels", nargs="+", choices=["numpy", "numba"], help="default: both where numba is"
+    )
     args = parser.parse_args(argv)
     if args.pass_costs:
         return pass_costs(int(max(args.sizes)), args.repeats)
+    kernels = args.kernels or kernels_available()
     print(f"# machine: {machine()}")
     print(
         f"# medians over {args.repeats} repeats ({args.warm_repeats} warm, with their min-max); "
         f"ratios to the Gram pass on the same array"
     )
+    if "numba" in kernels:
+        print(f"# compiled kernel's load in a new process [s]: {kernel_load_s(args.repeats)}")
     header = (
         "N",
+        "kernel",
         "gram_s",
         "joint_s",
         "joint/gram",
@@ -305,32 +355,42 @@ def main(argv=None):
         n = int(size)
         samples = simulate(n, noise=1.0, seed=1).to_numpy()
         gram_s, _ = timed(gram_pass, samples, args.repeats)
-        joint_s, joint_result = timed(lambda x: cold(lambda: joint(x)), samples, args.repeats)
-        staged_s, staged_result = timed(lambda x: cold(lambda: staged(x)), samples, args.repeats)
-        joint_warm = warm(joint, samples, args.warm_repeats, gram_s)
-        staged_warm = warm(staged_default, samples, args.warm_repeats, gram_s)
-        if args.no_scipy:
-            scipy_s = float("nan")
-        else:
-            scipy_s, _ = timed(scipy_least_squares, samples, max(1, min(args.repeats, 3)))
-        row = (
-            f"{n:.0e}",
-            f"{gram_s:.6f}",
-            f"{joint_s:.4f}",
-            f"{joint_s / gram_s:.1f}",
-            f"{staged_s:.4f}",
-            f"{staged_s / gram_s:.1f}",
-            *joint_warm,
-            *staged_warm,
-            f"{scipy_s:.3f}",
-            f"{scipy_s / gram_s:.1f}",
-            str(joint_result.solver.iterations),
-            str(staged_result.solver.iterations),
-            f"{peak_mib(joint, samples):.1f}",
-            f"{peak_mib(staged, samples):.1f}",
-            f"{samples.nbytes / 2**20:.1f}",
-        )
-        print(" | ".join(row), flush=True)
+        for kind in kernels:
+            with kernel(kind):
+                if kind == "numba":
+                    compiled.load()  # before the timed calls
+                measure(samples, n, kind, gram_s, args)
+
+
+def measure(samples, n: int, kind: str, gram_s: float, args) -> None:
+    """One row of the table: N samples with the kernel `kind`."""
+    joint_s, joint_result = timed(lambda x: cold(lambda: joint(x)), samples, args.repeats)
+    staged_s, staged_result = timed(lambda x: cold(lambda: staged(x)), samples, args.repeats)
+    joint_warm = warm(joint, samples, args.warm_repeats, gram_s)
+    staged_warm = warm(staged_default, samples, args.warm_repeats, gram_s)
+    if args.no_scipy:
+        scipy_s = float("nan")
+    else:
+        scipy_s, _ = timed(scipy_least_squares, samples, max(1, min(args.repeats, 3)))
+    row = (
+        f"{n:.0e}",
+        kind,
+        f"{gram_s:.6f}",
+        f"{joint_s:.4f}",
+        f"{joint_s / gram_s:.1f}",
+        f"{staged_s:.4f}",
+        f"{staged_s / gram_s:.1f}",
+        *joint_warm,
+        *staged_warm,
+        f"{scipy_s:.3f}",
+        f"{scipy_s / gram_s:.1f}",
+        str(joint_result.solver.iterations),
+        str(staged_result.solver.iterations),
+        f"{peak_mib(joint, samples):.1f}",
+        f"{peak_mib(staged, samples):.1f}",
+        f"{samples.nbytes / 2**20:.1f}",
+    )
+    print(" | ".join(row), flush=True)
 
 
 if __name__ == "__main__":

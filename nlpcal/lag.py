@@ -69,7 +69,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import inference, passes, validation
+from . import compiled, inference, passes, validation
 from .errors import InputError, SolveError
 from .models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters, correct, model_directions
 from .moments import CHUNK_ROWS, VARIABLES, Layout, Moments, accumulate, feature_exponents
@@ -343,6 +343,7 @@ class LagBlock:
     length: float
     lay: Layout
     chunk_rows: int = CHUNK_ROWS
+    fast: bool = False  # the compiled kernel sums the moments (`nlpcal.compiled.use`)
 
     def __call__(self, samples, reference, start: int) -> LagSums:
         samples = np.asarray(samples, dtype=float)
@@ -364,7 +365,7 @@ class LagBlock:
             a *= gamma
             a -= 1.0
             np.divide(D[begin:end], ref, out=x)  # x_i = D_i / R_i
-            moments.add(sums, chunk, 1.0 / gamma)  # w_i = R_i^2 / L^2
+            moments.add(sums, chunk, 1.0 / gamma, self.fast)  # w_i = R_i^2 / L^2
         values = moments.values(sums)
         return LagSums(
             values[g_index],
@@ -430,7 +431,8 @@ def lag_moments(samples, reference, times, moments: Moments, noise=None) -> LagM
     noise : the noise variance that multiplies q in the derivative [unit^2]; None: the
     reference's, from its third differences (white noise on the rows)."""
     samples, ref, series = _pass_inputs(samples, reference, times)
-    work = LagBlock(series, moments.frame.centre, moments.length, moments.layout)
+    fast = compiled.use(moments.n)
+    work = LagBlock(series, moments.frame.centre, moments.length, moments.layout, fast=fast)
     sums = passes.reduce(samples, ref, work, _add, CHUNK_ROWS, indexed=True)
     n = moments.n
     if noise is None:

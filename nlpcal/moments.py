@@ -81,6 +81,7 @@ from functools import cache
 
 import numpy as np
 
+from . import compiled
 from .errors import InputError
 from .monomials import MomentSet, moment_set, monomials
 from .monomials import parents as _parents
@@ -300,6 +301,7 @@ class MomentBlock:
     series : whether the reference is a series (gamma varies). shift : the shift of the
     `MagnitudeStats` sums. [field unit]
     weight : None, or a function (raw chunk, its reference) -> the chunk's weights. [1]
+    fast : whether the compiled kernel sums the moments (`nlpcal.compiled.use`).
     """
 
     centre: np.ndarray
@@ -308,6 +310,7 @@ class MomentBlock:
     shift: float
     chunk_rows: int = CHUNK_ROWS
     weight: Callable | None = None
+    fast: bool = False
 
     def __call__(self, samples, reference) -> tuple:
         """(moment sums, measured, weight total) of the rows `samples` and their `reference`
@@ -340,7 +343,7 @@ class MomentBlock:
                 omega = np.asarray(self.weight(raw, ref), dtype=float)
                 total += float(omega.sum())
                 weight = omega if weight is None else weight * omega
-            moments.add(sums, chunk, weight)
+            moments.add(sums, chunk, weight, self.fast)
         return moments.values(sums), measured, total
 
 
@@ -487,7 +490,8 @@ def accumulate(
         length = length or float(np.sqrt(mean_square(reference)))
     first = samples[: min(1024, n)]
     shift = float(np.sqrt(np.einsum("ij,ij->i", first, first)).mean())
-    work = MomentBlock(frame.centre, length, kind == "series", shift, chunk_rows, weight)
+    fast = compiled.use(n)
+    work = MomentBlock(frame.centre, length, kind == "series", shift, chunk_rows, weight, fast)
     sums, measured, total = reduce(samples, reference, work, merge_moments, chunk_rows)
     n = measured.n  # the rows read: a Dask log's first pass may find fewer than declared
     if weight is not None and not total > 0:

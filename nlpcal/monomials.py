@@ -31,10 +31,12 @@ matrix that multiplies the vector of moments; a Gram matrix is a selection of en
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cache
+from functools import cache, cached_property
 from itertools import combinations_with_replacement
 
 import numpy as np
+
+from . import compiled
 
 #: Samples per step of `MomentSet.add` at most, and the values (rows of monomials times
 #: samples) a step holds at most: 2.3 MB, so that they stay in a core's L2 cache between their
@@ -143,25 +145,31 @@ class MomentSet:
         flat = [where[tuple(k)] for k in rows.reshape(-1, rows.shape[-1]).tolist()]
         return np.reshape(np.array(flat, dtype=np.intp), rows.shape[:-1])
 
-    def empty(self) -> list:
-        """Zero block sums, to be filled by `add` and read by `values`."""
-        return [np.zeros((stop - start, prefix)) for start, stop, prefix in self.blocks]
+    def empty(self) -> np.ndarray:
+        """Zero block sums, to be filled by `add` and read by `values`: the blocks' matrices
+        one after another, each by rows."""
+        return np.zeros(self.products)
 
-    def add(self, sums: list, variables, weight=None) -> None:
-        """Add the moments of a chunk of samples to `sums` (from `empty`), KERNEL_ROWS at a
-        time.
+    def add(self, sums: np.ndarray, variables, weight=None, fast: bool = False) -> None:
+        """Add the moments of a chunk of samples to `sums` (from `empty`): with the compiled
+        kernel when `fast` (`nlpcal.compiled`, its pass's choice by `nlpcal.compiled.use`),
+        else with numpy, KERNEL_ROWS samples at a time.
 
         variables : (n_variables, rows) the variables' values, one row each (features as rows,
             samples as columns). weight : None (w_i = 1) or (rows,) w_i.
         """
+        if fast:
+            compiled.add(sums, variables, weight, self.compiled_plan)
+            return
         rows = variables.shape[1]
         step = max(1, min(rows, KERNEL_ROWS, KERNEL_VALUES // self.rows))
+        totals = self._block_sums(sums)
         left = np.empty((len(self.left_recipe), step))
         right = np.empty((len(self.right_recipe), step))
         for start in range(0, rows, step):
             stop = min(start + step, rows)
             self._step(
-                sums,
+                totals,
                 variables[:, start:stop],
                 None if weight is None else weight[start:stop],
                 left[:, : stop - start],
@@ -189,9 +197,37 @@ class MomentSet:
         for total, (start, stop, prefix) in zip(sums, self.blocks):
             total += left[start:stop] @ right[:prefix].T
 
-    def values(self, sums: list) -> np.ndarray:
+    def _block_sums(self, sums: np.ndarray) -> list:
+        """The blocks' matrices of the flat block sums `sums`, as views."""
+        views, offset = [], 0
+        for start, stop, prefix in self.blocks:
+            size = (stop - start) * prefix
+            views.append(sums[offset : offset + size].reshape(stop - start, prefix))
+            offset += size
+        return views
+
+    @cached_property
+    def compiled_plan(self) -> tuple:
+        """The plan as the arrays of `nlpcal.compiled.add`: left variables, left recipe,
+        left powers, right variables, right recipe, blocks (start, stop, prefix, offset)."""
+        left_powers = np.zeros((len(self.left_recipe), len(self.left_vars)), dtype=np.int64)
+        for row, powers in enumerate(self.left_powers):
+            for variable, power in powers:
+                left_powers[row, variable] = power
+        sizes = [(stop - start) * prefix for start, stop, prefix in self.blocks]
+        offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+        return (
+            np.array(self.left_vars, dtype=np.int64),
+            np.array(self.left_recipe, dtype=np.int64),
+            left_powers,
+            np.array(self.right, dtype=np.int64),
+            np.array(self.right_recipe, dtype=np.int64),
+            np.column_stack([np.array(self.blocks, dtype=np.int64), offsets.astype(np.int64)]),
+        )
+
+    def values(self, sums: np.ndarray) -> np.ndarray:
         """The moments (in the order of `keys`) from the block sums."""
-        return np.concatenate([s.ravel() for s in sums])[self.gather]
+        return sums[self.gather]
 
 
 def moment_set(keys, right=None) -> MomentSet:

@@ -76,7 +76,7 @@ def test_one_name_for_the_field_magnitude():
 def test_version_and_help_import_no_numerical_library(argv):
     """The command line answers --version and --help without importing numpy, pandas or
     CasADi, which take most of a second to import."""
-    heavy = ("numpy", "pandas", "casadi")
+    heavy = ("numpy", "pandas", "casadi", "numba")
     code = (
         "import sys\n"
         "from nlpcal.cli import main\n"

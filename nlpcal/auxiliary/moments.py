@@ -23,6 +23,7 @@ from functools import cache
 
 import numpy as np
 
+from .. import compiled
 from .. import moments as mom
 from ..passes import LazySamples, reduce
 
@@ -121,6 +122,7 @@ class ChannelGram:
     channels: ChannelFrame
     series: bool
     chunk_rows: int = mom.CHUNK_ROWS
+    fast: bool = False  # the compiled kernel sums the moments (`nlpcal.compiled.use`)
 
     def __call__(self, samples, extra) -> np.ndarray:
         """The sums of the distinct moments of the block (`channel_moments`)."""
@@ -148,7 +150,7 @@ class ChannelGram:
                 a *= gamma
                 weight = 1.0 / gamma  # w_i = F_i^2 / L^2
             a -= 1.0
-            moments.add(sums, chunk, weight)
+            moments.add(sums, chunk, weight, self.fast)
         return moments.values(sums)
 
 
@@ -183,9 +185,10 @@ def accumulate_channels(samples, channels, reference, frame: mom.Frame, length: 
     """
     cframe = channel_frame(channels)
     extra = channels if kind != "series" else stacked(channels, reference)
-    work = ChannelGram(frame.centre, length, cframe, kind == "series")
-    sums = reduce(samples, extra, work, np.add, mom.CHUNK_ROWS)
     n = samples.shape[0]
+    fast = compiled.use(n)
+    work = ChannelGram(frame.centre, length, cframe, kind == "series", fast=fast)
+    sums = reduce(samples, extra, work, np.add, mom.CHUNK_ROWS)
     gram = sums[channel_moments(kind == "series", cframe.centre.size)[1]] / n
     return ChannelMoments(gram, frame, length, cframe, kind, n)
 
