@@ -38,7 +38,7 @@ COMPILED_FROM = 5_000_000
 STEP = 1024
 
 _lock = threading.Lock()
-_loaded: list = []  # the kernel, once loaded in this process
+_loaded: list = []  # the kernel (None without numba), once looked for in this process
 
 
 def choice() -> str:
@@ -72,9 +72,13 @@ def use(samples: float) -> bool:
     return samples >= COMPILED_FROM and available()
 
 
-def add(sums: np.ndarray, variables: np.ndarray, weight, plan: tuple) -> None:
+def add(sums: np.ndarray, variables: np.ndarray, weight, plan: tuple) -> bool:
     """Add the moments of a chunk to the flat block sums `sums` (`MomentSet.add`'s contract),
-    with `plan` the arrays of `MomentSet.compiled_plan`."""
+    with `plan` the arrays of `MomentSet.compiled_plan`; False, with nothing added, where numba
+    cannot be imported (a Dask worker without the `fast` extra: the numpy kernel then runs)."""
+    kernel = _kernel()
+    if kernel is None:
+        return False
     # C-contiguous writeable float arrays only, so that numba compiles one specialisation (a
     # copy is made of a chunk's columns cut from a longer buffer, or of a scalar weight)
     rows = variables.shape[1]
@@ -84,7 +88,8 @@ def add(sums: np.ndarray, variables: np.ndarray, weight, plan: tuple) -> None:
         w = np.full(rows, float(weight))
     else:
         w = np.ascontiguousarray(weight, dtype=float)
-    _kernel()(sums, np.ascontiguousarray(variables, dtype=float), w, *plan, STEP)
+    kernel(sums, np.ascontiguousarray(variables, dtype=float), w, *plan, STEP)
+    return True
 
 
 def load() -> None:
@@ -101,15 +106,19 @@ def load() -> None:
         np.array([[-1, -1], [0, 0]], dtype=integer),
         np.array([[0, 1, 2, 0]], dtype=integer),
     )
-    add(np.zeros(2), np.ones((2, 3)), None, plan)
+    if not add(np.zeros(2), np.ones((2, 3)), None, plan):
+        raise InputError("numba is not installed (pip install 'nlpcal[fast]')")
 
 
 def _kernel():
-    """The compiled `nlpcal._moment_kernel.add`, imported (and numba with it) at first use."""
+    """The compiled `nlpcal._moment_kernel.add`, imported (and numba with it) at first use;
+    None where numba cannot be imported."""
     if not _loaded:
         with _lock:
             if not _loaded:
-                from ._moment_kernel import add as kernel
-
+                try:
+                    from ._moment_kernel import add as kernel
+                except ImportError:
+                    kernel = None
                 _loaded.append(kernel)
     return _loaded[0]

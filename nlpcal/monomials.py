@@ -158,8 +158,7 @@ class MomentSet:
         variables : (n_variables, rows) the variables' values, one row each (features as rows,
             samples as columns). weight : None (w_i = 1) or (rows,) w_i.
         """
-        if fast:
-            compiled.add(sums, variables, weight, self.compiled_plan)
+        if fast and compiled.add(sums, variables, weight, self.compiled_plan):
             return
         rows = variables.shape[1]
         step = max(1, min(rows, KERNEL_ROWS, KERNEL_VALUES // self.rows))

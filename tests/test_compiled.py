@@ -162,3 +162,17 @@ def test_dask_worker_processes_run_the_compiled_kernel_to_the_same_result(monkey
     assert all(loaded.values()) and len(loaded) == 2  # each worker ran it
     for name, value in memory.parameters.items():
         assert abs(lazy.parameters[name] - value) <= 1e-3 * memory.standard_errors[name], name
+
+
+def test_a_pass_told_to_run_the_compiled_kernel_without_numba_runs_numpy(monkeypatch):
+    # a Dask worker without the fast extra, under a driver that has it
+    moments = gram_moments(False)
+    variables = np.random.default_rng(3).normal(0.0, 0.5, (5, 500))
+    expected = moments.empty()
+    moments.add(expected, variables)
+    monkeypatch.setattr(compiled, "_loaded", [None])  # numba could not be imported
+    found = moments.empty()
+    moments.add(found, variables, fast=True)
+    np.testing.assert_array_equal(found, expected)
+    with pytest.raises(InputError, match="numba"):
+        compiled.load()
