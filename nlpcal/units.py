@@ -188,11 +188,11 @@ def _plausible(value: float, band, factor: float = 1.0) -> bool:
     return low / factor <= value <= high * factor
 
 
-def readable(value: float) -> str:
-    """A magnitude for a message: three significant digits, thousands grouped."""
+def readable(value: float, figures: int = 3) -> str:
+    """A magnitude for a message: `figures` significant digits, thousands grouped."""
     if value == 0 or not np.isfinite(value):
         return f"{value:g}"
-    digits = 2 - int(np.floor(np.log10(abs(value))))
+    digits = figures - 1 - int(np.floor(np.log10(abs(value))))
     return f"{round(value, digits):,.{max(digits, 0)}f}".replace(",", " ")
 
 

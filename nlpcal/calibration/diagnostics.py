@@ -533,8 +533,10 @@ _KINDS = (
 
 
 def _judged(errors: dict, limits: dict, names, unit: str, share: float) -> str:
-    """ "offsets z_x ± 10.4, z_y ± 9.6 counts (limit 6.28 counts = 1 % of the field); angles ..."
-    : standard errors by kind, each kind's limit stated once."""
+    """ "offsets z_x ± 10, z_y ± 9.6 counts (limit 6.28 counts = 1 % of the field); angles ..."
+    : standard errors by kind, each kind's limit stated once. Two significant digits: a
+    standard error this large is taken where the solve stopped on a flat objective, whose
+    place (and so the error's third digit) the rounding of the moments decides."""
     parts = []
     for kind, members in _KINDS:
         chosen = [n for n in members if n in names]
@@ -545,7 +547,7 @@ def _judged(errors: dict, limits: dict, names, unit: str, share: float) -> str:
             limit = f"limit {units.readable(limits[chosen[0]])}{word} = {share:g} % of the field"
         else:
             limit = f"limit {limits[chosen[0]]:g}{word}"
-        values = ", ".join(f"{n} ± {units.readable(errors[n])}" for n in chosen)
+        values = ", ".join(f"{n} ± {units.readable(errors[n], 2)}" for n in chosen)
         parts.append(f"{kind} {values}{word} ({limit})")
     return "; ".join(parts)
 
