@@ -200,6 +200,10 @@ def bench_big(args) -> None:
     size = sum(p.stat().st_size for p in paths) / 2**30
     print(f"# {n:.0e} samples in {len(paths)} Parquet files, {size:.2f} GiB ({load()})")
     print(f"# data ready in {time.perf_counter() - started:.0f} s", flush=True)
+    from nlpcal import compiled
+
+    kernel = "compiled (numba)" if compiled.use(n) else "numpy"
+    print(f"# moment pass kernel: {kernel} (the first repeat pays each worker's load)")
     baseline = "memory" if n <= IN_MEMORY_MOST else "low-memory"
     routes = ["cluster", "low-memory", *(["memory"] if baseline == "memory" else [])]
     started = time.perf_counter()
