@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import os
 import threading
+from collections.abc import Callable
 
 import numpy as np
 
@@ -110,15 +111,19 @@ def load() -> None:
         raise InputError("numba is not installed (pip install 'nlpcal[fast]')")
 
 
-def _kernel():
+def _kernel() -> Callable | None:
     """The compiled `nlpcal._moment_kernel.add`, imported (and numba with it) at first use;
     None where numba cannot be imported."""
     if not _loaded:
         with _lock:
             if not _loaded:
-                try:
-                    from ._moment_kernel import add as kernel
-                except ImportError:
-                    kernel = None
-                _loaded.append(kernel)
+                _loaded.append(_imported())
     return _loaded[0]
+
+
+def _imported() -> Callable | None:
+    try:
+        from ._moment_kernel import add
+    except ImportError:
+        return None
+    return add
