@@ -2,26 +2,29 @@
 
 The numpy kernel builds the rows of monomials with element-wise products and sums them with
 matrix products (BLAS), a dozen short calls per 4 096 samples; two threads running it side by
-side spend much of their time waiting for each other's Python (the GIL): on 2 cores, 10^6
-samples take 100 ms on two threads against 74 ms on one. The compiled kernel
-(`nlpcal._moment_kernel`) does the same work in one call per chunk that releases the GIL: 32 ms
-on one thread, 17 ms on two (`benchmarks/bench_calibrate.py --pass-costs`).
+side spend much of their time waiting for each other's Python (the GIL). The compiled kernel
+(`nlpcal._moment_kernel`) does the same work in one call per chunk that releases the GIL: the
+moment pass of 10^6 samples with a constant reference takes 26 ms in the pass's two threads
+against 98 ms with the numpy kernel (`benchmarks/bench_calibrate.py --pass-costs`).
 
 It needs numba (the `fast` extra), which costs time to load: importing it and reading the
 compiled kernel from numba's cache take 0.3-0.45 s in a new process (compiling it, the first
 time after an install, 2-3 s). A pass therefore uses it (`use`) when it is long enough to repay
-the load, COMPILED_FROM samples, unless the environment variable NLPCAL_KERNEL says otherwise:
-"numpy" never, "numba" always (for a process that runs many passes: a notebook, a service, a
-batch of logs, where the load is paid once). Both kernels compute the same sums to rounding:
-the compiled one adds the samples of a chunk in another order (~1e-16 of a moment,
+the load, COMPILED_FROM samples, and numba loads, unless the environment variable
+NLPCAL_KERNEL says otherwise: "numpy" never, "numba" always (for a process that runs many
+passes: a notebook, a service, a batch of logs, where the load is paid once), and a refusal
+when it cannot run. A Dask worker where numba does not load runs the numpy kernel. Both
+kernels compute the same sums to rounding: the compiled one adds the samples of a chunk in
+another order (about 1e-16 of the moments in norm, up to 2e-13 of a single small moment;
 `tests/test_compiled.py`).
 """
 
 from __future__ import annotations
 
 import os
-import threading
 from collections.abc import Callable
+from functools import cache
+from typing import NamedTuple
 
 import numpy as np
 
@@ -33,73 +36,70 @@ KERNELS = ("auto", "numpy", "numba")
 #: The samples of one pass from which, in "auto", the compiled kernel is loaded: it saves
 #: 60-110 ns per sample on 2 cores against a load of 0.3-0.45 s. [samples]
 COMPILED_FROM = 5_000_000
-#: Samples per step of the compiled kernel: its rows of monomials (70 for the nine-parameter
-#: objective, 560 kB) stay in a core's L2 cache between their building and their sums; 512
-#: to 2 048 cost the same within 10 % (4 096: +30 %). [samples]
+#: Samples per step of the compiled kernel, and the values (rows of monomials times samples)
+#: a step holds at most: 70 rows of the nine-parameter objective by 1 024 samples, 560 kB,
+#: stay in a core's L2 cache between their building and their sums; 512 to 2 048 samples cost
+#: the same within 10 % (4 096: +30 %). [samples], [1]
 STEP = 1024
+STEP_VALUES = 70 * 1024
 
-_lock = threading.Lock()
-_loaded: list = []  # the kernel (None without numba), once looked for in this process
+
+class KernelPlan(NamedTuple):
+    """A `MomentSet`'s plan as the arrays of the compiled kernel (`_moment_kernel.add`)."""
+
+    left_variables: np.ndarray  # (L,) the row of the variables of each left variable
+    left_recipe: np.ndarray  # (rows, 2) parent row and left variable, (-2, -1): from powers
+    left_powers: np.ndarray  # (rows, L) powers of the left variables of rows built from them
+    right_variables: np.ndarray  # (R,)
+    right_recipe: np.ndarray  # (rows, 2) parent row and right variable
+    blocks: np.ndarray  # (blocks, 4) first row, last row + 1, right prefix, offset in the sums
+
+    @property
+    def step(self) -> int:
+        """Samples per step: STEP, fewer for a plan of more than 70 rows."""
+        rows = self.left_recipe.shape[0] + self.right_recipe.shape[0]
+        return max(128, min(STEP, STEP_VALUES // rows))
 
 
 def choice() -> str:
-    """NLPCAL_KERNEL, checked: one of KERNELS. Raises InputError otherwise, or when it asks
-    for numba and numba is not installed."""
+    """NLPCAL_KERNEL, checked: one of KERNELS. Raises InputError otherwise."""
     kernel = os.environ.get(KERNEL_VARIABLE, "auto").strip().lower() or "auto"
     if kernel not in KERNELS:
         raise InputError(
             f"{KERNEL_VARIABLE}={os.environ[KERNEL_VARIABLE]!r} is not a kernel: use one of "
             + ", ".join(KERNELS)
         )
-    if kernel == "numba" and not available():
-        raise InputError(
-            f"{KERNEL_VARIABLE}=numba, but numba is not installed (pip install 'nlpcal[fast]')"
-        )
     return kernel
 
 
 def available() -> bool:
-    """Whether numba can be imported (without importing it)."""
+    """Whether numba is installed (without importing it)."""
     from importlib.util import find_spec
 
     return find_spec("numba") is not None
 
 
 def use(samples: float) -> bool:
-    """Whether a pass over `samples` samples runs the compiled kernel (see the module)."""
+    """Whether a pass over `samples` samples runs the compiled kernel (see the module): in
+    "auto", from COMPILED_FROM samples where numba loads (imported here); with
+    NLPCAL_KERNEL=numba always, or InputError saying why it cannot."""
     kernel = choice()
-    if kernel != "auto":
-        return kernel == "numba"
-    return samples >= COMPILED_FROM and available()
-
-
-def add(sums: np.ndarray, variables: np.ndarray, weight, plan: tuple) -> bool:
-    """Add the moments of a chunk to the flat block sums `sums` (`MomentSet.add`'s contract),
-    with `plan` the arrays of `MomentSet.compiled_plan`; False, with nothing added, where numba
-    cannot be imported (a Dask worker without the `fast` extra: the numpy kernel then runs)."""
-    kernel = _kernel()
-    if kernel is None:
+    if kernel == "numba":
+        _ready()
+        return True
+    if kernel == "numpy" or samples < COMPILED_FROM or not available():
         return False
-    # C-contiguous writeable float arrays only, so that numba compiles one specialisation (a
-    # copy is made of a chunk's columns cut from a longer buffer, or of a scalar weight)
-    rows = variables.shape[1]
-    if weight is None:
-        w = np.empty(0)
-    elif np.ndim(weight) == 0:
-        w = np.full(rows, float(weight))
-    else:
-        w = np.ascontiguousarray(weight, dtype=float)
-    kernel(sums, np.ascontiguousarray(variables, dtype=float), w, *plan, STEP)
-    return True
+    return _imported()[0] is not None
 
 
 def load() -> None:
     """Import numba and make the compiled kernel ready (read from numba's cache, or compiled
     there the first time), as the first pass that runs it would: for a benchmark, or a process
-    that wants the cost paid before its first log."""
+    that wants the cost paid before its first log. InputError when it cannot run."""
+    _ready()
     # the moments 1 and y of two variables (x, y): one left row (x^0), two right rows (1, y)
     integer = np.int64
-    plan = (
+    plan = KernelPlan(
         np.array([0], dtype=integer),  # the left variable: x
         np.array([[-1, -1]], dtype=integer),
         np.zeros((1, 1), dtype=integer),
@@ -107,23 +107,45 @@ def load() -> None:
         np.array([[-1, -1], [0, 0]], dtype=integer),
         np.array([[0, 1, 2, 0]], dtype=integer),
     )
-    if not add(np.zeros(2), np.ones((2, 3)), None, plan):
-        raise InputError("numba is not installed (pip install 'nlpcal[fast]')")
+    add(np.zeros(2), np.ones((2, 3)), None, plan)
 
 
-def _kernel() -> Callable | None:
-    """The compiled `nlpcal._moment_kernel.add`, imported (and numba with it) at first use;
-    None where numba cannot be imported."""
-    if not _loaded:
-        with _lock:
-            if not _loaded:
-                _loaded.append(_imported())
-    return _loaded[0]
+def add(sums: np.ndarray, variables: np.ndarray, weight, plan: KernelPlan) -> bool:
+    """Add the moments of a chunk to the flat block sums `sums` (`MomentSet.add`'s contract:
+    weight None or (rows,)), with `plan` its `MomentSet.compiled_plan`; False, with nothing
+    added, where the kernel does not load (a Dask worker without numba: numpy then runs)."""
+    kernel = _imported()[0]
+    if kernel is None:
+        return False
+    # C-contiguous float arrays, so that numba compiles one specialisation (a copy is made of a
+    # chunk's columns cut from a longer buffer)
+    w = np.empty(0) if weight is None else np.ascontiguousarray(weight, dtype=float)
+    kernel(sums, np.ascontiguousarray(variables, dtype=float), w, *plan, plan.step)
+    return True
 
 
-def _imported() -> Callable | None:
+def _ready() -> None:
+    """Nothing when the compiled kernel loads; else InputError saying why."""
+    if not available():
+        raise InputError(
+            f"{KERNEL_VARIABLE}=numba, but numba is not installed (pip install 'nlpcal[fast]')"
+        )
+    kernel, why = _imported()
+    if kernel is None:
+        raise InputError(f"{KERNEL_VARIABLE}=numba, but {why}")
+
+
+@cache
+def _imported() -> tuple[Callable | None, str]:
+    """(the compiled `nlpcal._moment_kernel.add`, "") imported, and numba with it, at first
+    use; (None, why) where it cannot be."""
     try:
-        from ._moment_kernel import add
-    except ImportError:
-        return None
-    return add
+        from ._moment_kernel import add as kernel
+    except ImportError as error:
+        return None, f"numba cannot be imported ({error})"
+    except RuntimeError as error:  # numba finds no folder it may write its cache in
+        return None, (
+            f"numba cannot keep the compiled kernel ({error}); set NUMBA_CACHE_DIR to a "
+            "writable folder"
+        )
+    return kernel, ""

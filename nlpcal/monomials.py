@@ -206,16 +206,15 @@ class MomentSet:
         return views
 
     @cached_property
-    def compiled_plan(self) -> tuple:
-        """The plan as the arrays of `nlpcal.compiled.add`: left variables, left recipe,
-        left powers, right variables, right recipe, blocks (start, stop, prefix, offset)."""
+    def compiled_plan(self) -> compiled.KernelPlan:
+        """The plan as the arrays of the compiled kernel (`nlpcal.compiled.add`)."""
         left_powers = np.zeros((len(self.left_recipe), len(self.left_vars)), dtype=np.int64)
         for row, powers in enumerate(self.left_powers):
             for variable, power in powers:
                 left_powers[row, variable] = power
         sizes = [(stop - start) * prefix for start, stop, prefix in self.blocks]
         offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]])
-        return (
+        return compiled.KernelPlan(
             np.array(self.left_vars, dtype=np.int64),
             np.array(self.left_recipe, dtype=np.int64),
             left_powers,

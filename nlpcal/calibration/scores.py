@@ -50,8 +50,9 @@ COMPLEX_STEP = 1e-30
 #: dozen whole-array numpy calls per chunk, each holding the interpreter lock between two
 #: threads, so large chunks (a work array of 14 rows: 3.7 MB) beat chunks within a core's L2
 #: cache. With these and the data pass's 32 768 rows, against 8 192 each, a warm joint fit of
-#: 10^6 samples on 2 cores took 56 ms instead of 75 (compiled kernel), 128 instead of 160
-#: (numpy kernel); 65 536 each saved 3 % more and took the peak memory from 14 to 25 MiB.
+#: 10^6 samples on 2 cores took 56 ms instead of 75 (compiled kernel) and 128 instead of 160
+#: (numpy kernel) in one run; 65 536 each saved 3 % more and took the peak memory from 14 to
+#: 25 MiB.
 SCORE_CHUNK_ROWS = 32768
 #: The upper-triangular entries of M, as (row, column).
 ENTRIES = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))

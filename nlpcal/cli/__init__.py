@@ -120,6 +120,14 @@ def _terminate(signum, frame):
     raise Terminated
 
 
+def _check_environment() -> None:
+    """The environment variables nlpcal reads, checked before a command reads anything: a bad
+    one is exit 2 for every command, not for the first pass over a log."""
+    from ..compiled import choice
+
+    choice()  # NLPCAL_KERNEL
+
+
 def main(argv=None) -> int:
     """Run the command line; returns the exit status instead of exiting."""
     parser = build_parser()
@@ -139,6 +147,7 @@ def main(argv=None) -> int:
     previous = signal.getsignal(signal.SIGTERM)
     in_main_thread = _set_signal(signal.SIGTERM, _terminate)
     try:
+        _check_environment()
         return int(args.func(args) or 0)
     except InputError as exc:
         print(f"nlpcal {args.command}: error: {exc}", file=sys.stderr)
