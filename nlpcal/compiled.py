@@ -36,12 +36,12 @@ KERNELS = ("auto", "numpy", "numba")
 #: The samples of one pass from which, in "auto", the compiled kernel is loaded: it saves
 #: 60-110 ns per sample on 2 cores against a load of 0.3-0.45 s. [samples]
 COMPILED_FROM = 5_000_000
-#: Samples per step of the compiled kernel, and the values (rows of monomials times samples)
-#: a step holds at most: 70 rows of the nine-parameter objective by 1 024 samples, 560 kB,
-#: stay in a core's L2 cache between their building and their sums; 512 to 2 048 samples cost
-#: the same within 10 % (4 096: +30 %). [samples], [1]
+#: Samples per step of the compiled kernel: the 70 rows of monomials of the nine-parameter
+#: objective by 1 024 samples, 560 kB, stay in a core's L2 cache between their building and
+#: their sums; 512 to 2 048 samples cost the same within 10 % (4 096: +30 %). Larger plans keep
+#: the same step: held to 560 kB, the series' 101 rows cost 47 ns per sample against 35-38, the
+#: two channels' 145 against 118 (`bench_calibrate.py --pass-costs`). [samples]
 STEP = 1024
-STEP_VALUES = 70 * 1024
 
 
 class KernelPlan(NamedTuple):
@@ -53,12 +53,6 @@ class KernelPlan(NamedTuple):
     right_variables: np.ndarray  # (R,)
     right_recipe: np.ndarray  # (rows, 2) parent row and right variable
     blocks: np.ndarray  # (blocks, 4) first row, last row + 1, right prefix, offset in the sums
-
-    @property
-    def step(self) -> int:
-        """Samples per step: STEP, fewer for a plan of more than 70 rows."""
-        rows = self.left_recipe.shape[0] + self.right_recipe.shape[0]
-        return max(128, min(STEP, STEP_VALUES // rows))
 
 
 def choice() -> str:
@@ -120,7 +114,7 @@ def add(sums: np.ndarray, variables: np.ndarray, weight, plan: KernelPlan) -> bo
     # C-contiguous float arrays, so that numba compiles one specialisation (a copy is made of a
     # chunk's columns cut from a longer buffer)
     w = np.empty(0) if weight is None else np.ascontiguousarray(weight, dtype=float)
-    kernel(sums, np.ascontiguousarray(variables, dtype=float), w, *plan, plan.step)
+    kernel(sums, np.ascontiguousarray(variables, dtype=float), w, *plan, STEP)
     return True
 
 
