@@ -156,15 +156,6 @@ def shifted_correction(samples, theta) -> tuple:
     return offset, matrix, float(corrected_magnitude(head, offset, matrix).mean())
 
 
-def magnitude_of_columns(chunk, offset, matrix) -> np.ndarray:
-    """|B1| = |M (B_M - Z_p)| (Eq. 4) of a chunk of raw samples (n, 3), by one matrix product on
-    the samples as columns: `corrected_magnitude` to rounding, in fewer operations (the pass
-    after the solve). [field unit]"""
-    centred = np.subtract(chunk.T, offset[:, None], out=np.empty((3, chunk.shape[0])))
-    field = matrix @ centred
-    return np.sqrt(np.einsum("in,in->n", field, field))
-
-
 def corrected_magnitude(chunk, offset, matrix) -> np.ndarray:
     """|B1| = |M (B_M - Z_p)| (Eq. 4) of a chunk of raw samples, M upper triangular. [field unit]"""
     (m00, m01, m02), (_, m11, m12), (_, _, m22) = matrix

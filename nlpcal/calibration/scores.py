@@ -42,7 +42,7 @@ from ..inference import MAX_BLOCKS
 from ..models.zhou2010 import correction_matrix_entries
 from ..nlp.blocks import variable_scale
 from ..passes import as_rows, reduce, reference_chunk
-from ..statistics import correction, magnitude_of_columns, merge_each
+from ..statistics import correction, merge_each
 
 #: Complex step for the derivatives of M's entries. [rad or 1]
 COMPLEX_STEP = 1e-30
@@ -353,12 +353,8 @@ class AfterSolve:
                 shared = self.scores.add(part, space, raw, ref, start + begin, begin)  # type: ignore[arg-type]
                 shared = (shared[0], shared[1] if ref is not None else None)
             for k, (row, (total, sums)) in enumerate(zip(self.rows, stats)):
-                if k < len(self.shared) and self.shared[k]:
-                    row.add(total, sums, raw, ref, *shared)
-                else:  # a row no solve reads: |B1| by one matrix product
-                    row.add(
-                        total, sums, raw, ref, magnitude_of_columns(raw, row.offset, row.matrix)
-                    )
+                at_theta = k < len(self.shared) and self.shared[k]
+                row.add(total, sums, raw, ref, *(shared if at_theta else ()))
             if objectives is not None:
                 self.objectives.add(objectives, raw, ref)
             begin = stop
