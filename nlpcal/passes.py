@@ -239,6 +239,11 @@ class LazySamples:
         self.array = array.rechunk({1: -1}) if array.ndim == 2 else array
         self._survey, self._cache = None, {}
 
+    def reread(self, array) -> None:
+        """Take another Dask array of the same rows (read with fewer checks): the survey and the
+        rows kept stay."""
+        self.array = array.rechunk({1: -1}) if array.ndim == 2 else array
+
     @property
     def shape(self) -> tuple:
         return tuple(int(s) for s in self.array.shape)

@@ -532,3 +532,34 @@ def test_each_block_of_a_parquet_log_is_read_once_per_pass(tmp_path, monkeypatch
     # the first block is read apart for the frame of the first pass and the unit's check
     heads = sum(what == "head" for what, _ in log.samples.timings)
     assert len(reads) == 6 * log.samples.passes + heads and heads <= 2
+
+
+def test_blocks_whose_rows_are_all_readings_are_screened_by_the_first_pass_only(
+    tmp_path, monkeypatch
+):
+    pytest.importorskip("pyarrow")
+    from nlpcal.calibration import calibrate_log
+    from nlpcal.io import lazy as reader
+    from nlpcal.io import read_log
+    from nlpcal.io.rows import RowScreen
+
+    samples, _ = make_log(n=30_000, noise=1.0, seed=5)
+    frame = pd.DataFrame(samples, columns=["bx", "by", "bz"])
+    frame.loc[7_001:7_020, ["bx", "by", "bz"]] = frame.loc[7_000, ["bx", "by", "bz"]].to_numpy()
+    frame.to_parquet(tmp_path / "log.parquet", index=False, row_group_size=5_000)
+    memory = read_log(tmp_path / "log.parquet", reference_field=PAPER_FIELD)
+    expected = calibrate_log(memory, method="staged")
+    screened = []
+    original = RowScreen.keep
+    monkeypatch.setattr(
+        RowScreen, "keep", lambda self, *args: screened.append(1) or original(self, *args)
+    )
+    with dask.config.set(scheduler="sync"):
+        log = reader.read_lazy_log(tmp_path / "log.parquet", reference_field=PAPER_FIELD)
+        result = calibrate_log(log, method="staged")
+    heads = sum(what == "head" for what, _ in log.samples.timings)
+    assert log.samples.passes == 2 and len(screened) == 6 + heads
+    # the 20 repeats (kept: no drop_invalid) are counted once, as in memory
+    assert [n for n in log.notes if "repeat" in n] == [n for n in memory.notes if "repeat" in n]
+    assert "20 of 30000 rows" in " ".join(log.notes)
+    assert_same_optimum(result.parameters, expected.parameters, expected.standard_errors)

@@ -421,3 +421,23 @@ def test_a_bad_value_is_placed_alike_in_memory_and_in_chunks(tmp_path):
     for read in (lambda: read_log(path), lambda: csv_to_memmap(path, chunk_rows=300)):
         with pytest.raises(InputError, match="first at data row 701\\)"):
             read()
+
+
+@pytest.mark.parametrize("drop_repeats", [False, True])
+def test_a_row_screen_says_the_same_chunk_by_chunk_as_over_the_whole(drop_repeats):
+    from nlpcal.io.rows import RowScreen
+
+    field = np.random.default_rng(3).normal(size=(200, 3))
+    field[[5, 6, 77, 140]] = 0.0  # zero vectors, two of them in a row
+    field[20:34] = field[19]  # a run of 15 identical readings across the chunks' boundary
+    field[100:103] = field[99]
+    rows = np.arange(1, 201)
+    whole = RowScreen(drop_repeats)
+    kept = whole.keep(field)  # rows numbered 1 to N
+    chunked = RowScreen(drop_repeats)
+    parts = [chunked.keep(field[k : k + 30], rows[k : k + 30]) for k in range(0, 200, 30)]
+    np.testing.assert_array_equal(np.concatenate(parts), kept)
+    assert whole.notes() == chunked.notes()
+    assert (whole.zeros, whole.zero_rows, whole.repeats) == (4, [6, 7, 78, 141], 17)
+    assert (whole.longest + 1, whole.longest_at) == (15, 20)
+    assert kept.sum() == 200 - 4 - (17 if drop_repeats else 0)

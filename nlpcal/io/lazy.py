@@ -6,8 +6,8 @@ or a byte range of a text file (BLOCK_BYTES, cut at line ends; a compressed file
 UTF-8 or Latin-1, is one block). A block is read in the layout detected for its file, its columns
 chosen, checked and converted to the base unit as `read_log` does (`nlpcal.io.tables`), and its
 rows screened (`nlpcal.io.rows`: zero vectors left out, repeats counted and dropped with
-drop_invalid; a repeat across the boundary of two blocks is not seen). A bad value fails the read
-with its file named.
+drop_invalid; a repeat across the boundary of two blocks is not seen; a block whose rows were all
+readings is not screened again in later passes). A bad value fails the read with its file named.
 
 When the blocks' row counts are known beforehand (Parquet footers), reading is no pass of its
 own: the log is taken to hold the rows its footers declare, and the checks of every block (its
@@ -124,13 +124,16 @@ def _finite_block(table, wanted, factors):
     return out
 
 
-def _block(spec, wanted, factors, drop_invalid: bool) -> tuple:
+def _block(spec, wanted, factors, drop_invalid: bool, clean: bool = False) -> tuple:
     """(values in the base unit, rows read, rows with a missing or non-numeric value, the
-    RowScreen) of one block."""
+    RowScreen or None) of one block; `clean`: an earlier pass found every row of it a reading,
+    so its rows are not screened again."""
     kind, name, where, extra, number = spec
     table = _table_of(spec)
     values = _finite_block(table, wanted, factors)
     rows = table.num_rows if hasattr(table, "num_rows") else len(table)
+    if clean and values is not None:
+        return values, rows, 0, None
     invalid = 0
     if values is None:  # numeric_columns says where a bad value is, or drops its row
         if kind == "parquet":  # rows counted from the file's first, as read_log counts them
@@ -149,7 +152,7 @@ def _block(spec, wanted, factors, drop_invalid: bool) -> tuple:
         )
         values, invalid = numeric.values * factors, numeric.dropped
     screen = RowScreen(drop_repeats=drop_invalid)
-    keep = screen.keep(values[:, :3], np.arange(1, values.shape[0] + 1))
+    keep = screen.keep(values[:, :3])
     if not keep.all():
         values = values[keep]
     return values, rows, invalid, screen
@@ -235,13 +238,17 @@ class Reading:
         """Whether every block declares its rows (Parquet footers)."""
         return all(n is not None for _, n in self.specs)
 
-    def reads(self) -> list:
-        """One Dask object per block: `_block` of it."""
+    def reads(self, checked: list | None = None) -> list:
+        """One Dask object per block: `_block` of it; `checked`, the blocks' `_checks` by an
+        earlier pass: a block whose rows were all kept is not screened again."""
         import dask
 
+        clean = (
+            [c[0] == c[1] and not c[2] for c in checked] if checked else [False] * len(self.specs)
+        )
         return [
-            dask.delayed(_block)(spec, self.wanted, self.factors, self.drop_invalid)
-            for spec, _ in self.specs
+            dask.delayed(_block)(spec, self.wanted, self.factors, self.drop_invalid, ok)
+            for (spec, _), ok in zip(self.specs, clean)
         ]
 
     def table(self, rows: list, reads: list | None = None):
@@ -274,9 +281,9 @@ class Reading:
         keeps (and checks them)."""
         import dask
 
-        checked = dask.compute(*[dask.delayed(_checks)(read) for read in self.reads()])
-        lost, notes = _notes(list(checked), self.drop_invalid)
-        return self.table([c[0] for c in checked]), lost, notes
+        checked = list(dask.compute(*[dask.delayed(_checks)(read) for read in self.reads()]))
+        lost, notes = _notes(checked, self.drop_invalid)
+        return self.table([c[0] for c in checked], self.reads(checked)), lost, notes
 
 
 @dataclass
@@ -293,18 +300,20 @@ class Deferred:
     columns: list = field(default_factory=list)
 
     def settle(self, checked: list) -> bool:
-        lost, notes = _notes(list(checked), self.reading.drop_invalid)
-        for lazy, _ in self.columns:
-            lazy.pending = None
+        checked = list(checked)
+        lost, notes = _notes(checked, self.reading.drop_invalid)
         if self.log is not None:
             self.log.dropped += lost
             self.log.notes.extend(notes)
-        if not lost:
-            return True
-        table = self.reading.table([c[0] for c in checked])
+        # later passes read the blocks without the screen that found all their rows readings
+        table = self.reading.table([c[0] for c in checked], self.reading.reads(checked))
         for lazy, selection in self.columns:
-            lazy.rebuilt(table[:, selection])
-        return False
+            lazy.pending = None
+            if lost:
+                lazy.rebuilt(table[:, selection])
+            else:
+                lazy.reread(table[:, selection])
+        return not lost
 
 
 def read_lazy_log(

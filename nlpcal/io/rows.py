@@ -31,6 +31,12 @@ def _runs(flags: np.ndarray) -> tuple:
     return starts, np.flatnonzero(edges == -1) - starts
 
 
+def _numbers(data_rows: np.ndarray | None, index):
+    """The row numbers of the rows at `index` (an array or one position) of a chunk whose rows
+    are numbered `data_rows` (None: 1 to N)."""
+    return index + 1 if data_rows is None else data_rows[index]
+
+
 def quoted_rows(count: int, rows: list) -> str:
     """Row numbers for a message: "5, 17" of the first QUOTED_ROWS `rows`, with ", ..." when
     `count` rows are meant."""
@@ -57,39 +63,51 @@ class RowScreen:
         self._run_at = 0
         self._previous_row = 0
 
-    def keep(self, field: np.ndarray, data_rows: np.ndarray) -> np.ndarray:
+    def keep(self, field: np.ndarray, data_rows: np.ndarray | None = None) -> np.ndarray:
         """Mask of the rows of `field` (N, 3) to keep; `data_rows` are their 1-based row numbers
-        in the file's data, for messages."""
+        in the file's data, for messages (None: 1 to N)."""
         field = np.asarray(field, dtype=float)
-        self.rows += field.shape[0]
+        n = field.shape[0]
+        self.rows += n
         x, y, z = field[:, 0], field[:, 1], field[:, 2]  # columns: faster than axis=1 reductions
         zero = (x == 0.0) & (y == 0.0) & (z == 0.0)
-        if zero.any():
-            self.zeros += int(zero.sum())
-            room = QUOTED_ROWS - len(self.zero_rows)
-            self.zero_rows.extend(int(r) for r in data_rows[zero][: max(room, 0)])
-        repeat = np.zeros(field.shape[0], dtype=bool)
-        if field.shape[0]:
-            repeat[1:] = (x[1:] == x[:-1]) & (y[1:] == y[:-1]) & (z[1:] == z[:-1])
+        zeros = int(np.count_nonzero(zero))
+        if zeros:
+            self.zeros += zeros
+            room = max(QUOTED_ROWS - len(self.zero_rows), 0)
+            quoted = np.flatnonzero(zero)[:room]
+            self.zero_rows.extend(int(r) for r in _numbers(data_rows, quoted))
+        repeat = np.zeros(n, dtype=bool)
+        if n:
+            np.equal(x[1:], x[:-1], out=repeat[1:])
+            repeat[1:] &= y[1:] == y[:-1]
+            repeat[1:] &= z[1:] == z[:-1]
             if self._previous is not None:
                 repeat[0] = bool(np.all(field[0] == self._previous))
-            repeat &= ~zero
-        self.repeats += int(repeat.sum())
-        self._count_runs(repeat, data_rows)
-        if field.shape[0]:
+            if zeros:
+                repeat &= ~zero
+        repeats = int(np.count_nonzero(repeat))
+        self.repeats += repeats
+        self._count_runs(repeat if repeats else None, n, data_rows)
+        if n:
             self._previous = field[-1].copy()
-        drop = zero | (repeat if self.drop_repeats else False)
-        return ~drop
+        if self.drop_repeats and repeats:
+            return ~(zero | repeat)
+        return ~zero
 
-    def _count_runs(self, repeat: np.ndarray, data_rows: np.ndarray) -> None:
-        """Track the longest run of repeats, across chunks."""
-        if repeat.shape[0] == 0:
+    def _count_runs(self, repeat: np.ndarray | None, n: int, data_rows) -> None:
+        """Track the longest run of repeats, across chunks (`repeat` None: none among these n
+        rows)."""
+        if n == 0:
+            return
+        if repeat is None:
+            self._run, self._previous_row = 0, int(_numbers(data_rows, n - 1))
             return
         starts, lengths = _runs(repeat)
         run = 0
         for start, chunk_length in zip(starts, lengths):
             length = int(chunk_length)
-            at = int(data_rows[start - 1]) if start > 0 else self._previous_row
+            at = int(_numbers(data_rows, start - 1)) if start > 0 else self._previous_row
             if start == 0 and self._run:  # the run goes on from the previous chunk
                 length, at = length + self._run, self._run_at
             if length > self.longest:
@@ -97,8 +115,7 @@ class RowScreen:
             if start + chunk_length == repeat.shape[0]:
                 run, self._run_at = length, at
         self._run = run
-        if data_rows.shape[0]:
-            self._previous_row = int(data_rows[-1])
+        self._previous_row = int(_numbers(data_rows, n - 1))
 
     def notes(self, kept: bool = False) -> list:
         """What was left out or looks wrong, one sentence each; `kept`: the rows that are not
