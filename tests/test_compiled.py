@@ -17,10 +17,12 @@ import pytest
 import nlpcal
 from nlpcal import compiled
 from nlpcal.auxiliary.moments import channel_moments
+from nlpcal.calibration.scores import score_block_sums
 from nlpcal.cli import main
 from nlpcal.errors import InputError
 from nlpcal.lag import lag_moment_set
 from nlpcal.moments import accumulate, gram_moments, layout
+from nlpcal.robust import Loss
 from synthetic import PAPER_FIELD, make_log
 
 #: ||sums_compiled - sums_numpy|| / ||sums_numpy|| allowed: rounding of sums of O(1) terms.
@@ -77,6 +79,26 @@ def test_a_pass_with_the_compiled_kernel_gives_the_gram_of_the_numpy_pass(refere
 
 
 @needs_numba
+@pytest.mark.parametrize("loss", [Loss(), Loss("huber", 30.0)])
+@pytest.mark.parametrize("reference", [None, PAPER_FIELD])
+def test_the_compiled_score_columns_give_the_score_sums_of_numpy(loss, reference, monkeypatch):
+    samples, _ = make_log(n=10_007, noise=2.0, seed=23)
+    theta = np.array([-71.0, 188.0, 116.0, 0.007, -0.002, -0.005, -0.04, 0.02, -0.005])
+    centre = None if reference is not None else 49_460.0  # about the median |B1| at theta
+    found = {}
+    for kernel in ("numpy", "numba"):
+        monkeypatch.setenv(compiled.KERNEL_VARIABLE, kernel)
+        # chunks of 4 000 rows: the last one fills the work arrays in part
+        found[kernel] = score_block_sums(samples, theta, reference, loss, centre, 49_000.0, 4_000)
+    (series, informations, rows, bias, meat), fast = found["numpy"], found["numba"]
+    assert fast[2] == rows
+    for mine, theirs in [(series, fast[0]), (informations, fast[1]), (meat, fast[4])]:
+        assert relative(theirs, mine) <= SUMS_RTOL
+    assert relative(fast[3]["gradient"], bias["gradient"]) <= SUMS_RTOL
+    assert abs(fast[3]["mean_square_g"] / bias["mean_square_g"] - 1.0) <= SUMS_RTOL
+
+
+@needs_numba
 def test_a_calibration_with_the_compiled_kernel_is_the_numpy_one(monkeypatch):
     samples, _ = make_log(n=5000, noise=2.0, seed=17)
     results = {}
@@ -87,6 +109,8 @@ def test_a_calibration_with_the_compiled_kernel_is_the_numpy_one(monkeypatch):
     for name, value in slow.parameters.items():
         # the same optimum: rounding of the moments, far below the Newton steps' resolution
         assert abs(fast.parameters[name] - value) <= 1e-3 * slow.standard_errors[name], name
+        # the same scores to rounding: standard errors equal far below their printed digits
+        assert fast.standard_errors[name] == pytest.approx(slow.standard_errors[name], rel=1e-6)
 
 
 def test_a_pass_uses_the_compiled_kernel_from_its_threshold_unless_told(monkeypatch):
@@ -179,8 +203,10 @@ def test_dask_worker_processes_run_the_compiled_kernel_to_the_same_result(monkey
         lazy = nlpcal.calibrate(
             da.from_array(samples, chunks=(6_000, 3)), method="joint", reference_field=PAPER_FIELD
         )
-        loaded = client.run(lambda: "nlpcal._moment_kernel" in sys.modules)
-    assert all(loaded.values()) and len(loaded) == 2  # each worker ran it
+        loaded = client.run(
+            lambda: {"nlpcal._moment_kernel", "nlpcal._score_kernel"} <= set(sys.modules)
+        )
+    assert all(loaded.values()) and len(loaded) == 2  # each worker ran them
     for name, value in memory.parameters.items():
         assert abs(lazy.parameters[name] - value) <= 1e-3 * memory.standard_errors[name], name
 
@@ -195,3 +221,5 @@ def test_a_pass_told_to_run_the_compiled_kernel_without_numba_runs_numpy(monkeyp
     found = moments.empty()
     moments.add(found, variables, fast=True)
     np.testing.assert_array_equal(found, expected)
+    y, work = np.empty((10, 500)), np.empty((14, 500))
+    assert compiled.score_columns(variables[:3].T, np.zeros(3), np.eye(3), y, work) is None

@@ -39,6 +39,7 @@ LAYERS = {
     "monomials": 1,
     "compiled": 1,
     "_moment_kernel": 1,
+    "_score_kernel": 1,
     "plots": 1,
     "geomagnetic": 1,
     "timing": 1,
@@ -97,7 +98,10 @@ def _imports(path, parts):
 
 
 #: Modules imported inside a function, where they are needed, and why.
-LAZY = {"_moment_kernel": "it imports numba, an optional extra that takes 0.15-0.3 s to import"}
+LAZY = {
+    "_moment_kernel": "it imports numba, an optional extra that takes 0.15-0.3 s to import",
+    "_score_kernel": "it imports numba, as _moment_kernel does",
+}
 
 
 def test_imports_run_one_way_cli_features_shared_models():

@@ -28,7 +28,7 @@ from ..statistics import (
 from .coverage import COVERAGE_WARN, direction_coverage, flatness, planar_message
 from .problem import Problem
 from .result import Identifiability
-from .scores import ScoreSums, after_solve, block_rows, finished, score_terms
+from .scores import ScoreSums, after_solve, finished, score_terms
 
 #: Standard errors above these are "poorly determined": offsets 1 % of the field, scale errors
 #: 0.01, angles 1 deg (a calibration that changes |B| by about 1 % either way).
@@ -335,7 +335,7 @@ def settle(problem: Problem, theta, centre: float | None = None) -> ScoreSums:
     elif reference is None and centre is None:
         centre = rows[at_theta].shift  # the mean |B1| of the first samples
     radius = problem.moments.frame.radius
-    terms = score_terms(theta, radius, block_rows(n), loss, centre, robust)
+    terms = score_terms(theta, radius, n, loss, centre, robust)
     check = objectives_block(samples, **optimum_points(problem, theta)) if robust else None
     stats, part, totals = after_solve(samples, reference, rows, terms, shared, check)
     for entry, sums in zip(deferred, stats):

@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from .. import compiled
 from ..inference import MAX_BLOCKS
 from ..models.zhou2010 import correction_matrix_entries
 from ..nlp.blocks import variable_scale
@@ -184,6 +185,8 @@ class ScoreTerms:
     block_rows : samples per block. loss : a robust `nlpcal.robust.Loss` with its scale, or None
     (least squares: psi(r) = r, psi' = 1). centre : without a reference, the centre of |B1| the
     residuals are taken from [field unit]. meat : also sum psi^2 y y^T over every sample.
+    fast : the compiled kernel fills the columns (`nlpcal.compiled.score_columns`, the pass's
+    choice by `nlpcal.compiled.use`).
     """
 
     offset: np.ndarray
@@ -193,6 +196,7 @@ class ScoreTerms:
     loss: Any
     centre: float | None
     meat: bool
+    fast: bool = False
 
     def empty(self, first_row: int, n: int) -> ScorePart:
         """The sums of no rows yet, for the n rows from `first_row` on."""
@@ -218,9 +222,13 @@ class ScoreTerms:
         reference to `part`, computed in the arrays of `workspace`; returns (|B1|, r) of the
         chunk. [field unit]"""
         n = raw.shape[0]
+        magnitude = None
+        if self.fast:
+            magnitude = compiled.score_columns(raw, self.offset, self.matrix, space[1], space[0])
         work, y, centred, g = (array[:, :n] for array in space)
         f, r = y[0:F_WIDTH], work[PSI]
-        magnitude = self.columns(raw, f, work[NOISE], centred, g)
+        if magnitude is None:
+            magnitude = self.columns(raw, f, work[NOISE], centred, g)
         np.subtract(magnitude, ref if ref is not None else self.centre, out=r)  # type: ignore[arg-type]
         if self.loss is not None:
             r = self.weigh(work, f, r)
@@ -311,16 +319,14 @@ def block_rows(n: int) -> int:
     return max(1, -(-int(n) // MAX_BLOCKS))
 
 
-def score_terms(
-    theta, radius: float, block_rows: int, loss, centre: float | None, meat: bool
-) -> ScoreTerms:
-    """The `ScoreTerms` at theta (internal units) in the scaled variables of a sphere frame of
-    `radius` [field unit]; `loss` None or not robust is least squares."""
+def score_terms(theta, radius: float, n: int, loss, centre: float | None, meat: bool) -> ScoreTerms:
+    """The `ScoreTerms` of a log of n samples at theta (internal units) in the scaled variables
+    of a sphere frame of `radius` [field unit]; `loss` None or not robust is least squares."""
     offset, matrix = correction(theta)
     robust = loss if loss is not None and loss.robust else None
-    return ScoreTerms(
-        offset, matrix, sensitivity_map(theta, radius), block_rows, robust, centre, meat
-    )
+    linear = sensitivity_map(theta, radius)
+    fast = compiled.use(n)
+    return ScoreTerms(offset, matrix, linear, block_rows(n), robust, centre, meat, fast)
 
 
 @dataclass(frozen=True)
@@ -491,8 +497,8 @@ def score_block_sums(
     """
     samples = as_rows(samples)
     n = samples.shape[0]
-    rows = block_rows(n)
-    terms = score_terms(theta, radius, rows, loss, centre, meat=True)
+    terms = score_terms(theta, radius, n, loss, centre, meat=True)
+    rows = terms.block_rows
     chunk = max(1, min(chunk_rows, SCORE_CHUNK_ROWS) // rows) * rows
     work = AfterSolve((), terms, chunk)
     _, part, _ = reduce(samples, reference, work, _merge_after, chunk, indexed=True)
