@@ -5,7 +5,9 @@ import math
 
 import numba
 
-_compile = numba.njit(nogil=True, cache=True, fastmath={"reassoc", "contract"})
+# numpy's error model: a sample at Z_p gives |B1| = 0 and inf, as the numpy columns do, not a
+# ZeroDivisionError
+_compile = numba.njit(nogil=True, cache=True, fastmath={"reassoc", "contract"}, error_model="numpy")
 
 
 @_compile

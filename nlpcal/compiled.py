@@ -139,8 +139,12 @@ def score_columns(raw, offset, matrix, y: np.ndarray, work: np.ndarray) -> np.nd
     kernels = _imported()[0]
     if kernels is None:
         return None
-    raw = np.ascontiguousarray(np.asarray(raw, dtype=float).T)  # (3, n): no copy of Dask's blocks
-    magnitude = np.empty(raw.shape[1])
+    raw = np.ascontiguousarray(np.asarray(raw, dtype=float).T)  # (3, n), a copy of the chunk
+    n = raw.shape[1]
+    if y.shape[0] != 10 or work.shape[0] != 14 or min(y.shape[1], work.shape[1]) < n:
+        # numba checks no bounds: past them it would write over other memory
+        raise ValueError("score_columns takes y (10, >= n) and work (14, >= n)")
+    magnitude = np.empty(n)
     kernels.scores(raw, np.asarray(offset, float), np.asarray(matrix, float), y, work, magnitude)
     return magnitude
 

@@ -188,6 +188,11 @@ class Pending:
     settle: Callable
 
 
+def _whole_rows(array):
+    """A Dask array of rows in one chunk across its columns."""
+    return array.rechunk({1: -1}) if array.ndim == 2 else array
+
+
 class LazySamples:
     """Rows of a Dask array that stay where they are: samples (N, 3) or a reference series (N,).
 
@@ -211,9 +216,7 @@ class LazySamples:
             started = time.perf_counter()
             array = array.compute_chunk_sizes()  # one pass: the rows of every block
             self.ledger.record("count", time.perf_counter() - started)
-        if array.ndim == 2:
-            array = array.rechunk({1: -1})
-        self.array = array
+        self.array = _whole_rows(array)
         self._survey = survey
         self._cache: dict = {}
         self.pending = pending
@@ -236,13 +239,13 @@ class LazySamples:
     def rebuilt(self, array) -> None:
         """Take another Dask array of the same log (the blocks' rows counted): the survey and
         the rows kept from the old one are dropped."""
-        self.array = array.rechunk({1: -1}) if array.ndim == 2 else array
+        self.array = _whole_rows(array)
         self._survey, self._cache = None, {}
 
     def reread(self, array) -> None:
         """Take another Dask array of the same rows (read with fewer checks): the survey and the
         rows kept stay."""
-        self.array = array.rechunk({1: -1}) if array.ndim == 2 else array
+        self.array = _whole_rows(array)
 
     @property
     def shape(self) -> tuple:

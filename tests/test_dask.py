@@ -534,8 +534,9 @@ def test_each_block_of_a_parquet_log_is_read_once_per_pass(tmp_path, monkeypatch
     assert len(reads) == 6 * log.samples.passes + heads and heads <= 2
 
 
-def test_blocks_whose_rows_are_all_readings_are_screened_by_the_first_pass_only(
-    tmp_path, monkeypatch
+@pytest.mark.parametrize("zero_row", [None, 12_345])
+def test_blocks_whose_rows_were_all_kept_are_screened_by_the_first_pass_only(
+    tmp_path, monkeypatch, zero_row
 ):
     pytest.importorskip("pyarrow")
     from nlpcal.calibration import calibrate_log
@@ -546,6 +547,8 @@ def test_blocks_whose_rows_are_all_readings_are_screened_by_the_first_pass_only(
     samples, _ = make_log(n=30_000, noise=1.0, seed=5)
     frame = pd.DataFrame(samples, columns=["bx", "by", "bz"])
     frame.loc[7_001:7_020, ["bx", "by", "bz"]] = frame.loc[7_000, ["bx", "by", "bz"]].to_numpy()
+    if zero_row is not None:  # a zero vector, left out: its block is screened in every pass
+        frame.loc[zero_row, ["bx", "by", "bz"]] = 0.0
     frame.to_parquet(tmp_path / "log.parquet", index=False, row_group_size=5_000)
     memory = read_log(tmp_path / "log.parquet", reference_field=PAPER_FIELD)
     expected = calibrate_log(memory, method="staged")
@@ -558,8 +561,12 @@ def test_blocks_whose_rows_are_all_readings_are_screened_by_the_first_pass_only(
         log = reader.read_lazy_log(tmp_path / "log.parquet", reference_field=PAPER_FIELD)
         result = calibrate_log(log, method="staged")
     heads = sum(what == "head" for what, _ in log.samples.timings)
-    assert log.samples.passes == 2 and len(screened) == 6 + heads
+    if zero_row is None:  # six blocks screened by the first pass, none after
+        assert log.samples.passes == 2 and len(screened) == 6 + heads
+    else:  # the first pass again on the rows counted, then the pass after the solve: 1 each
+        assert log.samples.passes == 3 and len(screened) == 6 + 1 + 1 + heads
+        assert log.dropped == memory.dropped == 1
     # the 20 repeats (kept: no drop_invalid) are counted once, as in memory
     assert [n for n in log.notes if "repeat" in n] == [n for n in memory.notes if "repeat" in n]
-    assert "20 of 30000 rows" in " ".join(log.notes)
+    assert "repeat the field vector" in " ".join(log.notes)
     assert_same_optimum(result.parameters, expected.parameters, expected.standard_errors)

@@ -7,7 +7,7 @@ UTF-8 or Latin-1, is one block). A block is read in the layout detected for its 
 chosen, checked and converted to the base unit as `read_log` does (`nlpcal.io.tables`), and its
 rows screened (`nlpcal.io.rows`: zero vectors left out, repeats counted and dropped with
 drop_invalid; a repeat across the boundary of two blocks is not seen; a block whose rows were all
-readings is not screened again in later passes). A bad value fails the read with its file named.
+kept is not screened again in later passes). A bad value fails the read with its file named.
 
 When the blocks' row counts are known beforehand (Parquet footers), reading is no pass of its
 own: the log is taken to hold the rows its footers declare, and the checks of every block (its
@@ -126,8 +126,8 @@ def _finite_block(table, wanted, factors):
 
 def _block(spec, wanted, factors, drop_invalid: bool, clean: bool = False) -> tuple:
     """(values in the base unit, rows read, rows with a missing or non-numeric value, the
-    RowScreen or None) of one block; `clean`: an earlier pass found every row of it a reading,
-    so its rows are not screened again."""
+    RowScreen or None) of one block; `clean`: an earlier pass kept every row of it, so its rows
+    are not screened again."""
     kind, name, where, extra, number = spec
     table = _table_of(spec)
     values = _finite_block(table, wanted, factors)
@@ -243,9 +243,7 @@ class Reading:
         earlier pass: a block whose rows were all kept is not screened again."""
         import dask
 
-        clean = (
-            [c[0] == c[1] and not c[2] for c in checked] if checked else [False] * len(self.specs)
-        )
+        clean = [c[0] == c[1] for c in checked] if checked else [False] * len(self.specs)
         return [
             dask.delayed(_block)(spec, self.wanted, self.factors, self.drop_invalid, ok)
             for (spec, _), ok in zip(self.specs, clean)
@@ -290,7 +288,8 @@ class Reading:
 class Deferred:
     """The checks of a log read on the rows its files declare, settled by the first pass over
     it (`nlpcal.passes.Pending`): the rows left out, the notes on them (into `log`), and the
-    arrays of its columns rebuilt on the rows counted when some were left out.
+    arrays of its columns read again, without the screen, from the blocks whose rows were all
+    kept (rebuilt on the rows counted when some were left out).
 
     columns : (LazySamples, the columns of the table it holds) of the log.
     """
@@ -300,12 +299,14 @@ class Deferred:
     columns: list = field(default_factory=list)
 
     def settle(self, checked: list) -> bool:
+        """Take the first pass's `_checks` of every block; True when the pass stands (no row
+        left out), False when the arrays were rebuilt and the pass is to run again."""
         checked = list(checked)
         lost, notes = _notes(checked, self.reading.drop_invalid)
         if self.log is not None:
             self.log.dropped += lost
             self.log.notes.extend(notes)
-        # later passes read the blocks without the screen that found all their rows readings
+        # later passes read the blocks whose rows were all kept without the screen
         table = self.reading.table([c[0] for c in checked], self.reading.reads(checked))
         for lazy, selection in self.columns:
             lazy.pending = None
