@@ -441,3 +441,27 @@ def test_a_row_screen_says_the_same_chunk_by_chunk_as_over_the_whole(drop_repeat
     assert (whole.zeros, whole.zero_rows, whole.repeats) == (4, [6, 7, 78, 141], 17)
     assert (whole.longest + 1, whole.longest_at) == (15, 20)
     assert kept.sum() == 200 - 4 - (17 if drop_repeats else 0)
+
+
+def test_files_of_one_size_are_read_whole_only_when_their_ends_are_the_same(tmp_path, monkeypatch):
+    from nlpcal.io import sources
+
+    monkeypatch.setattr(sources, "ENDS_BYTES", 64)
+    rows = [f"{k},{2 * k},{3 * k}" for k in range(100, 200)]  # fixed width: one size
+    texts = {
+        "a.csv": rows,
+        "b.csv": rows[:50] + [rows[50].replace("1", "7")] + rows[51:],  # the middle differs
+        "c.csv": rows[:-1] + [rows[-1].replace("1", "9")],  # the end differs
+    }
+    for name, lines in texts.items():
+        (tmp_path / name).write_text("bx,by,bz\n" + "\n".join(lines) + "\n")
+    hashed = []
+    original = sources.sha256_file
+    monkeypatch.setattr(sources, "sha256_file", lambda path: hashed.append(path) or original(path))
+    paths = sorted(tmp_path.glob("*.csv"))
+    assert len({p.stat().st_size for p in paths}) == 1
+    assert sources.distinct_files(paths) == paths  # none the same, although a and b nearly
+    assert sorted(p.name for p in hashed) == ["a.csv", "b.csv"]  # c's end tells it apart
+    (tmp_path / "copy.csv").write_bytes((tmp_path / "a.csv").read_bytes())
+    with pytest.raises(InputError, match="same content"):
+        sources.distinct_files(sorted(tmp_path.glob("*.csv")))

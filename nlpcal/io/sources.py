@@ -9,6 +9,7 @@ units and validation as CSV (`nlpcal.io.tables` reads the columns it gets from h
 
 from __future__ import annotations
 
+import hashlib
 import os
 from pathlib import Path
 
@@ -26,6 +27,10 @@ from .files import (
 #: The leading (and trailing) bytes of every Parquet file.
 PARQUET_MAGIC = b"PAR1"
 INSTALL_PARQUET = "Parquet needs pyarrow: pip install 'nlpcal[parquet]' (or 'nlpcal[dask]')"
+#: Bytes at each end of a file whose digest tells files of the same size apart before their
+#: whole content is (`distinct_files`): logs of a fixed row count in a binary format are often of
+#: one size, and hashing them whole read the log once more before its first pass. [byte]
+ENDS_BYTES = 1 << 20
 
 
 def is_pattern(source) -> bool:
@@ -58,8 +63,8 @@ def log_paths(source, notes: list | None = None) -> list:
 def distinct_files(paths, notes: list | None = None) -> list:
     """`paths` with each file once: a file named twice (the same path, or a link to the same
     file: the same device and inode) is read once and said in `notes`; two files with the same
-    content (the same SHA-256, compared among files of the same size) are refused, since their
-    rows would count twice."""
+    content (the same SHA-256, compared among files of the same size whose ends are the same)
+    are refused, since their rows would count twice."""
     kept: list = []
     first_of: dict = {}
     for path in paths:
@@ -70,19 +75,36 @@ def distinct_files(paths, notes: list | None = None) -> list:
                 notes.append(f"{path} is the same file as {same}: read once")
             continue
         kept.append(path)
-    by_size: dict = {}
-    for path in kept:
-        by_size.setdefault(os.stat(path).st_size, []).append(path)
-    for group in (group for group in by_size.values() if len(group) > 1):
-        digests: dict = {}
-        for path in group:
-            other = digests.setdefault(sha256_file(path), path)
-            if other is not path:
-                raise InputError(
-                    f"{other} and {path} have the same content (SHA-256): the same data "
-                    f"twice; leave the copy out"
-                )
+    for group in _alike(kept, lambda path: os.stat(path).st_size):
+        for candidates in _alike(group, _ends_digest):  # only these are read whole
+            digests: dict = {}
+            for path in candidates:
+                other = digests.setdefault(sha256_file(path), path)
+                if other is not path:
+                    raise InputError(
+                        f"{other} and {path} have the same content (SHA-256): the same data "
+                        f"twice; leave the copy out"
+                    )
     return kept
+
+
+def _alike(paths: list, key) -> list:
+    """The groups of two or more of `paths` with the same `key(path)`."""
+    groups: dict = {}
+    for path in paths:
+        groups.setdefault(key(path), []).append(path)
+    return [group for group in groups.values() if len(group) > 1]
+
+
+def _ends_digest(path) -> str:
+    """The SHA-256 of a file's first and last ENDS_BYTES (of all of it when shorter than
+    twice that)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        digest.update(handle.read(ENDS_BYTES))
+        handle.seek(max(ENDS_BYTES, os.fstat(handle.fileno()).st_size - ENDS_BYTES))
+        digest.update(handle.read())
+    return digest.hexdigest()
 
 
 def is_parquet(path) -> bool:
