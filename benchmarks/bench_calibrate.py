@@ -92,9 +92,10 @@ def kernel_load_s(repeats: int) -> str:
     )
     run = [sys.executable, "-c", code]
     subprocess.run(run, check=True, capture_output=True)
-    times = [float(subprocess.run(run, check=True, capture_output=True, text=True).stdout)]
-    for _ in range(repeats - 1):
-        times.append(float(subprocess.run(run, check=True, capture_output=True, text=True).stdout))
+    times = [
+        float(subprocess.run(run, check=True, capture_output=True, text=True).stdout)
+        for _ in range(repeats)
+    ]
     return f"{statistics.median(times):.3f} ({min(times):.3f}-{max(times):.3f})"
 
 

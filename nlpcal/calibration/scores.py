@@ -223,8 +223,9 @@ class ScoreTerms:
         chunk. [field unit]"""
         n = raw.shape[0]
         magnitude = None
-        if self.fast:
-            magnitude = compiled.score_columns(raw, self.offset, self.matrix, space[1], space[0])
+        if self.fast:  # fills the whole arrays' first n columns, as `columns` fills the views
+            whole_work, whole_y = space[0], space[1]
+            magnitude = compiled.score_columns(raw, self.offset, self.matrix, whole_y, whole_work)
         work, y, centred, g = (array[:, :n] for array in space)
         f, r = y[0:F_WIDTH], work[PSI]
         if magnitude is None:

@@ -88,22 +88,20 @@ class RowScreen:
                 repeat &= ~zero
         repeats = int(np.count_nonzero(repeat))
         self.repeats += repeats
-        self._count_runs(repeat if repeats else None, n, data_rows)
+        self._count_runs(repeat, repeats, data_rows)
         if n:
             self._previous = field[-1].copy()
         if self.drop_repeats and repeats:
             return ~(zero | repeat)
         return ~zero
 
-    def _count_runs(self, repeat: np.ndarray | None, n: int, data_rows) -> None:
-        """Track the longest run of repeats, across chunks (`repeat` None: none among these n
-        rows)."""
+    def _count_runs(self, repeat: np.ndarray, repeats: int, data_rows) -> None:
+        """Track the longest run of repeats, across chunks (`repeats` of them in this one: none,
+        and no run is looked for)."""
+        n = repeat.shape[0]
         if n == 0:
             return
-        if repeat is None:
-            self._run, self._previous_row = 0, int(_numbers(data_rows, n - 1))
-            return
-        starts, lengths = _runs(repeat)
+        starts, lengths = _runs(repeat) if repeats else ((), ())
         run = 0
         for start, chunk_length in zip(starts, lengths):
             length = int(chunk_length)

@@ -67,6 +67,7 @@ def distinct_files(paths, notes: list | None = None) -> list:
     are refused, since their rows would count twice."""
     kept: list = []
     first_of: dict = {}
+    size_of: dict = {}
     for path in paths:
         status = os.stat(path)
         same = first_of.setdefault((status.st_dev, status.st_ino), path)
@@ -75,7 +76,8 @@ def distinct_files(paths, notes: list | None = None) -> list:
                 notes.append(f"{path} is the same file as {same}: read once")
             continue
         kept.append(path)
-    for group in _alike(kept, lambda path: os.stat(path).st_size):
+        size_of[path] = status.st_size
+    for group in _alike(kept, size_of.__getitem__):
         for candidates in _alike(group, _ends_digest):  # only these are read whole
             digests: dict = {}
             for path in candidates:
