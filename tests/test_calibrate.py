@@ -8,7 +8,7 @@ import pytest
 
 import nlpcal
 from nlpcal import CalibrationResult, calibrate
-from nlpcal.calibration.coverage import PLANAR_NOISE, flatness
+from nlpcal.calibration.coverage import PLANAR_NOISE, bin_hits, direction_bins, flatness
 from nlpcal.errors import InputError, QualityError, SolveError
 from nlpcal.moments import Frame
 from nlpcal.nlp import steps
@@ -289,6 +289,30 @@ def test_uniform_coverage_is_reported_as_identifiable(noisy):
     assert result.identifiability["poorly_determined"] == []
     assert result.identifiability["coverage"]["covered"] == 26
     assert not any("coverage" in w for w in result.warnings)
+
+
+def test_each_vector_falls_in_the_bin_of_its_nearest_direction():
+    # bin_hits finds the nearest of the 26 directions without their cosines: against the
+    # cosines themselves (the largest one's bin), on vectors of every scale and a few
+    # components near zero; on the bin directions and their multiples; and no bin for a vector
+    # that has no direction
+    names, directions = direction_bins()
+    rng = np.random.default_rng(21)
+    vectors = rng.standard_normal((30000, 3)) * np.exp(rng.uniform(-30, 30, (30000, 1)))
+    vectors[::7, 1] *= 1e-9
+    cosines = vectors @ directions.T
+    expected = np.bincount(np.argmax(cosines, axis=1), minlength=26)
+    assert np.array_equal(bin_hits(vectors), expected)
+    on_bins = np.concatenate([directions * k for k in (1e-300, 1.0, 2.0, 6e4)])
+    assert np.array_equal(bin_hits(on_bins), np.full(26, 4))
+    lattice = (
+        np.array([v for v in np.ndindex(5, 5, 5) if v != (2, 2, 2)], dtype=float) - 2.0
+    )  # integer vectors, many on the bins' boundaries of sign
+    expected = np.bincount(np.argmax(lattice @ directions.T, axis=1), minlength=26)
+    assert np.array_equal(bin_hits(lattice), expected)
+    nothing = np.array([[0.0, 0.0, 0.0], [np.nan, 1.0, 0.0], [np.inf, 0.0, 0.0]])
+    assert bin_hits(nothing).sum() == 0
+    assert len(names) == 26 and names[bin_hits([[0.0, 0.0, -5.0]]).argmax()] == "-z"
 
 
 def test_a_cap_of_directions_is_reported_as_poor_coverage():

@@ -69,8 +69,34 @@ def coverage_centre(samples, frame) -> np.ndarray:
 
 
 def bin_hits(vectors) -> np.ndarray:
-    """(26,) how many of the vectors (N, 3) fall in each direction bin (`direction_bins`)."""
-    return np.bincount(np.argmax(np.asarray(vectors) @ _BIN_DIRECTIONS.T, axis=1), minlength=26)
+    """(26,) how many of the vectors (N, 3) fall in each direction bin (`direction_bins`): the
+    bin of a vector is the direction nearest to it (largest cosine); a zero vector, or one not
+    finite, has no direction and falls in none.
+
+    Found without the 26 cosines: a direction with m non-zero components (i, j, k in {-1, 0, 1})
+    has the cosine sum_c i_c v_c / (|v| sqrt m) with v, greatest, for a given m, with the signs
+    of v on its m largest components |v_c|. So the nearest direction is the best of three
+    candidates, the largest component, the two largest, all three: the m whose sum of the m
+    largest |v_c| over sqrt m is largest (a sample on the boundary of two bins falls in one of
+    them). A dozen whole-array operations where the cosines' argmax over 26 columns takes
+    several times as long (0.1 ms for 2 000 vectors).
+    """
+    v = np.ascontiguousarray(np.asarray(vectors, dtype=float).reshape(-1, 3).T)  # (3, N)
+    a = np.abs(v)
+    largest, smallest = np.max(a, axis=0), np.min(a, axis=0)
+    total = np.sum(a, axis=0)
+    two, three = (total - smallest) / np.sqrt(2.0), total / np.sqrt(3.0)
+    one_best = (largest >= two) & (largest >= three)
+    two_best = ~one_best & (two >= three)
+    three_best = ~one_best & ~two_best
+    index = np.zeros(v.shape[1])  # (i+1, j+1, k+1) in base 3
+    for c, weight in enumerate((9.0, 3.0, 1.0)):
+        # on the largest component; on all but the smallest; or on all three
+        on = (one_best & (a[c] == largest)) | (two_best & (a[c] > smallest)) | three_best
+        index += weight * (np.sign(v[c]) * on + 1.0)
+    index -= index > 13  # no bin for (0, 0, 0)
+    directed = (largest > 0) & np.isfinite(total)  # not a zero vector, nor NaN or infinite
+    return np.bincount(index[directed].astype(np.intp), minlength=26)
 
 
 def direction_bins() -> tuple:
