@@ -11,7 +11,10 @@ rows each (row groups of 2^20 rows, pyarrow's default). In one run it measures
   read into numpy) and on the cluster (one task per row group that reads it and sums it);
 - cluster: `nlpcal calibrate 'DIR/*.parquet' --scheduler local` as library calls on a
   LocalCluster of `--workers` single-threaded worker processes started beforehand: reading
-  (the footers: no pass) and calibrating, every pass a Dask reduction over the row groups;
+  (the footers: no pass) and calibrating, every pass a Dask reduction over the row groups,
+  which are read once and kept in the workers' memory (where they fit, as here);
+- cluster-files: the same with `--low-memory`: the log left in its files, every pass reading
+  every row group again;
 - low-memory: `nlpcal calibrate 'DIR/*.parquet' --low-memory` as library calls in this
   process: the files streamed into a memory-mapped file, then the passes over it in threads;
 - memory (up to IN_MEMORY_MOST samples): `read_log` and `calibrate_log` in this process, the
@@ -167,17 +170,18 @@ IN_MEMORY_MOST = 30_000_000
 
 
 def run_path(path: str, pattern: str, method: str) -> tuple:
-    """(seconds, of which reading, result, passes over the files or None, timings) of one
-    calibration: "cluster" (read_lazy_log on the current cluster), "low-memory" or "memory"."""
+    """(seconds, of which reading, result, passes over the data or None, timings) of one
+    calibration: "cluster" (read_lazy_log on the current cluster, the row groups kept in its
+    memory), "cluster-files" (left in the files), "low-memory" or "memory"."""
     started = time.perf_counter()
-    if path == "cluster":
-        log = read_lazy_log(pattern)
+    lazy = path.startswith("cluster")
+    if lazy:
+        log = read_lazy_log(pattern, keep=path == "cluster")
     else:
         log = read_log(pattern, low_memory=path == "low-memory")
     read_s = time.perf_counter() - started
     result = calibrate_log(log, method=method)
     total = time.perf_counter() - started
-    lazy = path == "cluster"
     passes = log.samples.passes if lazy else None
     timings = list(log.samples.timings) if lazy else []
     del log
@@ -205,7 +209,12 @@ def bench_big(args) -> None:
     kernel = "compiled (numba)" if compiled.use(n) else "numpy"
     print(f"# moment pass kernel: {kernel} (the first repeat pays each worker's load)")
     baseline = "memory" if n <= IN_MEMORY_MOST else "low-memory"
-    routes = ["cluster", "low-memory", *(["memory"] if baseline == "memory" else [])]
+    routes = [
+        "cluster",
+        "cluster-files",
+        "low-memory",
+        *(["memory"] if baseline == "memory" else []),
+    ]
     started = time.perf_counter()
     times: dict = {}
     results: dict = {}
@@ -225,8 +234,8 @@ def bench_big(args) -> None:
                     times.setdefault(key, []).append(total)
                     times.setdefault(f"{key} read", []).append(read_s)
                     results[key] = (result, passes)
-                    if path == "cluster":
-                        splits.setdefault(method, []).append((total, timings))
+                    if path.startswith("cluster"):
+                        splits.setdefault(key, []).append((total, timings))
             print(f"# repeat {repeat + 1} done ({load()})", flush=True)
         worker_peak = client.run(_peak_rss_mib)
     print_big(args, n, times, results, baseline, routes)
@@ -267,9 +276,10 @@ def print_big(args, n: int, times: dict, results: dict, baseline: str, routes: l
 
 
 def print_splits(splits: dict) -> None:
-    """Where the time of the median cluster run of each method goes: its passes (and reads of
-    the first block), and the rest (the solves, the diagnostics, the scheduling)."""
-    for method, runs in splits.items():
+    """Where the time of the median cluster run of each path and method goes: its passes (and
+    reads of the first block, the reading kept), and the rest (the solves, the diagnostics,
+    the scheduling)."""
+    for key, runs in splits.items():
         total, timings = sorted(runs, key=lambda run: run[0])[len(runs) // 2]
         parts: dict = {}
         for what, seconds in timings:
@@ -279,9 +289,7 @@ def print_splits(splits: dict) -> None:
         shares = ", ".join(
             f"{what} x{count} {spent:.2f} s" for what, (count, spent) in parts.items()
         )
-        print(
-            f"\ncluster {method}, where the time goes: {shares}, solves and the rest {rest:.2f} s"
-        )
+        print(f"\n{key}, where the time goes: {shares}, solves and the rest {rest:.2f} s")
 
 
 # --- a fleet ----------------------------------------------------------------------------------

@@ -109,6 +109,72 @@ def scheduler(spec=None, workers: int | None = None):
             yield client
 
 
+#: The share of the memory a Dask scheduler has free that a log read from files may take there,
+#: kept for the later passes of a calibration (`nlpcal.io.lazy.read_lazy_log`): half, below the
+#: 60 % of its limit at which a dask.distributed worker starts to move data to disk.
+KEEP_SHARE = 0.5
+
+
+def memory_to_keep() -> tuple | None:
+    """(bytes, where) a log read from its files may take in memory on the current Dask
+    scheduler, kept there for the later passes of a calibration; None where it is not kept:
+    Dask's processes scheduler (every pass would send each block to a process again) or a
+    memory that cannot be told. On a dask.distributed cluster KEEP_SHARE of its workers'
+    memory limits less what they hold (nothing where a worker has no limit); on this process's
+    schedulers (threads, sync) KEEP_SHARE of the memory available here. [byte]"""
+    import dask.multiprocessing
+    from dask.base import get_scheduler
+
+    get = get_scheduler()
+    owner = getattr(get, "__self__", None)
+    if is_client(owner):
+        workers = _workers(owner)
+        if not workers or any(not w.get("memory_limit") for w in workers):
+            return None
+        free = sum(
+            max(0.0, KEEP_SHARE * w["memory_limit"] - w.get("metrics", {}).get("memory", 0))
+            for w in workers
+        )
+        return free, f"the workers of {describe(owner)}"
+    if get is dask.multiprocessing.get:
+        return None
+    available = available_memory()
+    return None if available is None else (KEEP_SHARE * available, "this machine")
+
+
+def _workers(client) -> list:
+    """The workers' information of a Client's scheduler (all of them: newer dask.distributed
+    reports five unless asked for more); none when the scheduler does not tell (the passes
+    then meet whatever is wrong with it)."""
+    try:
+        try:
+            info = client.scheduler_info(n_workers=-1)
+        except TypeError:  # dask.distributed before 2025
+            info = client.scheduler_info()
+        return list(info.get("workers", {}).values())
+    except Exception:  # a scheduler that no longer answers, or answers in another form
+        return []
+
+
+def available_memory() -> float | None:
+    """The memory available to new data on this machine (psutil's, else Linux's MemAvailable),
+    or None where neither tells it. [byte]"""
+    try:
+        import psutil
+    except ImportError:
+        pass
+    else:
+        return float(psutil.virtual_memory().available)
+    try:
+        with open("/proc/meminfo", encoding="ascii") as meminfo:
+            for line in meminfo:
+                if line.startswith("MemAvailable:"):
+                    return float(line.split()[1]) * 1024.0  # given in kB
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
 def worker_environment(dask):
     """The Dask setting under which new workers start with WORKER_MALLOC."""
     key = "distributed.nanny.pre-spawn-environ"

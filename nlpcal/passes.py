@@ -6,7 +6,7 @@ gathered block by block and the partial results are merged in order. `reduce` is
 memory (an array or a memory map) the blocks are contiguous shares of the rows, one per thread
 (`nlpcal.chunks.map_shares`). For a Dask array the blocks are its chunks: one task per chunk on
 the current Dask scheduler, the partial results merged by a tree of tasks in the order of the
-rows, so that one result reaches the caller and memory per worker stays O(block).
+rows, so that one result reaches the caller and a pass takes O(block) memory per worker.
 
 The same work function runs on both: it receives a block of raw rows and the block of the
 reference (None, a number or an array of the block's rows) and loops over chunks of its own, so

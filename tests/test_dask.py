@@ -309,7 +309,8 @@ def test_calibrate_parquet_files_on_a_cluster_as_in_memory(parquet_log, cluster,
     argv = ["calibrate", pattern, *options, "--scheduler", cluster.scheduler_address]
     code, out, err = run(capsys, *argv, "-o", lazy)
     assert code == 0 and out == "", err
-    assert "9 Parquet row groups" in err and "Dask cluster at tcp://" in err
+    assert "9 Parquet row groups are read once and kept in memory" in err
+    assert "on the workers of the Dask cluster at tcp://" in err
     first, second = (nlpcal.CalibrationResult.load(path) for path in (memory, lazy))
     assert_same_calibration(first, second)
     assert second.input["log"] == pattern and second.reference.column == "proton_nT"
@@ -318,11 +319,27 @@ def test_calibrate_parquet_files_on_a_cluster_as_in_memory(parquet_log, cluster,
 def test_calibrate_on_dask_refuses_what_needs_the_log_in_memory(parquet_log, capsys):
     pattern = parquet_log / "*.parquet"
     for extra in (
-        ["--low-memory"],
+        ["--plot", "x.png"],
         ["--temperature-column", "proton_nT", "--reference-field", "1"],
     ):
         code, out, err = run(capsys, "calibrate", pattern, "--scheduler", "threads", *extra)
         assert code == 2 and out == "" and len(err.splitlines()) == 1, err
+
+
+def test_low_memory_on_dask_leaves_the_log_in_its_files(parquet_log, tmp_path, capsys):
+    pattern = parquet_log / "*.parquet"
+    options = ["--reference-column", "proton_nT", "--method", "joint", "--scheduler", "threads"]
+    outputs = {}
+    for extra in ([], ["--low-memory"]):
+        outputs[bool(extra)] = tmp_path / f"{bool(extra)}.json"
+        code, _, err = run(
+            capsys, "calibrate", pattern, *options, *extra, "-o", outputs[bool(extra)]
+        )
+        kept = "9 Parquet row groups are read once and kept in memory" in err
+        assert code == 0 and kept == (not extra), err
+        assert ("9 Parquet row groups read in every pass" in err) == bool(extra), err
+    first, second = (nlpcal.CalibrationResult.load(path) for path in outputs.values())
+    assert_same_calibration(first, second)
 
 
 def test_an_unknown_scheduler_address_is_bad_input(parquet_log, capsys, monkeypatch):
@@ -424,7 +441,8 @@ def test_the_exact_objective_at_many_points_takes_one_pass(spiky_log):
         np.testing.assert_allclose(values, expected, rtol=1e-9)
 
 
-def test_a_bad_value_on_dask_is_placed_as_the_reader_in_memory_places_it(tmp_path):
+@pytest.mark.parametrize("keep", [False, True])
+def test_a_bad_value_on_dask_is_placed_as_the_reader_in_memory_places_it(tmp_path, keep):
     pytest.importorskip("pyarrow")
     from nlpcal.calibration import calibrate_log
     from nlpcal.errors import InputError
@@ -442,12 +460,16 @@ def test_a_bad_value_on_dask_is_placed_as_the_reader_in_memory_places_it(tmp_pat
         read_log(parquet)
     assert "data row 23457" in str(memory.value)
     with dask.config.set(scheduler="sync"):
-        log = read_lazy_log(parquet)  # no pass: the blocks are checked in the first one
-        with pytest.raises(InputError) as lazy:
-            calibrate_log(log)
+        if keep:  # read whole when opened, to be kept in memory
+            with pytest.raises(InputError) as lazy:
+                read_lazy_log(parquet)
+        else:  # no pass: the blocks are checked in the first one
+            log = read_lazy_log(parquet, keep=False)
+            with pytest.raises(InputError) as lazy:
+                calibrate_log(log)
         assert "data row 23457" in str(lazy.value)
         with pytest.raises(InputError) as blocks:
-            read_lazy_log(text, block_bytes=100_000)
+            read_lazy_log(text, block_bytes=100_000, keep=keep)
     message = str(blocks.value)
     assert "counted from its start" in message and "data row 23457" not in message
 
@@ -513,7 +535,8 @@ def test_rows_left_out_of_parquet_are_found_by_the_first_pass_as_in_memory(tmp_p
     assert_same_optimum(result.parameters, expected.parameters, expected.standard_errors)
 
 
-def test_each_block_of_a_parquet_log_is_read_once_per_pass(tmp_path, monkeypatch):
+@pytest.mark.parametrize("keep", [False, True])
+def test_each_block_of_a_parquet_log_is_read_once_per_pass(tmp_path, monkeypatch, keep):
     pytest.importorskip("pyarrow")
     from nlpcal.calibration import calibrate_log
     from nlpcal.io import lazy as reader
@@ -526,12 +549,81 @@ def test_each_block_of_a_parquet_log_is_read_once_per_pass(tmp_path, monkeypatch
     original = reader._table_of
     monkeypatch.setattr(reader, "_table_of", lambda spec: reads.append(spec) or original(spec))
     with dask.config.set(scheduler="threads"):
-        log = reader.read_lazy_log(tmp_path / "log.parquet", reference_column="proton_nT")
+        log = reader.read_lazy_log(
+            tmp_path / "log.parquet", reference_column="proton_nT", keep=keep
+        )
         calibrate_log(log, method="joint")
     # the samples, the reference column and the reader's checks of a pass share each read;
     # the first block is read apart for the frame of the first pass and the unit's check
     heads = sum(what == "head" for what, _ in log.samples.timings)
-    assert len(reads) == 6 * log.samples.passes + heads and heads <= 2
+    if keep:  # read once, when opened: the passes and the first block read memory
+        assert len(reads) == 6 and log.samples.passes == 2
+    else:
+        assert len(reads) == 6 * log.samples.passes + heads and heads <= 2
+
+
+@pytest.mark.parametrize("kind", ["parquet", "csv"])
+def test_a_log_that_fits_in_memory_is_read_once_for_every_pass(tmp_path, monkeypatch, kind):
+    """Read when opened and kept in memory: the first pass run again on the rows counted (a
+    zero vector and a row with a NaN left out), the reweightings of a robust loss and the pass
+    after the solve all read the blocks there, and the result is the one of the passes that
+    read the files."""
+    pytest.importorskip("pyarrow")
+    from nlpcal import cluster
+    from nlpcal.calibration import calibrate_log
+    from nlpcal.io import lazy as reader
+
+    samples, _ = make_log(n=30_000, noise=1.0, seed=5)
+    frame = pd.DataFrame(samples, columns=["bx", "by", "bz"])
+    frame["proton_nT"] = PAPER_FIELD
+    frame.loc[12_345, ["bx", "by", "bz"]] = 0.0
+    frame.loc[23_456, "by"] = np.nan
+    path = tmp_path / f"log.{kind}"
+    if kind == "parquet":
+        frame.to_parquet(path, index=False, row_group_size=5_000)
+    else:
+        frame.to_csv(path, index=False)
+    options = {"reference_column": "proton_nT", "drop_invalid": True, "block_bytes": 400_000}
+    reads = []
+    original = reader._table_of
+    monkeypatch.setattr(reader, "_table_of", lambda spec: reads.append(spec) or original(spec))
+    results = {}
+    with dask.config.set(scheduler="threads"):
+        for keep in (False, True):
+            reads.clear()
+            log = reader.read_lazy_log(path, keep=keep, **options)
+            results[keep] = calibrate_log(log, method="joint", loss="huber")
+            blocks = len({spec[1:3] if kind == "parquet" else spec[4] for spec in reads})
+            notes = " ".join(log.notes)
+            if keep:
+                assert len(reads) == blocks and "read once and kept in memory" in notes
+                assert log.samples.passes >= 4  # counted again, reweighted, after the solve
+            else:
+                assert len(reads) > blocks * log.samples.passes
+                assert "read in every pass" in notes
+        # a log larger than the memory the scheduler may take stays in its files
+        monkeypatch.setattr(cluster, "memory_to_keep", lambda: (1e5, "a small machine"))
+        reads.clear()
+        log = reader.read_lazy_log(path, **options)
+        assert "read in every pass" in " ".join(log.notes)
+        # the first block for the unit's check; a CSV log's rows counted
+        assert len(reads) == 1 + (0 if kind == "parquet" else blocks)
+    assert results[True].n_samples == results[False].n_samples == 30_000 - 2
+    assert_same_calibration(results[False], results[True])
+
+
+def test_blocks_are_kept_where_the_scheduler_has_room_for_them():
+    from nlpcal import cluster
+
+    with dask.config.set(scheduler="processes"):  # each pass would send the blocks again
+        assert cluster.memory_to_keep() is None
+    with dask.config.set(scheduler="threads"):
+        room = cluster.memory_to_keep()
+    available = cluster.available_memory()
+    if available is None:
+        assert room is None
+    else:
+        assert room == (cluster.KEEP_SHARE * available, "this machine") and room[0] > 0
 
 
 @pytest.mark.parametrize("zero_row", [None, 12_345])
@@ -558,7 +650,9 @@ def test_blocks_whose_rows_were_all_kept_are_screened_by_the_first_pass_only(
         RowScreen, "keep", lambda self, *args: screened.append(1) or original(self, *args)
     )
     with dask.config.set(scheduler="sync"):
-        log = reader.read_lazy_log(tmp_path / "log.parquet", reference_field=PAPER_FIELD)
+        log = reader.read_lazy_log(
+            tmp_path / "log.parquet", reference_field=PAPER_FIELD, keep=False
+        )
         result = calibrate_log(log, method="staged")
     heads = sum(what == "head" for what, _ in log.samples.timings)
     if zero_row is None:  # six blocks screened by the first pass, none after

@@ -179,7 +179,9 @@ them (say, the sensor was never turned over); --allow-unidentifiable writes them
         help="stream the log into a memory-mapped temporary file in chunks, so "
         "that logs larger than memory can be calibrated (the default for text and Parquet "
         "files, unless --plot or a geomagnetic model with position or time columns needs the "
-        "whole table; stdin and recorded formats are read whole)",
+        "whole table; stdin and recorded formats are read whole); with --scheduler, leave the "
+        "log in its files, read in every pass, rather than keep it in the cluster's memory "
+        "where it fits",
     )
     add_loss_arguments(parser)
     add_threads_argument(parser)
@@ -277,13 +279,15 @@ def _read_for_calibration(args, extra):
         lean = args.low_memory or not whole
         with show_progress(f"reading {args.log}") as bar:
             return read_log(args.log, **options, extra_columns=extra, low_memory=lean, progress=bar)
-    if args.low_memory or args.plot or args.lag is not None:
-        flag = "--low-memory" if args.low_memory else "--plot" if args.plot else "--lag"
+    if args.plot or args.lag is not None:
+        flag = "--plot" if args.plot else "--lag"
         raise InputError(
-            f"{flag} and --scheduler exclude each other: with --scheduler the log stays in its "
-            f"files and is read block by block in every pass"
+            f"{flag} and --scheduler exclude each other: with --scheduler the log is read "
+            f"block by block on the cluster"
         )
-    log = read_lazy_log(args.log, **log_options(args), extra_columns=extra)
+    # kept in the cluster's memory where it fits, unless --low-memory leaves it in its files
+    keep = not args.low_memory
+    log = read_lazy_log(args.log, **log_options(args), extra_columns=extra, keep=keep)
     log.notes.append(f"running on {describe(args.scheduler)}")
     return log
 

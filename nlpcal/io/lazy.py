@@ -1,5 +1,5 @@
-"""Logs that stay where they are, for a Dask cluster: the rows of CSV or Parquet files (one file,
-a pattern or a folder) as a Dask array read block by block in every pass (`nlpcal.passes`).
+"""Logs read where they are, for a Dask cluster: the rows of CSV or Parquet files (one file, a
+pattern or a folder) as a Dask array read block by block (`nlpcal.passes`).
 
 Each block is one task: a Parquet row group (pyarrow writes row groups of 2^20 rows by default),
 or a byte range of a text file (BLOCK_BYTES, cut at line ends; a compressed file, or one not in
@@ -18,18 +18,25 @@ out make it find the blocks shorter than declared: the arrays are rebuilt on the
 and that pass runs again. Otherwise (CSV) a pass counts the rows of every block first. The unit's
 plausibility is checked on the first block (`nlpcal.passes.first_block`): the unit is the
 file's, the same in every block.
+
+A log whose values fit in the memory the current scheduler may give them
+(`nlpcal.cluster.memory_to_keep`) is read once, when opened, and its blocks kept there
+(`Reading.keep`, Dask's persist): every pass then reads them in memory, and the checks above
+find what they find on the kept blocks (a bad value fails the reading). Otherwise every pass
+reads the files again.
 """
 
 from __future__ import annotations
 
 import io
+import os
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
 
-from .. import passes, units
+from .. import cluster, passes, units
 from ..errors import InputError
 from ..geomagnetic import ReferenceModel
 from . import sources
@@ -232,6 +239,7 @@ class Reading:
     factors: np.ndarray
     drop_invalid: bool
     name: str
+    kept: list | None = None  # the blocks read once and held in memory (`keep`)
 
     @property
     def declared(self) -> bool:
@@ -240,9 +248,12 @@ class Reading:
 
     def reads(self, checked: list | None = None) -> list:
         """One Dask object per block: `_block` of it; `checked`, the blocks' `_checks` by an
-        earlier pass: a block whose rows were all kept is not screened again."""
+        earlier pass: a block whose rows were all kept is not screened again. The blocks held
+        in memory when they are kept (`keep`): every pass reads them there."""
         import dask
 
+        if self.kept is not None:
+            return self.kept
         clean = [c[0] == c[1] for c in checked] if checked else [False] * len(self.specs)
         return [
             dask.delayed(_block)(spec, self.wanted, self.factors, self.drop_invalid, ok)
@@ -273,6 +284,13 @@ class Reading:
         reads = self.reads()
         checks = [dask.delayed(_checks)(read) for read in reads]
         return self.table([n for _, n in self.specs], reads), checks
+
+    def keep(self) -> None:
+        """Read every block now (on a dask.distributed cluster: start reading) and hold it in
+        memory on the current scheduler, for every pass to read there."""
+        import dask
+
+        self.kept = list(dask.persist(*self.reads()))
 
     def counted(self) -> tuple:
         """(Dask array, rows left out, notes) after a pass that counts the rows every block
@@ -334,6 +352,7 @@ def read_lazy_log(
     variable: str | None = None,
     instance: int | None = None,
     reference_log=None,
+    keep: bool = True,
 ) -> Log:
     """`nlpcal.io.read_log` for a Dask cluster: the same columns, units and checks, the samples
     (and a reference column) left in the files as `nlpcal.passes.LazySamples`.
@@ -344,6 +363,12 @@ def read_lazy_log(
     CSV log's rows are counted by a pass here. The unit's plausibility is checked on the first
     block. A per-sample geomagnetic reference and extra columns (temperatures) need the log in
     memory (`read_log`).
+
+    keep : read the files once, now, and hold their blocks in memory on the current scheduler,
+    for every pass of the calibration to read there, when they fit in the memory it may take
+    (`nlpcal.cluster.memory_to_keep`; not on Dask's processes scheduler), for as long as the
+    log is kept; otherwise, and without `keep`, every pass reads the files again. The notes
+    say which.
     """
     one_reference(reference_column, reference_field, reference_model)
     if reference_log is not None:
@@ -365,10 +390,14 @@ def read_lazy_log(
     reading = Reading(
         _specs(files, block_bytes), wanted, np.asarray(factors, float), drop_invalid, first.name
     )
+    held = _held(reading, files) if keep else None
+    kept_s = time.perf_counter() - started
     samples, column, deferred, lost, screened = _lazy_columns(reading, name is not None)
     notes.extend(screened)
+    if held is not None:  # read whole (or, on a cluster, being read): not a pass of its work
+        samples.ledger.record("keep", kept_s, whole=False)
     if deferred is None:  # counted: a pass
-        samples.ledger.record("read", time.perf_counter() - started)
+        samples.ledger.record("read", time.perf_counter() - started - kept_s)
     _, settled, check = settle_unit(passes.first_block(samples), unit, how)
     if settled != unit:  # an assumed unit ruled out: the file's numbers, as raw counts
         samples, unit = passes.scaled(samples, 1.0 / units.field_factor(unit)), settled
@@ -384,9 +413,7 @@ def read_lazy_log(
         reference, model = model_reference(reference_model, unit, notes)
     elif reference_field is not None:
         reference = constant_reference(reference_field, reference_field_unit, unit)
-    blocks = len(samples.block_offsets())
-    what = "Parquet row groups" if all(part.parquet for part in files) else "blocks"
-    notes.append(f"the log stays in its files: {blocks} {what} read in every pass")
+    notes.append(_where_note(held, len(samples.block_offsets()), files))
     log = Log(
         path=str(source),
         columns=list(chosen),
@@ -405,6 +432,54 @@ def read_lazy_log(
     if deferred is not None:  # what the first pass finds goes to the log
         deferred.log = log
     return log
+
+
+def _where_note(held: str | None, blocks: int, files) -> str:
+    """Where the passes read a log: in memory (`held`, from `_held`) or in its files."""
+    what = "Parquet row groups" if all(part.parquet for part in files) else "blocks"
+    if held is not None:
+        return f"the log's {blocks} {what} are read once and kept in memory ({held})"
+    return f"the log stays in its files: {blocks} {what} read in every pass"
+
+
+#: How many times its size a compressed text file is counted at, for the memory its values take
+#: once read (`_memory_needed`). [1]
+COMPRESSED_RATIO = 10.0
+
+
+def _held(reading: Reading, files) -> str | None:
+    """Keep the blocks of a log in memory on the current scheduler (`Reading.keep`) when they
+    fit in what it may take there (`nlpcal.cluster.memory_to_keep`): where, and how much of
+    it they take; None where they stay in the files."""
+    room = cluster.memory_to_keep()
+    needed = _memory_needed(reading, files)
+    if room is None or needed is None or needed > room[0]:
+        return None
+    reading.keep()
+    return f"{_mib(needed)} on {room[1]}, which may take {_mib(room[0])}"
+
+
+def _mib(size: float) -> str:
+    """A memory size in MiB for a note: 0.686 MiB, 2,365 MiB. [byte]"""
+    mib = size / 2**20
+    return f"{mib:.3g} MiB" if mib < 1000 else f"{mib:,.0f} MiB"
+
+
+def _memory_needed(reading: Reading, files) -> float | None:
+    """The memory a log's blocks take once read: 8 bytes per value of the rows Parquet footers
+    declare; a text file's size (a compressed one COMPRESSED_RATIO times it), which is at least
+    that of its values in float64 for numbers of five digits or more; None when a file's size
+    cannot be told. [byte]"""
+    needed = 8.0 * len(reading.wanted) * sum(n for _, n in reading.specs if n is not None)
+    for part in files:
+        if part.parquet:
+            continue
+        try:
+            size = float(os.stat(str(part.source)).st_size)
+        except (OSError, TypeError, ValueError):
+            return None
+        needed += size * (COMPRESSED_RATIO if part.layout.compression else 1.0)
+    return needed
 
 
 def _lazy_columns(reading: Reading, with_reference: bool) -> tuple:
