@@ -3,6 +3,7 @@
     python -m pip install '.[dask,bench]'
     python benchmarks/bench_scale.py big   [--samples 1e8] [--workers 2] [--repeats 3]
     python benchmarks/bench_scale.py fleet [--logs 1000] [--samples 1e4] [--workers 2]
+    python benchmarks/bench_scale.py kept  [--samples 2e6] [--workers 2] [--repeats 3]
 
 big: a log of N samples (1 nT noise, uniform attitudes, no reference) in Parquet files of 10^7
 rows each (row groups of 2^20 rows, pyarrow's default). In one run it measures
@@ -24,6 +25,12 @@ for each method, and prints medians over the repeats with their range (min-max),
 the floors, the passes over the files, the largest gap of each path's parameters to the
 in-memory path's in standard errors (to --low-memory's above IN_MEMORY_MOST samples, the same
 code on a memory map), where the cluster's time goes and the peak memory of a worker.
+
+kept: one log of N samples as one CSV file and as Parquet (row groups of 2^18 rows), each
+calibrated jointly with least squares and with Huber's loss on Dask's threads and on a
+LocalCluster of `--workers` workers, read once and kept in memory (`read_lazy_log(keep=True)`,
+the default where the log fits) and left in its files (keep=False, `--low-memory`): medians
+over the repeats with their range, the passes over the data and the ratio of the two.
 
 fleet: `--logs` CSV logs of `--samples` samples, two of them broken on purpose (a non-numeric
 cell, no field columns). In one run it measures
@@ -292,6 +299,75 @@ def print_splits(splits: dict) -> None:
         print(f"\n{key}, where the time goes: {shares}, solves and the rest {rest:.2f} s")
 
 
+# --- a log kept in memory ---------------------------------------------------------------------
+
+#: Rows per Parquet row group of the `kept` case: 2^18, so that a log of 2 x 10^6 samples has
+#: eight blocks, as the CSV log has in blocks of 16 MiB.
+KEPT_ROW_GROUP = 2**18
+#: Bytes per block of the `kept` case's CSV log. [byte]
+KEPT_BLOCK_BYTES = 16 * 2**20
+
+
+def make_kept(folder: Path, n: int) -> tuple:
+    """(CSV path, Parquet path) of one log of n samples, 1 nT noise (made once)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    text, table = folder / "log.csv", folder / "log.parquet"
+    marker = folder / f"complete-{n}"
+    if not marker.exists():
+        shutil.rmtree(folder, ignore_errors=True)
+        folder.mkdir(parents=True)
+        frame = simulate(n, noise=1.0, seed=11)
+        frame.to_csv(text, index=False)
+        pq.write_table(
+            pa.Table.from_pandas(frame, preserve_index=False), table, row_group_size=KEPT_ROW_GROUP
+        )
+        marker.write_text("")
+    return text, table
+
+
+def run_kept(path: Path, loss: str, keep: bool) -> tuple:
+    """(seconds, passes over the data) of reading and calibrating one log jointly on the
+    current scheduler."""
+    started = time.perf_counter()
+    log = read_lazy_log(str(path), keep=keep, block_bytes=KEPT_BLOCK_BYTES)
+    calibrate_log(log, method="joint", loss=loss)
+    seconds = time.perf_counter() - started
+    return seconds, log.samples.passes
+
+
+def bench_kept(args) -> None:
+    n = int(args.samples)
+    paths = make_kept(Path(args.data_dir) / f"kept-{n:.0e}", n)
+    print(
+        f"# {n:.0e} samples, CSV {paths[0].stat().st_size / 2**20:.0f} MiB, Parquet "
+        f"{paths[1].stat().st_size / 2**20:.0f} MiB ({load()})"
+    )
+    print(
+        f"\n## read once and kept, or read in every pass: medians over {args.repeats} "
+        "repeats [min-max]\n"
+    )
+    print("| log | scheduler | loss | passes | kept | in its files | files / kept |")
+    print("|---|---|---|---|---|---|---|")
+    for scheduler in ("threads", "local"):
+        with cluster.scheduler(scheduler, workers=args.workers):
+            for path in paths:
+                for loss in ("l2", "huber"):
+                    run_kept(path, loss, False)  # the first run pays the loads
+                    times: dict = {True: [], False: []}
+                    for _ in range(args.repeats):
+                        for keep in (True, False):
+                            seconds, passes = run_kept(path, loss, keep)
+                            times[keep].append(seconds)
+                    ratio = statistics.median(times[False]) / statistics.median(times[True])
+                    print(
+                        f"| {path.suffix[1:]} | {scheduler} | {loss} | {passes} | "
+                        f"{spread(times[True])} | {spread(times[False])} | {ratio:.2f} |",
+                        flush=True,
+                    )
+
+
 # --- a fleet ----------------------------------------------------------------------------------
 
 
@@ -461,8 +537,10 @@ def bench_fleet(args) -> None:
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("case", choices=("big", "fleet"))
-    parser.add_argument("--samples", type=float, help="samples of the log (big: 1e8, fleet: 1e4)")
+    parser.add_argument("case", choices=("big", "fleet", "kept"))
+    parser.add_argument(
+        "--samples", type=float, help="samples of the log (big: 1e8, fleet: 1e4, kept: 2e6)"
+    )
     parser.add_argument("--logs", type=float, default=1000, help="fleet: logs")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--repeats", type=int, default=3)
@@ -481,10 +559,10 @@ def main(argv=None) -> None:
     )
     args = parser.parse_args(argv)
     if args.samples is None:
-        args.samples = 1e8 if args.case == "big" else 1e4
+        args.samples = {"big": 1e8, "fleet": 1e4, "kept": 2e6}[args.case]
     print(f"# machine: {machine()}")
     print(f"# {cluster.describe('local')} of {args.workers} workers")
-    (bench_big if args.case == "big" else bench_fleet)(args)
+    {"big": bench_big, "fleet": bench_fleet, "kept": bench_kept}[args.case](args)
 
 
 if __name__ == "__main__":
