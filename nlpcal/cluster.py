@@ -109,20 +109,26 @@ def scheduler(spec=None, workers: int | None = None):
             yield client
 
 
-#: The share of the memory a Dask scheduler has free that a log read from files may take there,
-#: kept for the later passes of a calibration (`nlpcal.io.lazy.read_lazy_log`): half, below the
-#: 60 % of its limit at which a dask.distributed worker starts to move data to disk.
+#: The share of its memory a Dask scheduler may give a log read from files, kept there for the
+#: later passes of a calibration (`nlpcal.io.lazy.read_lazy_log`): half, below the 60 % of its
+#: limit at which a dask.distributed worker starts to move data to disk.
 KEEP_SHARE = 0.5
 
 
 def memory_to_keep() -> tuple | None:
     """(bytes, where) a log read from its files may take in memory on the current Dask
-    scheduler, kept there for the later passes of a calibration; None where it is not kept:
-    Dask's processes scheduler (every pass would send each block to a process again) or a
-    memory that cannot be told. On a dask.distributed cluster KEEP_SHARE of its workers'
-    memory limits less what they hold (nothing where a worker has no limit); on this process's
-    schedulers (threads, sync) KEEP_SHARE of the memory available here. [byte]"""
-    import dask.multiprocessing
+    scheduler, kept there for the later passes of a calibration, or None where it is not kept.
+
+    On a dask.distributed cluster: KEEP_SHARE of a worker's memory limit less what the worker
+    holds, for the worker with the least of it, times the number of workers (Dask places the
+    blocks where it likes); nothing when a worker has no limit, or the scheduler answers
+    with an error. On this process's own schedulers (threads, synchronous, and Dask's default
+    for arrays): KEEP_SHARE of the memory available here (`available_memory`). Nothing on any
+    other scheduler (Dask's processes, or an executor: every pass would send each block to a
+    process again). [byte]
+    """
+    import dask.local
+    import dask.threaded
     from dask.base import get_scheduler
 
     get = get_scheduler()
@@ -131,12 +137,11 @@ def memory_to_keep() -> tuple | None:
         workers = _workers(owner)
         if not workers or any(not w.get("memory_limit") for w in workers):
             return None
-        free = sum(
-            max(0.0, KEEP_SHARE * w["memory_limit"] - w.get("metrics", {}).get("memory", 0))
-            for w in workers
+        least = min(
+            KEEP_SHARE * w["memory_limit"] - w.get("metrics", {}).get("memory", 0) for w in workers
         )
-        return free, f"the workers of {describe(owner)}"
-    if get is dask.multiprocessing.get:
+        return max(0.0, least) * len(workers), f"the workers of {describe(owner)}"
+    if get not in (None, dask.threaded.get, dask.local.get_sync):
         return None
     available = available_memory()
     return None if available is None else (KEEP_SHARE * available, "this machine")
@@ -144,27 +149,44 @@ def memory_to_keep() -> tuple | None:
 
 def _workers(client) -> list:
     """The workers' information of a Client's scheduler (all of them: newer dask.distributed
-    reports five unless asked for more); none when the scheduler does not tell (the passes
-    then meet whatever is wrong with it)."""
+    reports five unless asked for more); none when the scheduler answers with an error (the
+    passes then meet whatever is wrong with it; one that does not answer holds them alike)."""
     try:
         try:
             info = client.scheduler_info(n_workers=-1)
         except TypeError:  # dask.distributed before 2025
             info = client.scheduler_info()
         return list(info.get("workers", {}).values())
-    except Exception:  # a scheduler that no longer answers, or answers in another form
+    except Exception:  # a scheduler that is gone, or answers in another form
         return []
 
 
 def available_memory() -> float | None:
-    """The memory available to new data on this machine (psutil's, else Linux's MemAvailable),
-    or None where neither tells it. [byte]"""
+    """The memory new data may take in this process: what the machine has available (psutil's,
+    else Linux's MemAvailable), held to what is left below the limit of its container (a Linux
+    cgroup's memory.max, v2, or limit_in_bytes, v1); None where the machine does not tell, or
+    the process's address space is limited (`ulimit -v`: its size is not its data). [byte]"""
+    try:
+        import resource
+    except ImportError:  # Windows
+        pass
+    else:
+        if resource.getrlimit(resource.RLIMIT_AS)[0] != resource.RLIM_INFINITY:
+            return None
     try:
         import psutil
     except ImportError:
-        pass
+        available = _meminfo_available()
     else:
-        return float(psutil.virtual_memory().available)
+        available = float(psutil.virtual_memory().available)
+    if available is None:
+        return None
+    room = _cgroup_room()
+    return available if room is None else min(available, room)
+
+
+def _meminfo_available() -> float | None:
+    """Linux's MemAvailable, or None. [byte]"""
     try:
         with open("/proc/meminfo", encoding="ascii") as meminfo:
             for line in meminfo:
@@ -172,6 +194,31 @@ def available_memory() -> float | None:
                     return float(line.split()[1]) * 1024.0  # given in kB
     except (OSError, ValueError, IndexError):
         pass
+    return None
+
+
+#: (limit, usage) files of a Linux cgroup's memory: v2, then v1.
+CGROUP_MEMORY = (
+    ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
+    ("/sys/fs/cgroup/memory/memory.limit_in_bytes", "/sys/fs/cgroup/memory/memory.usage_in_bytes"),
+)
+
+
+def _cgroup_room() -> float | None:
+    """What this process's cgroup may still take below its memory limit, or None without a
+    limit. [byte]"""
+    for limit_file, usage_file in CGROUP_MEMORY:
+        try:
+            with (
+                open(limit_file, encoding="ascii") as limit,
+                open(usage_file, encoding="ascii") as usage,
+            ):
+                text, used = limit.read().strip(), float(usage.read().strip())
+        except (OSError, ValueError):
+            continue
+        if text == "max" or not text.isdigit() or int(text) >= 2**60:  # no limit (v1: huge)
+            return None
+        return max(0.0, float(text) - used)
     return None
 
 

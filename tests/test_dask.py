@@ -524,7 +524,7 @@ def test_rows_left_out_of_parquet_are_found_by_the_first_pass_as_in_memory(tmp_p
     memory = read_log(tmp_path / "log.parquet", **options)
     expected = calibrate_log(memory, method="joint")
     with dask.config.set(scheduler="sync"):
-        log = read_lazy_log(tmp_path / "log.parquet", **options)
+        log = read_lazy_log(tmp_path / "log.parquet", keep=False, **options)
         assert log.dropped == 0 and log.samples.passes == 0  # the footers' rows, not read yet
         result = calibrate_log(log, method="joint")
     assert log.dropped == memory.dropped == 2 and result.n_samples == expected.n_samples
@@ -564,10 +564,10 @@ def test_each_block_of_a_parquet_log_is_read_once_per_pass(tmp_path, monkeypatch
 
 @pytest.mark.parametrize("kind", ["parquet", "csv"])
 def test_a_log_that_fits_in_memory_is_read_once_for_every_pass(tmp_path, monkeypatch, kind):
-    """Read when opened and kept in memory: the first pass run again on the rows counted (a
-    zero vector and a row with a NaN left out), the reweightings of a robust loss and the pass
-    after the solve all read the blocks there, and the result is the one of the passes that
-    read the files."""
+    """Read when opened and kept in memory: its rows counted there (a zero vector and a row
+    with a NaN left out, said in the same notes), the reweightings of a robust loss and the
+    pass after the solve all read the blocks there, and the result is the one of the passes
+    that read the files."""
     pytest.importorskip("pyarrow")
     from nlpcal import cluster
     from nlpcal.calibration import calibrate_log
@@ -587,17 +587,20 @@ def test_a_log_that_fits_in_memory_is_read_once_for_every_pass(tmp_path, monkeyp
     reads = []
     original = reader._table_of
     monkeypatch.setattr(reader, "_table_of", lambda spec: reads.append(spec) or original(spec))
-    results = {}
+    # room for it, whatever this machine has
+    monkeypatch.setattr(cluster, "memory_to_keep", lambda: (1e10, "this machine"))
+    results, logs = {}, {}
     with dask.config.set(scheduler="threads"):
         for keep in (False, True):
             reads.clear()
-            log = reader.read_lazy_log(path, keep=keep, **options)
+            logs[keep] = log = reader.read_lazy_log(path, keep=keep, **options)
             results[keep] = calibrate_log(log, method="joint", loss="huber")
             blocks = len({spec[1:3] if kind == "parquet" else spec[4] for spec in reads})
             notes = " ".join(log.notes)
             if keep:
                 assert len(reads) == blocks and "read once and kept in memory" in notes
-                assert log.samples.passes >= 4  # counted again, reweighted, after the solve
+                assert log.samples.passes >= 3  # the moments, reweighted, after the solve
+                assert [w for w, _ in log.samples.timings].count("MomentBlock + survey") == 1
             else:
                 assert len(reads) > blocks * log.samples.passes
                 assert "read in every pass" in notes
@@ -608,22 +611,53 @@ def test_a_log_that_fits_in_memory_is_read_once_for_every_pass(tmp_path, monkeyp
         assert "read in every pass" in " ".join(log.notes)
         # the first block for the unit's check; a CSV log's rows counted
         assert len(reads) == 1 + (0 if kind == "parquet" else blocks)
+    assert logs[True].dropped == logs[False].dropped == 2
+    said = {
+        keep: [n for n in log.notes if "every pass" not in n and "kept" not in n]
+        for keep, log in logs.items()
+    }
+    assert sorted(said[True]) == sorted(said[False]) and any("(0, 0, 0)" in n for n in said[True])
     assert results[True].n_samples == results[False].n_samples == 30_000 - 2
     assert_same_calibration(results[False], results[True])
 
 
-def test_blocks_are_kept_where_the_scheduler_has_room_for_them():
+def test_blocks_are_kept_where_the_scheduler_has_room_for_them(monkeypatch, cluster):
+    from nlpcal import cluster as where
+
+    monkeypatch.setattr(where, "available_memory", lambda: 8e9)
+    with dask.config.set(scheduler="threads"):
+        assert where.memory_to_keep() == (where.KEEP_SHARE * 8e9, "this machine")
+    with dask.config.set(scheduler="sync"):
+        assert where.memory_to_keep() == (where.KEEP_SHARE * 8e9, "this machine")
+    with dask.config.set(scheduler="processes"):  # each pass would send the blocks again
+        assert where.memory_to_keep() is None
+    monkeypatch.setattr(where, "available_memory", lambda: None)  # a machine that cannot tell
+    with dask.config.set(scheduler="threads"):
+        assert where.memory_to_keep() is None
+    distributed = pytest.importorskip("distributed")
+    with distributed.Client(cluster, set_as_default=False) as client, where.scheduler(client):
+        room, on = where.memory_to_keep()  # the cluster's own workers
+        limits = [w["memory_limit"] for w in where._workers(client)]
+        assert 0 < room <= where.KEEP_SHARE * sum(limits) and "the workers of" in on
+        # the worker with the least room decides, for every worker
+        workers = [
+            {"memory_limit": 1000, "metrics": {"memory": 100}},
+            {"memory_limit": 1000, "metrics": {"memory": 300}},
+        ]
+        monkeypatch.setattr(where, "_workers", lambda _: workers)
+        assert where.memory_to_keep()[0] == 2 * (500 - 300)
+        workers[1] = {"memory_limit": 0}  # no limit: nothing is kept
+        assert where.memory_to_keep() is None
+
+
+def test_a_scheduler_that_answers_with_an_error_keeps_nothing():
     from nlpcal import cluster
 
-    with dask.config.set(scheduler="processes"):  # each pass would send the blocks again
-        assert cluster.memory_to_keep() is None
-    with dask.config.set(scheduler="threads"):
-        room = cluster.memory_to_keep()
-    available = cluster.available_memory()
-    if available is None:
-        assert room is None
-    else:
-        assert room == (cluster.KEEP_SHARE * available, "this machine") and room[0] > 0
+    class Gone:
+        def scheduler_info(self, **_):
+            raise OSError("the scheduler is gone")
+
+    assert cluster._workers(Gone()) == []
 
 
 @pytest.mark.parametrize("zero_row", [None, 12_345])

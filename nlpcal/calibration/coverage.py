@@ -85,7 +85,8 @@ def bin_hits(vectors) -> np.ndarray:
     a = np.abs(v)
     largest, smallest = np.max(a, axis=0), np.min(a, axis=0)
     total = np.sum(a, axis=0)
-    two, three = (total - smallest) / np.sqrt(2.0), total / np.sqrt(3.0)
+    with np.errstate(invalid="ignore"):  # inf - inf for an infinite vector: in no bin below
+        two, three = (total - smallest) / np.sqrt(2.0), total / np.sqrt(3.0)
     one_best = (largest >= two) & (largest >= three)
     two_best = ~one_best & (two >= three)
     three_best = ~one_best & ~two_best

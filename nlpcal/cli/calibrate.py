@@ -257,7 +257,8 @@ def _dask_progress(spec):
 
 
 def _read_for_calibration(args, extra):
-    """The log: in this process (read_log), or left in its files for --scheduler."""
+    """The log: in this process (read_log), or for --scheduler read block by block on the
+    cluster, kept in its memory where it fits unless --low-memory (read_lazy_log)."""
     from ..cluster import describe
     from ..errors import InputError
     from ..io import read_log

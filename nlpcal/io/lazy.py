@@ -21,9 +21,9 @@ file's, the same in every block.
 
 A log whose values fit in the memory the current scheduler may give them
 (`nlpcal.cluster.memory_to_keep`) is read once, when opened, and its blocks kept there
-(`Reading.keep`, Dask's persist): every pass then reads them in memory, and the checks above
-find what they find on the kept blocks (a bad value fails the reading). Otherwise every pass
-reads the files again.
+(`Reading.keep`, Dask's persist): their checks and row counts come from the kept blocks then
+(a bad value fails the reading, and no pass runs again for rows left out), and every pass
+reads them in memory. Otherwise every pass reads the files again.
 """
 
 from __future__ import annotations
@@ -391,13 +391,12 @@ def read_lazy_log(
         _specs(files, block_bytes), wanted, np.asarray(factors, float), drop_invalid, first.name
     )
     held = _held(reading, files) if keep else None
-    kept_s = time.perf_counter() - started
     samples, column, deferred, lost, screened = _lazy_columns(reading, name is not None)
     notes.extend(screened)
-    if held is not None:  # read whole (or, on a cluster, being read): not a pass of its work
-        samples.ledger.record("keep", kept_s, whole=False)
-    if deferred is None:  # counted: a pass
-        samples.ledger.record("read", time.perf_counter() - started - kept_s)
+    if held is not None:  # read once and counted: the passes read memory
+        samples.ledger.record("keep", time.perf_counter() - started, whole=False)
+    elif deferred is None:  # counted: a pass
+        samples.ledger.record("read", time.perf_counter() - started)
     _, settled, check = settle_unit(passes.first_block(samples), unit, how)
     if settled != unit:  # an assumed unit ruled out: the file's numbers, as raw counts
         samples, unit = passes.scaled(samples, 1.0 / units.field_factor(unit)), settled
@@ -442,9 +441,9 @@ def _where_note(held: str | None, blocks: int, files) -> str:
     return f"the log stays in its files: {blocks} {what} read in every pass"
 
 
-#: How many times its size a compressed text file is counted at, for the memory its values take
-#: once read (`_memory_needed`). [1]
-COMPRESSED_RATIO = 10.0
+#: The most memory the values of a text file can take once read, in times its size: a value of
+#: one digit and its separator, 2 bytes, becomes 8 (`_memory_needed`). [1]
+TEXT_EXPANSION = 4.0
 
 
 def _held(reading: Reading, files) -> str | None:
@@ -467,9 +466,9 @@ def _mib(size: float) -> str:
 
 def _memory_needed(reading: Reading, files) -> float | None:
     """The memory a log's blocks take once read: 8 bytes per value of the rows Parquet footers
-    declare; a text file's size (a compressed one COMPRESSED_RATIO times it), which is at least
-    that of its values in float64 for numbers of five digits or more; None when a file's size
-    cannot be told. [byte]"""
+    declare, and at most TEXT_EXPANSION times the size of a text file; None when that cannot be
+    told: a compressed file (one block, read whole, whose values' size is not known), or a file
+    whose size cannot be read. [byte]"""
     needed = 8.0 * len(reading.wanted) * sum(n for _, n in reading.specs if n is not None)
     for part in files:
         if part.parquet:
@@ -478,16 +477,18 @@ def _memory_needed(reading: Reading, files) -> float | None:
             size = float(os.stat(str(part.source)).st_size)
         except (OSError, TypeError, ValueError):
             return None
-        needed += size * (COMPRESSED_RATIO if part.layout.compression else 1.0)
+        if part.layout.compression:
+            return None
+        needed += TEXT_EXPANSION * size
     return needed
 
 
 def _lazy_columns(reading: Reading, with_reference: bool) -> tuple:
     """(samples, the reference column or None, their `Deferred` checks or None, rows left out,
     notes) of a log's blocks: on the rows the blocks declare, checked by the first pass, or
-    counted by a pass now."""
+    counted by a pass now (a log kept in memory: on its kept blocks, every row count known)."""
     deferred: Deferred | None = None
-    if reading.declared:
+    if reading.declared and reading.kept is None:
         table, checks = reading.as_declared()
         deferred = Deferred(reading)
         pending = passes.Pending(checks, deferred.settle)
