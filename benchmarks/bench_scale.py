@@ -348,7 +348,7 @@ def bench_kept(args) -> None:
         f"\n## read once and kept, or read in every pass: medians over {args.repeats} "
         "repeats [min-max]\n"
     )
-    print("| log | scheduler | loss | passes | kept | in its files | files / kept |")
+    print("| log | scheduler | loss | passes kept / files | kept | in its files | files / kept |")
     print("|---|---|---|---|---|---|---|")
     for scheduler in ("threads", "local"):
         with cluster.scheduler(scheduler, workers=args.workers):
@@ -356,13 +356,15 @@ def bench_kept(args) -> None:
                 for loss in ("l2", "huber"):
                     run_kept(path, loss, False)  # the first run pays the loads
                     times: dict = {True: [], False: []}
+                    passes: dict = {}
                     for _ in range(args.repeats):
                         for keep in (True, False):
-                            seconds, passes = run_kept(path, loss, keep)
+                            seconds, passes[keep] = run_kept(path, loss, keep)
                             times[keep].append(seconds)
                     ratio = statistics.median(times[False]) / statistics.median(times[True])
                     print(
-                        f"| {path.suffix[1:]} | {scheduler} | {loss} | {passes} | "
+                        f"| {path.suffix[1:]} | {scheduler} | {loss} | "
+                        f"{passes[True]} / {passes[False]} | "
                         f"{spread(times[True])} | {spread(times[False])} | {ratio:.2f} |",
                         flush=True,
                     )
