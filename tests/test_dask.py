@@ -608,7 +608,8 @@ def test_a_log_that_fits_in_memory_is_read_once_for_every_pass(tmp_path, monkeyp
         monkeypatch.setattr(cluster, "memory_to_keep", lambda: (1e5, "a small machine"))
         reads.clear()
         log = reader.read_lazy_log(path, **options)
-        assert "read in every pass" in " ".join(log.notes)
+        assert "read in every pass (its " in " ".join(log.notes)
+        assert "exceed the 0.0954 MiB a small machine may take" in " ".join(log.notes)
         # the first block for the unit's check; a CSV log's rows counted
         assert len(reads) == 1 + (0 if kind == "parquet" else blocks)
     assert logs[True].dropped == logs[False].dropped == 2

@@ -390,7 +390,7 @@ def read_lazy_log(
     reading = Reading(
         _specs(files, block_bytes), wanted, np.asarray(factors, float), drop_invalid, first.name
     )
-    held = _held(reading, files) if keep else None
+    held, why = _held(reading, files) if keep else (None, "")
     samples, column, deferred, lost, screened = _lazy_columns(reading, name is not None)
     notes.extend(screened)
     if held is not None:  # read once and counted: the passes read memory
@@ -412,7 +412,7 @@ def read_lazy_log(
         reference, model = model_reference(reference_model, unit, notes)
     elif reference_field is not None:
         reference = constant_reference(reference_field, reference_field_unit, unit)
-    notes.append(_where_note(held, len(samples.block_offsets()), files))
+    notes.append(_where_note(held, why, len(samples.block_offsets()), files))
     log = Log(
         path=str(source),
         columns=list(chosen),
@@ -433,12 +433,15 @@ def read_lazy_log(
     return log
 
 
-def _where_note(held: str | None, blocks: int, files) -> str:
-    """Where the passes read a log: in memory (`held`, from `_held`) or in its files."""
+def _where_note(held: str | None, why: str, blocks: int, files) -> str:
+    """Where the passes read a log: in memory (`held`, from `_held`) or in its files (`why`,
+    when it was to be kept)."""
     what = "Parquet row groups" if all(part.parquet for part in files) else "blocks"
     if held is not None:
         return f"the log's {blocks} {what} are read once and kept in memory ({held})"
-    return f"the log stays in its files: {blocks} {what} read in every pass"
+    return f"the log stays in its files: {blocks} {what} read in every pass" + (
+        f" ({why})" if why else ""
+    )
 
 
 #: The most memory the values of a text file can take once read, in times its size: a value of
@@ -446,16 +449,20 @@ def _where_note(held: str | None, blocks: int, files) -> str:
 TEXT_EXPANSION = 4.0
 
 
-def _held(reading: Reading, files) -> str | None:
+def _held(reading: Reading, files) -> tuple:
     """Keep the blocks of a log in memory on the current scheduler (`Reading.keep`) when they
-    fit in what it may take there (`nlpcal.cluster.memory_to_keep`): where, and how much of
-    it they take; None where they stay in the files."""
+    fit in what it may take there (`nlpcal.cluster.memory_to_keep`): (where, and how much of it
+    they take; "") when kept, else (None, why not)."""
     room = cluster.memory_to_keep()
     needed = _memory_needed(reading, files)
-    if room is None or needed is None or needed > room[0]:
-        return None
+    if room is None:
+        return None, "this scheduler keeps no log in memory, or does not tell how much it has"
+    if needed is None:
+        return None, "the size of its values once read is not known"
+    if needed > room[0]:
+        return None, f"its {_mib(needed)} exceed the {_mib(room[0])} {room[1]} may take"
     reading.keep()
-    return f"{_mib(needed)} on {room[1]}, which may take {_mib(room[0])}"
+    return f"{_mib(needed)} on {room[1]}, which may take {_mib(room[0])}", ""
 
 
 def _mib(size: float) -> str:
