@@ -7,7 +7,9 @@ nlpcal). Without that hold every BLAS call may start threads of its own beside t
 on a busy machine (OpenBLAS threads wait by spinning) they fight for the cores.
 
 The pass uses the cores available to the process (its CPU affinity and the CPU quota of its
-cgroup), or the number set with `threads`. The shares are fixed by N and the thread count, not by
+cgroup), or the number set with `threads`; `available_memory` tells the memory the process may
+still take, within its cgroup's limit (for a Dask log kept in memory,
+`nlpcal.cluster.memory_to_keep`). The shares are fixed by N and the thread count, not by
 timing, so results are reproducible for a given thread count.
 """
 
@@ -40,20 +42,83 @@ def _cgroup_quota() -> int | None:
         ("/sys/fs/cgroup/cpu.max", None),
         ("/sys/fs/cgroup/cpu/cpu.cfs_quota_us", "/sys/fs/cgroup/cpu/cpu.cfs_period_us"),
     )
-    for path, period_path in candidates:
-        try:
-            with open(path) as handle:
-                fields = handle.read().split()
-            if period_path:
-                with open(period_path) as handle:
-                    fields.append(handle.read().strip())
-        except OSError:
-            continue
+    for fields in _cgroup_fields(candidates):
         if len(fields) >= 2 and fields[0] not in ("max", "-1"):
             try:
                 return max(1, math.ceil(int(fields[0]) / int(fields[1])))
             except (ValueError, ZeroDivisionError):
                 return None
+    return None
+
+
+def _cgroup_fields(candidates):
+    """The fields of each of a cgroup's (file, second file or None) that can be read, in turn:
+    the first file's, then the second's (v2, then v1)."""
+    for path, second in candidates:
+        try:
+            with open(path) as handle:
+                fields = handle.read().split()
+            if second:
+                with open(second) as handle:
+                    fields.append(handle.read().strip())
+        except OSError:
+            continue
+        yield fields
+
+
+def available_memory() -> float | None:
+    """The memory new data may take in this process: what the machine has available (psutil's,
+    else Linux's MemAvailable), held to what is left below the limit of its container (a Linux
+    cgroup's memory.max, v2, or limit_in_bytes, v1); None where the machine does not tell, or
+    the process's address space is limited (`ulimit -v`: its size is not its data). [byte]"""
+    try:
+        import resource
+    except ImportError:  # Windows
+        pass
+    else:
+        if resource.getrlimit(resource.RLIMIT_AS)[0] != resource.RLIM_INFINITY:
+            return None
+    try:
+        import psutil
+    except ImportError:
+        available = _meminfo_available()
+    else:
+        available = float(psutil.virtual_memory().available)
+    if available is None:
+        return None
+    room = _cgroup_memory_room()
+    return available if room is None else min(available, room)
+
+
+def _meminfo_available() -> float | None:
+    """Linux's MemAvailable, or None. [byte]"""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as meminfo:
+            for line in meminfo:
+                if line.startswith("MemAvailable:"):
+                    return float(line.split()[1]) * 1024.0  # given in kB
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def _cgroup_memory_room() -> float | None:
+    """What this process's cgroup may still take below its memory limit (v2 memory.max, or v1
+    limit_in_bytes, less the usage), or None without a limit. [byte]"""
+    candidates = (
+        ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
+        (
+            "/sys/fs/cgroup/memory/memory.limit_in_bytes",
+            "/sys/fs/cgroup/memory/memory.usage_in_bytes",
+        ),
+    )
+    for fields in _cgroup_fields(candidates):
+        if len(fields) != 2 or not fields[1].isdigit():
+            continue
+        limit, used = fields
+        if not limit.isdigit() or int(limit) >= 2**60:  # "max", or v1's huge number: no limit
+            return None
+        return max(0.0, float(limit) - float(used))
     return None
 
 

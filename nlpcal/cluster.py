@@ -18,7 +18,7 @@ import contextlib
 import re
 from pathlib import Path
 
-from . import validation
+from . import chunks, validation
 from .errors import InputError
 from .results import read_json_document
 
@@ -123,7 +123,8 @@ def memory_to_keep() -> tuple | None:
     holds, for the worker with the least of it, times the number of workers (Dask places the
     blocks where it likes); nothing when a worker has no limit, or the scheduler answers
     with an error. On this process's own schedulers (threads, synchronous, and Dask's default
-    for arrays): KEEP_SHARE of the memory available here (`available_memory`). Nothing on any
+    for arrays): KEEP_SHARE of the memory available here (`nlpcal.chunks.available_memory`).
+    Nothing on any
     other scheduler (Dask's processes, or an executor: every pass would send each block to a
     process again). [byte]
     """
@@ -143,7 +144,7 @@ def memory_to_keep() -> tuple | None:
         return max(0.0, least) * len(workers), f"the workers of {describe(owner)}"
     if get not in (None, dask.threaded.get, dask.local.get_sync):
         return None
-    available = available_memory()
+    available = chunks.available_memory()
     return None if available is None else (KEEP_SHARE * available, "this machine")
 
 
@@ -159,67 +160,6 @@ def _workers(client) -> list:
         return list(info.get("workers", {}).values())
     except Exception:  # a scheduler that is gone, or answers in another form
         return []
-
-
-def available_memory() -> float | None:
-    """The memory new data may take in this process: what the machine has available (psutil's,
-    else Linux's MemAvailable), held to what is left below the limit of its container (a Linux
-    cgroup's memory.max, v2, or limit_in_bytes, v1); None where the machine does not tell, or
-    the process's address space is limited (`ulimit -v`: its size is not its data). [byte]"""
-    try:
-        import resource
-    except ImportError:  # Windows
-        pass
-    else:
-        if resource.getrlimit(resource.RLIMIT_AS)[0] != resource.RLIM_INFINITY:
-            return None
-    try:
-        import psutil
-    except ImportError:
-        available = _meminfo_available()
-    else:
-        available = float(psutil.virtual_memory().available)
-    if available is None:
-        return None
-    room = _cgroup_room()
-    return available if room is None else min(available, room)
-
-
-def _meminfo_available() -> float | None:
-    """Linux's MemAvailable, or None. [byte]"""
-    try:
-        with open("/proc/meminfo", encoding="ascii") as meminfo:
-            for line in meminfo:
-                if line.startswith("MemAvailable:"):
-                    return float(line.split()[1]) * 1024.0  # given in kB
-    except (OSError, ValueError, IndexError):
-        pass
-    return None
-
-
-#: (limit, usage) files of a Linux cgroup's memory: v2, then v1.
-CGROUP_MEMORY = (
-    ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
-    ("/sys/fs/cgroup/memory/memory.limit_in_bytes", "/sys/fs/cgroup/memory/memory.usage_in_bytes"),
-)
-
-
-def _cgroup_room() -> float | None:
-    """What this process's cgroup may still take below its memory limit, or None without a
-    limit. [byte]"""
-    for limit_file, usage_file in CGROUP_MEMORY:
-        try:
-            with (
-                open(limit_file, encoding="ascii") as limit,
-                open(usage_file, encoding="ascii") as usage,
-            ):
-                text, used = limit.read().strip(), float(usage.read().strip())
-        except (OSError, ValueError):
-            continue
-        if text == "max" or not text.isdigit() or int(text) >= 2**60:  # no limit (v1: huge)
-            return None
-        return max(0.0, float(text) - used)
-    return None
 
 
 def worker_environment(dask):

@@ -623,16 +623,17 @@ def test_a_log_that_fits_in_memory_is_read_once_for_every_pass(tmp_path, monkeyp
 
 
 def test_blocks_are_kept_where_the_scheduler_has_room_for_them(monkeypatch, cluster):
+    from nlpcal import chunks
     from nlpcal import cluster as where
 
-    monkeypatch.setattr(where, "available_memory", lambda: 8e9)
+    monkeypatch.setattr(chunks, "available_memory", lambda: 8e9)
     with dask.config.set(scheduler="threads"):
         assert where.memory_to_keep() == (where.KEEP_SHARE * 8e9, "this machine")
     with dask.config.set(scheduler="sync"):
         assert where.memory_to_keep() == (where.KEEP_SHARE * 8e9, "this machine")
     with dask.config.set(scheduler="processes"):  # each pass would send the blocks again
         assert where.memory_to_keep() is None
-    monkeypatch.setattr(where, "available_memory", lambda: None)  # a machine that cannot tell
+    monkeypatch.setattr(chunks, "available_memory", lambda: None)  # a machine that cannot tell
     with dask.config.set(scheduler="threads"):
         assert where.memory_to_keep() is None
     distributed = pytest.importorskip("distributed")

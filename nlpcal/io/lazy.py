@@ -480,11 +480,11 @@ def _memory_needed(reading: Reading, files) -> float | None:
     for part in files:
         if part.parquet:
             continue
+        if part.layout.compression:
+            return None
         try:
             size = float(os.stat(str(part.source)).st_size)
         except (OSError, TypeError, ValueError):
-            return None
-        if part.layout.compression:
             return None
         needed += TEXT_EXPANSION * size
     return needed
