@@ -12,6 +12,7 @@ ERROR_TOLERANCE.
 """
 
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
@@ -613,6 +614,9 @@ def test_a_log_that_fits_in_memory_is_read_once_for_every_pass(tmp_path, monkeyp
         # the first block for the unit's check; a CSV log's rows counted
         assert len(reads) == 1 + (0 if kind == "parquet" else blocks)
     assert logs[True].dropped == logs[False].dropped == 2
+    one_file = [SimpleNamespace(parquet=kind == "parquet")]
+    what = "Parquet row group" if kind == "parquet" else "block"
+    assert reader._where_note(None, "", 1, one_file).endswith(f": 1 {what} read in every pass")
     said = {
         keep: [n for n in log.notes if "every pass" not in n and "kept" not in n]
         for keep, log in logs.items()

@@ -436,7 +436,8 @@ def read_lazy_log(
 def _where_note(held: str | None, why: str, blocks: int, files) -> str:
     """Where the passes read a log: in memory (`held`, from `_held`) or in its files (`why`,
     when it was to be kept)."""
-    what = "Parquet row groups" if all(part.parquet for part in files) else "blocks"
+    what = "Parquet row group" if all(part.parquet for part in files) else "block"
+    what += "" if blocks == 1 else "s"
     if held is not None:
         return f"the log's {blocks} {what} are read once and kept in memory ({held})"
     return f"the log stays in its files: {blocks} {what} read in every pass" + (
