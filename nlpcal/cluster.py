@@ -15,6 +15,7 @@ dask.distributed are the `dask` extra (pip install 'nlpcal[dask]').
 from __future__ import annotations
 
 import contextlib
+import logging
 import re
 from pathlib import Path
 
@@ -98,6 +99,7 @@ def scheduler(spec=None, workers: int | None = None):
                     threads_per_worker=1,
                     processes=True,
                     dashboard_address=None,
+                    preload=[__name__],  # `dask_setup` in each worker
                 )
             )
             client = stack.enter_context(distributed.Client(cluster, set_as_default=False))
@@ -166,6 +168,21 @@ def worker_environment(dask):
     """The Dask setting under which new workers start with WORKER_MALLOC."""
     key = "distributed.nanny.pre-spawn-environ"
     return dask.config.set({key: {**dask.config.get(key, {}), **WORKER_MALLOC}})
+
+
+def dask_setup(worker) -> None:
+    """Run by each worker of a "local" cluster as it starts (a Dask preload of this module):
+    its log leaves out the tasks that refused the data (`refusal_unlogged`), which nlpcal
+    reports itself, in one line, on the same terminal."""
+    logging.getLogger("distributed.worker").addFilter(refusal_unlogged)
+
+
+def refusal_unlogged(record: logging.LogRecord) -> bool:
+    """False for a dask.distributed worker's "Compute Failed" record of a task that raised
+    nlpcal's InputError (a value the log's reader refused: the error the command line then
+    states); True, logged as Dask logs it, for any other failure."""
+    message = record.getMessage()
+    return not (message.startswith("Compute Failed") and "InputError(" in message)
 
 
 def blas_one_thread() -> None:

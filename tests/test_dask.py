@@ -12,6 +12,9 @@ ERROR_TOLERANCE.
 """
 
 import json
+import logging
+import subprocess
+import sys
 from types import SimpleNamespace
 
 import numpy as np
@@ -473,6 +476,46 @@ def test_a_bad_value_on_dask_is_placed_as_the_reader_in_memory_places_it(tmp_pat
             read_lazy_log(text, block_bytes=100_000, keep=keep)
     message = str(blocks.value)
     assert "counted from its start" in message and "data row 23457" not in message
+
+
+def test_a_refused_value_on_a_local_cluster_is_one_line_of_stderr(tmp_path):
+    """The workers of --scheduler local log their tasks' failures on the terminal: a value the
+    reader refused is said once, by nlpcal, without dask.distributed's worker traceback."""
+    pytest.importorskip("distributed")
+    pytest.importorskip("pyarrow")
+    samples, _ = make_log(n=30_000, noise=1.0, seed=5)
+    frame = pd.DataFrame(samples, columns=["bx", "by", "bz"])
+    frame.loc[23_456, "by"] = np.nan
+    frame.to_parquet(tmp_path / "log.parquet", index=False, row_group_size=10_000)
+    argv = ["calibrate", "log.parquet", "--scheduler", "local", "--workers", "2", "-o", "p.json"]
+    for extra in ([], ["--low-memory"]):  # read when opened, or in the first pass
+        done = subprocess.run(
+            [sys.executable, "-m", "nlpcal", *argv, *extra],
+            cwd=tmp_path,
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        errors = [line for line in done.stderr.splitlines() if not line.startswith("nlpcal: ")]
+        assert done.returncode == 2 and done.stdout == "", done.stderr  # notes start "nlpcal: "
+        assert len(errors) == 1 and "data row 23457" in errors[0], done.stderr
+        assert not (tmp_path / "p.json").exists()
+
+
+def test_a_worker_log_keeps_every_failure_but_a_refused_value():
+    from nlpcal.cluster import refusal_unlogged
+
+    def record(exception: str):
+        text = "Compute Failed\nKey: %s\nException: %r\n"
+        return logging.LogRecord(
+            "distributed.worker", logging.ERROR, "", 0, text, ("k", exception), None
+        )
+
+    assert not refusal_unlogged(record("InputError('log.parquet: 1 row(s) have a missing value')"))
+    assert refusal_unlogged(record("MemoryError()"))
+    assert refusal_unlogged(record("ZeroDivisionError('float division by zero')"))
+    other = logging.LogRecord("distributed.worker", logging.WARNING, "", 0, "InputError(", (), None)
+    assert refusal_unlogged(other)
 
 
 def test_the_scores_block_sums_do_not_depend_on_how_the_rows_are_split(monkeypatch):
