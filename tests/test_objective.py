@@ -134,6 +134,37 @@ def test_an_evaluation_in_place_equals_the_function_call():
         evaluation(NEAR, p[:-1])
 
 
+def test_an_evaluation_reads_parameters_again_unless_nothing_can_change_them():
+    """The parameters are copied into the function's buffer once while the same read-only array
+    comes again (the Gram matrix of every check of a log); any other array is read every call."""
+    samples, _ = make_log(n=400, noise=1.0, seed=13)
+    moments = mom.accumulate(samples, PAPER_FIELD)
+    function = problems.value_function(moments.reference)
+    evaluation = problems._evaluation(problems.value_function, moments.reference)
+    other = problems.parameter_values(mom.accumulate(samples[:300], PAPER_FIELD))
+
+    def expected(p):
+        return float(function(NEAR, p)[0])
+
+    fixed = problems.parameter_values(moments)  # read-only, its own memory
+    assert not fixed.flags.writeable and fixed.base is None
+    assert evaluation(NEAR, fixed)[0] == expected(fixed)
+    assert evaluation(NEAR, other)[0] == expected(other) != expected(fixed)
+    assert evaluation(NEAR, fixed)[0] == expected(fixed)  # held, then another, then again
+    writable = fixed.copy()
+    assert evaluation(NEAR, writable)[0] == expected(fixed)
+    writable[:] = other  # changed in place: read again
+    assert evaluation(NEAR, writable)[0] == expected(other)
+    view = writable.view()  # read-only, but a view of an array that can change
+    view.flags.writeable = False
+    assert evaluation(NEAR, view)[0] == expected(other)
+    writable[:] = fixed
+    assert evaluation(NEAR, view)[0] == expected(fixed)
+    with pytest.raises(ValueError, match="parameters"):
+        evaluation(NEAR, fixed[:-1])
+    assert evaluation(NEAR, fixed)[0] == expected(fixed)  # after a refusal, read again
+
+
 @pytest.mark.parametrize("model", ["full", "diagonal", "offset"])
 @pytest.mark.parametrize("reference", ["none", "constant", "series"])
 def test_projection_onto_a_model_is_the_least_squares_one(model, reference):

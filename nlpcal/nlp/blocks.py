@@ -191,7 +191,7 @@ class Variables:
     def size(self) -> int:
         return self.matrix.shape[1]
 
-    @property
+    @cached_property
     def gauge(self) -> bool:
         """Whether the problem carries the gauge s_x + s_y + s_z = 0 (no reference, and the block
         frees a scale)."""
@@ -297,13 +297,13 @@ def evaluate(builder, moments: mom.Moments, theta) -> tuple:
     theta = np.asarray(theta, dtype=float)
     key = ("latest", builder.__name__)
     latest = moments.cache.get(key)
-    if latest is not None and np.array_equal(latest[0], theta):
+    if latest is not None and latest[0] == theta.tobytes():  # the same numbers, bit for bit
         return latest[1]
     results = _evaluation(builder, moments.reference)(theta, parameter_values(moments))
     for value in results:
         if isinstance(value, np.ndarray):
             value.flags.writeable = False
-    moments.cache[key] = (theta.copy(), results)
+    moments.cache[key] = (theta.tobytes(), results)
     return results
 
 

@@ -203,18 +203,28 @@ class Evaluation:
         self._x, self._p = self._arrays.arguments.values()
         self._shapes = [function.size_out(i) for i in range(function.n_out())]
         self._lock = threading.Lock()
+        self._held = None  # the read-only parameters last copied in, which cannot have changed
 
     def __call__(self, x, p) -> tuple:
-        """The results at x for the parameters p."""
-        p = np.ravel(p)
-        if p.size != self._p.size:
-            raise ValueError(f"expected {self._p.size} parameters, got {p.size}")
+        """The results at x for the parameters p (a read-only array given again is not copied
+        again: the Gram matrix of every check of one log)."""
         with self._lock:
             self._x[:] = x
-            self._p[:] = p
+            if p is not self._held:
+                self._hold(p)
             _run(self._arrays.evaluate)
             results = self._arrays.results.values()
             return tuple(_read(r, shape) for r, shape in zip(results, self._shapes))
+
+    def _hold(self, p) -> None:
+        values = np.ravel(p)
+        if values.size != self._p.size:
+            self._held = None
+            raise ValueError(f"expected {self._p.size} parameters, got {values.size}")
+        self._p[:] = values
+        # kept only when nothing can change it: read-only, and no view of another array
+        fixed = isinstance(p, np.ndarray) and not p.flags.writeable and p.base is None
+        self._held = p if fixed else None
 
 
 def _run(evaluate) -> None:
