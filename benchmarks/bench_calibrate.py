@@ -50,6 +50,7 @@ from nlpcal.calibration.joint import joint_start
 from nlpcal.models.zhou2010 import correction_matrix_entries
 from nlpcal.moments import accumulate
 from nlpcal.nlp import blocks as problems
+from nlpcal.nlp.solver import PROBLEMS
 from nlpcal.simulation import ZHOU2010_FIELD_NT, simulate
 
 FIELD = ZHOU2010_FIELD_NT
@@ -100,9 +101,11 @@ def kernel_load_s(repeats: int) -> str:
 
 
 def cold(function):
-    """Run `function` with every cached CasADi problem dropped first."""
-    problems.block_problem.cache_clear()
-    problems.objective_function.cache_clear()
+    """Run `function` with every cached CasADi problem, and the evaluations built on them,
+    dropped first."""
+    for builder, _ in PROBLEMS.values():
+        builder.cache_clear()
+    problems._evaluation.cache_clear()
     return function()
 
 

@@ -105,6 +105,28 @@ def test_closed_form_derivatives_equal_automatic_differentiation(kind):
         np.testing.assert_array_equal(closed[2], closed[2].T)
 
 
+@pytest.mark.parametrize("kind", ["none", "constant", "series"])
+def test_a_stage_objective_has_the_entries_of_the_whole_objective_in_its_parameters(kind):
+    """A stage's Newton checks read the gradient and Hessian in its three parameters from a
+    smaller function (`block_objective_function`): the entries of the nine-parameter ones."""
+    rng = np.random.default_rng(5)
+    samples, _ = make_log(n=600, noise=2.0, seed=12)
+    moments = mom.accumulate(samples, _reference(kind, len(samples), rng))
+    for point in (np.zeros(9), THETA_TRUE, NEAR):
+        f, grad, hess = problems.evaluate(problems.objective_function, moments, point)
+        for block in problems.STAGE_ORDER:
+            rows = list(problems.BLOCKS[block])
+            mine = problems.evaluate(problems.block_objective_function, moments, point, block)
+            assert mine[1].shape == (3,) and mine[2].shape == (3, 3)
+            np.testing.assert_allclose(mine[0], f, rtol=1e-12)
+            np.testing.assert_allclose(mine[1], grad[rows], rtol=1e-9, atol=1e-12 * abs(grad).max())
+            np.testing.assert_allclose(
+                mine[2], hess[np.ix_(rows, rows)], rtol=1e-9, atol=1e-12 * abs(hess).max()
+            )
+            np.testing.assert_array_equal(mine[2], mine[2].T)
+    assert problems.block_objective_function(kind, "joint") is problems.objective_function(kind)
+
+
 def test_an_evaluation_in_place_equals_the_function_call():
     import threading
 

@@ -144,6 +144,31 @@ def objective_function(reference: str) -> ca.Function:
     )
 
 
+@problem(
+    "zhou2010.block_objective",
+    examples=[(r, b) for r in ("none", "constant", "series") for b in STAGE_ORDER],
+)
+def block_objective_function(reference: str, block: str) -> ca.Function:
+    """f(theta, p) [field^2] and its gradient and Hessian in the parameters of one block
+    (`BLOCKS`: a stage's three, or all nine for "joint"), for the Newton checks of a stage: the
+    entries of `objective_function`'s gradient and Hessian in those parameters, from a graph a
+    third to a half the size."""
+    if block == "joint":
+        return objective_function(reference)
+    s = _symbols(reference)
+    theta = ca.MX.sym("theta", 9)
+    f, grad, hess = objective_derivatives(
+        theta, s.gram, s.centre, s.length, reference, BLOCKS[block]
+    )
+    return ca.Function(
+        f"f_{reference}_{block}",
+        [theta, s.data],
+        [f, grad, hess],
+        ["theta", "p"],
+        ["f", "grad", "hess"],
+    )
+
+
 @problem("zhou2010.summary", examples=[("none",), ("constant",)])
 def summary_function(reference: str) -> ca.Function:
     """(theta, p) -> (f [field^2], mean [field unit] and variance [field^2] of |B1|, the spread
@@ -289,17 +314,17 @@ def parameter_values(moments: mom.Moments) -> np.ndarray:
     return moments.cache["p"]
 
 
-def evaluate(builder, moments: mom.Moments, theta) -> tuple:
-    """`builder(moments.reference)` (`objective_function`, `value_function`, `summary_function`)
-    at theta on these moments, evaluated in place (`Evaluation`): its results as numbers, the
-    arrays read-only. The latest result of each builder is kept: a stage starts where the
-    previous one was last checked."""
+def evaluate(builder, moments: mom.Moments, theta, *args) -> tuple:
+    """`builder(moments.reference, *args)` (`objective_function`, `block_objective_function`,
+    `value_function`, `summary_function`) at theta on these moments, evaluated in place
+    (`Evaluation`): its results as numbers, the arrays read-only. The latest result of each
+    builder is kept: a stage starts where the previous one was last checked."""
     theta = np.asarray(theta, dtype=float)
-    key = ("latest", builder.__name__)
+    key = ("latest", builder.__name__, *args)
     latest = moments.cache.get(key)
     if latest is not None and latest[0] == theta.tobytes():  # the same numbers, bit for bit
         return latest[1]
-    results = _evaluation(builder, moments.reference)(theta, parameter_values(moments))
+    results = _evaluation(builder, moments.reference, *args)(theta, parameter_values(moments))
     for value in results:
         if isinstance(value, np.ndarray):
             value.flags.writeable = False
@@ -308,8 +333,8 @@ def evaluate(builder, moments: mom.Moments, theta) -> tuple:
 
 
 @cache
-def _evaluation(builder, reference: str) -> Evaluation:
-    return Evaluation(builder(reference))
+def _evaluation(builder, reference: str, *args) -> Evaluation:
+    return Evaluation(builder(reference, *args))
 
 
 def null_of_gauge(directions) -> np.ndarray:

@@ -97,25 +97,36 @@ def coefficient_function(varying_gamma: bool) -> ca.Function:
     return ca.Function("u_coefficients", [theta, centre, length], [U, P])
 
 
-@problem("zhou2010.coefficient_derivatives", examples=[(False,), (True,)])
-def coefficient_derivative_functions(varying_gamma: bool) -> tuple[ca.Function, ca.Function]:
-    """Two small SX functions for the exact derivatives of the objective (`objective_derivatives`):
+#: The indices of all nine parameters: derivatives in the whole of theta.
+ALL_PARAMETERS = tuple(range(9))
+
+
+@problem(
+    "zhou2010.coefficient_derivatives",
+    examples=[(False,), (True,), (False, (6, 7, 8)), (True, (0, 1, 2))],
+)
+def coefficient_derivative_functions(
+    varying_gamma: bool, within: tuple = ALL_PARAMETERS
+) -> tuple[ca.Function, ca.Function]:
+    """Two small SX functions for the exact derivatives of the objective (`objective_derivatives`)
+    in the parameters theta[within] (all nine, or one stage's three):
 
     (theta, centre, L) -> (U, P, dU/dtheta, dP/dtheta), the coefficients and their Jacobians;
     (theta, centre, L, wU, wP) -> the Hessian in theta of wU . U + wP . P.
     """
     theta, centre, length = ca.SX.sym("theta", 9), ca.SX.sym("centre", 3), ca.SX.sym("L")
     U, P = feature_coefficients(u_coefficients(theta, centre, length), mom.layout(varying_gamma))
+    free = theta[list(within)]
     jacobians = ca.Function(
         "u_jacobians",
         [theta, centre, length],
-        [U, P, ca.densify(ca.jacobian(U, theta)), ca.densify(ca.jacobian(P, theta))],
+        [U, P, ca.densify(ca.jacobian(U, free)), ca.densify(ca.jacobian(P, free))],
     )
     wU, wP = ca.SX.sym("wU", U.numel()), ca.SX.sym("wP", P.numel())
     curvature = ca.Function(
         "u_curvature",
         [theta, centre, length, wU, wP],
-        [ca.densify(ca.hessian(ca.dot(wU, U) + ca.dot(wP, P), theta)[0])],
+        [ca.densify(ca.hessian(ca.dot(wU, U) + ca.dot(wP, P), free)[0])],
     )
     return jacobians, curvature
 
@@ -221,8 +232,12 @@ def moment_summary_function() -> ca.Function:
     return ca.Function("summary_of_moments", [m, length], [mean, variance, spread])
 
 
-def objective_derivatives(theta, gram, centre, length, reference: str):
-    """(f, grad f, Hessian of f) in theta [field^2 per internal unit^k], in closed form.
+def objective_derivatives(
+    theta, gram, centre, length, reference: str, within: tuple = ALL_PARAMETERS
+):
+    """(f, grad f, Hessian of f) in theta[within] [field^2 per internal unit^k], in closed form:
+    in all nine parameters, or in one stage's (the Jacobians and the products below then have a
+    third of the columns).
 
     With D the 9 x 4 Jacobian of the power moments m = (U.G_1, P.G_1, P^T G U, P^T G P) and
     the derivatives f_k, f_kl of f in m (`moment_objective_function`), the chain rule gives
@@ -237,7 +252,7 @@ def objective_derivatives(theta, gram, centre, length, reference: str):
     2 070, three to four times the time on every Newton check.
     """
     layout = mom.layout(reference == "series")
-    jacobians, curvature = coefficient_derivative_functions(layout.varying_gamma)
+    jacobians, curvature = coefficient_derivative_functions(layout.varying_gamma, within)
     U, P, JU, JP = jacobians(theta, centre, length)
     first = gram[:, layout.one]
     GU, GP, GJP = ca.mtimes(gram, U), ca.mtimes(gram, P), ca.mtimes(gram, JP)

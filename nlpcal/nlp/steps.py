@@ -2,11 +2,12 @@
 
 `block_step` minimises the objective over one block of parameters (a stage of Fig. 1 in [1], or
 all nine) with the others held fixed, on the problems of `nlpcal.nlp.blocks`. Around IPOPT,
-Newton steps with the exact gradient and Hessian of the objective (`objective_function`) decide
-what IPOPT cannot: whether a block starts at its optimum to the resolution of the data (then
-IPOPT is not called, nor its problem built), and when IPOPT's answer is the optimum (they
-finish it, whatever IPOPT's tolerance left, and judge a solve IPOPT gave up on in the rounding
-noise of the moment objective).
+Newton steps with the exact gradient and Hessian of the objective in the block's parameters
+(`objective_function`, or a stage's smaller `block_objective_function`) decide what IPOPT
+cannot: whether a block starts at its optimum to the resolution of the data (then IPOPT is not
+called, nor its problem built), and when IPOPT's answer is the optimum (they finish it,
+whatever IPOPT's tolerance left, and judge a solve IPOPT gave up on in the rounding noise of
+the moment objective).
 
 The resolution is the statistical one: a step shorter than STATIONARY_SE standard errors of the
 estimate moves no parameter by more than that (`resolution`).
@@ -26,9 +27,11 @@ import numpy as np
 from .. import moments as mom
 from ..errors import SolveError
 from .blocks import (
+    BLOCKS,
     OPTIONS,
     BlockProblem,
     Variables,
+    block_objective_function,
     block_problem,
     evaluate,
     objective_function,
@@ -134,9 +137,9 @@ class _Newton:
 
     @classmethod
     def at(cls, moments: mom.Moments, free: Variables, theta_ref, x) -> _Newton:
-        directions = _directions(moments.frame.radius, free)  # d theta / dx
+        directions = _directions(moments.frame.radius, free)  # d theta[block] / dx
         theta = _theta(moments, free, theta_ref, x)
-        f_value, gradient, hess = evaluate(objective_function, moments, theta)
+        f_value, gradient, hess = _derivatives(moments, theta, free.block)
         g = directions.T @ gradient
         h = directions.T @ hess @ directions
         decrease, step = _newton_step(free, g, h)
@@ -200,6 +203,15 @@ FINISHING_STEPS = 4
 FINISHING_STEP = 1.0
 
 
+def _derivatives(moments: mom.Moments, theta, block: str) -> tuple:
+    """f [field^2] at theta, and its gradient and Hessian in the parameters of `block` (the
+    others do not move in its solve): those of all nine (`objective_function`, which the
+    uncertainty reads too) for the joint problem, a stage's own smaller function for a stage."""
+    if block == "joint":
+        return evaluate(objective_function, moments, theta)
+    return evaluate(block_objective_function, moments, theta, block)
+
+
 def _theta(moments: mom.Moments, free: Variables, theta_ref, x) -> np.ndarray:
     """theta_ref + var_scale * (E x), x the scaled variables of the block."""
     return free.theta(theta_ref, x, _scale(moments.frame.radius))
@@ -215,8 +227,10 @@ def _scale(radius: float) -> np.ndarray:
 
 @lru_cache(maxsize=256)
 def _directions(radius: float, free: Variables) -> np.ndarray:
-    """d theta / dx of a block's scaled variables (var_scale E), read-only."""
-    directions = variable_scale(radius)[:, None] * free.matrix
+    """d theta[block] / dx of a block's scaled variables (var_scale E, the rows of the block's
+    parameters: E is zero elsewhere), read-only."""
+    rows = list(BLOCKS[free.block])
+    directions = variable_scale(radius)[rows, None] * free.matrix[rows]
     directions.flags.writeable = False
     return directions
 
