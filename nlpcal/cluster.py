@@ -99,6 +99,9 @@ def scheduler(spec=None, workers: int | None = None):
                     threads_per_worker=1,
                     processes=True,
                     dashboard_address=None,
+                    # the scheduler's HTTP server (no dashboard) on a free port: on its default,
+                    # 8787, another cluster there would have Dask warn on stderr
+                    scheduler_kwargs={"dashboard_address": ":0"},
                     preload=[__name__],  # `dask_setup` in each worker
                 )
             )

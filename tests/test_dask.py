@@ -496,9 +496,11 @@ def test_a_refused_value_on_a_local_cluster_is_one_line_of_stderr(tmp_path):
             text=True,
             timeout=300,
         )
-        errors = [line for line in done.stderr.splitlines() if not line.startswith("nlpcal: ")]
-        assert done.returncode == 2 and done.stdout == "", done.stderr  # notes start "nlpcal: "
+        errors = [line for line in done.stderr.splitlines() if "error" in line.lower()]
+        assert done.returncode == 2 and done.stdout == "", done.stderr
         assert len(errors) == 1 and "data row 23457" in errors[0], done.stderr
+        assert errors[0].startswith("nlpcal calibrate: error: "), done.stderr
+        assert "Traceback" not in done.stderr and "Compute Failed" not in done.stderr
         assert not (tmp_path / "p.json").exists()
 
 
@@ -660,6 +662,7 @@ def test_a_log_that_fits_in_memory_is_read_once_for_every_pass(tmp_path, monkeyp
     one_file = [SimpleNamespace(parquet=kind == "parquet")]
     what = "Parquet row group" if kind == "parquet" else "block"
     assert reader._where_note(None, "", 1, one_file).endswith(f": 1 {what} read in every pass")
+    assert f"the log's 1 {what} is read once" in reader._where_note("1 MiB", "", 1, one_file)
     said = {
         keep: [n for n in log.notes if "every pass" not in n and "kept" not in n]
         for keep, log in logs.items()

@@ -439,7 +439,8 @@ def _where_note(held: str | None, why: str, blocks: int, files) -> str:
     what = "Parquet row group" if all(part.parquet for part in files) else "block"
     what += "" if blocks == 1 else "s"
     if held is not None:
-        return f"the log's {blocks} {what} are read once and kept in memory ({held})"
+        verb = "is" if blocks == 1 else "are"
+        return f"the log's {blocks} {what} {verb} read once and kept in memory ({held})"
     return f"the log stays in its files: {blocks} {what} read in every pass" + (
         f" ({why})" if why else ""
     )
