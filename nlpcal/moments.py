@@ -85,7 +85,7 @@ from . import compiled
 from .errors import InputError
 from .monomials import MomentSet, moment_set, monomials
 from .monomials import parents as _parents
-from .passes import as_rows, mean_square, reduce, reference_chunk
+from .passes import SAMPLE_POINTS, as_rows, mean_square, reduce, reference_chunk, sample_stride
 from .statistics import MagnitudeStats
 
 #: Rows per chunk of the data pass. Each chunk costs a few numpy calls besides the kernel's
@@ -213,10 +213,11 @@ class Frame:
     radius: float
 
 
-def sphere_frame(samples: np.ndarray, max_points: int = 20000) -> Frame:
-    """Algebraic sphere fit |b|^2 = 2 c.b + k to an evenly strided subsample; on samples in one
-    plane (`planar`), whose sphere the fit cannot determine, their mean and rms distance."""
-    step = max(1, samples.shape[0] // max_points)
+def sphere_frame(samples: np.ndarray, max_points: int = SAMPLE_POINTS) -> Frame:
+    """Algebraic sphere fit |b|^2 = 2 c.b + k to an evenly strided subsample (`sample_stride`);
+    on samples in one plane (`planar`), whose sphere the fit cannot determine, their mean and
+    rms distance."""
+    step = sample_stride(samples.shape[0], max_points)
     sub = samples[::step]
     scale = float(np.sqrt(np.mean(np.einsum("ij,ij->i", sub, sub)))) or 1.0
     unit = sub / scale  # fit in scaled units so that the normal equations are well conditioned

@@ -316,11 +316,19 @@ class LazySamples:
             return head[:stop]  # the first rows, read before the survey
         key = (start, stop, step)
         if key not in self._cache:  # the first rows: from the first blocks, not a pass
+            import dask
+
             started = time.perf_counter()
-            self._cache[key] = np.asarray(self.array[start:stop:step].compute(), dtype=float)
+            wanted = [self.array[start:stop:step]]
+            if start == 0 and step > 1 and head is None:  # the leading rows from the same read
+                wanted.append(self.array[: min(SURVEY_HEAD, self.n)])
+            values = [np.asarray(v, dtype=float) for v in dask.compute(*wanted)]
             self.ledger.record("head", time.perf_counter() - started, whole=False)
-            if start == 0 and step == 1 and stop > (0 if head is None else head.shape[0]):
-                self._cache["head"] = self._cache[key]
+            self._cache[key] = values[0]
+            if len(values) > 1:
+                self._cache["head"] = values[1]
+            elif start == 0 and step == 1 and stop > (0 if head is None else head.shape[0]):
+                self._cache["head"] = values[0]
         return self._cache[key]
 
     def mean(self, axis=None):
@@ -451,15 +459,31 @@ def axis_ranges(array, chunk_rows: int) -> tuple:
 #: Rows of the first block of a Dask log read for what must be known before the first pass
 #: (the frame of its moments, the plausibility of its unit), at most. [1]
 FIRST_BLOCK_ROWS = 2**20
+#: The most rows a sphere fit or a unit's plausibility reads of a log: an even stride of it
+#: (`sample_stride`). [1]
+SAMPLE_POINTS = 20_000
 
 
-def first_block(values) -> np.ndarray:
-    """The first rows of a log, at most FIRST_BLOCK_ROWS: of a Dask log its first block (read
-    apart, not a pass: one block of many). [unit of the values]"""
+def sample_stride(rows: int, points: int = SAMPLE_POINTS) -> int:
+    """The stride of an even subsample of about `points` of `rows` rows (all of fewer)."""
+    return max(1, rows // points)
+
+
+def first_block_rows(values) -> slice:
+    """The rows a sphere fit or a unit check reads of the first rows of a log (at most
+    FIRST_BLOCK_ROWS; of a Dask log its first block, read apart: not a pass), an even stride of
+    them (`sample_stride`): the very rows they would take of all those first rows."""
     rows = min(values.shape[0], FIRST_BLOCK_ROWS)
     if isinstance(values, LazySamples):
         rows = min(rows, values.block_offsets()[0][1])
-    return np.asarray(values[:rows], dtype=float)
+    return slice(0, rows, sample_stride(rows))
+
+
+def first_block_sample(values) -> np.ndarray:
+    """The values of `first_block_rows`: of a Dask log, only they come to this process (0.5 MB
+    of a block of 2^20 rows of three columns, 24 MB); the block is read where it lies. [unit of
+    the values]"""
+    return np.asarray(values[first_block_rows(values)], dtype=float)
 
 
 def in_memory(values, most: int) -> np.ndarray:

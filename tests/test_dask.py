@@ -520,6 +520,29 @@ def test_a_worker_log_keeps_every_failure_but_a_refused_value():
     assert refusal_unlogged(other)
 
 
+def test_the_first_block_sends_only_the_rows_its_sphere_fit_reads():
+    """Before the first pass a Dask log's first block gives the frame of its moments and the
+    plausibility of its unit: the even stride of it those read, and the leading rows the pass
+    shifts its sums by, in one computation; the frame and the magnitudes are those of the whole
+    block, bit for bit."""
+    from nlpcal.io.logs import typical_magnitudes
+    from nlpcal.moments import sphere_frame
+
+    samples, _ = make_log(n=250_000, noise=1.0, seed=7)
+    for rows in (100_000, 30_000, 7_000):  # strides 5, 1 (30 000 of 20 000), 1
+        with dask.config.set(scheduler="sync"):
+            lazy = passes.LazySamples(da.from_array(samples, chunks=(rows, 3)))
+            sample = passes.first_block_sample(lazy)
+            lead = lazy[: passes.SURVEY_HEAD]
+        assert [what for what, _ in lazy.timings] == ["head"]
+        block = samples[:rows]
+        np.testing.assert_array_equal(sample, block[:: max(1, rows // 20_000)])
+        np.testing.assert_array_equal(lead, samples[: passes.SURVEY_HEAD])
+        whole, mine = sphere_frame(block), sphere_frame(sample)
+        assert whole.radius == mine.radius and np.array_equal(whole.centre, mine.centre)
+        assert typical_magnitudes(block) == typical_magnitudes(sample)
+
+
 def test_the_scores_block_sums_do_not_depend_on_how_the_rows_are_split(monkeypatch):
     samples, _ = make_log(n=10_007, noise=1.0, seed=5)
     theta = np.zeros(9)

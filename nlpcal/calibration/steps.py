@@ -194,16 +194,18 @@ def prepare_lazy(samples, reference, settings: CalibrationSettings) -> Prepared:
 
 def first_frame(samples, reference) -> tuple:
     """(frame, length) of the first pass over a Dask log: the sphere fitted to its first block
-    (`nlpcal.passes.first_block`: one block read, not a pass), and the length the moments
-    take (the sphere's radius, the constant reference or the rms of the series' first block).
-    [field unit]"""
-    head = validation.finite_vectors(passes.first_block(samples))  # NaN refused before the fit
+    (`nlpcal.passes.first_block_sample`: the rows of one block the fit reads, not a pass), and
+    the length the moments take (the sphere's radius, the constant reference or the rms of the
+    series on the same rows). [field unit]"""
+    rows = passes.first_block_rows(samples)
+    # NaN refused before the fit (in the other rows, by the reader's checks in the first pass)
+    head = validation.finite_vectors(np.asarray(samples[rows], dtype=float))
     frame = sphere_frame(head)
     if reference is None:
         return frame, frame.radius
     if np.ndim(reference) == 0:
         return frame, float(reference)
-    first = np.asarray(reference[: head.shape[0]], dtype=float)
+    first = np.asarray(reference[rows], dtype=float)
     finite = first[np.isfinite(first)]
     return frame, float(np.sqrt(np.mean(finite**2))) if finite.size else frame.radius
 

@@ -16,7 +16,7 @@ block once for its own work, the survey of `nlpcal.passes` and these checks (`Re
 `nlpcal.passes.Pending`). A bad value then fails that first pass, with its file named; rows left
 out make it find the blocks shorter than declared: the arrays are rebuilt on the rows counted
 and that pass runs again. Otherwise (CSV) a pass counts the rows of every block first. The unit's
-plausibility is checked on the first block (`nlpcal.passes.first_block`): the unit is the
+plausibility is checked on the first block (`nlpcal.passes.first_block_sample`): the unit is the
 file's, the same in every block.
 
 A log whose values fit in the memory the current scheduler may give them
@@ -397,7 +397,7 @@ def read_lazy_log(
         samples.ledger.record("keep", time.perf_counter() - started, whole=False)
     elif deferred is None:  # counted: a pass
         samples.ledger.record("read", time.perf_counter() - started)
-    _, settled, check = settle_unit(passes.first_block(samples), unit, how)
+    _, settled, check = settle_unit(passes.first_block_sample(samples), unit, how)
     if settled != unit:  # an assumed unit ruled out: the file's numbers, as raw counts
         samples, unit = passes.scaled(samples, 1.0 / units.field_factor(unit)), settled
     reference: passes.LazySamples | float | None = None

@@ -24,6 +24,7 @@ from .. import robust, units, validation
 from ..errors import InputError
 from ..geomagnetic import ReferenceModel, parse_times
 from ..moments import Frame, sphere_frame
+from ..passes import sample_stride
 from .layout import Layout
 from .mapped import csv_to_memmap
 from .observatory import Observatory
@@ -249,7 +250,7 @@ def typical_magnitudes(samples, frame: Frame | None = None) -> list:
     frame : `nlpcal.moments.sphere_frame` of these samples, when the caller has fitted it (the
     same strided subsample, so the same sphere); else it is fitted here.
     """
-    samples = np.asarray(samples[:: max(1, samples.shape[0] // 20000)], dtype=float)
+    samples = np.asarray(samples[:: sample_stride(samples.shape[0])], dtype=float)
     if samples.shape[0] == 0:
         return []
     median = robust.median(validation.magnitudes(samples))
