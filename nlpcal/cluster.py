@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import re
+import socket
 from pathlib import Path
 
 from . import chunks, validation
@@ -71,6 +72,7 @@ def scheduler(spec=None, workers: int | None = None):
     if spec is None:
         yield None
         return
+    check_spec(spec, workers)
     dask = _require("dask", f"--scheduler {spec}")
     if is_client(spec):
         with dask.config.set(scheduler=spec):
@@ -198,6 +200,41 @@ def blas_one_thread() -> None:
     threadpool_limits(limits=1, user_api="blas")
 
 
+#: The most worker processes of "local" or "processes" per core available: more only share
+#: the cores, each with its own memory (a worker takes 100-200 MiB), and a machine's worth of
+#: them starves the scheduler's heartbeats. [1]
+WORKERS_PER_CORE = 4
+#: What a running scheduler's address looks like: protocol://host:port (tcp, tls, ws, wss,
+#: ucx), or host:port (tcp).
+ADDRESS = re.compile(
+    r"(?:(?:tcp|tls|ws|wss|ucx)://)?[^\s/:]+(?::\d+)?|(?:tcp|tls)://\[[0-9a-fA-F:.]+\](?::\d+)?"
+)
+
+
+def check_spec(spec, workers: int | None) -> None:
+    """InputError, at once, for a scheduler that is none of `scheduler`'s (a misspelt name would
+    otherwise be tried as an address, and the Client left of it hold the exit for a minute),
+    or more `workers` than WORKERS_PER_CORE per core available to this process."""
+    if is_client(spec):
+        return
+    if not isinstance(spec, str):
+        raise InputError(f"--scheduler: expected a name or an address, got {spec!r}")
+    if spec.lower() in SCHEDULERS and spec not in SCHEDULERS:
+        raise InputError(f"--scheduler {spec!r}: did you mean {spec.lower()!r}?")
+    is_file = spec.endswith(".json") or Path(spec).is_file()
+    if spec not in SCHEDULERS and not is_file and not ADDRESS.fullmatch(spec):
+        raise InputError(
+            f"--scheduler {spec!r}: neither {', '.join(SCHEDULERS)}, nor a scheduler's address "
+            f"(tcp://host:8786) or scheduler file"
+        )
+    most = WORKERS_PER_CORE * chunks.available_cores()
+    if spec in ("local", "processes") and workers is not None and workers > most:
+        raise InputError(
+            f"--workers {workers}: at most {most} worker processes ({WORKERS_PER_CORE} per core "
+            f"this process may use); more would only share the cores, each with its own memory"
+        )
+
+
 def _connect(distributed, address: str):
     """A Client of a running scheduler, or InputError saying why there is none.
 
@@ -209,6 +246,7 @@ def _connect(distributed, address: str):
         raise InputError(f"{address}: no such scheduler file")
     target = scheduler_file_address(address) if is_file else address
     try:
+        _reachable(target)  # before a Client: one that fails holds the exit for a minute
         return distributed.Client(target, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
     except Exception as exc:  # refused, timed out, or an answer that is not Dask's protocol
         choices = ", ".join(SCHEDULERS)
@@ -217,6 +255,19 @@ def _connect(distributed, address: str):
             f"no Dask scheduler answers at {target!r} ({reason}); give its address "
             f"(tcp://host:8786), its scheduler file, or one of {choices}"
         ) from None
+
+
+def _reachable(address: str) -> None:
+    """OSError unless a TCP connection opens to the host and port of a scheduler's address
+    (Dask's default port 8786 when it has none) within CONNECT_TIMEOUT_S: a host that is not
+    known or a port nobody listens on is told at once. UCX addresses are left to Dask."""
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    protocol, location = parse_address(address)
+    if protocol == "ucx":
+        return
+    host, port = parse_host_port(location, default_port=8786)
+    socket.create_connection((host, port), timeout=CONNECT_TIMEOUT_S).close()
 
 
 def scheduler_file_address(path: str) -> str:

@@ -15,6 +15,7 @@ import json
 import logging
 import subprocess
 import sys
+import time
 from types import SimpleNamespace
 
 import numpy as np
@@ -353,6 +354,30 @@ def test_an_unknown_scheduler_address_is_bad_input(parquet_log, capsys, monkeypa
         capsys, "calibrate", parquet_log / "whole.csv", "--scheduler", "tcp://127.0.0.1:9"
     )
     assert code == 2 and "no Dask scheduler answers" in err and len(err.splitlines()) == 1
+
+
+def test_a_scheduler_that_is_no_name_or_address_is_refused_at_once(parquet_log, capsys):
+    """A misspelt name is not tried as an address (whose failed Client held the exit for a
+    minute, with a traceback); a port nobody listens on is told without a Client; a machine's
+    worth of workers is refused before one starts."""
+    pytest.importorskip("distributed")
+    from nlpcal import chunks
+
+    log = parquet_log / "whole.csv"
+    cores = chunks.available_cores()
+    for argv, said in (
+        (("--scheduler", "Local"), "did you mean 'local'?"),
+        (("--scheduler", "PROCESSES"), "did you mean 'processes'?"),
+        (("--scheduler", "inproc://somewhere"), "nor a scheduler's address"),
+        (("--scheduler", ""), "nor a scheduler's address"),
+        (("--scheduler", "127.0.0.1:1"), "no Dask scheduler answers"),  # refused
+        (("--scheduler", "local", "--workers", str(4 * cores + 1)), f"at most {4 * cores}"),
+        (("--scheduler", "processes", "--workers", "10" * 10), f"at most {4 * cores}"),
+    ):
+        started = time.perf_counter()
+        code, out, err = run(capsys, "calibrate", log, *argv)
+        assert code == 2 and out == "" and said in err and len(err.splitlines()) == 1, err
+        assert time.perf_counter() - started < 20, argv  # not a connect timeout
 
 
 def test_a_fleet_on_a_cluster_matches_the_fleet_in_this_process(tmp_path, cluster, capsys):

@@ -480,7 +480,8 @@ def add_scheduler_arguments(parser) -> None:
         "--workers",
         type=at_least_one,
         metavar="N",
-        help="worker processes of --scheduler local or processes (default: one per core)",
+        help="worker processes of --scheduler local or processes (default: one per core; at "
+        "most 4 per core)",
     )
 
 
