@@ -568,6 +568,28 @@ def test_the_first_block_sends_only_the_rows_its_sphere_fit_reads():
         assert typical_magnitudes(block) == typical_magnitudes(sample)
 
 
+def test_a_compressed_text_log_is_read_on_dask_as_in_memory(tmp_path):
+    """A compressed text log is one block, decompressed where it is read; cut short, it is
+    refused as unreadable input, in memory and on Dask alike."""
+    from nlpcal.errors import InputError
+    from nlpcal.io import read_log
+    from nlpcal.io.lazy import read_lazy_log
+
+    samples, _ = make_log(n=20_000, noise=1.0, seed=8)
+    path = tmp_path / "log.csv.gz"
+    pd.DataFrame(samples, columns=["bx", "by", "bz"]).to_csv(path, index=False)
+    memory = read_log(path)
+    with dask.config.set(scheduler="threads"):
+        lazy = read_lazy_log(path)
+        np.testing.assert_array_equal(lazy.samples[::1], memory.samples)
+    cut = tmp_path / "cut.csv.gz"
+    cut.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    with pytest.raises(InputError, match="cannot be read"):
+        read_log(cut)
+    with dask.config.set(scheduler="threads"), pytest.raises(InputError, match="cannot be read"):
+        read_lazy_log(cut, keep=False).samples.survey()
+
+
 def test_the_scores_block_sums_do_not_depend_on_how_the_rows_are_split(monkeypatch):
     samples, _ = make_log(n=10_007, noise=1.0, seed=5)
     theta = np.zeros(9)

@@ -51,7 +51,15 @@ from .logs import (
 )
 from .recorders import check_options, declared_unit
 from .rows import QUOTED_ROWS, RowScreen
-from .tables import column_name, log_files, named, numeric_columns, resolve_columns, unreadable
+from .tables import (
+    BROKEN_STREAM,
+    column_name,
+    log_files,
+    named,
+    numeric_columns,
+    resolve_columns,
+    unreadable,
+)
 
 #: Bytes of text per block (one task). [byte]
 BLOCK_BYTES = 64 * 2**20
@@ -81,19 +89,23 @@ def field_samples(values):
 def _table_of(spec):
     """The table of one block: ("parquet", path, row group, columns, its first row in the file)
     gives a pyarrow Table; ("text", name, bytes, file, block number in the file) a DataFrame in
-    the file's layout."""
+    the file's layout, bytes None for a file read whole (decompressed, or decoded, here)."""
     kind, name, where, extra, number = spec
     if kind == "parquet":
         return sources.parquet_row_group(name, where, extra)
     layout, columns = extra.layout, list(extra.preview.columns)
     options = layout.pandas_options()
+    if where is None:  # a file read whole here (compressed, or in an encoding not split)
+        source = str(extra.source)
+    else:  # the bytes of a block, as they are in the file
+        source, options["compression"] = io.BytesIO(where), None
     if number:  # the header row and comment lines are in the first block only
         options.update(header=None, names=columns if layout.header else None)
     try:
-        frame = pd.read_csv(io.BytesIO(where), engine="c", **options)
+        frame = pd.read_csv(source, engine="c", **options)
     except pd.errors.EmptyDataError:
         return pd.DataFrame(columns=columns)
-    except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
+    except (pd.errors.ParserError, UnicodeDecodeError, ValueError, *BROKEN_STREAM) as exc:
         raise unreadable(_block_name(name, number), layout, exc) from None
     return named(frame, layout)
 
@@ -178,13 +190,11 @@ def _specs(files, block_bytes: int) -> list:
                 first += rows
             continue
         layout = part.layout
-        whole = layout.compression or layout.encoding not in SPLITTABLE
+        if layout.compression or layout.encoding not in SPLITTABLE:  # one block, read whole
+            specs.append((("text", part.name, None, part, 0), None))
+            continue
         _, blocks = read_bytes(
-            str(part.source),
-            delimiter=b"\n",
-            blocksize=None if whole else block_bytes,
-            compression=layout.compression,
-            sample=False,
+            str(part.source), delimiter=b"\n", blocksize=block_bytes, sample=False
         )
         for k, block in enumerate(blocks[0]):
             specs.append((("text", part.name, block, part, k), None))

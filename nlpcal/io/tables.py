@@ -11,8 +11,11 @@ was received and how to fix it.
 from __future__ import annotations
 
 import io
+import lzma
 import os
 import re
+import zipfile
+import zlib
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -112,9 +115,14 @@ def _frame(name: str, source, layout: Layout, *, text: bool = False, **more) -> 
             frame = pd.read_csv(_readable(source), engine="c", **options)
         except pd.errors.EmptyDataError:
             raise InputError(f"{name}: the file is empty") from None
-        except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
+        except (pd.errors.ParserError, UnicodeDecodeError, ValueError, *BROKEN_STREAM) as exc:
             raise unreadable(name, layout, exc) from None
     return named(frame, layout), engine
+
+
+#: What a compressed file cut short or damaged raises as it is read (gzip, zip, bz2 and xz:
+#: the end of the stream missing, a bad checksum or header, data that is not the format's).
+BROKEN_STREAM = (EOFError, OSError, zlib.error, zipfile.BadZipFile, lzma.LZMAError)
 
 
 _RAGGED = re.compile(r"Expected (\d+) fields in line (\d+), saw (\d+)")
