@@ -95,6 +95,7 @@ def _table_of(spec):
         return sources.parquet_row_group(name, where, extra)
     layout, columns = extra.layout, list(extra.preview.columns)
     options = layout.pandas_options()
+    source: str | io.BytesIO
     if where is None:  # a file read whole here (compressed, or in an encoding not split)
         source = str(extra.source)
     else:  # the bytes of a block, as they are in the file
