@@ -390,7 +390,7 @@ class Surveying:
 
     def __call__(self, block, reference, start: int) -> tuple:
         """(the work's partial result, the samples' survey, the reference's survey)."""
-        with np.errstate(over="ignore", invalid="ignore"):  # values checked once surveyed
+        with np.errstate(all="ignore"):  # values checked once surveyed
             result = self.work(block, reference, *((start,) if self.indexed else ()))
             mine = None if self.steps is None else survey_block(block, start, self.steps)
             theirs = None

@@ -590,6 +590,41 @@ def test_a_compressed_text_log_is_read_on_dask_as_in_memory(tmp_path):
         read_lazy_log(cut, keep=False).samples.survey()
 
 
+@pytest.mark.parametrize("keep", [False, True])
+def test_values_out_of_range_on_dask_are_refused_as_in_memory_and_quietly(tmp_path, keep):
+    """A reference of zeros, samples of 1e-300 or of 1e300: refused by the checks that refuse
+    them in memory (they ended in ZeroDivisionError on Dask), without a floating-point warning
+    from the arithmetic on them that comes before those checks on Dask."""
+    import warnings
+
+    pytest.importorskip("pyarrow")
+    from nlpcal.calibration import calibrate_log
+    from nlpcal.errors import InputError
+    from nlpcal.io import read_log
+    from nlpcal.io.lazy import read_lazy_log
+
+    samples, _ = make_log(n=3_000, noise=1.0, seed=6)
+    cases = {
+        "zeros": (samples, np.zeros(len(samples)), "non-positive"),
+        "one zero": (samples, np.r_[PAPER_FIELD * np.ones(len(samples) - 1), 0.0], "non-positive"),
+        "tiny": (samples * 1e-300, None, "below 1e-09"),
+        "huge": (samples * 1e300, None, r"beyond 1e\+12"),
+    }
+    for name, (values, reference, said) in cases.items():
+        frame = pd.DataFrame(values, columns=["bx", "by", "bz"])
+        if reference is not None:
+            frame["proton_nT"] = reference
+        path = tmp_path / f"{name}.parquet"
+        frame.to_parquet(path, index=False, row_group_size=1_000)
+        options = {"reference_column": "proton_nT"} if reference is not None else {}
+        with pytest.raises(InputError, match=said):
+            calibrate_log(read_log(path, **options))
+        with warnings.catch_warnings(), dask.config.set(scheduler="sync"):
+            warnings.simplefilter("error", RuntimeWarning)
+            with pytest.raises(InputError, match=said):
+                calibrate_log(read_lazy_log(path, keep=keep, **options))
+
+
 def test_the_scores_block_sums_do_not_depend_on_how_the_rows_are_split(monkeypatch):
     samples, _ = make_log(n=10_007, noise=1.0, seed=5)
     theta = np.zeros(9)

@@ -14,6 +14,8 @@ lag-1 autocorrelation it replaces had standard errors 5.8 times too large on the
 directions (every |error| < 1 SE).
 """
 
+import json
+
 import numpy as np
 import pytest
 
@@ -21,6 +23,7 @@ import nlpcal
 from synthetic import (
     PAPER_TRUTH,
     gauge_truth,
+    make_log,
     scenario_log,
     slow_field,
     smooth_directions,
@@ -457,3 +460,15 @@ def test_a_robust_pass_in_blocks_sums_the_scores_of_its_samples(reference, monke
     shares = np.add.reduceat(slope[:, None, None] * outer, starts)
     np.testing.assert_allclose(informations, shares, rtol=1e-9, atol=1e-12 * np.abs(shares).max())
     np.testing.assert_allclose(meat, (psi[:, None, None] ** 2 * outer).sum(axis=0), rtol=1e-9)
+
+
+def test_zero_residuals_have_no_bias_in_standard_errors():
+    """A reference equal to the measured |B_M|: every residual zero, every standard error zero,
+    and the second-order bias zero in them too (it was 0/0, NaN, which no result may hold)."""
+    samples, _ = make_log(n=3_000, noise=1.0, seed=6)
+    reference = np.sqrt((samples**2).sum(axis=1))  # |B_M| to its last bit, as nlpcal takes it
+    result = nlpcal.calibrate(samples, reference_field=reference)
+    assert set(result.standard_errors.values()) == {0.0}
+    bias = result.identifiability["second_order_bias"]["bias_in_standard_errors"]
+    assert all(value == 0.0 for value in bias.values()), bias
+    json.dumps(result.to_dict(), allow_nan=False)

@@ -258,9 +258,14 @@ def second_order_bias(
         "noise_separable": bool(reference <= REFERENCE_NOISE_SHARE * white),
         "bias": {name: float(shift[i]) for name, i in zip(estimated, index)},
         "bias_in_standard_errors": {
-            name: float(shift[i] / errors[name]) for name, i in zip(estimated, index)
+            name: _in_errors(float(shift[i]), errors[name]) for name, i in zip(estimated, index)
         },
     }
+
+
+def _in_errors(shift: float, error: float) -> float:
+    """A shift in standard errors; none (0) on residuals of zero, whose standard error is 0."""
+    return 0.0 if shift == 0.0 and error == 0.0 else shift / error
 
 
 def white_variance(series, robust: bool) -> float:

@@ -28,7 +28,7 @@ from ..inference import Z_975
 from ..io.lazy import field_samples
 from ..io.logs import settle_unit
 from ..models.zhou2010 import PARAMETER_NAMES, Zhou2010Parameters
-from ..moments import Moments, accumulate, recentred, sphere_frame
+from ..moments import Frame, Moments, accumulate, recentred, sphere_frame
 from ..nlp.blocks import GAUGE
 from ..results import Provenance, TableRow
 from ..robust import TUNING
@@ -177,7 +177,14 @@ def prepare_lazy(samples, reference, settings: CalibrationSettings) -> Prepared:
         reference = validation.reference(reference, samples.shape[0])
     samples, reference = in_base_units(samples, reference, settings)
     frame, length = first_frame(samples, reference)
-    moments = accumulate(samples, reference, frame=frame, length=length)
+    if all(v.surveyed for v in (samples, reference) if isinstance(v, passes.LazySamples)):
+        # surveyed already (a log kept in memory, a short series): checked before the pass
+        reference = validation.reference(reference, validation.samples(samples).shape[0])
+    try:
+        moments = accumulate(samples, reference, frame=frame, length=length)
+    except ArithmeticError:  # on values the checks of the survey refuse: they say which
+        validation.reference(reference, validation.samples(samples).shape[0])
+        raise
     samples = validation.samples(samples)  # from the survey the pass gathered
     reference = validation.reference(reference, samples.shape[0])
     frame = sphere_frame(samples)  # on the survey's subsample, as in memory
@@ -200,14 +207,18 @@ def first_frame(samples, reference) -> tuple:
     rows = passes.first_block_rows(samples)
     # NaN refused before the fit (in the other rows, by the reader's checks in the first pass)
     head = validation.finite_vectors(np.asarray(samples[rows], dtype=float))
-    frame = sphere_frame(head)
-    if reference is None:
-        return frame, frame.radius
-    if np.ndim(reference) == 0:
-        return frame, float(reference)
-    first = np.asarray(reference[rows], dtype=float)
-    finite = first[np.isfinite(first)]
-    return frame, float(np.sqrt(np.mean(finite**2))) if finite.size else frame.radius
+    with np.errstate(all="ignore"):  # values not yet checked: the survey's checks refuse them
+        frame = sphere_frame(head)
+        if not (np.isfinite(frame.centre).all() and 0 < frame.radius < np.inf):
+            # any frame: the survey's checks refuse the values, or `reframed` runs the pass again
+            frame = Frame(centre=np.zeros(3), radius=1.0)
+        if reference is None:
+            return frame, frame.radius
+        if np.ndim(reference) == 0:
+            return frame, float(reference)
+        first = np.asarray(reference[rows], dtype=float)
+        length = float(np.sqrt(np.mean(first[np.isfinite(first)] ** 2)))
+    return frame, length if 0 < length < np.inf else frame.radius
 
 
 #: The first pass's frame is kept while its centre lies within this fraction of the final
