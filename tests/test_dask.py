@@ -625,6 +625,25 @@ def test_values_out_of_range_on_dask_are_refused_as_in_memory_and_quietly(tmp_pa
                 calibrate_log(read_lazy_log(path, keep=keep, **options))
 
 
+def test_a_parquet_log_with_two_columns_of_one_name_or_stdin_is_refused(tmp_path):
+    pa = pytest.importorskip("pyarrow")
+    import pyarrow.parquet as pq
+
+    from nlpcal.errors import InputError
+    from nlpcal.io import read_log
+    from nlpcal.io.lazy import read_lazy_log
+
+    samples, _ = make_log(n=2_000, noise=1.0, seed=2)
+    columns = [pa.array(samples[:, k]) for k in (0, 1, 2, 0)]
+    path = tmp_path / "twice.parquet"
+    pq.write_table(pa.table(columns, names=["bx", "by", "bz", " bx"]), path)  # names stripped
+    for read in (read_log, read_lazy_log):
+        with pytest.raises(InputError, match="more than one column is named 'bx'"):
+            read(path)
+    with pytest.raises(InputError, match="stdin"):
+        read_lazy_log("-")
+
+
 def test_the_scores_block_sums_do_not_depend_on_how_the_rows_are_split(monkeypatch):
     samples, _ = make_log(n=10_007, noise=1.0, seed=5)
     theta = np.zeros(9)

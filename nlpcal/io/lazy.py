@@ -384,6 +384,8 @@ def read_lazy_log(
     one_reference(reference_column, reference_field, reference_model)
     if reference_log is not None:
         raise InputError("--reference-log needs the log in memory; drop --scheduler")
+    if str(source) == "-":  # Dask's tasks read files; a stream is read once, here
+        raise InputError("a log read from stdin (-) is read in memory; drop --scheduler")
     _require_lazy(extra_columns, reference_model)
     check_options(str(source), None, variable=variable, instance=instance)
     notes: list = []

@@ -135,9 +135,17 @@ def _parquet_file(path):
     parquet = pyarrow_parquet()
     path = existing_file(path, "a Parquet file")
     try:
-        return parquet.ParquetFile(path)
+        handle = parquet.ParquetFile(path)
     except Exception as exc:  # pyarrow's ArrowInvalid, OSError ...
         raise InputError(f"{path}: cannot be read as Parquet ({_first_line(exc)})") from None
+    names = [str(name).strip() for name in handle.schema_arrow.names]
+    twice = sorted({name for name in names if names.count(name) > 1})
+    if twice:  # a column is found by its name (a CSV reader numbers the repeats: bx, bx.1)
+        raise InputError(
+            f"{path}: more than one column is named {', '.join(map(repr, twice))}; give the "
+            f"columns of a Parquet log distinct names"
+        )
+    return handle
 
 
 def _first_line(exc: Exception) -> str:
