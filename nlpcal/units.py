@@ -188,10 +188,17 @@ def _plausible(value: float, band, factor: float = 1.0) -> bool:
     return low / factor <= value <= high * factor
 
 
+#: `readable` writes a magnitude outside 1e-6 .. 1e15 with an exponent (3e-296, 5e+304).
+READABLE_RANGE = (1e-6, 1e15)
+
+
 def readable(value: float, figures: int = 3) -> str:
-    """A magnitude for a message: `figures` significant digits, thousands grouped."""
+    """A magnitude for a message: `figures` significant digits, thousands grouped (with an
+    exponent outside READABLE_RANGE)."""
     if value == 0 or not np.isfinite(value):
         return f"{value:g}"
+    if not READABLE_RANGE[0] <= abs(value) < READABLE_RANGE[1]:
+        return f"{value:.{figures}g}"
     digits = figures - 1 - int(np.floor(np.log10(abs(value))))
     return f"{round(value, digits):,.{max(digits, 0)}f}".replace(",", " ")
 

@@ -625,6 +625,30 @@ def test_values_out_of_range_on_dask_are_refused_as_in_memory_and_quietly(tmp_pa
                 calibrate_log(read_lazy_log(path, keep=keep, **options))
 
 
+def test_a_unit_warning_names_the_size_of_values_of_any_size(tmp_path):
+    """The magnitude a unit warning on a Dask log's first block names, of values whose squares
+    leave float64 too (it said "about 1.00 nT" of 5e-296 nT), in a few figures (not 300
+    digits)."""
+    from nlpcal.io import read_log
+    from nlpcal.io.lazy import read_lazy_log
+    from nlpcal.units import readable
+
+    assert [readable(v) for v in (49_462.0, 0.5, 3e-296, 5e15)] == [
+        "49 500",
+        "0.500",
+        "3e-296",
+        "5e+15",
+    ]
+    samples, _ = make_log(n=2_000, noise=1.0, seed=2)
+    for factor, said in ((1e-300, "about 4.95e-296 nT"), (1e300, "about 4.95e+304 nT")):
+        path = tmp_path / "log.csv"
+        pd.DataFrame(samples * factor, columns=["bx", "by", "bz"]).to_csv(path, index=False)
+        with pytest.raises(nlpcal.InputError, match="in any unit"):  # checked as it is read
+            read_log(path)
+        with dask.config.set(scheduler="sync"):  # checked in the first pass
+            assert said in read_lazy_log(path).warnings[0]
+
+
 def test_a_parquet_log_with_two_columns_of_one_name_or_stdin_is_refused(tmp_path):
     pa = pytest.importorskip("pyarrow")
     import pyarrow.parquet as pq

@@ -426,7 +426,7 @@ def read_lazy_log(
         reference, model = model_reference(reference_model, unit, notes)
     elif reference_field is not None:
         reference = constant_reference(reference_field, reference_field_unit, unit)
-    notes.append(_where_note(held, why, len(samples.block_offsets()), files))
+    notes.append(_where_note(held, why, len(reading.specs), files))
     log = Log(
         path=str(source),
         columns=list(chosen),

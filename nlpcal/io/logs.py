@@ -253,7 +253,11 @@ def typical_magnitudes(samples, frame: Frame | None = None) -> list:
     samples = np.asarray(samples[:: sample_stride(samples.shape[0])], dtype=float)
     if samples.shape[0] == 0:
         return []
-    median = robust.median(validation.magnitudes(samples))
+    largest = float(np.max(np.abs(samples)))
+    # values whose squares leave float64 (1e-300 or 1e300, refused later as out of range) are
+    # scaled first, so that the warning names their size
+    scale = 1.0 if not 0.0 < largest < np.inf or 1e-100 < largest < 1e100 else largest
+    median = robust.median(validation.magnitudes(samples / scale)) * scale
     if samples.shape[0] < 10:
         return [median, median]
     return [median, float((frame or sphere_frame(samples)).radius)]
