@@ -380,6 +380,19 @@ def test_a_scheduler_that_is_no_name_or_address_is_refused_at_once(parquet_log, 
         assert time.perf_counter() - started < 20, argv  # not a connect timeout
 
 
+def test_options_that_need_the_log_in_memory_are_refused_before_a_cluster_starts(
+    parquet_log, capsys, monkeypatch
+):
+    def no_cluster(*args, **kwargs):
+        raise AssertionError("a cluster started for a refused command")
+
+    monkeypatch.setattr(nlpcal.cluster, "scheduler", no_cluster)
+    log = parquet_log / "whole.csv"
+    for option in (["--plot", "p.png"], ["--lag", "auto"], ["--aux-columns", "proton_nT"]):
+        code, out, err = run(capsys, "calibrate", log, "--scheduler", "local", *option)
+        assert code == 2 and out == "" and option[0] in err and len(err.splitlines()) == 1
+
+
 def test_a_fleet_on_a_cluster_matches_the_fleet_in_this_process(tmp_path, cluster, capsys):
     fleet = tmp_path / "fleet"
     fleet.mkdir()

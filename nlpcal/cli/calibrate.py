@@ -238,8 +238,27 @@ them (say, the sensor was never turned over); --allow-unidentifiable writes them
 def run_calibrate(args) -> int:
     from ..cluster import scheduler
 
+    if args.scheduler:
+        _refuse_with_scheduler(args)  # before a cluster starts for nothing
     with scheduler(args.scheduler, args.workers), _dask_progress(args.scheduler):
         return _run_calibrate(args)
+
+
+def _refuse_with_scheduler(args) -> None:
+    """InputError for the options that need the log in memory, with --scheduler."""
+    from ..errors import InputError
+
+    if args.plot or args.lag is not None:
+        flag = "--plot" if args.plot else "--lag"
+        raise InputError(
+            f"{flag} and --scheduler exclude each other: with --scheduler the log is read "
+            f"block by block on the cluster"
+        )
+    if args.aux_columns:
+        raise InputError(
+            "--aux-columns reads its channels with the log in memory; drop --scheduler (the "
+            "Python API takes a Dask DataFrame with aux_columns)"
+        )
 
 
 def _dask_progress(spec):
@@ -260,7 +279,6 @@ def _read_for_calibration(args, extra):
     """The log: in this process (read_log), or for --scheduler read block by block on the
     cluster, kept in its memory where it fits unless --low-memory (read_lazy_log)."""
     from ..cluster import describe
-    from ..errors import InputError
     from ..io import read_log
     from ..io.lazy import read_lazy_log
     from ..io.recorders import is_recorded
@@ -280,12 +298,6 @@ def _read_for_calibration(args, extra):
         lean = args.low_memory or not whole
         with show_progress(f"reading {args.log}") as bar:
             return read_log(args.log, **options, extra_columns=extra, low_memory=lean, progress=bar)
-    if args.plot or args.lag is not None:
-        flag = "--plot" if args.plot else "--lag"
-        raise InputError(
-            f"{flag} and --scheduler exclude each other: with --scheduler the log is read "
-            f"block by block on the cluster"
-        )
     # kept in the cluster's memory where it fits, unless --low-memory leaves it in its files
     keep = not args.low_memory
     log = read_lazy_log(args.log, **log_options(args), extra_columns=extra, keep=keep)
@@ -429,11 +441,6 @@ def check_aux_arguments(args, temperature) -> None:
         raise InputError(
             "--aux-columns applies to the nine-parameter calibration, not to the temperature "
             "calibration; drop one of them"
-        )
-    if args.scheduler:
-        raise InputError(
-            "--aux-columns reads its channels with the log in memory; drop --scheduler (the "
-            "Python API takes a Dask DataFrame with aux_columns)"
         )
 
 
