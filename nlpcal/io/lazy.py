@@ -410,7 +410,7 @@ def read_lazy_log(
         samples.ledger.record("keep", time.perf_counter() - started, whole=False)
     elif deferred is None:  # counted: a pass
         samples.ledger.record("read", time.perf_counter() - started)
-    with np.errstate(all="ignore"):  # values not yet checked: the first pass's survey is
+    with np.errstate(all="ignore"):  # values the first pass's survey has yet to check
         _, settled, check = settle_unit(passes.first_block_sample(samples), unit, how)
     if settled != unit:  # an assumed unit ruled out: the file's numbers, as raw counts
         samples, unit = passes.scaled(samples, 1.0 / units.field_factor(unit)), settled
