@@ -17,7 +17,10 @@ from __future__ import annotations
 import contextlib
 import logging
 import re
+import signal
 import socket
+import threading
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from . import chunks, validation
@@ -83,37 +86,92 @@ def scheduler(spec=None, workers: int | None = None):
             yield spec
         return
     if spec == "processes":  # one pool for every pass: each process imports nlpcal once
-        from concurrent.futures import ProcessPoolExecutor
-
         from dask.multiprocessing import get_context
 
-        pool = ProcessPoolExecutor(workers, mp_context=get_context(), initializer=blas_one_thread)
+        pool = _WorkerPool(workers, mp_context=get_context(), initializer=blas_one_thread)
         with pool, dask.config.set(scheduler=spec, pool=pool):
             yield spec
         return
     distributed = _require("distributed", f"--scheduler {spec}")
     with contextlib.ExitStack() as stack:
+        stack.callback(logging.disable, logging.root.manager.disable)  # last: as it was
         if spec == "local":
             stack.enter_context(worker_environment(dask))
-            cluster = stack.enter_context(
-                distributed.LocalCluster(
-                    n_workers=workers,
-                    threads_per_worker=1,
-                    processes=True,
-                    dashboard_address=None,
-                    # the scheduler's HTTP server (no dashboard) on a free port: on its default,
-                    # 8787, another cluster there would have Dask warn on stderr
-                    scheduler_kwargs={"dashboard_address": ":0"},
-                    preload=[__name__],  # `dask_setup` in each worker
+            # the thread that starts (and restarts) the workers inherits the held SIGINT
+            with interruptions_deferred(), sigint_held():
+                cluster = stack.enter_context(
+                    distributed.LocalCluster(
+                        n_workers=workers,
+                        threads_per_worker=1,
+                        processes=True,
+                        dashboard_address=None,
+                        # the scheduler's HTTP server (no dashboard) on a free port: on its
+                        # default, 8787, another cluster there would have Dask warn on stderr
+                        scheduler_kwargs={"dashboard_address": ":0"},
+                        preload=[__name__],  # `dask_setup` in each worker
+                    )
                 )
-            )
-            client = stack.enter_context(distributed.Client(cluster, set_as_default=False))
+                client = stack.enter_context(distributed.Client(cluster, set_as_default=False))
         else:
             client = stack.enter_context(_connect(distributed, str(spec)))
+        client.loop.asyncio_loop.set_exception_handler(exit_unreported)
+        stack.push(unlogged_if_interrupted)  # the first out: before the Client and cluster close
         # the default for the work inside (Dask's scheduler, the Client of its futures),
         # undone however that work ends
         with client.as_current():
             yield client
+
+
+def unlogged_if_interrupted(kind, error, traceback) -> bool:
+    """An exit callback: all logging off for the rest of the ExitStack when the block ends by
+    an interruption (Ctrl-C, or the command line's SIGTERM), which the caller states itself:
+    dask.distributed logs the tasks that the workers it closes lose."""
+    if kind is not None and issubclass(kind, KeyboardInterrupt):
+        logging.disable(logging.CRITICAL)
+    return False
+
+
+def exit_unreported(loop, context: dict) -> None:
+    """The exception handler of a Client's event loop: asyncio's handling, but no report of a
+    task that ended with dask.distributed's AllExit, unretrieved. The gather of an interrupted
+    computation leaves such tasks behind, and asyncio reports each with a traceback when it is
+    collected, which may be before or after the interruption reaches the caller."""
+    if type(context.get("exception")).__name__ != "AllExit":
+        loop.default_exception_handler(context)
+
+
+@contextlib.contextmanager
+def interruptions_deferred():
+    """SIGINT and SIGTERM, in the main thread, handled as their handlers say on leaving the
+    block rather than inside it; a second one inside is handled at once (a start that hangs
+    can still be interrupted). A dask.distributed cluster interrupted as it starts is left half
+    made, and its closing at exit then fails with a traceback."""
+    numbers = (signal.SIGINT, signal.SIGTERM)
+    handlers = {number: signal.getsignal(number) for number in numbers}
+    if threading.current_thread() is not threading.main_thread() or None in handlers.values():
+        yield  # Python runs handlers in the main thread only; None: not set from Python
+        return
+    caught: list[int] = []
+
+    def restore() -> None:
+        for number, handler in handlers.items():
+            signal.signal(number, handler)
+
+    def defer(number, frame) -> None:
+        if caught:  # the second
+            restore()
+            caught.clear()
+            signal.raise_signal(number)
+        caught.append(number)
+
+    for number in numbers:
+        signal.signal(number, defer)
+    try:
+        yield
+    finally:
+        restore()
+        if caught:
+            signal.raise_signal(caught[0])
 
 
 #: The share of its memory a Dask scheduler may give a log read from files, kept there for the
@@ -177,9 +235,11 @@ def worker_environment(dask):
 
 def dask_setup(worker) -> None:
     """Run by each worker of a "local" cluster as it starts (a Dask preload of this module):
-    its log leaves out the tasks that refused the data (`refusal_unlogged`), which nlpcal
-    reports itself, in one line, on the same terminal."""
+    its log leaves out the tasks that refused the data (`refusal_unlogged`) and those cancelled
+    as it closed (`cancellation_unlogged`), which nlpcal reports itself, in one line, on the
+    same terminal."""
     logging.getLogger("distributed.worker").addFilter(refusal_unlogged)
+    logging.getLogger("distributed.worker.state_machine").addFilter(cancellation_unlogged)
 
 
 def refusal_unlogged(record: logging.LogRecord) -> bool:
@@ -188,6 +248,46 @@ def refusal_unlogged(record: logging.LogRecord) -> bool:
     states); True, logged as Dask logs it, for any other failure."""
     message = record.getMessage()
     return not (message.startswith("Compute Failed") and "InputError(" in message)
+
+
+@contextlib.contextmanager
+def sigint_held():
+    """SIGINT held back (blocked) in this thread inside. The processes it starts, and the threads
+    it starts and theirs, inherit that: a worker process started so never sees a Ctrl-C (the
+    terminal sends it to every process of the group), which would have it print a traceback,
+    also as it starts, before any code of its own could ignore it; this process handles it and
+    ends its workers. A Ctrl-C meanwhile reaches this process through another thread, or on
+    leaving. Nothing where signals cannot be blocked (Windows).
+
+    multiprocessing's resource tracker is started first: it unblocks SIGINT in the thread that
+    starts it (a cluster's, otherwise), after holding it for the tracker."""
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    from multiprocessing import resource_tracker
+
+    resource_tracker.ensure_running()
+    held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)
+
+
+class _WorkerPool(ProcessPoolExecutor):
+    """The pool of "processes": it starts its worker processes as tasks are submitted, with
+    SIGINT held (`sigint_held`)."""
+
+    def submit(self, fn, /, *args, **kwargs):
+        with sigint_held():
+            return super().submit(fn, *args, **kwargs)
+
+
+def cancellation_unlogged(record: logging.LogRecord) -> bool:
+    """False for a dask.distributed worker's record of a task cancelled as it ran, which
+    happens only as the worker closes: nlpcal closes its cluster so only when interrupted,
+    and says that itself."""
+    return not record.getMessage().endswith("ended with CancelledError")
 
 
 def blas_one_thread() -> None:

@@ -11,11 +11,15 @@ errors, taken at parameters 0.02 standard errors apart, differ by what that move
 ERROR_TOLERANCE.
 """
 
+import contextlib
 import json
 import logging
+import os
+import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -911,3 +915,74 @@ def test_blocks_whose_rows_were_all_kept_are_screened_by_the_first_pass_only(
     assert [n for n in log.notes if "repeat" in n] == [n for n in memory.notes if "repeat" in n]
     assert "repeat the field vector" in " ".join(log.notes)
     assert_same_optimum(result.parameters, expected.parameters, expected.standard_errors)
+
+
+@pytest.fixture(scope="module")
+def long_log(tmp_path_factory):
+    """A Parquet log whose robust calibration on two workers takes seconds: long enough to be
+    interrupted in its passes."""
+    pytest.importorskip("pyarrow")
+    samples, _ = make_log(n=1_000_000, noise=1.0, seed=37)
+    path = tmp_path_factory.mktemp("long") / "log.parquet"
+    frame = pd.DataFrame(samples, columns=["bx", "by", "bz"])
+    frame.to_parquet(path, index=False, row_group_size=100_000)
+    return path
+
+
+def session_processes(session: int) -> list:
+    """The processes of a session that still run (zombies are gone but for their parent)."""
+    psutil = pytest.importorskip("psutil")
+    alive = []
+    for process in psutil.process_iter(["status"]):
+        with contextlib.suppress(psutil.Error, OSError):
+            if os.getsid(process.pid) == session and process.info["status"] != "zombie":
+                alive.append(process)
+    return alive
+
+
+@pytest.mark.slow  # end to end, seconds
+@pytest.mark.parametrize("scheduler", ["local", "processes"])
+def test_ctrl_c_on_a_scheduler_is_one_line_and_ends_every_worker(long_log, tmp_path, scheduler):
+    """A terminal's Ctrl-C reaches every process of the group: the workers leave it to nlpcal,
+    which closes them and says "interrupted" once; no traceback, no process left, -o as it
+    was."""
+    if scheduler == "local":
+        pytest.importorskip("distributed")
+    pytest.importorskip("psutil")
+    output = tmp_path / "params.json"
+    output.write_text('{"kept": true}\n')
+    argv = ["calibrate", long_log, "--scheduler", scheduler, "--workers", "2", "--loss", "huber"]
+    run = subprocess.Popen(
+        [sys.executable, "-m", "nlpcal", *map(str, argv), "-o", str(output)],
+        cwd=tmp_path,
+        env={**os.environ, "PYTHONPATH": str(Path(nlpcal.__file__).parents[1])},
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    lines = []
+    try:
+        for line in run.stderr:  # its passes start after this line
+            lines.append(line)
+            if line.startswith("nlpcal: running on"):
+                break
+        time.sleep(0.3)
+        os.killpg(run.pid, signal.SIGINT)
+        lines += run.stderr.readlines()
+        code = run.wait(timeout=60)
+    finally:
+        if run.poll() is None:
+            os.killpg(run.pid, signal.SIGKILL)
+    stderr = "".join(lines)
+    deadline = time.monotonic() + 10
+    while session_processes(run.pid) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert code == 130, stderr
+    assert "Traceback" not in stderr, stderr
+    assert [line for line in lines if not line.startswith("nlpcal: ")] == [
+        "nlpcal calibrate: interrupted\n"
+    ], stderr
+    assert output.read_text() == '{"kept": true}\n'
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["params.json"]
+    assert session_processes(run.pid) == []
