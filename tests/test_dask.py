@@ -378,10 +378,8 @@ def test_a_scheduler_that_is_no_name_or_address_is_refused_at_once(parquet_log, 
         (("--scheduler", "local", "--workers", str(4 * cores + 1)), f"at most {4 * cores}"),
         (("--scheduler", "processes", "--workers", "10" * 10), f"at most {4 * cores}"),
     ):
-        started = time.perf_counter()
         code, out, err = run(capsys, "calibrate", log, *argv)
         assert code == 2 and out == "" and said in err and len(err.splitlines()) == 1, err
-        assert time.perf_counter() - started < 20, argv  # not a connect timeout
 
 
 def test_options_that_need_the_log_in_memory_are_refused_before_a_cluster_starts(
@@ -592,19 +590,28 @@ def test_a_compressed_text_log_is_read_on_dask_as_in_memory(tmp_path):
     from nlpcal.io import read_log
     from nlpcal.io.lazy import read_lazy_log
 
-    samples, _ = make_log(n=20_000, noise=1.0, seed=8)
+    samples, _ = make_log(n=100_000, noise=1.0, seed=8)
     path = tmp_path / "log.csv.gz"
     pd.DataFrame(samples, columns=["bx", "by", "bz"]).to_csv(path, index=False)
     memory = read_log(path)
     with dask.config.set(scheduler="threads"):
         lazy = read_lazy_log(path)
         np.testing.assert_array_equal(lazy.samples[::1], memory.samples)
-    cut = tmp_path / "cut.csv.gz"
-    cut.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
-    with pytest.raises(InputError, match="cannot be read"):
-        read_log(cut)
-    with dask.config.set(scheduler="threads"), pytest.raises(InputError, match="cannot be read"):
-        read_lazy_log(cut, keep=False).samples.survey()
+    whole = path.read_bytes()
+    damaged = bytearray(whole)
+    damaged[5_000:5_400] = bytes(400)
+    for name, content in (
+        ("cut early", whole[:20_000]),  # within the head read to detect the layout
+        ("cut late", whole[: len(whole) * 4 // 5]),
+        ("damaged", bytes(damaged)),
+    ):
+        bad = tmp_path / f"{name}.csv.gz"
+        bad.write_bytes(content)
+        for low_memory in (False, True):
+            with pytest.raises(InputError, match="cannot be read"):
+                read_log(bad, low_memory=low_memory)
+        with dask.config.set(scheduler="threads"), pytest.raises(InputError, match="cannot be"):
+            read_lazy_log(bad, keep=False).samples.survey()
 
 
 @pytest.mark.parametrize("keep", [False, True])
@@ -666,7 +673,10 @@ def test_a_unit_warning_names_the_size_of_values_of_any_size(tmp_path):
             assert said in read_lazy_log(path).warnings[0]
 
 
-def test_a_parquet_log_with_two_columns_of_one_name_or_stdin_is_refused(tmp_path):
+def test_a_parquet_log_with_two_columns_of_one_name_reads_as_its_csv(tmp_path):
+    """A repeated column name is numbered as pandas numbers it in a CSV header (bx, bx.1): in
+    memory, chunk by chunk and on Dask the log reads as its CSV copy does (it ended in an
+    internal error); a log from stdin is refused on Dask."""
     pa = pytest.importorskip("pyarrow")
     import pyarrow.parquet as pq
 
@@ -675,12 +685,23 @@ def test_a_parquet_log_with_two_columns_of_one_name_or_stdin_is_refused(tmp_path
     from nlpcal.io.lazy import read_lazy_log
 
     samples, _ = make_log(n=2_000, noise=1.0, seed=2)
-    columns = [pa.array(samples[:, k]) for k in (0, 1, 2, 0)]
+    names = ["bx", "by", "bz", " bx", "temp", "temp"]  # names are read stripped
+    columns = [samples[:, 0], samples[:, 1], samples[:, 2], samples[:, 0] + 1.0]
+    columns += [np.full(len(samples), 20.0), np.full(len(samples), 21.0)]
     path = tmp_path / "twice.parquet"
-    pq.write_table(pa.table(columns, names=["bx", "by", "bz", " bx"]), path)  # names stripped
-    for read in (read_log, read_lazy_log):
-        with pytest.raises(InputError, match="more than one column is named 'bx'"):
-            read(path)
+    pq.write_table(pa.table([pa.array(c) for c in columns], names=names), path)
+    text = tmp_path / "twice.csv"
+    pd.DataFrame(np.column_stack(columns)).to_csv(text, header=names, index=False)
+    expected = read_log(text, reference_field=PAPER_FIELD)
+    for log in (
+        read_log(path, reference_field=PAPER_FIELD),
+        read_log(path, reference_field=PAPER_FIELD, low_memory=True),
+    ):
+        np.testing.assert_array_equal(np.asarray(log.samples), expected.samples)
+    with dask.config.set(scheduler="sync"):
+        lazy = read_lazy_log(path, reference_column="bx.1")
+        np.testing.assert_array_equal(lazy.reference[::1], samples[:, 0] + 1.0)
+        np.testing.assert_array_equal(lazy.samples[::1], expected.samples)
     with pytest.raises(InputError, match="stdin"):
         read_lazy_log("-")
 
@@ -952,8 +973,14 @@ def test_ctrl_c_on_a_scheduler_is_one_line_and_ends_every_worker(long_log, tmp_p
     output = tmp_path / "params.json"
     output.write_text('{"kept": true}\n')
     argv = ["calibrate", long_log, "--scheduler", scheduler, "--workers", "2", "--loss", "huber"]
+    # Python's handler of SIGINT set first: a shell without job control (CI's) starts its
+    # background commands with SIGINT ignored, which they and theirs inherit
+    start = (
+        "import runpy, signal; signal.signal(signal.SIGINT, signal.default_int_handler); "
+        "runpy.run_module('nlpcal', run_name='__main__', alter_sys=True)"
+    )
     run = subprocess.Popen(
-        [sys.executable, "-m", "nlpcal", *map(str, argv), "-o", str(output)],
+        [sys.executable, "-c", start, *map(str, argv), "-o", str(output)],
         cwd=tmp_path,
         env={**os.environ, "PYTHONPATH": str(Path(nlpcal.__file__).parents[1])},
         stdout=subprocess.DEVNULL,
@@ -978,7 +1005,7 @@ def test_ctrl_c_on_a_scheduler_is_one_line_and_ends_every_worker(long_log, tmp_p
     deadline = time.monotonic() + 10
     while session_processes(run.pid) and time.monotonic() < deadline:
         time.sleep(0.1)
-    assert code == 130, stderr
+    assert code in (130, -signal.SIGINT), stderr  # 130, or ended by the SIGINT: $? = 130
     assert "Traceback" not in stderr, stderr
     assert [line for line in lines if not line.startswith("nlpcal: ")] == [
         "nlpcal calibrate: interrupted\n"

@@ -15,6 +15,7 @@ import csv
 import gzip
 import re
 import sys
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,6 +27,9 @@ from .files import existing_file
 
 #: Bytes looked at to detect the layout.
 HEAD_BYTES = 65536
+#: What a gzip stream cut short or damaged raises as it is read: the end of the stream missing,
+#: a bad header or checksum, data that do not decompress.
+BROKEN_STREAM = (EOFError, zlib.error, gzip.BadGzipFile)
 #: Lines looked at to detect the layout.
 HEAD_LINES = 200
 #: What `-` stands for in messages and result documents.
@@ -231,11 +235,14 @@ def detect_layout(name: str, source, header: bool | None = None) -> Layout:
     compression = None
     if head.startswith(b"\x1f\x8b"):
         compression = "gzip"
-        if isinstance(source, (bytes, bytearray)):
-            head = gzip.decompress(bytes(source))[:HEAD_BYTES]
-        else:
-            with gzip.open(source, "rb") as handle:
-                head = handle.read(HEAD_BYTES)
+        try:
+            if isinstance(source, (bytes, bytearray)):
+                head = gzip.decompress(bytes(source))[:HEAD_BYTES]
+            else:
+                with gzip.open(source, "rb") as handle:
+                    head = handle.read(HEAD_BYTES)
+        except BROKEN_STREAM as exc:
+            raise InputError(f"{name}: cannot be read as gzip-compressed text ({exc})") from None
     refuse_binary(name, head)
     text, encoding = _text(head)
     complete = len(head) < HEAD_BYTES

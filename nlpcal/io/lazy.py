@@ -40,6 +40,7 @@ from .. import cluster, passes, units
 from ..errors import InputError
 from ..geomagnetic import ReferenceModel
 from . import sources
+from .layout import BROKEN_STREAM
 from .logs import (
     Log,
     constant_reference,
@@ -52,7 +53,6 @@ from .logs import (
 from .recorders import check_options, declared_unit
 from .rows import QUOTED_ROWS, RowScreen
 from .tables import (
-    BROKEN_STREAM,
     column_name,
     log_files,
     named,
@@ -97,7 +97,7 @@ def _table_of(spec):
     options = layout.pandas_options()
     source: str | io.BytesIO
     if where is None:  # a file read whole here (compressed, or in an encoding not split)
-        source = str(extra.source)
+        source = os.path.abspath(str(extra.source))  # as read_bytes takes it: any worker's cwd
     else:  # the bytes of a block, as they are in the file
         source, options["compression"] = io.BytesIO(where), None
     if number:  # the header row and comment lines are in the first block only

@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import InputError
-from .layout import STDIN, Layout
+from .layout import BROKEN_STREAM, STDIN, Layout
 from .rows import RowScreen
 from .tables import column_name, file_shares, log_files, numeric_columns, unreadable
 
@@ -103,7 +103,7 @@ def csv_to_memmap(
         except InputError:
             store.close()
             raise
-        except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
+        except (pd.errors.ParserError, UnicodeDecodeError, ValueError, *BROKEN_STREAM) as exc:
             store.close()
             raise unreadable(part.name, part.layout, exc) from None
     finally:

@@ -135,17 +135,21 @@ def _parquet_file(path):
     parquet = pyarrow_parquet()
     path = existing_file(path, "a Parquet file")
     try:
-        handle = parquet.ParquetFile(path)
+        return parquet.ParquetFile(path)
     except Exception as exc:  # pyarrow's ArrowInvalid, OSError ...
         raise InputError(f"{path}: cannot be read as Parquet ({_first_line(exc)})") from None
-    names = [str(name).strip() for name in handle.schema_arrow.names]
-    twice = sorted({name for name in names if names.count(name) > 1})
-    if twice:  # a column is found by its name (a CSV reader numbers the repeats: bx, bx.1)
-        raise InputError(
-            f"{path}: more than one column is named {', '.join(map(repr, twice))}; give the "
-            f"columns of a Parquet log distinct names"
-        )
-    return handle
+
+
+def distinct_names(names) -> list:
+    """Column names stripped, a repeated one numbered as pandas numbers the repeats of a CSV
+    header (bx, bx.1, bx.2): every column of a log is found by its name."""
+    seen: dict = {}
+    out = []
+    for name in (str(n).strip() for n in names):
+        count = seen.get(name, 0)
+        seen[name] = count + 1
+        out.append(name if count == 0 else f"{name}.{count}")
+    return out
 
 
 def _first_line(exc: Exception) -> str:
@@ -155,7 +159,7 @@ def _first_line(exc: Exception) -> str:
 
 def parquet_columns(path) -> list:
     """The column names of a Parquet file, from its footer (no data read)."""
-    return [str(name) for name in _parquet_file(path).schema_arrow.names]
+    return distinct_names(_parquet_file(path).schema_arrow.names)
 
 
 def parquet_row_groups(path) -> list:
@@ -166,25 +170,41 @@ def parquet_row_groups(path) -> list:
 
 def _frame(table) -> pd.DataFrame:
     frame = table.to_pandas()
-    frame.columns = [str(c).strip() for c in frame.columns]
+    frame.columns = distinct_names(frame.columns)
     return frame
+
+
+def _named(handle, read, columns=None):
+    """read(columns=...) of a ParquetFile `handle` for the columns named as `distinct_names`
+    names them (all when None), the table's columns so named."""
+    stored = [str(n) for n in handle.schema_arrow.names]
+    names = distinct_names(stored)
+    if names == stored:  # the names as stored: pyarrow reads only the columns asked for
+        return read(columns=columns)
+    table = read(columns=None)
+    if columns is not None:
+        table = table.select([names.index(name) for name in columns])
+        names = list(columns)
+    return table.rename_columns(names)
 
 
 def read_parquet(path, columns=None) -> pd.DataFrame:
     """A Parquet file (the `columns` only, when given) as a DataFrame."""
     handle = _parquet_file(path)
     try:
-        return _frame(handle.read(columns=columns))
+        return _frame(_named(handle, handle.read, columns))
     except Exception as exc:
         raise InputError(f"{path}: cannot be read as Parquet ({_first_line(exc)})") from None
 
 
 def parquet_row_group(path, index: int, columns=None):
     """One row group of a Parquet file as a pyarrow Table (what one block of a Dask log
-    reads)."""
+    reads), its columns named as `distinct_names` names them."""
     handle = _parquet_file(path)
     try:
-        return handle.read_row_group(index, columns=columns)
+        return _named(
+            handle, lambda columns: handle.read_row_group(index, columns=columns), columns
+        )
     except Exception as exc:
         raise InputError(
             f"{path}: row group {index} cannot be read as Parquet ({_first_line(exc)})"
@@ -199,9 +219,12 @@ def arrow_frame(table) -> pd.DataFrame:
 def parquet_chunks(path, chunk_rows: int, columns=None):
     """The rows of a Parquet file as DataFrames of at most `chunk_rows` rows, O(chunk) memory."""
     handle = _parquet_file(path)
+    stored = [str(n) for n in handle.schema_arrow.names]
+    exact = distinct_names(stored) == stored  # else read whole, and chosen by `distinct_names`
     try:
-        for batch in handle.iter_batches(batch_size=chunk_rows, columns=columns):
-            yield _frame(batch)
+        for batch in handle.iter_batches(batch_size=chunk_rows, columns=columns if exact else None):
+            frame = _frame(batch)
+            yield frame if exact or columns is None else frame[list(columns)]
     except InputError:
         raise
     except Exception as exc:

@@ -26,7 +26,7 @@ import pandas as pd
 from .. import units
 from ..errors import InputError
 from ..validation import not_too_large
-from .layout import STDIN, Layout
+from .layout import BROKEN_STREAM, STDIN, Layout
 from .logs import distinct_roles, format_unit, sensor_unit, settle_unit
 from .mapped import spool_stdin
 from .recorders import check_options, is_recorded
@@ -223,7 +223,7 @@ class LogStream:
                     before += len(chunk)
             except InputError:
                 raise
-            except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
+            except (pd.errors.ParserError, UnicodeDecodeError, ValueError, *BROKEN_STREAM) as exc:
                 raise unreadable(part.name, part.layout, exc) from None
 
     def _chunk(

@@ -11,11 +11,8 @@ was received and how to fix it.
 from __future__ import annotations
 
 import io
-import lzma
 import os
 import re
-import zipfile
-import zlib
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -24,7 +21,7 @@ import pandas as pd
 from .. import units
 from ..errors import InputError
 from . import recorders, sources
-from .layout import Layout, detect_layout, open_source
+from .layout import BROKEN_STREAM, Layout, detect_layout, open_source
 from .observatory import Observatory
 
 #: What each sensor's axis columns may be called, for `resolve_columns`:
@@ -120,11 +117,6 @@ def _frame(name: str, source, layout: Layout, *, text: bool = False, **more) -> 
     return named(frame, layout), engine
 
 
-#: What a compressed file cut short or damaged raises as it is read (gzip, zip, bz2 and xz:
-#: the end of the stream missing, a bad checksum or header, data that is not the format's).
-BROKEN_STREAM = (EOFError, OSError, zlib.error, zipfile.BadZipFile, lzma.LZMAError)
-
-
 _RAGGED = re.compile(r"Expected (\d+) fields in line (\d+), saw (\d+)")
 
 
@@ -143,8 +135,8 @@ def unreadable(name: str, layout: Layout, exc: Exception) -> InputError:
 
 def named(frame: pd.DataFrame, layout: Layout) -> pd.DataFrame:
     """The columns of a frame read in `layout`: the header's names stripped, else 0, 1, ..."""
-    if layout.header:
-        frame.columns = [str(c).strip() for c in frame.columns]
+    if layout.header:  # stripped, a repeat numbered (pandas numbers only the exact repeats)
+        frame.columns = sources.distinct_names(frame.columns)
     else:
         frame.columns = [str(k) for k in range(frame.shape[1])]
     return frame
