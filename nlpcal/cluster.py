@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import re
 import signal
 import socket
@@ -144,8 +145,11 @@ def exit_unreported(loop, context: dict) -> None:
 def interruptions_deferred():
     """SIGINT and SIGTERM, in the main thread, handled as their handlers say on leaving the
     block rather than inside it; a second one inside is handled at once (a start that hangs
-    can still be interrupted). A dask.distributed cluster interrupted as it starts is left half
-    made, and its closing at exit then fails with a traceback."""
+    can still be interrupted: a SIGTERM always; a SIGINT, held in this thread by
+    `sigint_held` there, once a thread of the process that does not hold it receives it, as
+    BLAS's threads do, else when the start ends or times out). A dask.distributed cluster
+    interrupted as it starts is left half made, and its closing at exit then fails with a
+    traceback."""
     numbers = (signal.SIGINT, signal.SIGTERM)
     handlers = {number: signal.getsignal(number) for number in numbers}
     if threading.current_thread() is not threading.main_thread() or None in handlers.values():
@@ -307,7 +311,7 @@ WORKERS_PER_CORE = 4
 #: What a running scheduler's address looks like: protocol://host:port (tcp, tls, ws, wss,
 #: ucx), or host:port (tcp).
 ADDRESS = re.compile(
-    r"(?:(?:tcp|tls|ws|wss|ucx)://)?[^\s/:]+(?::\d+)?|(?:tcp|tls)://\[[0-9a-fA-F:.]+\](?::\d+)?"
+    r"(?:(?:tcp|tls|ws|wss|ucx)://)?(?:[^\s/:\[\]]+|\[[0-9a-fA-F:.]+(?:%[\w.-]+)?\])(?::\d+)?"
 )
 
 
@@ -317,6 +321,8 @@ def check_spec(spec, workers: int | None) -> None:
     or more `workers` than WORKERS_PER_CORE per core available to this process."""
     if is_client(spec):
         return
+    if isinstance(spec, os.PathLike):  # a scheduler file
+        spec = os.fspath(spec)
     if not isinstance(spec, str):
         raise InputError(f"--scheduler: expected a name or an address, got {spec!r}")
     if spec.lower() in SCHEDULERS and spec not in SCHEDULERS:

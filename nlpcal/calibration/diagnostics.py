@@ -264,8 +264,11 @@ def second_order_bias(
 
 
 def _in_errors(shift: float, error: float) -> float:
-    """A shift in standard errors; none (0) on residuals of zero, whose standard error is 0."""
-    return 0.0 if shift == 0.0 and error == 0.0 else shift / error
+    """A shift in standard errors; none (0) on residuals of zero, whose standard error is 0
+    (a shift with a standard error of 0 is infinitely many: no result states it)."""
+    if error == 0.0:
+        return 0.0 if shift == 0.0 else float(np.copysign(np.inf, shift))
+    return shift / error
 
 
 def white_variance(series, robust: bool) -> float:

@@ -217,7 +217,8 @@ def first_frame(samples, reference) -> tuple:
         if np.ndim(reference) == 0:
             return frame, float(reference)
         first = np.asarray(reference[rows], dtype=float)
-        length = float(np.sqrt(np.mean(first[np.isfinite(first)] ** 2)))
+        finite = first[np.isfinite(first)]
+        length = float(np.sqrt(np.mean(finite**2))) if finite.size else 0.0
     return frame, length if 0 < length < np.inf else frame.radius
 
 

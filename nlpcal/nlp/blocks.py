@@ -318,7 +318,7 @@ def evaluate(builder, moments: mom.Moments, theta, *args) -> tuple:
     """`builder(moments.reference, *args)` (`objective_function`, `block_objective_function`,
     `value_function`, `summary_function`) at theta on these moments, evaluated in place
     (`Evaluation`): its results as numbers, the arrays read-only. The latest result of each
-    builder is kept: a stage starts where the previous one was last checked."""
+    builder (and arguments) is kept: a check at the point last checked is not evaluated again."""
     theta = np.asarray(theta, dtype=float)
     key = ("latest", builder.__name__, *args)
     latest = moments.cache.get(key)

@@ -207,7 +207,8 @@ class Evaluation:
 
     def __call__(self, x, p) -> tuple:
         """The results at x for the parameters p (a read-only array given again is not copied
-        again: the Gram matrix of every check of one log)."""
+        again: the Gram matrix of every check of one log; the caller does not change a
+        read-only array it gave, `nlpcal.nlp.blocks.parameter_values` never does)."""
         with self._lock:
             self._x[:] = x
             if p is not self._held:
