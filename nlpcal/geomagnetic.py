@@ -120,7 +120,7 @@ def parse_times(values) -> np.ndarray:
     if pd.api.types.is_numeric_dtype(series) and not pd.api.types.is_bool_dtype(series):
         seconds = pd.to_numeric(series, errors="coerce").to_numpy(dtype=float)
         finite = np.isfinite(seconds)
-        out = np.full(seconds.shape, np.datetime64("NaT"), dtype="datetime64[ns]")
+        out = np.full(seconds.shape, np.datetime64("NaT", "ns"), dtype="datetime64[ns]")
         out[finite] = (seconds[finite] * 1e9).astype("int64").astype("datetime64[ns]")
         return out
     parsed = pd.to_datetime(series.astype(str), errors="coerce", utc=True, format="ISO8601")
