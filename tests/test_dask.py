@@ -1007,9 +1007,14 @@ def test_ctrl_c_on_a_scheduler_is_one_line_and_ends_every_worker(long_log, tmp_p
         time.sleep(0.1)
     assert code in (130, -signal.SIGINT), stderr  # 130, or ended by the SIGINT: $? = 130
     assert "Traceback" not in stderr, stderr
-    assert [line for line in lines if not line.startswith("nlpcal: ")] == [
-        "nlpcal calibrate: interrupted\n"
-    ], stderr
+    # nlpcal's notes aside, and CasADi's own warning when the Ctrl-C lands inside an IPOPT
+    # solve of this process (printed by its C++ interface, which nlpcal does not control)
+    said = [
+        line
+        for line in lines
+        if not line.startswith("nlpcal: ") and "KeyboardInterruptException" not in line
+    ]
+    assert said == ["nlpcal calibrate: interrupted\n"], stderr
     assert output.read_text() == '{"kept": true}\n'
     assert sorted(p.name for p in tmp_path.iterdir()) == ["params.json"]
     assert session_processes(run.pid) == []
