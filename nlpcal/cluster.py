@@ -327,8 +327,7 @@ def check_spec(spec, workers: int | None) -> None:
         raise InputError(f"--scheduler: expected a name or an address, got {spec!r}")
     if spec.lower() in SCHEDULERS and spec not in SCHEDULERS:
         raise InputError(f"--scheduler {spec!r}: did you mean {spec.lower()!r}?")
-    is_file = spec.endswith(".json") or Path(spec).is_file()
-    if spec not in SCHEDULERS and not is_file and not ADDRESS.fullmatch(spec):
+    if spec not in SCHEDULERS and not _names_file(spec) and not ADDRESS.fullmatch(spec):
         raise InputError(
             f"--scheduler {spec!r}: neither {', '.join(SCHEDULERS)}, nor a scheduler's address "
             f"(tcp://host:8786) or scheduler file"
@@ -347,7 +346,7 @@ def _connect(distributed, address: str):
     The Client does not make itself Dask's default (`scheduler` sets it for the work inside):
     one that fails to connect would leave the default set to a cluster that is not there, and
     undo later whatever default was set when it is collected."""
-    is_file = address.endswith(".json") or Path(address).is_file()
+    is_file = _names_file(address)
     if is_file and not Path(address).is_file():  # Dask would wait for it to appear
         raise InputError(f"{address}: no such scheduler file")
     target = scheduler_file_address(address) if is_file else address
@@ -361,6 +360,11 @@ def _connect(distributed, address: str):
             f"no Dask scheduler answers at {target!r} ({reason}); give its address "
             f"(tcp://host:8786), its scheduler file, or one of {choices}"
         ) from None
+
+
+def _names_file(spec: str) -> bool:
+    """Whether `--scheduler` names a scheduler file (a .json path, or any file there is)."""
+    return spec.endswith(".json") or Path(spec).is_file()
 
 
 def _reachable(address: str) -> None:
