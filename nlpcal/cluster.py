@@ -20,11 +20,10 @@ import os
 import re
 import signal
 import socket
-import threading
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-from . import chunks, validation
+from . import chunks, interruptions, validation
 from .errors import InputError
 from .results import read_json_document
 
@@ -98,8 +97,12 @@ def scheduler(spec=None, workers: int | None = None):
         stack.callback(logging.disable, logging.root.manager.disable)  # last: as it was
         if spec == "local":
             stack.enter_context(worker_environment(dask))
-            # the thread that starts (and restarts) the workers inherits the held SIGINT
-            with interruptions_deferred(), sigint_held():
+            # the thread that starts (and restarts) the workers inherits the held SIGINT; a
+            # signal meanwhile waits for the start to end: interrupted inside its constructor,
+            # the cluster is left half made. A second acts at once (a start that hangs): a
+            # SIGTERM always, a SIGINT (held in this thread) once a thread of the process that
+            # does not hold it receives it, as BLAS's threads do, else as the start ends
+            with interruptions.deferred(second_acts=True), sigint_held():
                 cluster = stack.enter_context(
                     distributed.LocalCluster(
                         n_workers=workers,
@@ -139,43 +142,6 @@ def exit_unreported(loop, context: dict) -> None:
     collected, which may be before or after the interruption reaches the caller."""
     if type(context.get("exception")).__name__ != "AllExit":
         loop.default_exception_handler(context)
-
-
-@contextlib.contextmanager
-def interruptions_deferred():
-    """SIGINT and SIGTERM, in the main thread, handled as their handlers say on leaving the
-    block rather than inside it; a second one inside is handled at once (a start that hangs
-    can still be interrupted: a SIGTERM always; a SIGINT, held in this thread by
-    `sigint_held` there, once a thread of the process that does not hold it receives it, as
-    BLAS's threads do, else when the start ends or times out). A dask.distributed cluster
-    interrupted as it starts is left half made, and its closing at exit then fails with a
-    traceback."""
-    numbers = (signal.SIGINT, signal.SIGTERM)
-    handlers = {number: signal.getsignal(number) for number in numbers}
-    if threading.current_thread() is not threading.main_thread() or None in handlers.values():
-        yield  # Python runs handlers in the main thread only; None: not set from Python
-        return
-    caught: list[int] = []
-
-    def restore() -> None:
-        for number, handler in handlers.items():
-            signal.signal(number, handler)
-
-    def defer(number, frame) -> None:
-        if caught:  # the second
-            restore()
-            caught.clear()
-            signal.raise_signal(number)
-        caught.append(number)
-
-    for number in numbers:
-        signal.signal(number, defer)
-    try:
-        yield
-    finally:
-        restore()
-        if caught:
-            signal.raise_signal(caught[0])
 
 
 #: The share of its memory a Dask scheduler may give a log read from files, kept there for the

@@ -4,12 +4,14 @@ and every feature's verbs importable from `nlpcal`."""
 from __future__ import annotations
 
 import ast
+import signal
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 import nlpcal
+from nlpcal import interruptions
 from nlpcal.nlp.solver import PROBLEMS, builds
 from resolution import assert_same_optimum
 from synthetic import PAPER_FIELD, PAPER_TRUTH, make_log
@@ -21,6 +23,7 @@ LAYERS = {
     "models": 0,
     "defaults": 0,
     "errors": 1,
+    "interruptions": 1,
     "version": 1,
     "units": 1,
     "validation": 1,
@@ -156,6 +159,57 @@ def test_every_problem_is_built_once_and_does_not_grow_with_the_log():
     built = builds()
     run_every_feature(1700, 2)  # other lengths, other data: nothing is built again
     assert builds() == built
+
+
+@pytest.mark.parametrize("number", interruptions.SIGNALS, ids=lambda n: signal.Signals(n).name)
+def test_a_signal_while_a_problem_is_built_reaches_the_caller(monkeypatch, number):
+    """CasADi converts the arguments of a symbolic operation with the C API's hasattr, which runs
+    the Python `shape` of an SX or MX and drops what it raises. A Ctrl-C (or the command line's
+    SIGTERM) landing there was lost and the run went on; a build now acts on it as it ends."""
+    import casadi as ca
+
+    from nlpcal.nlp.blocks import objective_function
+
+    landed = []
+
+    def shape_as_the_signal_lands(shape):
+        def read(self):
+            if not landed:  # once: the handler runs here, inside CasADi's conversion
+                landed.append(True)
+                signal.raise_signal(number)
+            return shape.fget(self)
+
+        return property(read)
+
+    for symbol in (ca.SX, ca.MX):
+        monkeypatch.setattr(symbol, "shape", shape_as_the_signal_lands(symbol.shape))
+    # Python's handler, as a terminal's Python has it (CI's shell starts legs with SIGINT ignored)
+    previous = signal.signal(number, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            objective_function.__wrapped__("none")  # a build, not the cached problem
+    finally:
+        signal.signal(number, previous)
+    assert landed
+
+
+def test_a_held_signal_acts_as_its_block_ends_and_a_second_at_once_where_the_block_says():
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    reached = []
+    try:
+        with pytest.raises(KeyboardInterrupt), interruptions.deferred():
+            signal.raise_signal(signal.SIGINT)
+            signal.raise_signal(signal.SIGINT)
+            reached.append("the end of the block")
+        with pytest.raises(KeyboardInterrupt), interruptions.deferred(second_acts=True):
+            signal.raise_signal(signal.SIGINT)
+            reached.append("past the first")
+            signal.raise_signal(signal.SIGINT)
+            reached.append("past the second")
+        assert reached == ["the end of the block", "past the first"]
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def test_the_library_takes_units():

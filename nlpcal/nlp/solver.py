@@ -23,11 +23,12 @@ import threading
 import time
 from contextlib import redirect_stdout
 from dataclasses import dataclass, replace
-from functools import lru_cache
+from functools import lru_cache, wraps
 
 import casadi as ca
 import numpy as np
 
+from .. import interruptions
 from ..errors import InputError, SolveError
 
 
@@ -107,7 +108,8 @@ def check_ipopt_options(options: dict) -> None:
         try:
             os.dup2(captured.fileno(), 1)
             try:
-                ca.nlpsol("check", "ipopt", {"x": x, "f": x * x}, {"ipopt": settings})
+                with interruptions.deferred():  # a symbolic operation: see `problem`
+                    ca.nlpsol("check", "ipopt", {"x": x, "f": x * x}, {"ipopt": settings})
                 error = None
             except RuntimeError as exc:
                 error = str(exc)
@@ -139,12 +141,19 @@ PROBLEMS: dict = {}
 
 def problem(name: str, examples=((),)):
     """Register a problem builder under `name` and cache it per argument tuple (build once).
+    A Ctrl-C or SIGTERM during a build acts as the build ends (`nlpcal.interruptions`).
 
     examples : argument tuples with which the registry test builds the problem.
     """
 
     def register(builder):
-        cached = lru_cache(maxsize=None)(builder)
+        @wraps(builder)
+        def build(*args, **kwargs):
+            # CasADi's symbolic operations would drop a Ctrl-C raised inside them
+            with interruptions.deferred():
+                return builder(*args, **kwargs)
+
+        cached = lru_cache(maxsize=None)(build)
         PROBLEMS[name] = (cached, tuple(examples))
         return cached
 

@@ -1,0 +1,64 @@
+"""Ctrl-C and SIGTERM held back where the exception they raise would be lost or harmful.
+
+Python runs a signal's handler in the main thread between two bytecodes, wherever that is, and
+the handler raises there: KeyboardInterrupt for Ctrl-C, the command line's `Terminated` for
+SIGTERM. Two kinds of place in nlpcal cannot take that exception:
+
+- building a CasADi problem (`nlpcal.nlp.solver.problem`): CasADi's SWIG wrappers look at each
+  argument of a symbolic operation with the C API's hasattr, which runs Python code (the
+  `shape` property of an SX or MX) and drops any exception raised inside it: silently before
+  Python 3.13, with an "Exception ignored" report since. A Ctrl-C there was lost, and the run
+  went on to the end;
+- starting a dask.distributed LocalCluster (`nlpcal.cluster`): interrupted inside its
+  constructor, it is left half made, and its closing at exit fails with a traceback.
+
+`deferred` holds the signals for such a block and acts on them as it ends.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+
+#: The signals whose Python handlers `deferred` holds back.
+SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+@contextlib.contextmanager
+def deferred(second_acts: bool = False):
+    """SIGINT and SIGTERM, where Python handles them, handled as their handlers say on leaving
+    the block rather than inside it (the first one caught).
+
+    second_acts : a second signal inside the block is handled at once (a start that hangs can
+        still be interrupted); else every one waits for the end of the block.
+
+    Nothing is held outside the main thread (Python runs handlers there only), nor for a signal
+    whose handler Python does not run (SIG_DFL, SIG_IGN, or one not set from Python).
+    """
+    handlers = {number: signal.getsignal(number) for number in SIGNALS}
+    handlers = {number: handler for number, handler in handlers.items() if callable(handler)}
+    if threading.current_thread() is not threading.main_thread() or not handlers:
+        yield
+        return
+    caught: list[int] = []
+
+    def restore() -> None:
+        for number, handler in handlers.items():
+            signal.signal(number, handler)
+
+    def defer(number, frame) -> None:
+        if second_acts and caught:
+            restore()
+            caught.clear()
+            signal.raise_signal(number)  # its handler runs here (raise_signal checks signals)
+        caught.append(number)
+
+    for number in handlers:
+        signal.signal(number, defer)
+    try:
+        yield
+    finally:
+        restore()
+        if caught:
+            signal.raise_signal(caught[0])
