@@ -205,11 +205,12 @@ def worker_environment(dask):
 
 def dask_setup(worker) -> None:
     """Run by each worker of a "local" cluster as it starts (a Dask preload of this module):
-    its log leaves out the tasks that refused the data (`refusal_unlogged`) and those cancelled
-    as it closed (`cancellation_unlogged`), which nlpcal reports itself, in one line, on the
-    same terminal."""
+    its log leaves out the tasks that refused the data (`refusal_unlogged`) and what it meets
+    as the cluster closes under it (`closing_unlogged`), which nlpcal reports itself, in one
+    line, on the same terminal."""
     logging.getLogger("distributed.worker").addFilter(refusal_unlogged)
-    logging.getLogger("distributed.worker.state_machine").addFilter(cancellation_unlogged)
+    for name in ("distributed.worker", "distributed.worker.state_machine"):
+        logging.getLogger(name).addFilter(closing_unlogged)
 
 
 def refusal_unlogged(record: logging.LogRecord) -> bool:
@@ -253,11 +254,15 @@ class _WorkerPool(ProcessPoolExecutor):
             return super().submit(fn, *args, **kwargs)
 
 
-def cancellation_unlogged(record: logging.LogRecord) -> bool:
-    """False for a dask.distributed worker's record of a task cancelled as it ran, which
-    happens only as the worker closes: nlpcal closes its cluster so only when interrupted,
-    and says that itself."""
-    return not record.getMessage().endswith("ended with CancelledError")
+def closing_unlogged(record: logging.LogRecord) -> bool:
+    """False for what a worker of a local cluster logs as the cluster closes under it: a task
+    cancelled as it ran, a heartbeat that found the scheduler gone (with a traceback). nlpcal
+    closes its cluster midway only when interrupted, and says that itself."""
+    message = record.getMessage()
+    return not (
+        message.endswith("ended with CancelledError")
+        or message.startswith("Failed to communicate with scheduler during heartbeat")
+    )
 
 
 def blas_one_thread() -> None:

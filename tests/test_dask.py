@@ -560,6 +560,21 @@ def test_a_worker_log_keeps_every_failure_but_a_refused_value():
     assert refusal_unlogged(other)
 
 
+def test_a_worker_log_leaves_out_only_what_a_closing_cluster_brings():
+    """What a worker meets as nlpcal closes its cluster midway (an interruption, which nlpcal
+    states itself) is left out; anything else a worker logs stays."""
+    from nlpcal.cluster import closing_unlogged
+
+    def record(text: str, *args):
+        return logging.LogRecord("distributed.worker", logging.ERROR, "", 0, text, args, None)
+
+    assert not closing_unlogged(record("Failed to communicate with scheduler during heartbeat."))
+    cancelled = record("Async instruction for %s ended with CancelledError", "<Task execute>")
+    assert not closing_unlogged(cancelled)
+    assert closing_unlogged(record("Unexpected exception during heartbeat. Closing worker."))
+    assert closing_unlogged(record("Compute Failed\nKey: %s", "k"))
+
+
 def test_the_first_block_sends_only_the_rows_its_sphere_fit_reads():
     """Before the first pass a Dask log's first block gives the frame of its moments and the
     plausibility of its unit: the even stride of it those read, and the leading rows the pass
