@@ -174,12 +174,19 @@ def _frame(table) -> pd.DataFrame:
     return frame
 
 
+def _renamed(handle) -> list | None:
+    """The names `distinct_names` gives the columns of a ParquetFile `handle`, or None where
+    they are the names as stored: pyarrow then reads only the columns asked for by name."""
+    stored = [str(n) for n in handle.schema_arrow.names]
+    names = distinct_names(stored)
+    return None if names == stored else names
+
+
 def _named(handle, read, columns=None):
     """read(columns=...) of a ParquetFile `handle` for the columns named as `distinct_names`
     names them (all when None), the table's columns so named."""
-    stored = [str(n) for n in handle.schema_arrow.names]
-    names = distinct_names(stored)
-    if names == stored:  # the names as stored: pyarrow reads only the columns asked for
+    names = _renamed(handle)
+    if names is None:
         return read(columns=columns)
     table = read(columns=None)
     if columns is not None:
@@ -219,8 +226,7 @@ def arrow_frame(table) -> pd.DataFrame:
 def parquet_chunks(path, chunk_rows: int, columns=None):
     """The rows of a Parquet file as DataFrames of at most `chunk_rows` rows, O(chunk) memory."""
     handle = _parquet_file(path)
-    stored = [str(n) for n in handle.schema_arrow.names]
-    exact = distinct_names(stored) == stored  # else read whole, and chosen by `distinct_names`
+    exact = _renamed(handle) is None  # else read whole, and chosen by `distinct_names`
     try:
         for batch in handle.iter_batches(batch_size=chunk_rows, columns=columns if exact else None):
             frame = _frame(batch)
