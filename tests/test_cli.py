@@ -538,3 +538,16 @@ def test_sigterm_during_an_ipopt_solve_is_a_termination():
         running.set()
         sender.join()
         signal.signal(signal.SIGTERM, previous)
+
+
+def test_ctrl_c_as_the_command_line_is_read_is_one_line(monkeypatch, capsys):
+    """A Ctrl-C before any command starts (its parser is built from every subcommand's module)
+    is "interrupted", exit 130, as anywhere later, not a traceback."""
+    from nlpcal import cli
+
+    def interrupted():
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "build_parser", interrupted)
+    assert cli.main(["calibrate", "log.csv"]) == 130
+    assert capsys.readouterr().err == "nlpcal: interrupted\n"

@@ -130,8 +130,8 @@ def _check_environment() -> None:
 
 def main(argv=None) -> int:
     """Run the command line; returns the exit status instead of exiting."""
-    parser = build_parser()
     try:
+        parser = build_parser()
         args, unknown = parser.parse_known_args(argv)
         if unknown:  # said by the (sub)command they were given to, which points to its help
             _command_parser(parser, argv).error(f"unrecognized arguments: {' '.join(unknown)}")
@@ -142,6 +142,9 @@ def main(argv=None) -> int:
         return int(exc.code or 0)
     except BrokenPipeError:
         return _reader_gone()
+    except KeyboardInterrupt:  # as the command line is read: no command has started
+        print("nlpcal: interrupted", file=sys.stderr)
+        return 130
     set_verbosity(args)
     _TERMINATION.clear()
     previous = signal.getsignal(signal.SIGTERM)
