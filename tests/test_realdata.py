@@ -199,9 +199,13 @@ def test_the_joint_solve_on_the_upright_log_blames_the_coverage(real_data, tmp_p
     path = real_data / "xio_fusion_ximu3" / "sensor_data.csv"
     if not path.exists():
         pytest.skip(f"{path} is absent")
-    code, captured = _cli(capsys, "calibrate", path, "--method", "joint", "-o", tmp_path / "p.json")
-    assert code == 1
-    assert "of 26 direction bins, a cap of the sphere" in captured.err
+    out = tmp_path / "p.json"
+    code, captured = _cli(capsys, "calibrate", path, "--method", "joint", "-o", out)
+    # IPOPT wanders on the cap (it stops at its iteration limit) or settles on a far-away sphere
+    # that leaves parameters undetermined, as the rounding of the moments has it: either way
+    # exit 1, nothing written, and the attitudes named as the cause
+    assert code == 1 and not out.exists()
+    assert "8 of 26 direction bins visited" in captured.err
     assert "rotate the sensor through more attitudes" in captured.err
 
 
