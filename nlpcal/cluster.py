@@ -89,8 +89,11 @@ def scheduler(spec=None, workers: int | None = None):
         from dask.multiprocessing import get_context
 
         pool = _WorkerPool(workers, mp_context=get_context(), initializer=blas_one_thread)
-        with pool, dask.config.set(scheduler=spec, pool=pool):
-            yield spec
+        try:
+            with dask.config.set(scheduler=spec, pool=pool):
+                yield spec
+        finally:  # interrupted: the tasks under way end, those waiting do not start
+            pool.shutdown(wait=True, cancel_futures=True)
         return
     distributed = _require("distributed", f"--scheduler {spec}")
     with contextlib.ExitStack() as stack:
@@ -102,7 +105,7 @@ def scheduler(spec=None, workers: int | None = None):
             # the cluster is left half made. A second acts at once (a start that hangs): a
             # SIGTERM always, a SIGINT (held in this thread) once a thread of the process that
             # does not hold it receives it, as BLAS's threads do, else as the start ends
-            with interruptions.deferred(second_acts=True), sigint_held():
+            with interruptions.deferred(second_acts=True), signals_held():
                 cluster = stack.enter_context(
                     distributed.LocalCluster(
                         n_workers=workers,
@@ -222,13 +225,14 @@ def refusal_unlogged(record: logging.LogRecord) -> bool:
 
 
 @contextlib.contextmanager
-def sigint_held():
-    """SIGINT held back (blocked) in this thread inside. The processes it starts, and the threads
-    it starts and theirs, inherit that: a worker process started so never sees a Ctrl-C (the
-    terminal sends it to every process of the group), which would have it print a traceback,
-    also as it starts, before any code of its own could ignore it; this process handles it and
-    ends its workers. A Ctrl-C meanwhile reaches this process through another thread, or on
-    leaving. Nothing where signals cannot be blocked (Windows).
+def signals_held(numbers=(signal.SIGINT,)):
+    """The signals `numbers` (SIGINT: a Ctrl-C) held back (blocked) in this thread inside. The
+    processes it starts, and the threads it starts and theirs, inherit that: a worker process
+    started so never sees what a terminal or a `kill` of the process group sends to every
+    process of the group, which would have it print a traceback (also as it starts, before any
+    code of its own could ignore it) or die as it writes a result; this process handles the
+    signal and ends its workers. A signal meanwhile reaches this process through another
+    thread, or on leaving. Nothing where signals cannot be blocked (Windows).
 
     multiprocessing's resource tracker is started first: it unblocks SIGINT in the thread that
     starts it (a cluster's, otherwise), after holding it for the tracker."""
@@ -238,7 +242,7 @@ def sigint_held():
     from multiprocessing import resource_tracker
 
     resource_tracker.ensure_running()
-    held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    held = signal.pthread_sigmask(signal.SIG_BLOCK, set(numbers))
     try:
         yield
     finally:
@@ -247,10 +251,12 @@ def sigint_held():
 
 class _WorkerPool(ProcessPoolExecutor):
     """The pool of "processes": it starts its worker processes as tasks are submitted, with
-    SIGINT held (`sigint_held`)."""
+    SIGINT and SIGTERM held (`signals_held`). A worker that a SIGTERM to the process group
+    ended as it wrote its result left the pool's reader waiting for the rest of it, and the
+    command hung; this process ends the pool instead."""
 
     def submit(self, fn, /, *args, **kwargs):
-        with sigint_held():
+        with signals_held((signal.SIGINT, signal.SIGTERM)):
             return super().submit(fn, *args, **kwargs)
 
 
