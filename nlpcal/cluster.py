@@ -251,12 +251,15 @@ def signals_held(numbers=(signal.SIGINT,)):
 
 class _WorkerPool(ProcessPoolExecutor):
     """The pool of "processes": it starts its worker processes as tasks are submitted, with
-    SIGINT and SIGTERM held (`signals_held`). A worker that a SIGTERM to the process group
-    ended as it wrote its result left the pool's reader waiting for the rest of it, and the
-    command hung; this process ends the pool instead."""
+    SIGINT held (`signals_held`), and SIGTERM too where this process handles it (the command
+    line does): a worker that a SIGTERM to the process group ended as it wrote its result left
+    the pool's reader waiting for the rest of it, and the command hung; this process ends the
+    pool instead, once the tasks under way end. Where SIGTERM ends this process at once (its
+    default), it ends the workers too."""
 
     def submit(self, fn, /, *args, **kwargs):
-        with signals_held((signal.SIGINT, signal.SIGTERM)):
+        handled = callable(signal.getsignal(signal.SIGTERM))
+        with signals_held((signal.SIGINT, signal.SIGTERM) if handled else (signal.SIGINT,)):
             return super().submit(fn, *args, **kwargs)
 
 

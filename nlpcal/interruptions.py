@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import signal
 import threading
+from collections.abc import Callable
 
 #: The signals whose Python handlers `deferred` holds back.
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -30,14 +31,17 @@ def deferred(second_acts: bool = False):
     """SIGINT and SIGTERM, where Python handles them, handled as their handlers say on leaving
     the block rather than inside it (the first one caught).
 
-    second_acts : a second signal inside the block is handled at once (a start that hangs can
-        still be interrupted); else every one waits for the end of the block.
+    second_acts : a second signal inside the block has the first one handled at once (a start
+        that hangs can still be interrupted); else every one waits for the end of the block.
 
     Nothing is held outside the main thread (Python runs handlers there only), nor for a signal
     whose handler Python does not run (SIG_DFL, SIG_IGN, or one not set from Python).
     """
-    handlers = {number: signal.getsignal(number) for number in SIGNALS}
-    handlers = {number: handler for number, handler in handlers.items() if callable(handler)}
+    handlers: dict[int, Callable] = {}
+    for held in SIGNALS:
+        handler = signal.getsignal(held)
+        if callable(handler):
+            handlers[held] = handler
     if threading.current_thread() is not threading.main_thread() or not handlers:
         yield
         return
@@ -48,11 +52,13 @@ def deferred(second_acts: bool = False):
             signal.signal(number, handler)
 
     def defer(number, frame) -> None:
-        if second_acts and caught:
+        if second_acts and caught:  # the first signal's handler, here and now
+            first = caught.pop()
             restore()
-            caught.clear()
-            signal.raise_signal(number)  # its handler runs here (raise_signal checks signals)
-        caught.append(number)
+            handlers[first](first, frame)
+            return
+        if not caught:
+            caught.append(number)
 
     for number in handlers:
         signal.signal(number, defer)
@@ -60,5 +66,5 @@ def deferred(second_acts: bool = False):
         yield
     finally:
         restore()
-        if caught:
-            signal.raise_signal(caught[0])
+        if caught:  # called, not raised again: this thread may hold the signal blocked
+            handlers[caught[0]](caught[0], None)

@@ -551,3 +551,22 @@ def test_ctrl_c_as_the_command_line_is_read_is_one_line(monkeypatch, capsys):
     monkeypatch.setattr(cli, "build_parser", interrupted)
     assert cli.main(["calibrate", "log.csv"]) == 130
     assert capsys.readouterr().err == "nlpcal: interrupted\n"
+
+
+def test_a_ctrl_c_that_casadi_hands_back_wrapped_is_an_interruption(monkeypatch, capsys):
+    """numpy reading a CasADi result runs CasADi's Python code from C++; a Ctrl-C there comes
+    back as a SystemError caused by the KeyboardInterrupt: "interrupted", not an internal
+    error."""
+    from nlpcal import cli
+
+    def wrapped():
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as interruption:
+            raise SystemError(
+                "<function DM.__array__> returned a result with an exception set"
+            ) from interruption
+
+    monkeypatch.setattr(cli, "_check_environment", wrapped)
+    assert cli.main(["simulate", "-n", "10"]) == 130
+    assert capsys.readouterr().err == "nlpcal simulate: interrupted\n"

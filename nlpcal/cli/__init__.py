@@ -172,12 +172,7 @@ def main(argv=None) -> int:
         print(f"nlpcal {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:
-        terminated = isinstance(exc, Terminated) or _TERMINATION.is_set()
-        print(
-            f"nlpcal {args.command}: {'terminated' if terminated else 'interrupted'}",
-            file=sys.stderr,
-        )
-        return 143 if terminated else 130
+        return _interrupted(args.command, exc)
     except (MemoryError, RecursionError) as exc:
         print(
             f"nlpcal {args.command}: error: the input is too large or too deeply nested to "
@@ -186,6 +181,9 @@ def main(argv=None) -> int:
         )
         return 2
     except Exception as exc:  # a defect of nlpcal: one line, the traceback on request
+        interruption = _interruption_within(exc)
+        if interruption is not None:
+            return _interrupted(args.command, interruption)
         if os.environ.get("NLPCAL_DEBUG"):
             raise
         print(
@@ -215,6 +213,26 @@ def _reader_gone() -> int:
             os.dup2(null, sys.stdout.fileno())
             os.close(null)
     return BROKEN_PIPE_STATUS
+
+
+def _interrupted(command: str, interruption: KeyboardInterrupt) -> int:
+    """Say that a Ctrl-C ("interrupted", 130) or SIGTERM ("terminated", 143) ended `command`."""
+    terminated = isinstance(interruption, Terminated) or _TERMINATION.is_set()
+    print(f"nlpcal {command}: {'terminated' if terminated else 'interrupted'}", file=sys.stderr)
+    return 143 if terminated else 130
+
+
+def _interruption_within(error: BaseException | None) -> KeyboardInterrupt | None:
+    """The interruption behind `error`, if one is: CasADi's Python code run from its C++
+    (numpy reading a result, `DM.__array__`) hands a Ctrl-C raised there back wrapped, as a
+    SystemError whose cause it is."""
+    seen: set = set()
+    while error is not None and id(error) not in seen:
+        if isinstance(error, KeyboardInterrupt):
+            return error
+        seen.add(id(error))
+        error = error.__cause__ or error.__context__
+    return None
 
 
 def _set_signal(number, handler) -> bool:

@@ -150,20 +150,18 @@ def _value_and_gradient(kind: str) -> ca.Function:
 class _Objective:
     """f, grad f and the Hessian over one block, for fixed data."""
 
-    # numpy arguments, not DM: CasADi's conversion of a DM runs Python code (its `shape`),
-    # where a Ctrl-C would be dropped (`nlpcal.interruptions`)
     def __init__(self, moments):
         self.kind = moments.reference
-        self.p = np.asarray(pack(moments, np.zeros(9), np.ones(9), 1.0), dtype=float)
+        self.p = ca.DM(pack(moments, np.zeros(9), np.ones(9), 1.0))
         self.fg = _value_and_gradient(self.kind)
         self.full = objective_function(self.kind)
 
     def __call__(self, theta):
-        f, g = self.fg(np.asarray(theta, dtype=float), self.p)
+        f, g = self.fg(ca.DM(theta), self.p)
         return float(f), np.asarray(g, dtype=float).ravel()
 
     def hessian(self, theta) -> np.ndarray:
-        return np.asarray(self.full(np.asarray(theta, dtype=float), self.p)[2], dtype=float)
+        return np.asarray(self.full(ca.DM(theta), self.p)[2], dtype=float)
 
 
 def _gauge_projector(free, kind: str) -> np.ndarray:
