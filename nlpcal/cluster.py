@@ -105,7 +105,7 @@ def scheduler(spec=None, workers: int | None = None):
             # the cluster is left half made. A second acts at once (a start that hangs): a
             # SIGTERM always, a SIGINT (held in this thread) once a thread of the process that
             # does not hold it receives it, as BLAS's threads do, else as the start ends
-            with interruptions.deferred(second_acts=True), signals_held():
+            with interruptions.deferred(second_acts=True), interruptions.held():
                 cluster = stack.enter_context(
                     distributed.LocalCluster(
                         n_workers=workers,
@@ -224,34 +224,9 @@ def refusal_unlogged(record: logging.LogRecord) -> bool:
     return not (message.startswith("Compute Failed") and "InputError(" in message)
 
 
-@contextlib.contextmanager
-def signals_held(numbers=(signal.SIGINT,)):
-    """The signals `numbers` (SIGINT: a Ctrl-C) held back (blocked) in this thread inside. The
-    processes it starts, and the threads it starts and theirs, inherit that: a worker process
-    started so never sees what a terminal or a `kill` of the process group sends to every
-    process of the group, which would have it print a traceback (also as it starts, before any
-    code of its own could ignore it) or die as it writes a result; this process handles the
-    signal and ends its workers. A signal meanwhile reaches this process through another
-    thread, or on leaving. Nothing where signals cannot be blocked (Windows).
-
-    multiprocessing's resource tracker is started first: it unblocks SIGINT in the thread that
-    starts it (a cluster's, otherwise), after holding it for the tracker."""
-    if not hasattr(signal, "pthread_sigmask"):
-        yield
-        return
-    from multiprocessing import resource_tracker
-
-    resource_tracker.ensure_running()
-    held = signal.pthread_sigmask(signal.SIG_BLOCK, set(numbers))
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, held)
-
-
 class _WorkerPool(ProcessPoolExecutor):
     """The pool of "processes": it starts its worker processes as tasks are submitted, with
-    SIGINT held (`signals_held`), and SIGTERM too where this process handles it (the command
+    SIGINT held (`interruptions.held`), and SIGTERM too where this process handles it (the command
     line does): a worker that a SIGTERM to the process group ended as it wrote its result left
     the pool's reader waiting for the rest of it, and the command hung; this process ends the
     pool instead, once the tasks under way end. Where SIGTERM ends this process at once (its
@@ -259,7 +234,7 @@ class _WorkerPool(ProcessPoolExecutor):
 
     def submit(self, fn, /, *args, **kwargs):
         handled = callable(signal.getsignal(signal.SIGTERM))
-        with signals_held((signal.SIGINT, signal.SIGTERM) if handled else (signal.SIGINT,)):
+        with interruptions.held((signal.SIGINT, signal.SIGTERM) if handled else (signal.SIGINT,)):
             return super().submit(fn, *args, **kwargs)
 
 

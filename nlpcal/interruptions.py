@@ -12,7 +12,9 @@ SIGTERM. Two kinds of place in nlpcal cannot take that exception:
 - starting a dask.distributed LocalCluster (`nlpcal.cluster`): interrupted inside its
   constructor, it is left half made, and its closing at exit fails with a traceback.
 
-`deferred` holds the signals for such a block and acts on them as it ends.
+`deferred` holds the signals for such a block and acts on them as it ends. `held` blocks them
+in a thread, so that the worker processes it starts never see them (`nlpcal.cluster`): this
+process handles them and ends its workers.
 """
 
 from __future__ import annotations
@@ -68,3 +70,28 @@ def deferred(second_acts: bool = False):
         restore()
         if caught:  # called, not raised again: this thread may hold the signal blocked
             handlers[caught[0]](caught[0], None)
+
+
+@contextlib.contextmanager
+def held(numbers=(signal.SIGINT,)):
+    """The signals `numbers` (SIGINT: a Ctrl-C) held back (blocked) in this thread inside. The
+    processes it starts, and the threads it starts and theirs, inherit that: a worker process
+    started so never sees what a terminal or a `kill` of the process group sends to every
+    process of the group, which would have it print a traceback (also as it starts, before any
+    code of its own could ignore it) or die as it writes a result; this process handles the
+    signal and ends its workers. A signal meanwhile reaches this process through another
+    thread, or on leaving. Nothing where signals cannot be blocked (Windows).
+
+    multiprocessing's resource tracker is started first: it unblocks SIGINT in the thread that
+    starts it (a cluster's, otherwise), after holding it for the tracker."""
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    from multiprocessing import resource_tracker
+
+    resource_tracker.ensure_running()
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, set(numbers))
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, before)
